@@ -1,0 +1,160 @@
+"""The arm backend protocol, and the safety that every backend shares.
+
+A backend is a context manager. Inside it, a control loop calls, once per control period::
+
+    q = backend.read_positions()          # measured joint positions, checked against limits
+    backend.command_torques(tau)          # saturated at the torque limits, then sent
+    backend.wait_next_cycle()             # the simulator integrates, the CAN arm waits for its deadline
+
+Safety lives here, once, for every backend: torque saturation, joint position limits, a joint velocity
+fault limit (on the libbarrett low-pass velocity estimate), and zero torque on shutdown (safe to call twice).
+A breach raises :class:`~wamctl.errors.SafetyLimitError`; the run ends as failed with that reason and the
+backend's ``shutdown()`` sends zero torque.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+
+import numpy as np
+from numba import njit
+
+from wamctl.errors import SafetyLimitError
+from wamctl.model import params as P
+
+
+@dataclass
+class SafetyLimits:
+    """Limits enforced by every backend. Arrays (7,); the velocity filter is libbarrett's (w = 180 rad/s)."""
+
+    tau_max_Nm: np.ndarray = field(default_factory=lambda: P.TAU_MAX_NM.copy())
+    q_min_rad: np.ndarray = field(default_factory=lambda: P.Q_MIN_RAD.copy())
+    q_max_rad: np.ndarray = field(default_factory=lambda: P.Q_MAX_RAD.copy())
+    qd_max_rad_s: np.ndarray = field(default_factory=lambda: P.QD_MAX_RAD_S.copy())
+    velocity_filter_rad_s: float = 180.0
+
+
+@njit(cache=True)
+def _saturate(tau, tau_max, out):
+    """Clip to +-tau_max into ``out``; return the 1-based joint with a non-finite torque, or 0."""
+    for j in range(tau.shape[0]):
+        t = tau[j]
+        if not np.isfinite(t):
+            return j + 1
+        out[j] = min(max(t, -tau_max[j]), tau_max[j])
+    return 0
+
+
+@njit(cache=True)
+def _check_state(q, q_prev, v_filt, q_min, q_max, qd_max, dt, w):
+    """Update the filtered velocity; return +j for a position breach of joint j, -j for velocity, 0 if fine."""
+    for j in range(q.shape[0]):
+        if not (q_min[j] <= q[j] <= q_max[j]):
+            return j + 1
+        v_filt[j] = (v_filt[j] + w * dt * (q[j] - q_prev[j]) / dt) / (1.0 + w * dt)
+        q_prev[j] = q[j]
+        if abs(v_filt[j]) > qd_max[j]:
+            return -(j + 1)
+    return 0
+
+
+class ArmBackend(ABC):
+    """Base of every backend: lifecycle, safety, and the three calls of the control loop."""
+
+    name = "abstract"
+    control_period_s = 1.0 / P.CONTROL_RATE_HZ
+
+    def __init__(self, limits: SafetyLimits | None = None):
+        self.limits = limits or SafetyLimits()
+        self._opened = False
+        self._closed = False
+        self._tau_applied = np.zeros(P.N_JOINTS)
+        self._q_prev: np.ndarray | None = None
+        self._v_filt = np.zeros(P.N_JOINTS)
+
+    # ---------------------------------------------------------------- lifecycle
+    def __enter__(self) -> "ArmBackend":
+        self.open()
+        return self
+
+    def __exit__(self, *exc) -> None:
+        self.shutdown()
+
+    def open(self) -> None:
+        if self._opened:
+            return
+        self._open()
+        self._opened = True
+
+    def shutdown(self) -> None:
+        """Zero torque, then release the device. Safe to call twice, and after a failed open."""
+        if self._closed:
+            return
+        self._closed = True
+        try:
+            if self._opened:
+                self._tau_applied[:] = 0.0
+                self._send_torques(self._tau_applied)
+        finally:
+            self._close()
+
+    @property
+    def is_open(self) -> bool:
+        return self._opened and not self._closed
+
+    # ---------------------------------------------------------------- loop
+    def read_positions(self) -> np.ndarray:
+        """Measured joint positions (7,), rad; raises SafetyLimitError on a position or velocity breach."""
+        q = self._read_positions()
+        if self._q_prev is None:
+            self._q_prev = q.copy()
+        code = _check_state(q, self._q_prev, self._v_filt, self.limits.q_min_rad, self.limits.q_max_rad,
+                            self.limits.qd_max_rad_s, self.control_period_s, self.limits.velocity_filter_rad_s)
+        if code > 0:
+            j = code - 1
+            raise SafetyLimitError(f"joint {code} position {q[j]:.4f} rad outside its limits "
+                                   f"[{self.limits.q_min_rad[j]}, {self.limits.q_max_rad[j]}] rad")
+        if code < 0:
+            j = -code - 1
+            raise SafetyLimitError(f"joint {-code} velocity {self._v_filt[j]:.3f} rad/s above the fault limit "
+                                   f"{self.limits.qd_max_rad_s[j]} rad/s")
+        return q
+
+    def command_torques(self, tau_Nm: np.ndarray) -> np.ndarray:
+        """Saturate at the torque limits and send; returns the applied torque (7,), N m."""
+        bad = _saturate(np.asarray(tau_Nm, float), self.limits.tau_max_Nm, self._tau_applied)
+        if bad:
+            self._tau_applied[:] = 0.0
+            self._send_torques(self._tau_applied)
+            raise SafetyLimitError(f"joint {bad}: non-finite torque command")
+        self._send_torques(self._tau_applied)
+        return self._tau_applied
+
+    def wait_next_cycle(self) -> None:
+        self._wait_next_cycle()
+
+    @property
+    @abstractmethod
+    def time_s(self) -> float:
+        """Time since open, s."""
+
+    def describe(self) -> dict:
+        """What the manifest records about this backend."""
+        return {"name": self.name}
+
+    # ---------------------------------------------------------------- per backend
+    @abstractmethod
+    def _open(self) -> None: ...
+
+    @abstractmethod
+    def _close(self) -> None: ...
+
+    @abstractmethod
+    def _read_positions(self) -> np.ndarray: ...
+
+    @abstractmethod
+    def _send_torques(self, tau_Nm: np.ndarray) -> None: ...
+
+    @abstractmethod
+    def _wait_next_cycle(self) -> None: ...

@@ -1,0 +1,86 @@
+"""The closed-loop engine: runs a sampled reference through a controller on a backend, recording every tick.
+
+The engine knows nothing about experiment kinds: an experiment builds a :class:`~wamctl.control.trajectory.
+Reference` and a controller, and the engine executes them (bluesky's plan / engine / consumer split).
+
+Recorded columns (one row per control tick, wide and unit-named): ``t_s``, ``q_ref_{j}_rad``, ``q_{j}_rad``
+(measured), ``tau_{j}_Nm`` (applied, after saturation), and on the simulator also the truth
+``q_true_{j}_rad`` and ``qd_true_{j}_rad_s``; joints j = 1..7.
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import nullcontext
+
+import numpy as np
+
+from wamctl.backends.base import ArmBackend
+from wamctl.control.controllers import JointController
+from wamctl.control.trajectory import Reference
+from wamctl.model import params as P
+from wamctl.store import TableWriter
+
+log = logging.getLogger(__name__)
+J = range(1, P.N_JOINTS + 1)
+
+
+def data_columns(with_truth: bool) -> list[str]:
+    cols = ["t_s"] + [f"q_ref_{j}_rad" for j in J] + [f"q_{j}_rad" for j in J] + [f"tau_{j}_Nm" for j in J]
+    if with_truth:
+        cols += [f"q_true_{j}_rad" for j in J] + [f"qd_true_{j}_rad_s" for j in J]
+    return cols
+
+
+class LoopRecorder:
+    """Rows of a loop in memory, mirrored to a chunked table on disk every ``chunk_rows`` ticks."""
+
+    def __init__(self, n_rows: int, with_truth: bool, writer: TableWriter | None = None,
+                 t_offset_s: float = 0.0):
+        self.columns = data_columns(with_truth)
+        self.rows = np.full((n_rows, len(self.columns)), np.nan)
+        self.writer = writer
+        self.n = 0
+        self._flushed = 0
+        self.t_offset_s = t_offset_s
+
+    def flush(self) -> None:
+        """Write every row recorded so far that is not yet on disk."""
+        if self.writer is None:
+            return
+        for row in self.rows[self._flushed: self.n]:
+            self.writer.append(row)
+        self.writer.flush()
+        self._flushed = self.n
+
+    def result(self) -> np.ndarray:
+        return self.rows[: self.n]
+
+
+def run_loop(backend: ArmBackend, controller: JointController, reference: Reference,
+             recorder: LoopRecorder, progress=None, chunk_ticks: int = 2500) -> None:
+    """Execute ``reference`` tick by tick. Raises whatever the backend raises (safety faults, Ctrl-C);
+    the caller flushes ``recorder`` and records the status."""
+    rows = recorder.rows
+    truth = getattr(backend, "truth", None) if rows.shape[1] > 22 else None
+    q_ref = reference.q_rad
+    n = len(reference)
+    update_every = max(1, n // 200)
+    for k in range(n):
+        q = backend.read_positions()
+        tau = backend.command_torques(controller.update(q_ref[k], q))
+        row = rows[recorder.n]
+        row[0] = recorder.t_offset_s + reference.t_s[k]
+        row[1:8] = q_ref[k]
+        row[8:15] = q
+        row[15:22] = tau
+        if truth is not None:
+            row[22:29], row[29:36] = truth()
+        recorder.n += 1
+        backend.wait_next_cycle()
+        if recorder.writer is not None and recorder.n - recorder._flushed >= chunk_ticks:
+            recorder.flush()
+        if progress is not None and k % update_every == 0:
+            progress(k, n)
+    if progress is not None:
+        progress(n, n)

@@ -1,0 +1,224 @@
+"""Joint friction models and the friction model file (``friction_model.yaml``).
+
+Sign convention
+---------------
+``friction_torque(qd)`` is the torque friction *absorbs*: positive for positive velocity, so the motor must
+supply it to keep moving (the friction-velocity map of thesis ch. 4). All level parameters are magnitudes.
+
+Models
+------
+* classic per direction (thesis eq. 4.1, Table 4.1 layout):
+  ``F = fc_pos + b_pos qd`` for ``qd > 0``, ``F = -fc_neg + b_neg qd`` for ``qd < 0``.
+* Stribeck (thesis eq. 2.8), per direction: the Coulomb level is replaced by
+  ``fc + (fs - fc) exp(-|qd / vs|^delta)``.
+
+Simulation of stiction
+----------------------
+The simulator does not integrate ``sign(qd)`` explicitly (that chatters at zero velocity). It treats
+friction as an implicit, velocity-level constraint per joint (a time-stepping scheme in the spirit of
+Karnopp's stick band, with a band width that shrinks with the step): over one physics step of length
+``dt`` and effective inertia ``m = 1 / (B^-1)_ii``, if the friction impulse available, ``dt * F_break``,
+can stop the joint, it sticks (``qd = 0`` exactly); otherwise it slides and the viscous part is integrated
+implicitly, ``qd+ = (qd_free - dt F_level / m) / (1 + dt b / m)``, which stays stable for any viscous
+coefficient. See :func:`implicit_friction_step`.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from pathlib import Path
+
+import numpy as np
+import yaml
+from numba import njit
+
+from wamctl.errors import DataFormatError
+from wamctl.model import params as P
+
+FRICTION_FILE_FORMAT = "wamctl-friction/1"
+
+
+@dataclass
+class FrictionModel:
+    """Per-joint friction parameters, arrays of shape (7,). Levels are magnitudes (N m, N m s/rad).
+
+    ``fs_*`` (breakaway levels) and ``vs_rad_s`` are NaN/zero where the joint has no Stribeck term.
+    """
+
+    fc_pos_Nm: np.ndarray
+    fc_neg_Nm: np.ndarray
+    viscous_pos_Nm_s_rad: np.ndarray
+    viscous_neg_Nm_s_rad: np.ndarray
+    fs_pos_Nm: np.ndarray = field(default_factory=lambda: np.full(P.N_JOINTS, np.nan))
+    fs_neg_Nm: np.ndarray = field(default_factory=lambda: np.full(P.N_JOINTS, np.nan))
+    vs_rad_s: np.ndarray = field(default_factory=lambda: np.full(P.N_JOINTS, np.nan))
+    stribeck_delta: np.ndarray = field(default_factory=lambda: np.full(P.N_JOINTS, 2.0))
+
+    def __post_init__(self):
+        for name in self.__dataclass_fields__:
+            arr = np.asarray(getattr(self, name), dtype=float).reshape(-1).copy()
+            if arr.shape != (P.N_JOINTS,):
+                raise ValueError(f"{name} must have {P.N_JOINTS} values, got {arr.shape[0]}")
+            setattr(self, name, arr)
+
+    # --- constructors -------------------------------------------------------------------------
+    @classmethod
+    def zero(cls) -> "FrictionModel":
+        z = np.zeros(P.N_JOINTS)
+        return cls(z, z, z, z)
+
+    @classmethod
+    def table_4_1(cls) -> "FrictionModel":
+        """Thesis Table 4.1, with the absolute value of the viscous figures (some are printed negative)."""
+        return cls(P.TABLE_4_1_FC_POS_NM, P.TABLE_4_1_FC_NEG_NM,
+                   np.abs(P.TABLE_4_1_VISCOUS_POS), np.abs(P.TABLE_4_1_VISCOUS_NEG))
+
+    # --- derived ------------------------------------------------------------------------------
+    @property
+    def has_stribeck(self) -> np.ndarray:
+        """(7,) bool: joints with a Stribeck term."""
+        return np.isfinite(self.fs_pos_Nm) & np.isfinite(self.vs_rad_s) & (np.nan_to_num(self.vs_rad_s) > 0)
+
+    def scaled(self, factor: np.ndarray | float) -> "FrictionModel":
+        """Every level and coefficient multiplied by ``factor`` (scalar or (7,)), e.g. friction drift."""
+        f = np.broadcast_to(np.asarray(factor, float), (P.N_JOINTS,))
+        return replace(self, fc_pos_Nm=self.fc_pos_Nm * f, fc_neg_Nm=self.fc_neg_Nm * f,
+                       viscous_pos_Nm_s_rad=self.viscous_pos_Nm_s_rad * f,
+                       viscous_neg_Nm_s_rad=self.viscous_neg_Nm_s_rad * f,
+                       fs_pos_Nm=self.fs_pos_Nm * f, fs_neg_Nm=self.fs_neg_Nm * f)
+
+    def with_stribeck(self, fs_pos_Nm, fs_neg_Nm, vs_rad_s, delta=2.0) -> "FrictionModel":
+        return replace(self, fs_pos_Nm=np.asarray(fs_pos_Nm, float), fs_neg_Nm=np.asarray(fs_neg_Nm, float),
+                       vs_rad_s=np.asarray(vs_rad_s, float),
+                       stribeck_delta=np.broadcast_to(np.asarray(delta, float), (P.N_JOINTS,)).copy())
+
+    def as_array(self) -> np.ndarray:
+        """(8, 7) packed parameters for the numba kernels (rows in dataclass field order)."""
+        return np.stack([self.fc_pos_Nm, self.fc_neg_Nm, self.viscous_pos_Nm_s_rad, self.viscous_neg_Nm_s_rad,
+                         self.fs_pos_Nm, self.fs_neg_Nm, self.vs_rad_s, self.stribeck_delta])
+
+    def friction_torque(self, qd: np.ndarray) -> np.ndarray:
+        """Sliding friction torque F(qd) (absorbed, sign of qd); 0 at qd == 0. Shape of ``qd`` ((7,) or (n, 7))."""
+        qd = np.asarray(qd, float)
+        flat = np.ascontiguousarray(qd.reshape(-1, P.N_JOINTS))
+        out = np.empty_like(flat)
+        _friction_torque_kernel(flat, self.as_array(), out)
+        return out.reshape(qd.shape)
+
+    # --- file ---------------------------------------------------------------------------------
+    def to_dict(self) -> dict:
+        joints = {}
+        for j in range(P.N_JOINTS):
+            d = {"fc_pos_Nm": float(self.fc_pos_Nm[j]), "fc_neg_Nm": float(self.fc_neg_Nm[j]),
+                 "viscous_pos_Nm_s_rad": float(self.viscous_pos_Nm_s_rad[j]),
+                 "viscous_neg_Nm_s_rad": float(self.viscous_neg_Nm_s_rad[j])}
+            if self.has_stribeck[j]:
+                d.update(fs_pos_Nm=float(self.fs_pos_Nm[j]), fs_neg_Nm=float(self.fs_neg_Nm[j]),
+                         vs_rad_s=float(self.vs_rad_s[j]), stribeck_delta=float(self.stribeck_delta[j]))
+            joints[j + 1] = d
+        return {"format": FRICTION_FILE_FORMAT, "joints": joints}
+
+    @classmethod
+    def from_dict(cls, data: dict, source: str = "friction model") -> "FrictionModel":
+        """Read the ``joints`` mapping (1-based joint numbers); joints not listed have zero friction."""
+        if not isinstance(data, dict) or not isinstance(data.get("joints"), dict):
+            raise DataFormatError(f"{source}: expected a mapping with a 'joints' key")
+        out = {k: np.zeros(P.N_JOINTS) for k in ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad",
+                                                  "viscous_neg_Nm_s_rad")}
+        out.update({k: np.full(P.N_JOINTS, np.nan) for k in ("fs_pos_Nm", "fs_neg_Nm", "vs_rad_s")})
+        out["stribeck_delta"] = np.full(P.N_JOINTS, 2.0)
+        for key, vals in data["joints"].items():
+            try:
+                j = int(key)
+            except (TypeError, ValueError):
+                raise DataFormatError(f"{source}: joints.{key}: joint numbers are 1..7") from None
+            if not 1 <= j <= P.N_JOINTS:
+                raise DataFormatError(f"{source}: joints.{key}: joint numbers are 1..7")
+            if not isinstance(vals, dict):
+                raise DataFormatError(f"{source}: joints.{key}: expected a mapping of parameters")
+            for name, v in vals.items():
+                if name not in out:
+                    continue  # unknown keys (e.g. uncertainties) are kept in the file and ignored here
+                try:
+                    out[name][j - 1] = float(v)
+                except (TypeError, ValueError):
+                    raise DataFormatError(f"{source}: joints.{key}.{name}: not a number: {v!r}") from None
+        for name in ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad", "viscous_neg_Nm_s_rad"):
+            if (out[name] < 0).any():
+                j = int(np.argmax(out[name] < 0)) + 1
+                raise DataFormatError(f"{source}: joints.{j}.{name}: must be a magnitude (>= 0)")
+        return cls(**out)
+
+    def save(self, path: Path, extra: dict | None = None) -> None:
+        d = self.to_dict()
+        if extra:
+            d.update(extra)
+        Path(path).write_text(yaml.safe_dump(d, sort_keys=False))
+
+    @classmethod
+    def load(cls, path: Path) -> "FrictionModel":
+        path = Path(path)
+        if not path.is_file():
+            raise DataFormatError(f"{path}: friction model file not found")
+        try:
+            data = yaml.safe_load(path.read_text())
+        except yaml.YAMLError as exc:
+            raise DataFormatError(f"{path}: YAML error: {exc}") from None
+        # a model file written by `diagnose` nests the friction under `friction`
+        if isinstance(data, dict) and "friction" in data and "joints" not in data:
+            data = data["friction"]
+        return cls.from_dict(data, str(path))
+
+
+@njit(cache=True)
+def _level(v, j, positive, prm):
+    """Coulomb (+ Stribeck, eq. 2.8) level magnitude of joint j at speed v; prm is FrictionModel.as_array()."""
+    fc = prm[0, j] if positive else prm[1, j]
+    vs = prm[6, j]
+    if vs > 0.0:  # NaN compares False: no Stribeck term
+        fs = prm[4, j] if positive else prm[5, j]
+        if fs == fs:
+            return fc + (fs - fc) * np.exp(-np.abs(v / vs) ** prm[7, j])
+    return fc
+
+
+@njit(cache=True)
+def _friction_torque_kernel(qd, prm, out):
+    for i in range(qd.shape[0]):
+        for j in range(qd.shape[1]):
+            v = qd[i, j]
+            if v > 0.0:
+                out[i, j] = _level(v, j, True, prm) + prm[2, j] * v
+            elif v < 0.0:
+                out[i, j] = -_level(v, j, False, prm) + prm[3, j] * v
+            else:
+                out[i, j] = 0.0
+
+
+@njit(cache=True)
+def implicit_friction_step(qd_free, qd_now, inv_mass_diag, dt_s, prm, scale, out):
+    """Friction torque (7,) that the implicit stick/slip rule applies over one step, written to ``out``.
+
+    Parameters
+    ----------
+    qd_free : (7,) velocity after the step without friction, rad/s.
+    qd_now : (7,) velocity at the start of the step (sets the Stribeck level), rad/s.
+    inv_mass_diag : (7,) diagonal of B(q)^-1, 1/(kg m^2).
+    dt_s : step, s.
+    prm : (8, 7) ``FrictionModel.as_array()`` of the plant.
+    scale : (7,) multiplier on every friction parameter (friction drift), 1 for none.
+    out : (7,) friction torque absorbed (sign convention of ``friction_torque``). Subtracting
+        ``dt * inv_mass_diag * out`` from ``qd_free`` is the per-joint implicit solution: zero velocity
+        when the joint sticks, implicit viscous damping when it slides.
+    """
+    for j in range(qd_free.shape[0]):
+        vf = qd_free[j]
+        pos = vf > 0.0
+        level = scale[j] * _level(qd_now[j], j, pos, prm)
+        b = scale[j] * (prm[2, j] if pos else prm[3, j])
+        k = dt_s * inv_mass_diag[j]
+        if abs(vf) <= k * level:
+            vn = 0.0
+        else:
+            vn = (vf - np.sign(vf) * k * level) / (1.0 + k * b)
+        out[j] = (vf - vn) / k

@@ -1,0 +1,167 @@
+"""The simulated arm's truth: rigid body + friction + effects + sensors, built from a :class:`PlantSpec`.
+
+Effects (each switchable in ``plant.effects``; see :mod:`wamctl.specs` for the parameters):
+
+* ``stribeck``        breakaway friction ``breakaway_ratio * Fc`` decaying with speed (eq. 2.8), in the
+                      plant's friction model.
+* ``position_ripple`` a torque ``A sin(2 pi q / period + phase)`` added at every physics step.
+* ``payload``         a point mass added to link 7 of the plant's rigid body (the controller does not know it
+                      unless ``controller.declared_payload`` says so).
+* ``delay``           measured positions are the true ones ``delay_s`` earlier (linear interpolation over the
+                      physics steps).
+* ``friction_drift``  every friction parameter of the chosen joints scaled by
+                      ``1 + fraction (1 - exp(-t / time_constant))``.
+* ``backlash``        a play operator of width ``w`` between link and motor encoder: the encoder position
+                      follows the link only once the link has crossed the dead band, so at each direction
+                      reversal the measurement stands still over ``w`` of link travel.
+
+Sensors: motor encoders with ``counts`` per revolution read through the transmission (motor angle =
+J2MP @ q, rounded to counts, mapped back with J2MP^-1), optional Gaussian position noise, and optional
+actuation (torque) noise. All randomness comes from one seeded generator.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+from numba import njit
+
+from wamctl.errors import SpecError
+from wamctl.model import params as P
+from wamctl.model.dynamics import Payload
+from wamctl.model.friction import FrictionModel
+from wamctl.specs import FrictionInline, PlantSpec
+
+
+def resolve_friction(value, base_dir: Path | None = None) -> FrictionModel:
+    """A friction model from a spec value: ``table_4_1``, ``none``, a file path, or an inline mapping."""
+    if value is None or value == "none":
+        return FrictionModel.zero()
+    if value == "table_4_1":
+        return FrictionModel.table_4_1()
+    if isinstance(value, FrictionInline):
+        return FrictionModel.from_dict(value.model_dump(), "plant.friction")
+    path = Path(value)
+    if not path.is_absolute() and base_dir is not None and not path.exists():
+        path = base_dir / path
+    if not path.is_file():
+        raise SpecError(f"friction model file not found: {value}")
+    return FrictionModel.load(path)
+
+
+def joint_mask(joints) -> np.ndarray:
+    m = np.zeros(P.N_JOINTS, bool)
+    m[[j - 1 for j in joints]] = True
+    return m
+
+
+class Plant:
+    """Runtime description of the simulated arm (no state)."""
+
+    def __init__(self, spec: PlantSpec, base_dir: Path | None = None):
+        self.spec = spec
+        fx = spec.effects
+        friction = resolve_friction(spec.friction, base_dir)
+        if fx.stribeck is not None:
+            m = joint_mask(fx.stribeck.joints)
+            r = fx.stribeck.breakaway_ratio
+            friction = friction.with_stribeck(
+                np.where(m, friction.fc_pos_Nm * r, np.nan), np.where(m, friction.fc_neg_Nm * r, np.nan),
+                np.where(m, fx.stribeck.vs_rad_s, np.nan), fx.stribeck.delta)
+        self.friction = friction
+        self.payload = Payload(fx.payload.mass_kg, tuple(fx.payload.com_m)) if fx.payload else None
+        self.ripple_amplitude_Nm = np.zeros(P.N_JOINTS)
+        self.ripple_wavenumber_rad = np.zeros(P.N_JOINTS)  # 2 pi / period
+        self.ripple_phase_rad = 0.0
+        if fx.position_ripple is not None:
+            m = joint_mask(fx.position_ripple.joints)
+            self.ripple_amplitude_Nm[m] = fx.position_ripple.amplitude_Nm
+            self.ripple_wavenumber_rad[m] = 2 * np.pi / fx.position_ripple.period_rad
+            self.ripple_phase_rad = fx.position_ripple.phase_rad
+        self.has_ripple = bool(self.ripple_amplitude_Nm.any())
+        self.drift_fraction = np.zeros(P.N_JOINTS)
+        self.drift_time_constant_s = 1.0
+        if fx.friction_drift is not None:
+            self.drift_fraction[joint_mask(fx.friction_drift.joints)] = fx.friction_drift.fraction
+            self.drift_time_constant_s = fx.friction_drift.time_constant_s
+        self.has_drift = bool(self.drift_fraction.any())
+        self.delay_s = fx.delay.delay_s if fx.delay else 0.0
+        self.backlash_width_rad = np.zeros(P.N_JOINTS)
+        if fx.backlash is not None:
+            self.backlash_width_rad[joint_mask(fx.backlash.joints)] = fx.backlash.width_rad
+        self.sensors = spec.sensors
+
+    def ripple_torque_Nm(self, q: np.ndarray) -> np.ndarray:
+        """Position ripple torque applied to the joints (7,) or (n, 7)."""
+        return self.ripple_amplitude_Nm * np.sin(self.ripple_wavenumber_rad * q + self.ripple_phase_rad)
+
+    def friction_scale(self, t_s: float) -> np.ndarray:
+        """(7,) friction multiplier at time t (1 without drift)."""
+        return 1.0 + self.drift_fraction * (1.0 - np.exp(-t_s / self.drift_time_constant_s))
+
+
+@njit(cache=True)
+def _quantise(q, j2mp, j2mp_inv, count_per_rad):
+    """Joint angles as the motor encoders report them: round(J2MP q) counts, mapped back through J2MP^-1."""
+    n = q.shape[0]
+    counts = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += j2mp[i, j] * q[j]
+        counts[i] = np.round(acc * count_per_rad) / count_per_rad
+    out = np.empty(n)
+    for i in range(n):
+        acc = 0.0
+        for j in range(n):
+            acc += j2mp_inv[i, j] * counts[j]
+        out[i] = acc
+    return out
+
+
+class SensorChain:
+    """Turns true link positions into what the encoders report: delay -> backlash -> quantisation -> noise."""
+
+    def __init__(self, plant: Plant, rng: np.random.Generator, q0: np.ndarray, dt_physics_s: float):
+        self.plant = plant
+        self.rng = rng
+        cpr = plant.sensors.encoder_counts_per_rev
+        self._count_per_rad = cpr / (2 * np.pi) if cpr > 0 else 0.0
+        self._j2mp_inv = np.linalg.inv(P.J2MP)
+        self._play = np.asarray(q0, float).copy()
+        self._half_band = plant.backlash_width_rad / 2
+        self._has_backlash = bool(self._half_band.any())
+        n_hist = int(np.ceil(plant.delay_s / dt_physics_s)) + 2 if plant.delay_s > 0 else 0
+        self._dt = dt_physics_s
+        self._hist: deque | None = deque([np.asarray(q0, float).copy()] * n_hist, maxlen=n_hist) if n_hist else None
+
+    def record_physics_step(self, q_true: np.ndarray) -> None:
+        """Called after each physics step (feeds the delay line)."""
+        if self._hist is not None:
+            self._hist.append(q_true.copy())
+
+    def measure(self, q_true: np.ndarray) -> np.ndarray:
+        q = q_true
+        if self._hist is not None:
+            lag = self.plant.delay_s / self._dt          # physics steps back from the newest sample
+            k = int(np.floor(lag))
+            frac = lag - k
+            newer = self._hist[-1 - k]
+            older = self._hist[-2 - k]
+            q = (1 - frac) * newer + frac * older
+        if self._has_backlash:
+            self._play = np.clip(self._play, q - self._half_band, q + self._half_band)
+            q = np.where(self._half_band > 0, self._play, q)
+        if self._count_per_rad:
+            q = _quantise(q, P.J2MP, self._j2mp_inv, self._count_per_rad)
+        if self.plant.sensors.position_noise_rad > 0:
+            q = q + self.rng.normal(0.0, self.plant.sensors.position_noise_rad, P.N_JOINTS)
+        return q
+
+    def quantisation_step_rad(self) -> np.ndarray:
+        """(7,) joint-angle size of one encoder count (the largest over the coupled joints)."""
+        if not self._count_per_rad:
+            return np.zeros(P.N_JOINTS)
+        return np.abs(self._j2mp_inv).max(axis=1) / self._count_per_rad

@@ -1,0 +1,229 @@
+"""Run directories: one self-describing folder per run.
+
+Layout of ``<out>/<UTC timestamp>-<name>/``::
+
+    spec.yaml          the resolved spec (every default filled in)
+    manifest.json      seed, versions, git revision, backend, host, start/end, status and its reason
+    data/part-*.parquet  sampled data, written in chunks while the run goes (each chunk a complete file)
+    data.parquet, data.csv  the same rows consolidated when the run ends (completed, failed or interrupted)
+    events.csv         t_s, kind, joint, detail: segment starts, faults, notes
+    report.md/.html, *.png   the report
+
+Status is ``running`` until the run ends, then ``completed``, ``failed`` (with the reason) or
+``interrupted`` (Ctrl-C or a termination signal). A run killed outright stays ``running`` with its chunks
+readable; :func:`read_table` reads chunks when the consolidated file is missing.
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import logging
+import os
+import platform
+import socket
+import subprocess
+from importlib import metadata
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from wamctl.errors import DataFormatError
+
+log = logging.getLogger(__name__)
+
+MANIFEST_FORMAT = "wamctl-run/1"
+_DEPENDENCIES = ("numpy", "scipy", "pandas", "pyarrow", "pin", "numba", "python-can", "pyserial",
+                 "statsmodels", "pydantic", "typer", "matplotlib")
+
+
+def utc_now() -> str:
+    return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
+
+
+def package_versions() -> dict[str, str | None]:
+    out = {}
+    for name in ("wamctl",) + _DEPENDENCIES:
+        try:
+            out[name] = metadata.version(name)
+        except metadata.PackageNotFoundError:
+            out[name] = None
+    return out
+
+
+def git_revision() -> str | None:
+    """The source checkout's revision (with ``+dirty`` when it has changes), or None."""
+    here = Path(__file__).resolve().parent
+    try:
+        rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
+        if rev.returncode != 0:
+            return None
+        dirty = subprocess.run(["git", "status", "--porcelain", "--untracked-files=no"], cwd=here,
+                               capture_output=True, text=True, timeout=5)
+        return rev.stdout.strip() + ("+dirty" if dirty.stdout.strip() else "")
+    except (OSError, subprocess.SubprocessError):
+        return None
+
+
+class TableWriter:
+    """Appends rows to a chunked Parquet table; ``close()`` consolidates Parquet + CSV.
+
+    Rows are buffered in a preallocated array and flushed every ``chunk_rows`` rows, so a crash loses at
+    most one chunk and a termination signal (handled by the runner) loses nothing.
+    """
+
+    def __init__(self, run_dir: Path, name: str, columns: list[str], chunk_rows: int = 2500):
+        self.run_dir = Path(run_dir)
+        self.name = name
+        self.columns = list(columns)
+        self.chunk_rows = int(chunk_rows)
+        self._dir = self.run_dir / name
+        self._dir.mkdir(parents=True, exist_ok=True)
+        self._buf = np.empty((self.chunk_rows, len(self.columns)))
+        self._n = 0
+        self._parts = 0
+        self.rows_written = 0
+
+    def append(self, row: np.ndarray) -> None:
+        """One row (len(columns),)."""
+        self._buf[self._n] = row
+        self._n += 1
+        if self._n == self.chunk_rows:
+            self.flush()
+
+    def flush(self) -> None:
+        if self._n == 0:
+            return
+        df = pd.DataFrame(self._buf[: self._n].copy(), columns=self.columns)
+        tmp = self._dir / f".part-{self._parts:05d}.parquet.tmp"
+        df.to_parquet(tmp, index=False)
+        os.replace(tmp, self._dir / f"part-{self._parts:05d}.parquet")  # a chunk appears complete or not at all
+        self._parts += 1
+        self.rows_written += self._n
+        self._n = 0
+
+    def close(self) -> pd.DataFrame:
+        self.flush()
+        df = read_chunks(self._dir, self.columns)
+        df.to_parquet(self.run_dir / f"{self.name}.parquet", index=False)
+        df.to_csv(self.run_dir / f"{self.name}.csv", index=False)
+        return df
+
+
+def read_chunks(chunk_dir: Path, columns: list[str] | None = None) -> pd.DataFrame:
+    parts = sorted(Path(chunk_dir).glob("part-*.parquet"))
+    if not parts:
+        return pd.DataFrame(columns=columns or [])
+    return pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
+
+
+class RunDir:
+    """A run directory being written. Create with :meth:`create`, end with :meth:`finish`."""
+
+    def __init__(self, path: Path):
+        self.path = Path(path)
+        self._events: list[dict] = []
+
+    @classmethod
+    def create(cls, out_dir: str | Path, name: str, spec: dict, seed: int | None,
+               kind: str, extra: dict | None = None) -> "RunDir":
+        stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")[:-4] + "Z"
+        path = Path(out_dir) / f"{stamp}-{name}"
+        n = 1
+        while path.exists():
+            n += 1
+            path = Path(out_dir) / f"{stamp}-{name}-{n}"
+        path.mkdir(parents=True)
+        run = cls(path)
+        (path / "spec.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
+        manifest = {
+            "format": MANIFEST_FORMAT, "kind": kind, "name": name, "seed": seed,
+            "status": "running", "reason": None, "start_utc": utc_now(), "end_utc": None,
+            "wamctl_version": package_versions()["wamctl"], "versions": package_versions(),
+            "git_revision": git_revision(), "host": socket.gethostname(),
+            "platform": platform.platform(), "python": platform.python_version(), "pid": os.getpid(),
+        }
+        manifest.update(extra or {})
+        run.write_manifest(manifest)
+        return run
+
+    # ------------------------------------------------------------------ manifest
+    def manifest(self) -> dict:
+        return json.loads((self.path / "manifest.json").read_text())
+
+    def write_manifest(self, manifest: dict) -> None:
+        tmp = self.path / ".manifest.json.tmp"
+        tmp.write_text(json.dumps(manifest, indent=2, default=_json_default))
+        os.replace(tmp, self.path / "manifest.json")
+
+    def update_manifest(self, **fields) -> None:
+        m = self.manifest()
+        m.update(fields)
+        self.write_manifest(m)
+
+    def finish(self, status: str, reason: str | None = None, **fields) -> None:
+        self.flush_events()
+        self.update_manifest(status=status, reason=reason, end_utc=utc_now(), **fields)
+
+    # ------------------------------------------------------------------ tables
+    def table(self, name: str, columns: list[str], chunk_rows: int = 2500) -> TableWriter:
+        return TableWriter(self.path, name, columns, chunk_rows)
+
+    def event(self, t_s: float, kind: str, joint: int | None = None, detail: str = "") -> None:
+        self._events.append({"t_s": float(t_s), "kind": kind, "joint": joint, "detail": detail})
+
+    def flush_events(self) -> None:
+        df = pd.DataFrame(self._events, columns=["t_s", "kind", "joint", "detail"])
+        df["joint"] = df["joint"].astype("Int64")
+        df.to_csv(self.path / "events.csv", index=False)
+
+    def write_json(self, name: str, obj) -> Path:
+        p = self.path / name
+        p.write_text(json.dumps(obj, indent=2, default=_json_default))
+        return p
+
+
+def _json_default(o):
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    if isinstance(o, (np.floating, np.integer)):
+        return o.item()
+    if isinstance(o, Path):
+        return str(o)
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+# ---------------------------------------------------------------------- reading runs back
+def open_run(path: str | Path) -> tuple[dict, dict]:
+    """(manifest, spec) of a run directory, or DataFormatError naming what is missing."""
+    path = Path(path)
+    if not path.is_dir():
+        raise DataFormatError(f"{path}: not a directory")
+    mpath = path / "manifest.json"
+    if not mpath.is_file():
+        raise DataFormatError(f"{path}: not a wamctl run directory (no manifest.json)")
+    try:
+        manifest = json.loads(mpath.read_text())
+    except json.JSONDecodeError as exc:
+        raise DataFormatError(f"{mpath}: not valid JSON ({exc})") from None
+    spec = yaml.safe_load((path / "spec.yaml").read_text()) if (path / "spec.yaml").is_file() else {}
+    return manifest, spec
+
+
+def read_table(path: str | Path, name: str = "data") -> pd.DataFrame:
+    """A run's table: the consolidated Parquet if present, else its chunks (a run killed mid-way)."""
+    path = Path(path)
+    if (path / f"{name}.parquet").is_file():
+        return pd.read_parquet(path / f"{name}.parquet")
+    if (path / name).is_dir():
+        return read_chunks(path / name)
+    raise DataFormatError(f"{path}: no {name} table")
+
+
+def read_events(path: str | Path) -> pd.DataFrame:
+    p = Path(path) / "events.csv"
+    if not p.is_file():
+        return pd.DataFrame(columns=["t_s", "kind", "joint", "detail"])
+    return pd.read_csv(p)
