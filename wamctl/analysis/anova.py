@@ -493,7 +493,8 @@ class Sphericity:
     dof : int
         Degrees of freedom of the chi-square, ``k (k - 1) / 2 - 1``.
     p : float
-        p value of Mauchly's test (small p: sphericity violated).
+        p value of Mauchly's test (small p: sphericity violated); pingouin's second-order chi-square approximation,
+        the same as R's ``mauchly.test``.
     eps_gg, eps_hf, eps_lb : float
         Greenhouse-Geisser, Huynh-Feldt (capped at 1) and lower-bound (``1 / (k - 1)``) epsilon.
     p_gg, p_hf : float

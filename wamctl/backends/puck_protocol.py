@@ -33,6 +33,7 @@ from typing import NamedTuple, Sequence
 
 import can
 import numpy as np
+from numpy.typing import ArrayLike
 
 from wamctl.errors import BackendError
 
@@ -363,7 +364,8 @@ def make_set_property(target: int, prop: int, value: int) -> can.Message:
     can.Message
         A six-byte frame addressed ``host -> target``.
     """
-    return _message(encode_bus_id(HOST_ID, target), bytes([_check_prop(prop) | SET_MASK, 0]) + _int32_le(value))
+    payload = bytes([_check_prop(prop) | SET_MASK, 0]) + _int32_le(value)
+    return _message(encode_bus_id(HOST_ID, target), payload)
 
 
 def make_property_reply(puck_id: int, prop: int, value: int) -> can.Message:
@@ -383,7 +385,8 @@ def make_property_reply(puck_id: int, prop: int, value: int) -> can.Message:
     can.Message
         ``[0x80 | prop, 0, value LE]`` to feedback group 6 (id ``0x400 | puck_id << 5 | 6``).
     """
-    return _message(encode_bus_id(puck_id, FEEDBACK_OTHER), bytes([_check_prop(prop) | SET_MASK, 0]) + _int32_le(value))
+    payload = bytes([_check_prop(prop) | SET_MASK, 0]) + _int32_le(value)
+    return _message(encode_bus_id(puck_id, FEEDBACK_OTHER), payload)
 
 
 def parse_property_reply(msg: can.Message, expected_prop: int | None = None) -> PropertyReply:
@@ -413,12 +416,16 @@ def parse_property_reply(msg: can.Message, expected_prop: int | None = None) -> 
     if len(data) not in (4, 6):
         raise PuckFrameError(f"property reply from puck {bid.sender}: expected 4 or 6 bytes, got {len(data)}")
     if not data[0] & SET_MASK:
-        raise PuckFrameError(f"property reply from puck {bid.sender}: header {data[0]:#04x} lacks the 0x80 flag")
+        raise PuckFrameError(
+            f"property reply from puck {bid.sender}: header {data[0]:#04x} lacks the 0x80 flag"
+        )
     if data[1] != 0:
         raise PuckFrameError(f"property reply from puck {bid.sender}: second byte is {data[1]}, expected 0")
     prop = data[0] & PROPERTY_MASK
     if expected_prop is not None and prop != expected_prop:
-        raise PuckFrameError(f"property reply from puck {bid.sender}: property {prop}, expected {expected_prop}")
+        raise PuckFrameError(
+            f"property reply from puck {bid.sender}: property {prop}, expected {expected_prop}"
+        )
     return PropertyReply(bid.sender, prop, int.from_bytes(data[2:], "little", signed=True))
 
 
@@ -592,7 +599,7 @@ _TORQUE_MASK = (1 << TORQUE_BITS) - 1
 PACKED_TORQUE_HEADER = SET_MASK | Prop.T  # 0xAA
 
 
-def saturate_puck_units(puck_units: np.ndarray | Sequence[float] | float) -> np.ndarray:
+def saturate_puck_units(puck_units: ArrayLike) -> np.ndarray:
     """Round to the nearest integer and saturate at +-:data:`MAX_PUCK_TORQUE`.
 
     libbarrett floors instead (``floor(saturate(x, 8191))``); rounding is unbiased and differs by at most
@@ -614,7 +621,7 @@ def saturate_puck_units(puck_units: np.ndarray | Sequence[float] | float) -> np.
     return np.clip(np.rint(x), -MAX_PUCK_TORQUE, MAX_PUCK_TORQUE).astype(np.int64)
 
 
-def pack_torques(puck_units: Sequence[float] | np.ndarray, pidx: Sequence[int] | None = None) -> bytes:
+def pack_torques(puck_units: ArrayLike, pidx: Sequence[int] | None = None) -> bytes:
     """Pack up to four torque commands into the 8-byte payload of a packed-torque frame.
 
     Layout (bytes 0..7, most significant bit first)::
@@ -677,7 +684,9 @@ def unpack_torques(data: bytes | bytearray | Sequence[int]) -> np.ndarray:
     if len(data) < 3 or len(data) > 8:
         raise PuckFrameError(f"packed-torque frame: expected 3..8 bytes, got {len(data)}")
     if data[0] != PACKED_TORQUE_HEADER:
-        raise PuckFrameError(f"packed-torque frame: header {data[0]:#04x}, expected {PACKED_TORQUE_HEADER:#04x}")
+        raise PuckFrameError(
+            f"packed-torque frame: header {data[0]:#04x}, expected {PACKED_TORQUE_HEADER:#04x}"
+        )
     n_slots = min(PUCKS_PER_TORQUE_GROUP, (len(data) - 1) * 8 // TORQUE_BITS)
     bits = int.from_bytes(data[1:].ljust(7, b"\0"), "big")
     out = np.empty(n_slots, dtype=np.int64)
@@ -716,13 +725,15 @@ def torque_slot_of_puck(pidx: dict[int, int] | None = None) -> dict[int, tuple[i
             if not 1 <= p <= PUCKS_PER_TORQUE_GROUP:
                 raise BackendError(f"puck {puck}: PIDX={p} outside 1..4")
             if p in seen:
-                raise BackendError(f"pucks {seen[p]} and {puck} both have PIDX={p} in torque group {group:#05x}")
+                raise BackendError(
+                    f"pucks {seen[p]} and {puck} both have PIDX={p} in torque group {group:#05x}"
+                )
             seen[p] = puck
             out[puck] = (group, p)
     return out
 
 
-def make_torque_frames(puck_units: Sequence[float] | np.ndarray, pidx: dict[int, int] | None = None) -> list[can.Message]:
+def make_torque_frames(puck_units: ArrayLike, pidx: dict[int, int] | None = None) -> list[can.Message]:
     """Build the two packed-torque frames for the seven WAM pucks.
 
     Parameters
@@ -781,14 +792,14 @@ def _inverse(j2mp: np.ndarray) -> np.ndarray:
     return np.linalg.inv(j2mp)
 
 
-def _vec7(x: np.ndarray | Sequence[float], name: str) -> np.ndarray:
+def _vec7(x: ArrayLike, name: str) -> np.ndarray:
     a = np.asarray(x, dtype=float)
     if a.shape[-1:] != (N_JOINTS,):
         raise ValueError(f"{name} must have shape (..., 7), got {a.shape}")
     return a
 
 
-def joint_rad_to_motor_rad(q_rad: np.ndarray | Sequence[float], j2mp: np.ndarray = J2MP) -> np.ndarray:
+def joint_rad_to_motor_rad(q_rad: ArrayLike, j2mp: np.ndarray = J2MP) -> np.ndarray:
     """Motor angles from joint angles: ``m = j2mp @ q``.
 
     Parameters
@@ -805,7 +816,7 @@ def joint_rad_to_motor_rad(q_rad: np.ndarray | Sequence[float], j2mp: np.ndarray
     return _vec7(q_rad, "q_rad") @ np.asarray(j2mp, dtype=float).T
 
 
-def motor_rad_to_joint_rad(m_rad: np.ndarray | Sequence[float], j2mp: np.ndarray = J2MP) -> np.ndarray:
+def motor_rad_to_joint_rad(m_rad: ArrayLike, j2mp: np.ndarray = J2MP) -> np.ndarray:
     """Joint angles from motor angles: ``q = j2mp^-1 @ m``.
 
     Parameters
@@ -822,7 +833,7 @@ def motor_rad_to_joint_rad(m_rad: np.ndarray | Sequence[float], j2mp: np.ndarray
     return _vec7(m_rad, "m_rad") @ _inverse(j2mp).T
 
 
-def motor_rad_to_counts(m_rad: np.ndarray | Sequence[float], cts: float | np.ndarray = CTS_DEFAULT) -> np.ndarray:
+def motor_rad_to_counts(m_rad: ArrayLike, cts: ArrayLike = CTS_DEFAULT) -> np.ndarray:
     """Encoder counts from motor angles: ``round(m * CTS / (2 pi))``.
 
     Rounded to the nearest count (libbarrett floors); the error is at most half a count.
@@ -839,10 +850,11 @@ def motor_rad_to_counts(m_rad: np.ndarray | Sequence[float], cts: float | np.nda
     numpy.ndarray
         ``int64`` counts.
     """
-    return np.rint(np.asarray(m_rad, dtype=float) * (np.asarray(cts, dtype=float) / (2.0 * math.pi))).astype(np.int64)
+    counts_per_rad = np.asarray(cts, dtype=float) / (2.0 * math.pi)
+    return np.rint(np.asarray(m_rad, dtype=float) * counts_per_rad).astype(np.int64)
 
 
-def counts_to_motor_rad(counts: np.ndarray | Sequence[int], cts: float | np.ndarray = CTS_DEFAULT) -> np.ndarray:
+def counts_to_motor_rad(counts: ArrayLike, cts: ArrayLike = CTS_DEFAULT) -> np.ndarray:
     """Motor angles from encoder counts: ``counts * 2 pi / CTS``.
 
     Parameters
@@ -861,7 +873,7 @@ def counts_to_motor_rad(counts: np.ndarray | Sequence[int], cts: float | np.ndar
 
 
 def joint_rad_to_counts(
-    q_rad: np.ndarray | Sequence[float], cts: float | np.ndarray = CTS_DEFAULT, j2mp: np.ndarray = J2MP
+    q_rad: ArrayLike, cts: ArrayLike = CTS_DEFAULT, j2mp: np.ndarray = J2MP
 ) -> np.ndarray:
     """Encoder counts of the seven motors for joint angles.
 
@@ -882,7 +894,7 @@ def joint_rad_to_counts(
 
 
 def counts_to_joint_rad(
-    counts: np.ndarray | Sequence[int], cts: float | np.ndarray = CTS_DEFAULT, j2mp: np.ndarray = J2MP
+    counts: ArrayLike, cts: ArrayLike = CTS_DEFAULT, j2mp: np.ndarray = J2MP
 ) -> np.ndarray:
     """Joint angles from the seven motors' encoder counts.
 
@@ -902,7 +914,7 @@ def counts_to_joint_rad(
     return motor_rad_to_joint_rad(counts_to_motor_rad(_vec7(counts, "counts"), cts), j2mp)
 
 
-def joint_torque_to_motor_Nm(tau_Nm: np.ndarray | Sequence[float], j2mp: np.ndarray = J2MP) -> np.ndarray:
+def joint_torque_to_motor_Nm(tau_Nm: ArrayLike, j2mp: np.ndarray = J2MP) -> np.ndarray:
     """Motor torques from joint torques: ``tau_m = j2mp^-T @ tau`` (power-conserving transmission).
 
     Parameters
@@ -920,7 +932,7 @@ def joint_torque_to_motor_Nm(tau_Nm: np.ndarray | Sequence[float], j2mp: np.ndar
     return _vec7(tau_Nm, "tau_Nm") @ _inverse(j2mp)
 
 
-def motor_torque_to_joint_Nm(tau_m_Nm: np.ndarray | Sequence[float], j2mp: np.ndarray = J2MP) -> np.ndarray:
+def motor_torque_to_joint_Nm(tau_m_Nm: ArrayLike, j2mp: np.ndarray = J2MP) -> np.ndarray:
     """Joint torques from motor torques: ``tau = j2mp^T @ tau_m``.
 
     Parameters
@@ -937,7 +949,7 @@ def motor_torque_to_joint_Nm(tau_m_Nm: np.ndarray | Sequence[float], j2mp: np.nd
     return _vec7(tau_m_Nm, "tau_m_Nm") @ np.asarray(j2mp, dtype=float)
 
 
-def motor_Nm_to_puck_units(tau_m_Nm: np.ndarray | Sequence[float], ipnm: float | np.ndarray = IPNM_DEFAULT) -> np.ndarray:
+def motor_Nm_to_puck_units(tau_m_Nm: ArrayLike, ipnm: ArrayLike = IPNM_DEFAULT) -> np.ndarray:
     """Puck torque commands from motor torques: ``round(IPNM * tau_m)``, saturated at +-8191.
 
     Parameters
@@ -955,7 +967,7 @@ def motor_Nm_to_puck_units(tau_m_Nm: np.ndarray | Sequence[float], ipnm: float |
     return saturate_puck_units(np.asarray(tau_m_Nm, dtype=float) * np.asarray(ipnm, dtype=float))
 
 
-def puck_units_to_motor_Nm(puck_units: np.ndarray | Sequence[float], ipnm: float | np.ndarray = IPNM_DEFAULT) -> np.ndarray:
+def puck_units_to_motor_Nm(puck_units: ArrayLike, ipnm: ArrayLike = IPNM_DEFAULT) -> np.ndarray:
     """Motor torques from puck torque commands: ``units / IPNM``.
 
     Parameters
@@ -974,7 +986,7 @@ def puck_units_to_motor_Nm(puck_units: np.ndarray | Sequence[float], ipnm: float
 
 
 def joint_torque_to_puck_units(
-    tau_Nm: np.ndarray | Sequence[float], ipnm: float | np.ndarray = IPNM_DEFAULT, j2mp: np.ndarray = J2MP
+    tau_Nm: ArrayLike, ipnm: ArrayLike = IPNM_DEFAULT, j2mp: np.ndarray = J2MP
 ) -> np.ndarray:
     """Puck torque commands for joint torques (``round(IPNM * j2mp^-T @ tau)``, saturated at +-8191).
 
@@ -995,7 +1007,7 @@ def joint_torque_to_puck_units(
 
 
 def puck_units_to_joint_torque_Nm(
-    puck_units: np.ndarray | Sequence[float], ipnm: float | np.ndarray = IPNM_DEFAULT, j2mp: np.ndarray = J2MP
+    puck_units: ArrayLike, ipnm: ArrayLike = IPNM_DEFAULT, j2mp: np.ndarray = J2MP
 ) -> np.ndarray:
     """Joint torques produced by puck torque commands (``j2mp^T @ (units / IPNM)``).
 

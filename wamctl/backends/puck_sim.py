@@ -207,7 +207,9 @@ class PuckSimulator:
                                          now if start_awake else None)
 
         self._owns_bus = bus is None
-        self._bus = can.Bus(interface=interface, channel=channel, receive_own_messages=False) if bus is None else bus
+        if bus is None:
+            bus = can.Bus(interface=interface, channel=channel, receive_own_messages=False)
+        self._bus = bus
         self._poll_timeout_s = float(poll_timeout_s)
         self._rng = random.Random(seed)
         self._lock = threading.Lock()
@@ -421,7 +423,7 @@ class PuckSimulator:
 
     def _handle(self, msg: can.Message) -> None:
         self._count("frames_received")
-        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id or msg.arbitration_id > pp.MAX_CAN_ID:
+        if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             self._count("ignored_frames")
             return
         bid = pp.decode_bus_id(msg.arbitration_id)
@@ -550,7 +552,10 @@ class PuckSimulator:
         if not self._answering:
             self._count("replies_dropped")
             return
-        if self._drop_probability > 0.0 and (self._drop_after_s is None or self.elapsed_s() >= self._drop_after_s):
+        dropping = self._drop_probability > 0.0 and (
+            self._drop_after_s is None or self.elapsed_s() >= self._drop_after_s
+        )
+        if dropping:
             if self._drop_probability >= 1.0 or self._rng.random() < self._drop_probability:
                 self._count("replies_dropped")
                 return

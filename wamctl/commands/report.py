@@ -1,0 +1,43 @@
+"""wamctl report."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from wamctl.cli import app
+from wamctl.commands.common import console, emit_json
+
+
+@app.command()
+def report(run_dirs: Annotated[list[Path], typer.Argument(help="One or more run directories.",
+                                                          show_default=False)],
+           out: Annotated[Optional[Path], typer.Option("--out", help="Write the report(s) here instead of "
+                                                       "into each run directory.")] = None,
+           format: Annotated[str, typer.Option("--format", help="Comma-separated: md, html, json.")] = "md,html,json",
+           quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No tables on the terminal.")] = False,
+           json: Annotated[bool, typer.Option("--json", help="Print the report data as JSON on stdout.")] = False):
+    """Analyse run directories and write their reports (tables, figures; Markdown, HTML, JSON).
+
+    Each run is recognised by the kind in its manifest (rotation, friction_sweep, ift, diagnosis, hmi_block,
+    or an imported measured run). With several runs, a combined report is written too.
+    """
+    from wamctl.commands.run import print_document_tables
+    from wamctl.errors import WamctlError
+    from wamctl.report.combined import report_runs
+
+    formats = tuple(f.strip() for f in format.split(",") if f.strip())
+    bad = [f for f in formats if f not in ("md", "html", "json")]
+    if bad:
+        raise WamctlError(f"--format: unknown format(s) {', '.join(bad)}; choose from md, html, json")
+    docs, written = report_runs(run_dirs, out, formats)
+    if json:
+        emit_json({"reports": [d.to_json() for d in docs], "written": [str(p) for p in written]})
+        return
+    if not quiet:
+        for d in docs:
+            print_document_tables(d)
+    for p in written:
+        console.print(f"wrote {p}", highlight=False)

@@ -1,0 +1,125 @@
+"""Building blocks every experiment kind shares: the backend, the plant, the controller, a closed-loop stage.
+
+Experiment modules (one per kind) expose::
+
+    plan(spec, base_dir) -> Plan            describe: the reference and what will be checked, nothing moves
+    execute(spec, plan, run, progress)      run it on the backend, recording into the run directory
+    report(run_path) -> Document            analyse the run directory and build the report
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from wamctl.backends.base import ArmBackend
+from wamctl.control.controllers import JointController, friction_feedforward_Nm
+from wamctl.control.trajectory import Reference
+from wamctl.errors import SpecError
+from wamctl.experiments.engine import LoopRecorder, run_loop
+from wamctl.model import params as P
+from wamctl.model.dynamics import Payload, WamDynamics
+from wamctl.model.plant import Plant, resolve_friction
+from wamctl.specs import Common, check_positions
+from wamctl.store import RunDir
+
+log = logging.getLogger(__name__)
+
+
+@dataclass
+class Plan:
+    """What an experiment will do: its reference, a human summary, and the torque it will feed forward."""
+
+    reference: Reference
+    summary: list[str] = field(default_factory=list)
+    feedforward_Nm: np.ndarray | None = None
+
+    @property
+    def duration_s(self) -> float:
+        return float(len(self.reference) * P.CONTROL_RATE_HZ ** -1)
+
+    def check_limits(self) -> list[str]:
+        """Every setpoint against the position and torque limits; returns the checks made, raises SpecError."""
+        try:
+            check_positions(self.reference.q_rad, "reference")
+        except ValueError as exc:
+            raise SpecError(str(exc)) from None
+        done = [f"{len(self.reference)} position setpoints within the joint limits"]
+        speed = np.abs(self.reference.qd_rad_s).max(axis=0)
+        over = speed > P.QD_MAX_RAD_S
+        if over.any():
+            j = int(np.argmax(over))
+            raise SpecError(f"reference: joint {j + 1} velocity {speed[j]:.3f} rad/s above the limit "
+                            f"{P.QD_MAX_RAD_S[j]} rad/s")
+        done.append(f"reference speeds within {P.QD_MAX_RAD_S[0]} rad/s (max {speed.max():.3f})")
+        if self.feedforward_Nm is not None:
+            ff = np.abs(self.feedforward_Nm).max(axis=0)
+            if (ff > P.TAU_MAX_NM).any():
+                j = int(np.argmax(ff > P.TAU_MAX_NM))
+                raise SpecError(f"controller.friction_ff: joint {j + 1} feed-forward {ff[j]:.2f} N m exceeds the "
+                                f"torque limit {P.TAU_MAX_NM[j]} N m")
+            done.append("feed-forward torques within the torque limits")
+        return done
+
+
+def declared_dynamics(spec: Common) -> WamDynamics:
+    """The model the controller knows (rigid body + a declared payload, if any)."""
+    p = spec.controller.declared_payload
+    return WamDynamics(Payload(p.mass_kg, tuple(p.com_m)) if p else None)
+
+
+def feedforward_for(spec: Common, reference: Reference, base_dir: Path | None) -> np.ndarray | None:
+    """Eq. 4.3 feed-forward over the whole reference for ``pd_g_ff``; None otherwise."""
+    c = spec.controller
+    if c.kind != "pd_g_ff":
+        return None
+    friction = resolve_friction(c.friction_ff, base_dir)
+    inertia = None
+    if c.ff_inertia:
+        inertia = np.diag(declared_dynamics(spec).mass_matrix(np.asarray(spec.q0_rad)))
+    return friction_feedforward_Nm(reference.qd_rad_s, reference.qdd_rad_s2, friction, inertia)
+
+
+def make_controller(spec: Common, feedforward_Nm: np.ndarray | None = None) -> JointController:
+    kp, kd, ki = spec.controller.gains()
+    gravity = declared_dynamics(spec).gravity_view if spec.controller.gravity_compensation else None
+    return JointController(kp, kd, ki, 1.0 / P.CONTROL_RATE_HZ, gravity=gravity, feedforward_Nm=feedforward_Nm)
+
+
+def make_backend(spec: Common, base_dir: Path | None = None, q0_rad=None, seed: int | None = None) -> ArmBackend:
+    """The backend the spec names, at rest at ``q0_rad`` (default ``spec.q0_rad``)."""
+    q0 = np.asarray(spec.q0_rad if q0_rad is None else q0_rad, float)
+    rng = np.random.default_rng(spec.seed if seed is None else seed)
+    b = spec.backend
+    if b.kind == "sim":
+        from wamctl.backends.sim import SimBackend
+        return SimBackend(Plant(spec.plant, base_dir), q0, rng, b.physics_substeps)
+    if b.kind == "can":
+        from wamctl.backends.can import CanBackend  # imported only when used
+        return CanBackend.from_spec(spec, base_dir, q0, rng)
+    raise SpecError(f"backend.kind: unknown backend {b.kind!r}")
+
+
+def closed_loop_stage(backend: ArmBackend, controller: JointController, reference: Reference,
+                      run: RunDir | None, progress=None, table: str = "data",
+                      t_offset_s: float = 0.0) -> np.ndarray:
+    """Run one reference on an open backend; every sample reaches ``run/table`` even if the stage raises.
+
+    Returns the recorded rows (n, columns) as in :func:`wamctl.experiments.engine.data_columns`.
+    """
+    truth = hasattr(backend, "truth")
+    writer = None
+    if run is not None:
+        from wamctl.experiments.engine import data_columns
+        writer = run.table(table, data_columns(truth))
+    rec = LoopRecorder(len(reference), truth, writer, t_offset_s)
+    try:
+        run_loop(backend, controller, reference, rec, progress)
+    finally:
+        rec.flush()
+        if writer is not None:
+            writer.close()
+    return rec.result()

@@ -1,0 +1,111 @@
+"""Runs any experiment kind: plan -> (dry run | run directory + execute) -> status -> report.
+
+A termination signal (SIGTERM, SIGHUP) is turned into the same path as Ctrl-C: every sample recorded so far
+is flushed and the run is marked ``interrupted``. A safety fault marks it ``failed`` with the reason.
+"""
+
+from __future__ import annotations
+
+import importlib
+import logging
+import signal
+from contextlib import contextmanager
+from dataclasses import dataclass
+from pathlib import Path
+
+from wamctl.errors import SafetyLimitError, WamctlError
+from wamctl.specs import Common
+from wamctl.store import RunDir, open_run
+
+log = logging.getLogger(__name__)
+
+# kind -> module implementing plan / execute / report (imported lazily)
+EXPERIMENTS = {
+    "rotation": "wamctl.experiments.rotation",
+}
+# run kinds that have a report but no execution (e.g. imported measured runs use their experiment's report)
+REPORTERS = dict(EXPERIMENTS)
+
+
+def experiment_module(kind: str):
+    return importlib.import_module(EXPERIMENTS[kind])
+
+
+class RunInterrupted(WamctlError):
+    """The run was stopped by Ctrl-C or a termination signal; its data so far are on disk."""
+
+    exit_code = 130
+
+
+@dataclass
+class RunOutcome:
+    path: Path
+    status: str
+    reason: str | None
+
+
+@contextmanager
+def signals_as_interrupt():
+    """SIGTERM/SIGHUP raise KeyboardInterrupt inside the block (main thread only)."""
+    def handler(signum, frame):
+        raise KeyboardInterrupt(signal.Signals(signum).name)
+    old = {}
+    try:
+        for s in (signal.SIGTERM, signal.SIGHUP):
+            old[s] = signal.signal(s, handler)
+    except ValueError:  # not the main thread
+        old = {}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+def plan_only(spec: Common, base_dir: Path | None = None) -> tuple[list[str], list[str]]:
+    """The dry run: the plan's summary and the limit checks made (raises SpecError on a violation)."""
+    mod = experiment_module(spec.kind)
+    p = mod.plan(spec, base_dir)
+    return p.summary, p.check_limits()
+
+
+def run_spec(spec: Common, base_dir: Path | None = None, out_dir: str | Path | None = None,
+             progress=None, make_report: bool = True) -> RunOutcome:
+    """Execute a validated spec into a new run directory and (on success) write its report."""
+    mod = experiment_module(spec.kind)
+    p = mod.plan(spec, base_dir)
+    p.check_limits()
+    run = RunDir.create(out_dir or spec.out_dir, spec.name, spec.model_dump(mode="json"), spec.seed, spec.kind,
+                        {"backend": {"name": spec.backend.kind}, "planned_duration_s": p.duration_s})
+    log.info("run directory %s", run.path)
+    status, reason = "completed", None
+    with signals_as_interrupt():
+        try:
+            mod.execute(spec, p, run, progress, base_dir)
+        except KeyboardInterrupt as exc:
+            status, reason = "interrupted", f"stopped by {exc.args[0] if exc.args else 'Ctrl-C'}"
+        except SafetyLimitError as exc:
+            status, reason = "failed", f"safety limit: {exc}"
+        except WamctlError as exc:
+            status, reason = "failed", str(exc)
+        except BaseException as exc:
+            run.finish("failed", f"{type(exc).__name__}: {exc}")
+            raise
+        run.finish(status, reason)
+    if make_report and status != "interrupted":
+        write_report(run.path)
+    if status == "interrupted":
+        raise RunInterrupted(f"{run.path}: interrupted ({reason}); the data recorded so far are readable")
+    return RunOutcome(run.path, status, reason)
+
+
+def write_report(run_path: Path, out_dir: Path | None = None, formats=("md", "html", "json")):
+    """Build and write the report of one run directory; returns the Document."""
+    manifest, spec = open_run(run_path)
+    kind = manifest.get("kind")
+    if kind not in REPORTERS:
+        raise WamctlError(f"{run_path}: no report for run kind {kind!r}")
+    mod = importlib.import_module(REPORTERS[kind])
+    doc = mod.report(Path(run_path), manifest, spec, out_dir)
+    doc.write(Path(out_dir or run_path), "report", formats)
+    return doc

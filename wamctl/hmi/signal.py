@@ -1,0 +1,361 @@
+"""Causal, per-sample processing of the gaze stream (thesis 6.2.1, 6.3.1 and 6.4.1).
+
+Conventions
+-----------
+* Every stage is a small object with ``update(sample) -> output`` and ``reset()``; it sees each sample
+  once, in time order, and never looks ahead.
+* Point stages return a :class:`~wamctl.hmi.gaze.GazeSample` or ``None`` when they drop the sample; the
+  filters only take valid points and return ``None`` (state unchanged) for anything else, so they can sit
+  after the removers or on their own.
+* Windows are given in seconds and turned into a number of taps with a sample rate (the nominal 30 Hz of
+  the tracker unless told otherwise); the voluntary-blink threshold uses the *measured* rate.
+* Angles in radians, in [0, 2 pi), 0 = right, pi/2 = up in the command frame of
+  :func:`wamctl.hmi.gaze.gaze_vector_px`.
+"""
+
+from __future__ import annotations
+
+import logging
+import math
+import statistics
+from collections import deque
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+from wamctl.hmi.gaze import NOMINAL_RATE_HZ, GazeFlag, GazeSample, gaze_angle_rad
+
+logger = logging.getLogger(__name__)
+
+# Thesis 6.2.1: a blink is voluntary if the eyes stay closed more than 0.7 s (Krolak and Strumillo, 2012),
+# "22 samples" at the tracker's ~0.033 s period.
+VOLUNTARY_BLINK_S = 0.7
+# Thesis 6.3.1: moving-average windows tried for the four-directional control (300 ms retained).
+FILTER_WINDOWS_S = (0.150, 0.300, 0.500)
+# Thesis 6.4.1: process-noise covariances of the Kalman filter on the gaze-vector angle (0.001 retained).
+KALMAN_Q = (0.001, 0.0001)
+# The thesis does not give R. Its filter follows Welch and Bishop, whose worked example (and the SciPy
+# cookbook port of it) uses R = 0.1 ** 2; the steady-state gain depends on Q / R only.
+KALMAN_R = 0.01
+
+_TWO_PI = 2.0 * math.pi
+
+
+def window_taps(window_s: float, rate_hz: float) -> int:
+    """Number of taps M of a window of ``window_s`` at ``rate_hz`` (rounded half up, at least 1).
+
+    At 30 Hz: 150 ms -> 5, 300 ms -> 9, 500 ms -> 15.
+    """
+    if window_s <= 0 or rate_hz <= 0:
+        raise ValueError(f"window_s and rate_hz must be > 0, got {window_s}, {rate_hz}")
+    return max(1, math.floor(window_s * rate_hz + 0.5))
+
+
+def wrap_angle_rad(angle_rad: float) -> float:
+    """Angle folded into [0, 2 pi)."""
+    return angle_rad % _TWO_PI
+
+
+def angle_difference_rad(a_rad: float, b_rad: float) -> float:
+    """Signed shortest difference ``a - b`` folded into [-pi, pi)."""
+    return (a_rad - b_rad + math.pi) % _TWO_PI - math.pi
+
+
+# --------------------------------------------------------------------------------------------------
+# Sample rate, removers, blink detection
+
+
+class SampleRateEstimator:
+    """Sample rate measured as the inverse of the median of the last intervals between timestamped samples.
+
+    Parameters
+    ----------
+    nominal_rate_hz : float
+        Returned until ``min_intervals`` intervals have been seen.
+    n_intervals : int
+        Number of recent intervals kept.
+    min_intervals : int
+        Intervals needed before the measurement replaces the nominal rate.
+    max_interval_s : float
+        Longer intervals (stalls, dropped lines) are not counted.
+    """
+
+    def __init__(self, *, nominal_rate_hz: float = NOMINAL_RATE_HZ, n_intervals: int = 31,
+                 min_intervals: int = 5, max_interval_s: float = 0.5) -> None:
+        self.nominal_rate_hz = nominal_rate_hz
+        self.n_intervals = n_intervals
+        self.min_intervals = min_intervals
+        self.max_interval_s = max_interval_s
+        self.reset()
+
+    def reset(self) -> None:
+        self._intervals: deque[float] = deque(maxlen=self.n_intervals)
+        self._last_t_s: float | None = None
+        self.rate_hz = self.nominal_rate_hz
+
+    def update(self, sample: GazeSample) -> float:
+        """Take the sample's time (corrupt samples are ignored); return the current rate, Hz."""
+        if not sample.has_time:
+            return self.rate_hz
+        if self._last_t_s is not None:
+            dt_s = sample.t_s - self._last_t_s
+            if 0.0 < dt_s <= self.max_interval_s:
+                self._intervals.append(dt_s)
+                if len(self._intervals) >= self.min_intervals:
+                    self.rate_hz = 1.0 / statistics.median(self._intervals)
+        self._last_t_s = sample.t_s
+        return self.rate_hz
+
+
+class BlinkRemover:
+    """Drops eye-closed samples (thesis 6.2.1, Figure 6.6)."""
+
+    def update(self, sample: GazeSample) -> GazeSample | None:
+        return None if sample.flags & GazeFlag.BLINK else sample
+
+    def reset(self) -> None:
+        pass
+
+
+class CorruptSampleRemover:
+    """Drops corrupt and out-of-image samples (thesis 6.1.2: values outside (768, 576))."""
+
+    def update(self, sample: GazeSample) -> GazeSample | None:
+        return None if sample.flags & (GazeFlag.CORRUPT | GazeFlag.OUT_OF_RANGE) else sample
+
+    def reset(self) -> None:
+        pass
+
+
+@dataclass(frozen=True, slots=True)
+class BlinkEvent:
+    """One blink, reported when the eye opens again.
+
+    Attributes
+    ----------
+    t_start_s : float
+        Time of the first eye-closed sample.
+    t_end_s : float
+        Time of the first valid sample after the blink (when the event is emitted).
+    n_samples : int
+        Number of eye-closed samples.
+    duration_s : float
+        ``n_samples`` over the measured sample rate.
+    voluntary : bool
+        True if the blink counts as a command.
+    """
+
+    t_start_s: float
+    t_end_s: float
+    n_samples: int
+    duration_s: float
+    voluntary: bool
+
+
+class VoluntaryBlinkDetector:
+    """Counts runs of eye-closed samples and classifies each blink when the eye opens (thesis 6.2.1).
+
+    A blink is voluntary when its run holds at least ``ceil(threshold_s * rate_hz)`` samples, with the rate
+    measured on the stream (21 samples at exactly 30 Hz; the thesis's 22 came from a 0.033 s period), and
+    lasts at most ``max_duration_s`` (longer means the tracker lost the eye, not a command). Out-of-range
+    and corrupt samples neither extend nor end a blink.
+
+    Parameters
+    ----------
+    threshold_s : float
+        Shortest voluntary blink.
+    max_duration_s : float
+        Longest voluntary blink.
+    nominal_rate_hz : float
+        Rate assumed until enough intervals have been measured.
+    """
+
+    def __init__(self, *, threshold_s: float = VOLUNTARY_BLINK_S, max_duration_s: float = 5.0,
+                 nominal_rate_hz: float = NOMINAL_RATE_HZ) -> None:
+        if not 0 < threshold_s < max_duration_s:
+            raise ValueError("need 0 < threshold_s < max_duration_s")
+        self.threshold_s = threshold_s
+        self.max_duration_s = max_duration_s
+        self.rate = SampleRateEstimator(nominal_rate_hz=nominal_rate_hz)
+        self.reset()
+
+    def reset(self) -> None:
+        self.rate.reset()
+        self._run_start_s: float | None = None
+        self._run_n = 0
+
+    @property
+    def rate_hz(self) -> float:
+        """Measured sample rate, Hz."""
+        return self.rate.rate_hz
+
+    @property
+    def threshold_samples(self) -> int:
+        """Run length that makes a blink voluntary at the measured rate."""
+        return max(1, math.ceil(self.threshold_s * self.rate.rate_hz - 1e-9))
+
+    @property
+    def in_blink(self) -> bool:
+        """True while the eye is closed."""
+        return self._run_n > 0
+
+    def update(self, sample: GazeSample) -> BlinkEvent | None:
+        """Take one sample; return the blink that ended with it, if any."""
+        self.rate.update(sample)
+        if sample.is_blink:
+            if self._run_n == 0:
+                self._run_start_s = sample.t_s
+            self._run_n += 1
+            return None
+        if not sample.is_valid or self._run_n == 0:
+            return None
+        n = self._run_n
+        duration_s = n / self.rate.rate_hz
+        event = BlinkEvent(self._run_start_s, sample.t_s, n, duration_s,
+                           n >= self.threshold_samples and duration_s <= self.max_duration_s)
+        self._run_n = 0
+        self._run_start_s = None
+        logger.debug("blink of %d samples (%.2f s), voluntary=%s", n, duration_s, event.voluntary)
+        return event
+
+
+# --------------------------------------------------------------------------------------------------
+# Moving averages (thesis 6.3.1)
+
+
+def ma_weights(n_taps: int) -> list[float]:
+    """Weights of the moving average, Eq. (6.1), oldest first."""
+    return [1.0] * n_taps
+
+
+def wma_weights(n_taps: int) -> list[float]:
+    """Weights of the weighted moving average, Eq. (6.2), oldest first: 1, 2, ..., M (newest).
+
+    Eq. (6.2) prints the factor M(M+1)/2; the normalisation it means is its inverse, 2 / (M(M+1)).
+    """
+    return [float(k) for k in range(1, n_taps + 1)]
+
+
+class _WeightedPointFilter:
+    """Causal FIR on the x and y of valid points; during warm-up, the newest weights over the points seen."""
+
+    def __init__(self, weights: Sequence[float]) -> None:
+        self._weights = list(weights)
+        self.n_taps = len(self._weights)
+        self.reset()
+
+    def reset(self) -> None:
+        self._xs: deque[float] = deque(maxlen=self.n_taps)
+        self._ys: deque[float] = deque(maxlen=self.n_taps)
+
+    def update(self, sample: GazeSample) -> GazeSample | None:
+        """Filter a valid point; ``None`` (state unchanged) for anything else."""
+        if not sample.is_valid:
+            return None
+        self._xs.append(sample.x_px)
+        self._ys.append(sample.y_px)
+        weights = self._weights[self.n_taps - len(self._xs):]
+        total = sum(weights)
+        x_px = sum(w * x for w, x in zip(weights, self._xs)) / total
+        y_px = sum(w * y for w, y in zip(weights, self._ys)) / total
+        return GazeSample(sample.t_s, x_px, y_px, sample.flags)
+
+
+class MovingAverageFilter(_WeightedPointFilter):
+    """Moving average of the gaze point over ``window_s``, Eq. (6.1) (thesis 6.3.1).
+
+    Parameters
+    ----------
+    window_s : float
+        Window length, s (the thesis tried 0.15, 0.3 and 0.5 s and retained 0.3 s).
+    rate_hz : float
+        Sample rate used to turn the window into taps (:func:`window_taps`).
+    """
+
+    def __init__(self, *, window_s: float = 0.3, rate_hz: float = NOMINAL_RATE_HZ) -> None:
+        self.window_s = window_s
+        self.rate_hz = rate_hz
+        super().__init__(ma_weights(window_taps(window_s, rate_hz)))
+
+
+class WeightedMovingAverageFilter(_WeightedPointFilter):
+    """Linearly weighted moving average of the gaze point, Eq. (6.2) (thesis 6.3.1).
+
+    Parameters
+    ----------
+    window_s : float
+        Window length, s (the thesis tried 0.15 and 0.3 s; 0.5 s was too slow for real time).
+    rate_hz : float
+        Sample rate used to turn the window into taps (:func:`window_taps`).
+    """
+
+    def __init__(self, *, window_s: float = 0.15, rate_hz: float = NOMINAL_RATE_HZ) -> None:
+        self.window_s = window_s
+        self.rate_hz = rate_hz
+        super().__init__(wma_weights(window_taps(window_s, rate_hz)))
+
+
+# --------------------------------------------------------------------------------------------------
+# Kalman filter on the gaze-vector angle (thesis 6.4.1)
+
+
+class KalmanAngleFilter:
+    """Scalar Kalman filter on the direction of the gaze vector, with the wrap-around at 2 pi.
+
+    Random-walk model ``x_k = x_{k-1} + w``, measurement ``z_k = x_k + v`` (Welch and Bishop), ``Q`` and
+    ``R`` the covariances of ``w`` and ``v``. The innovation is the shortest signed angle between the
+    measurement and the prediction, and the estimate is folded back into [0, 2 pi), so a gaze direction
+    crossing 0 rad (the +x axis) is tracked without a swing through pi. The first measurement initialises
+    the estimate (error covariance ``R``).
+
+    Parameters
+    ----------
+    q : float
+        Process-noise covariance (thesis: 0.001, retained, or 0.0001, smoother and slower).
+    r : float
+        Measurement-noise covariance (assumed, see :data:`KALMAN_R`).
+
+    Attributes
+    ----------
+    angle_rad : float or None
+        Current estimate.
+    p : float
+        Current error covariance.
+    gain : float
+        Last Kalman gain.
+    """
+
+    def __init__(self, *, q: float = KALMAN_Q[0], r: float = KALMAN_R) -> None:
+        if q <= 0 or r <= 0:
+            raise ValueError(f"q and r must be > 0, got {q}, {r}")
+        self.q = q
+        self.r = r
+        self.reset()
+
+    def reset(self) -> None:
+        self.angle_rad: float | None = None
+        self.p = self.r
+        self.gain = 1.0
+
+    @property
+    def steady_state_gain(self) -> float:
+        """Gain the filter converges to: ``P- / (P- + R)`` with ``P- = (Q + sqrt(Q^2 + 4 Q R)) / 2``."""
+        p_prior = 0.5 * (self.q + math.sqrt(self.q * self.q + 4.0 * self.q * self.r))
+        return p_prior / (p_prior + self.r)
+
+    def update_angle(self, angle_rad: float) -> float:
+        """Filter one measured angle, rad; return the estimate in [0, 2 pi)."""
+        if self.angle_rad is None:
+            self.angle_rad = wrap_angle_rad(angle_rad)
+            return self.angle_rad
+        p_prior = self.p + self.q
+        self.gain = p_prior / (p_prior + self.r)
+        innovation = angle_difference_rad(angle_rad, self.angle_rad)
+        self.angle_rad = wrap_angle_rad(self.angle_rad + self.gain * innovation)
+        self.p = (1.0 - self.gain) * p_prior
+        return self.angle_rad
+
+    def update(self, sample: GazeSample) -> float | None:
+        """Filter the angle of a valid gaze point; ``None`` (state unchanged) for anything else."""
+        if not sample.is_valid:
+            return None
+        return self.update_angle(gaze_angle_rad(sample.x_px, sample.y_px))
