@@ -8,6 +8,7 @@ arm's labels) and 0-based in arrays. Every model forbids unknown keys, so a typo
 from __future__ import annotations
 
 from pathlib import Path
+from functools import lru_cache
 from typing import Annotated, Any, Literal, Union
 
 import numpy as np
@@ -198,23 +199,35 @@ class RotationSpec(Common):
         return self
 
 
-SPEC_KINDS: dict[str, type[Common]] = {"rotation": RotationSpec}
+# kind -> "module:Class" of its spec model. Each experiment module defines its own spec (a subclass of
+# Common with ``kind: Literal[...]``); the union is assembled lazily, at the first parse.
+SPEC_KINDS: dict[str, str] = {
+    "rotation": "wamctl.specs:RotationSpec",
+    "friction_sweep": "wamctl.experiments.friction_sweep:FrictionSweepSpec",
+    "ift": "wamctl.experiments.ift:IftSpec",
+    "hmi_block": "wamctl.experiments.hmi_block:HmiBlockSpec",
+}
 
 
-def register_kind(kind: str, model: type[Common]) -> None:
-    """Add an experiment kind (its model must declare ``kind: Literal[kind]``)."""
-    SPEC_KINDS[kind] = model
-    _adapter.cache_clear()
-
-
-from functools import lru_cache  # noqa: E402
+def spec_models() -> dict[str, type[Common]]:
+    """The spec model of every kind whose module is installed."""
+    import importlib
+    out = {}
+    for kind, target in SPEC_KINDS.items():
+        mod, cls = target.split(":")
+        try:
+            out[kind] = getattr(importlib.import_module(mod), cls)
+        except ModuleNotFoundError as exc:
+            if exc.name != mod:
+                raise
+    return out
 
 
 @lru_cache(maxsize=1)
 def _adapter() -> TypeAdapter:
-    models = tuple(SPEC_KINDS.values())
+    models = tuple(spec_models().values())
     union = Union[models] if len(models) > 1 else models[0]
-    return TypeAdapter(union)
+    return TypeAdapter(Annotated[union, Field(discriminator="kind")] if len(models) > 1 else union)
 
 
 def format_validation_error(exc: ValidationError, source: str) -> str:
@@ -235,9 +248,10 @@ def parse_spec(data: Any, source: str = "spec") -> Common:
     """Validate a mapping into a spec model, raising :class:`SpecError` naming the field."""
     if not isinstance(data, dict):
         raise SpecError(f"{source}: expected a mapping at the top level")
-    if data.get("kind") not in SPEC_KINDS:
+    kinds = spec_models()
+    if data.get("kind") not in kinds:
         raise SpecError(f"{source}: kind: {'missing' if 'kind' not in data else repr(data['kind']) + ' unknown'}; "
-                        f"known kinds: {', '.join(sorted(SPEC_KINDS))}")
+                        f"known kinds: {', '.join(sorted(kinds))}")
     try:
         return _adapter().validate_python(data)
     except ValidationError as exc:
@@ -257,6 +271,26 @@ def load_yaml(path: str | Path) -> Any:
         raise SpecError(f"{path}: YAML syntax error at {where}{problem}") from None
 
 
+MODEL_FILE_FORMAT = "wamctl-model/1"
+
+
+def load_model_file(path: str | Path) -> dict:
+    """A model file (``format: wamctl-model/1``): a plant description (``friction``, ``effects``, ``sensors``)
+    as written by ``wamctl diagnose``; usable wherever a spec takes ``plant:``."""
+    data = load_yaml(path)
+    if not isinstance(data, dict):
+        raise SpecError(f"{path}: a model file is a mapping with friction/effects/sensors")
+    data = {k: v for k, v in data.items() if k in PlantSpec.model_fields}
+    return data
+
+
 def load_spec(path: str | Path) -> Common:
-    """Read and validate a spec file."""
-    return parse_spec(load_yaml(path), str(path))
+    """Read and validate a spec file. ``plant: FILE`` loads a model file (relative to the spec's folder)."""
+    path = Path(path)
+    data = load_yaml(path)
+    if isinstance(data, dict) and isinstance(data.get("plant"), str):
+        model = Path(data["plant"])
+        if not model.is_absolute() and not model.exists():
+            model = path.parent / model
+        data = dict(data, plant=load_model_file(model))
+    return parse_spec(data, str(path))

@@ -22,9 +22,12 @@ log = logging.getLogger(__name__)
 # kind -> module implementing plan / execute / report (imported lazily)
 EXPERIMENTS = {
     "rotation": "wamctl.experiments.rotation",
+    "friction_sweep": "wamctl.experiments.friction_sweep",
+    "ift": "wamctl.experiments.ift",
+    "hmi_block": "wamctl.experiments.hmi_block",
 }
-# run kinds that have a report but no execution (e.g. imported measured runs use their experiment's report)
-REPORTERS = dict(EXPERIMENTS)
+# run kinds that have a report but are not run from a spec
+REPORTERS = dict(EXPERIMENTS, diagnosis="wamctl.report.diagnosis", measured="wamctl.report.measured")
 
 
 def experiment_module(kind: str):
