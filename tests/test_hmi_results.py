@@ -12,7 +12,6 @@ from pathlib import Path
 
 import matplotlib.image
 import numpy as np
-import pandas as pd
 import pytest
 import yaml
 
@@ -151,7 +150,7 @@ def test_table_layout_and_available_cases() -> None:
     stats = load("thesis_t6_10_subjects.csv").condition_stats("hit_pct", complete=True)
     assert stats["n"].tolist() == [8] * 6
     assert stats.loc["E1", "mean"] == pytest.approx(405 / 8)
-    assert stats.loc["E2", "median"] == 81.0
+    assert stats.loc["E2", "median"] == 75.0
 
 
 # ---------------------------------------------------------------------------------------------- raw trials
@@ -220,6 +219,9 @@ def test_summary_without_time_analyses_hits_only(tmp_path: Path) -> None:
     analysis = res.analyse()
     assert analysis.measures == ("hit_rate",)
     assert analysis.rm["hit_rate"].df == (1, 2)
+    (only_pair,) = analysis.pairwise["hit_rate"].comparisons
+    assert only_pair.p_holm == only_pair.p_unc  # one comparison: Holm changes nothing
+    assert only_pair.t == pytest.approx(-7.0)  # x - y = -0.2, -0.3, -0.2: mean -0.2333, SEM 0.0333
     with pytest.raises(DataFormatError, match="'mean_time_s' not available"):
         res.wide("mean_time_s")
 
@@ -291,7 +293,7 @@ def test_bar_stats_mean_and_median() -> None:
     sd = bar_stats(wide, statistic="mean", error="sd")
     assert_printed(sd.loc["E1", "upper"] - sd.loc["E1", "value"], "17.09")  # Table 6.10 'SEM' row (= SD)
     median = bar_stats(wide, statistic="median")
-    assert median["value"].tolist() == [50.0, 81.0, 68.5, 62.0, 56.0, 50.0]
+    assert median["value"].tolist() == [50.0, 75.0, 68.5, 62.0, 56.0, 50.0]
     assert median.loc["E1", "lower"] == 37.0 and median.loc["E1", "upper"] == 50.0
     with pytest.raises(ValueError):
         bar_stats(wide, statistic="mode")

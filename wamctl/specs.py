@@ -177,7 +177,7 @@ class RotationTask(Strict):
     """Thesis chapter 3: rotate joints by ``amplitude_rad`` at ``velocity_rad_s`` (LSPB, t_c = 1 s)."""
     joints: list[Joint] = Field(default_factory=lambda: list(range(1, 8)))
     mode: Literal["one_at_a_time", "all_together"] = "one_at_a_time"
-    amplitude_rad: float = Field(P.ROTATION_AMPLITUDE_RAD, ne=0.0)
+    amplitude_rad: float = Field(P.ROTATION_AMPLITUDE_RAD, description="rotation of each joint, rad (non-zero)")
     velocity_rad_s: float = Field(P.ROTATION_VELOCITY_RAD_S, gt=0.0, le=2.0)
     tc_s: float = Field(P.LSPB_TC_S, gt=0.0)
     settle_s: float = Field(0.5, ge=0.0, description="hold at q0 before each move")

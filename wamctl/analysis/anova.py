@@ -758,6 +758,7 @@ def pairwise_paired_t(data: pd.DataFrame, *, dv: str, within: str, subject: str)
     with _quiet_pingouin() as pg:
         table = pg.pairwise_tests(data=frame, dv=dv, within=within, subject=subject, padjust="holm",
                                   parametric=True)
+    has_corr = "p_corr" in table.columns  # pingouin leaves it out for a single comparison (Holm = identity)
     by_pair = {(str(r["A"]), str(r["B"])): r for _, r in table.iterrows()}
     wide = frame.pivot(index=subject, columns=within, values=dv)
     out = []
@@ -769,5 +770,6 @@ def pairwise_paired_t(data: pd.DataFrame, *, dv: str, within: str, subject: str)
         diff = (wide[a] - wide[b]).to_numpy(float)
         out.append(PairwiseComparison(a=a, b=b, n=int(diff.size), mean_diff=float(diff.mean()),
                                       t=sign * float(r["T"]), dof=float(r["dof"]), p_unc=float(r["p_unc"]),
-                                      p_holm=float(r["p_corr"]), hedges_g=sign * float(r["hedges"])))
+                                      p_holm=float(r["p_corr"]) if has_corr else float(r["p_unc"]),
+                                      hedges_g=sign * float(r["hedges"])))
     return PairwiseTests(dv=dv, comparisons=tuple(out))

@@ -49,8 +49,9 @@ mean_time_s  mean execution time in seconds, > 0
 note         optional free text, ignored
 ===========  ====================================================================
 
-At least one measure (``hits``/``attempts``, ``hit_pct`` or ``mean_time_s``) must be present. An empty cell,
-``-``, ``NA``, ``N/A`` or ``nan`` is a missing value; a missing cell can also be written by leaving the row out.
+At least one measure (``hits``/``attempts``, ``hit_pct`` or ``mean_time_s``) must be present. An empty numeric
+cell, ``-``, ``NA``, ``N/A`` or ``nan`` is a missing value (the thesis prints ``-``); a missing cell can also be
+written by leaving the row out. Text cells (unit, condition) must not be empty.
 Unknown columns are an error (so that a misspelt column is not silently ignored).
 
 Times of misses count: when trials are summarised, ``mean_time_s`` is the mean over all attempts with a recorded
@@ -109,7 +110,7 @@ MEASURES: tuple[str, ...] = ("hit_rate", "hit_pct", "mean_time_s")
 ANOVA_MEASURES: tuple[str, ...] = ("hit_rate", "mean_time_s")
 """Measures analysed by default (the thesis ANOVA tables use proportions and seconds)."""
 
-_MISSING = {"", "-", "na", "n/a", "nan", "none", "null"}
+_MISSING = {"", "-", "na", "n/a", "nan"}  # numeric cells; a text cell is missing only if empty
 _TRUE = {"1", "true", "yes", "y"}
 _FALSE = {"0", "false", "no", "n"}
 _STATS_ROWS = ("Mean", "SD", "SEM", "n")
@@ -186,7 +187,7 @@ def _is_missing(value: str) -> bool:
 
 def _text(source: str, row: _Row, column: str) -> str:
     value = row.cells[column]
-    if _is_missing(value):
+    if not value:
         raise DataFormatError(f"{_where(source, row, column)}: value required, cell is empty")
     return value
 

@@ -36,6 +36,7 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from wamctl.errors import BackendError
+from wamctl.model import params as _params
 
 logger = logging.getLogger(__name__)
 
@@ -764,17 +765,9 @@ def make_torque_frames(puck_units: ArrayLike, pidx: dict[int, int] | None = None
 # motor_puck.cpp update(): rad per count = 2 pi / CTS)
 # --------------------------------------------------------------------------------------------------
 
-# Motor angle = J2MP @ joint angle (libbarrett config/wam7w.conf). libbarrett's 9.7 for the J5/J6
-# differential is used (the WAM manual gives 9.48). The same matrix is wamctl.model.params.J2MP.
-J2MP = np.array([
-    [-42.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0],
-    [0.0, 28.25, -16.8155, 0.0, 0.0, 0.0, 0.0],
-    [0.0, -28.25, -16.8155, 0.0, 0.0, 0.0, 0.0],
-    [0.0, 0.0, 0.0, -18.0, 0.0, 0.0, 0.0],
-    [0.0, 0.0, 0.0, 0.0, 9.7, -9.7, 0.0],
-    [0.0, 0.0, 0.0, 0.0, 9.7, 9.7, 0.0],
-    [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, -14.93],
-])
+# Motor angle = J2MP @ joint angle: the one copy lives in wamctl.model.params (libbarrett config/wam7w.conf,
+# 9.7 for the J5/J6 differential). Here a read-only view of it, so protocol code cannot alter the model's.
+J2MP = _params.J2MP.view()
 J2MP.setflags(write=False)
 M2JP = np.linalg.inv(J2MP)  # joint angle = M2JP @ motor angle; motor torque = M2JP.T @ joint torque
 M2JP.setflags(write=False)
@@ -784,7 +777,7 @@ IPNM_DEFAULT = 2700  # puck.h DEFAULT_IPNM; read IPNM from each puck at start-up
 
 
 def _inverse(j2mp: np.ndarray) -> np.ndarray:
-    if j2mp is J2MP:
+    if j2mp is J2MP or j2mp is _params.J2MP:
         return M2JP
     j2mp = np.asarray(j2mp, dtype=float)
     if j2mp.shape != (N_JOINTS, N_JOINTS):

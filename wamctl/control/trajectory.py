@@ -3,8 +3,13 @@
 LSPB (linear segment with parabolic blends) exactly as thesis eqs. 3.3-3.5: with blend time ``t_c``
 (1 s on the real system) and final time ``t_f``,
 
-    qd_c = 4 (q_f - q_i) / (t_f^2 - (-2 (t_c - 0.5 t_f))^2) = (q_f - q_i) / (t_c (t_f - t_c))   (3.4)
-    qdd_c = qd_c / t_c            (3.5 states qdd_c = qd_c, i.e. t_c = 1 s; qd_c = qdd_c t_c in general)
+    qdd_c = 4 (q_f - q_i) / (t_f^2 - (-2 (t_c - 0.5 t_f))^2) = (q_f - q_i) / (t_c (t_f - t_c))   (3.4)
+    qd_c  = qdd_c t_c                                                                         (3.5)
+
+The thesis prints (3.4) as the velocity and (3.5) as ``qdd_c = qd_c``: both hold for its t_c = 1 s. For other
+blend times the right-hand side of (3.4) has the units of an acceleration (the trajectory is continuous only
+with ``qd_c = qdd_c t_c``, the thesis' own definition), so it is read as ``qdd_c`` here; at t_c = 1 s the
+numbers are the thesis' exactly.
 
 and q(t) parabolic up to t_c, linear to t_f - t_c, parabolic to t_f (3.3). A move is specified by its
 amplitude and cruise velocity; ``t_f = t_c + |q_f - q_i| / v``.
@@ -49,8 +54,8 @@ def lspb(t_s: np.ndarray, q_i: float, q_f: float, t_f: float, tc_s: float = 1.0)
     if not 0 < 2 * tc_s <= t_f:
         raise ValueError(f"LSPB needs 0 < 2 t_c <= t_f (t_c={tc_s}, t_f={t_f})")
     t = np.clip(np.asarray(t_s, float), 0.0, t_f)
-    qd_c = 4.0 * (q_f - q_i) / (t_f**2 - (-2.0 * (tc_s - 0.5 * t_f)) ** 2)  # eq. 3.4
-    qdd_c = qd_c / tc_s                                                    # eq. 3.5 (t_c = 1 s)
+    qdd_c = 4.0 * (q_f - q_i) / (t_f**2 - (-2.0 * (tc_s - 0.5 * t_f)) ** 2)  # eq. 3.4 (see module doc)
+    qd_c = qdd_c * tc_s                                                      # eq. 3.5, qd_c = qdd_c t_c
     first, last = t <= tc_s, t > t_f - tc_s
     mid = ~first & ~last
     q = np.where(first, q_i + 0.5 * qdd_c * t**2,

@@ -278,7 +278,7 @@ class GazeLineDecoder:
 
 
 class LineFramer:
-    """Split a byte stream into lines; an over-long line yields one over-long chunk (then parsed as corrupt).
+    """Split a byte stream into lines; an over-long line yields one chunk of ``max_line_bytes + 1`` (corrupt).
 
     Parameters
     ----------
@@ -308,8 +308,8 @@ class LineFramer:
             end = match.start()
             if self._skipping:
                 self._skipping = False
-            elif end:
-                lines.append(bytes(self._buf[:end]))
+            elif end:  # an over-long line is cut to max_line_bytes + 1: enough to be flagged
+                lines.append(bytes(self._buf[: min(end, self.max_line_bytes + 1)]))
             del self._buf[: end + 1]
 
     def flush(self) -> bool:
@@ -543,20 +543,23 @@ class SerialGazeSource(_SourceBase):
                 return None
 
     def _receive(self) -> None:
+        data = bytearray()
+        ended = None
         try:
-            data = self._port.read(1)
+            data += self._port.read(1)
             # in_waiting is exact for ttys and loop://, 0/1 for socket://: drain what is there, bounded.
             while data and len(data) < 65536 and (n := self._port.in_waiting):
                 data += self._port.read(n)
-        except self._serial_error as exc:
-            logger.warning("gaze tracker %s: connection ended (%s)", self.url, exc)
-            self._end_of_stream()
-            return
+        except self._serial_error as exc:  # keep what came before the hang-up
+            ended = exc
         now = time.monotonic()
         if data:
             self._last_rx_s = now
-            self._lines.extend(self._framer.feed(data))
-        elif self.eof_idle_s is not None and now - self._last_rx_s > self.eof_idle_s:
+            self._lines.extend(self._framer.feed(bytes(data)))
+        if ended is not None:
+            logger.warning("gaze tracker %s: connection ended (%s)", self.url, ended)
+            self._end_of_stream()
+        elif not data and self.eof_idle_s is not None and now - self._last_rx_s > self.eof_idle_s:
             logger.info("gaze tracker %s: no data for %.2f s, end of stream", self.url, self.eof_idle_s)
             self._end_of_stream()
 
@@ -666,6 +669,8 @@ class VirtualSubject(_SourceBase):
         If True, :meth:`read` paces samples on the wall clock.
     t0_s : float
         Time of the first sample.
+    timeout_s : float
+        Default wait of :meth:`read` (only matters when ``realtime``).
     """
 
     def __init__(self, target_px: Callable[[float], tuple[float, float] | None], *, seed: int = 0,
@@ -850,7 +855,7 @@ class VirtualSubject(_SourceBase):
         if self._saccade_due_s is not None and t_s >= self._saccade_due_s:
             self._saccade_due_s = None
             self._offset_until_s = -math.inf
-            self._launch_saccade(t_s, (fx, fy), (gx, gy), fatigue, lack)
+            self._launch_saccade(t_s, self._last_pos, (gx, gy), fatigue, lack)
             return self._last_pos
 
         # Square-wave intrusions and glances elsewhere in the scene, then back to the fixation.

@@ -65,7 +65,11 @@ def angle_difference_rad(a_rad: float, b_rad: float) -> float:
 
 
 class SampleRateEstimator:
-    """Sample rate measured as the inverse of the median of the last intervals between timestamped samples.
+    """Sample rate measured on the last intervals between timestamped samples.
+
+    The rate is the inverse of the mean of the intervals within 0.5-1.5 times their median: the median
+    alone would be biased by the tracker's whole-millisecond times (33, 33, 34 ms gives 30.3 Hz, not 30),
+    the plain mean by a dropped line.
 
     Parameters
     ----------
@@ -101,7 +105,9 @@ class SampleRateEstimator:
             if 0.0 < dt_s <= self.max_interval_s:
                 self._intervals.append(dt_s)
                 if len(self._intervals) >= self.min_intervals:
-                    self.rate_hz = 1.0 / statistics.median(self._intervals)
+                    median_s = statistics.median(self._intervals)
+                    typical = [d for d in self._intervals if 0.5 * median_s <= d <= 1.5 * median_s]
+                    self.rate_hz = len(typical) / sum(typical)
         self._last_t_s = sample.t_s
         return self.rate_hz
 
@@ -154,10 +160,11 @@ class BlinkEvent:
 class VoluntaryBlinkDetector:
     """Counts runs of eye-closed samples and classifies each blink when the eye opens (thesis 6.2.1).
 
-    A blink is voluntary when its run holds at least ``ceil(threshold_s * rate_hz)`` samples, with the rate
-    measured on the stream (21 samples at exactly 30 Hz; the thesis's 22 came from a 0.033 s period), and
-    lasts at most ``max_duration_s`` (longer means the tracker lost the eye, not a command). Out-of-range
-    and corrupt samples neither extend nor end a blink.
+    A blink is voluntary when its run holds at least ``threshold_s * rate_hz`` samples, rounded to the
+    nearest whole sample, with the rate measured on the stream (21 samples at 30 Hz, 42 at 60 Hz; the
+    thesis's 22 came from 0.7 s over a 0.033 s period, rounded up), and lasts at most ``max_duration_s``
+    (longer means the tracker lost the eye, not a command). Out-of-range and corrupt samples neither
+    extend nor end a blink.
 
     Parameters
     ----------
@@ -191,7 +198,7 @@ class VoluntaryBlinkDetector:
     @property
     def threshold_samples(self) -> int:
         """Run length that makes a blink voluntary at the measured rate."""
-        return max(1, math.ceil(self.threshold_s * self.rate.rate_hz - 1e-9))
+        return max(1, math.floor(self.threshold_s * self.rate.rate_hz + 0.5))
 
     @property
     def in_blink(self) -> bool:

@@ -196,29 +196,35 @@ def _friction_torque_kernel(qd, prm, out):
 
 
 @njit(cache=True)
-def implicit_friction_step(qd_free, qd_now, inv_mass_diag, dt_s, prm, scale, out):
-    """Friction torque (7,) that the implicit stick/slip rule applies over one step, written to ``out``.
+def implicit_friction_1(vf, v_now, inv_m, dt_s, j, prm, scale):
+    """Friction torque on joint j over one step by the implicit stick/slip rule (scalar kernel).
 
     Parameters
     ----------
-    qd_free : (7,) velocity after the step without friction, rad/s.
-    qd_now : (7,) velocity at the start of the step (sets the Stribeck level), rad/s.
-    inv_mass_diag : (7,) diagonal of B(q)^-1, 1/(kg m^2).
+    vf : velocity the joint would reach over the step without its own friction, rad/s.
+    v_now : velocity at the start of the step (sets the Stribeck level), rad/s.
+    inv_m : (B^-1)_jj, the inverse effective inertia, 1/(kg m^2).
     dt_s : step, s.
-    prm : (8, 7) ``FrictionModel.as_array()`` of the plant.
-    scale : (7,) multiplier on every friction parameter (friction drift), 1 for none.
-    out : (7,) friction torque absorbed (sign convention of ``friction_torque``). Subtracting
-        ``dt * inv_mass_diag * out`` from ``qd_free`` is the per-joint implicit solution: zero velocity
-        when the joint sticks, implicit viscous damping when it slides.
+    prm : (8, 7) ``FrictionModel.as_array()``; scale : multiplier on every parameter (friction drift).
+
+    Returns
+    -------
+    The torque absorbed (sign convention of ``friction_torque``). ``vf - dt * inv_m * f`` is zero when the
+    joint sticks (the available impulse ``dt * level`` can stop it), else the implicit solution with viscous
+    damping ``(vf - dt inv_m level sign(vf)) / (1 + dt inv_m b)``, stable for any coefficient.
     """
+    pos = vf > 0.0
+    level = scale * _level(v_now, j, pos, prm)
+    b = scale * (prm[2, j] if pos else prm[3, j])
+    k = dt_s * inv_m
+    if abs(vf) <= k * level:
+        return vf / k
+    vn = (vf - np.sign(vf) * k * level) / (1.0 + k * b)
+    return (vf - vn) / k
+
+
+@njit(cache=True)
+def implicit_friction_step(qd_free, qd_now, inv_mass_diag, dt_s, prm, scale, out):
+    """:func:`implicit_friction_1` for every joint, each on its own (no coupling), written to ``out`` (7,)."""
     for j in range(qd_free.shape[0]):
-        vf = qd_free[j]
-        pos = vf > 0.0
-        level = scale[j] * _level(qd_now[j], j, pos, prm)
-        b = scale[j] * (prm[2, j] if pos else prm[3, j])
-        k = dt_s * inv_mass_diag[j]
-        if abs(vf) <= k * level:
-            vn = 0.0
-        else:
-            vn = (vf - np.sign(vf) * k * level) / (1.0 + k * b)
-        out[j] = (vf - vn) / k
+        out[j] = implicit_friction_1(qd_free[j], qd_now[j], inv_mass_diag[j], dt_s, j, prm, scale[j])

@@ -1,0 +1,37 @@
+"""Shared fixtures: small specs built in code, a temporary runs directory."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wamctl.model import params as P
+
+Q0 = np.array([0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0])
+
+
+@pytest.fixture
+def runs_dir(tmp_path):
+    d = tmp_path / "runs"
+    d.mkdir()
+    return d
+
+
+@pytest.fixture
+def q0():
+    return Q0.copy()
+
+
+def rotation_spec(**overrides) -> dict:
+    """A rotation spec as a mapping (what a YAML file would hold)."""
+    spec = {"kind": "rotation", "name": "t", "seed": 3, "backend": {"kind": "sim"},
+            "plant": {"friction": "table_4_1"}, "controller": {"kind": "pd_g"},
+            "q0_rad": Q0.tolist(),
+            "rotation": {"joints": list(range(1, P.N_JOINTS + 1)), "mode": "all_together", "hold_s": 0.3,
+                         "settle_s": 0.0}}
+    for k, v in overrides.items():
+        if isinstance(v, dict) and isinstance(spec.get(k), dict):
+            spec[k] = {**spec[k], **v}
+        else:
+            spec[k] = v
+    return spec
