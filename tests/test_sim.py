@@ -159,7 +159,7 @@ def test_position_ripple_visible_at_its_period():
 
 def test_payload_changes_held_torque_by_m_g_lever():
     q0 = np.array([0.0, 0.0, 0.0, np.pi / 2, 0.0, 0.0, 0.0])
-    ref = ReferenceBuilder(q0, DT).hold(1.0).build()
+    ref = ReferenceBuilder(q0, DT).hold(3.0).build()      # long enough for the frictionless sag to settle
     spec = {"friction": "none", "sensors": {"encoder_counts_per_rev": 0},
             "effects": {"payload": {"mass_kg": 1.5, "com_m": [0.0, 0.0, 0.0]}}}
     loaded, _ = simulate(spec, ref, q0=q0)

@@ -158,26 +158,56 @@ def bfgs_update(B: np.ndarray, s: np.ndarray, z: np.ndarray) -> tuple[np.ndarray
     return 0.5 * (B_next + B_next.T), True
 
 
-def newton_direction(R: np.ndarray, grad: np.ndarray, rcond: float = 1e-10) -> np.ndarray:
-    """``R^-1 dJ/drho`` (3,), solved in the scaled coordinates ``rho_i / |diag R|^-1/2`` so that the very
-    different gain magnitudes (kp ~ 1e3, ki ~ 1) do not make R look singular; singular directions (below
-    ``rcond`` of the largest eigenvalue) get no step."""
+def newton_direction(R: np.ndarray, grad: np.ndarray, free: np.ndarray | None = None,
+                     rcond: float = 1e-10) -> np.ndarray:
+    """``R^-1 dJ/drho`` (3,) restricted to the ``free`` parameters (bool (3,), default all; the others get no
+    step: a projected Newton direction for gains held at a bound).
+
+    Solved in the scaled coordinates ``rho_i |R_ii|^1/2`` so that the very different gain magnitudes
+    (kp ~ 1e3, ki ~ 1) do not make R look singular (the direction itself does not depend on the scaling);
+    singular directions (eigenvalues below ``rcond`` of the largest) get no step.
+    """
     R = np.asarray(R, float)
     g = np.asarray(grad, float)
-    d = np.sqrt(np.clip(np.diag(R), 0, None))
+    free = np.ones(len(g), bool) if free is None else np.asarray(free, bool)
+    out = np.zeros_like(g)
+    if not free.any():
+        return out
+    Rf = R[np.ix_(free, free)]
+    gf = g[free]
+    d = np.sqrt(np.clip(np.diag(Rf), 0, None))
     d[d == 0] = 1.0
-    Rs = R / np.outer(d, d)
+    Rs = Rf / np.outer(d, d)
     w, V = np.linalg.eigh(0.5 * (Rs + Rs.T))
     keep = w > rcond * max(w.max(), 0.0)
     if not keep.any():
-        return np.zeros_like(g)
+        return out
     inv = V[:, keep] @ np.diag(1.0 / w[keep]) @ V[:, keep].T
-    return (inv @ (g / d)) / d
+    out[free] = (inv @ (gf / d)) / d
+    return out
 
 
-def ift_update(rho: np.ndarray, grad: np.ndarray, R: np.ndarray, gamma: float) -> np.ndarray:
-    """Eq. 2.14: ``rho - gamma R^-1 dJ/drho`` (3,) (no bounds; see :func:`clip_to_bounds`)."""
-    return np.asarray(rho, float) - float(gamma) * newton_direction(R, grad)
+def free_parameters(rho: np.ndarray, grad: np.ndarray, lower: np.ndarray, upper: np.ndarray,
+                    rtol: float = 1e-9) -> np.ndarray:
+    """Bool (3,): False for a gain at a bound whose descent direction ``-grad`` points out of the box (it is held
+    there: the projected Newton step of Bertsekas 1982), True otherwise."""
+    rho, g = np.asarray(rho, float), np.asarray(grad, float)
+    lo, hi = np.asarray(lower, float), np.asarray(upper, float)
+    tol = rtol * np.maximum(np.abs(rho), 1.0)
+    at_lo = (rho <= lo + tol) & (g > 0)
+    at_hi = (rho >= hi - tol) & (g < 0)
+    return ~(at_lo | at_hi)
+
+
+def ift_update(rho: np.ndarray, grad: np.ndarray, R: np.ndarray, gamma: float,
+               lower: np.ndarray | None = None, upper: np.ndarray | None = None) -> np.ndarray:
+    """Eq. 2.14: ``rho - gamma R^-1 dJ/drho`` (3,). With bounds, gains held at a bound by the descent direction
+    are left out of the solve (:func:`free_parameters`) and the result is clipped into the bounds."""
+    rho = np.asarray(rho, float)
+    if lower is None or upper is None:
+        return rho - float(gamma) * newton_direction(R, grad)
+    free = free_parameters(rho, grad, lower, upper)
+    return clip_to_bounds(rho - float(gamma) * newton_direction(R, grad, free), lower, upper)[0]
 
 
 def clip_to_bounds(rho: np.ndarray, lower: np.ndarray, upper: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -25,7 +25,7 @@ import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field, replace
 
-from wamctl.hmi.gaze import NOMINAL_RATE_HZ, GazeSample, GazeSource, gaze_ratios, gaze_vector_px
+from wamctl.hmi.gaze import NOMINAL_RATE_HZ, GazeSample, GazeSource, gaze_angle_rad, gaze_ratios, gaze_vector_px
 from wamctl.hmi.signal import (
     KALMAN_Q,
     KALMAN_R,
@@ -333,7 +333,7 @@ class VectorStrategy:
     def command(self, t_s: float, x_px: float, y_px: float) -> HandCommand:
         """Command for a (filtered) gaze point in image pixels."""
         x_c, y_c = gaze_vector_px(x_px, y_px)
-        angle_rad = math.atan2(y_c, x_c) % (2.0 * math.pi)
+        angle_rad = gaze_angle_rad(x_px, y_px)
         if self.angle_filter is not None:
             angle_rad = self.angle_filter.update_angle(angle_rad)
         level = self.profile.circle_level(math.hypot(x_c, y_c))
