@@ -32,6 +32,20 @@ class SimBackendSpec(Strict):
     physics_substeps: int = Field(2, ge=1, le=50, description="physics steps per 2 ms control period")
 
 
+class SimulatedFault(Strict):
+    """A link fault injected when the control loop reaches ``at_cycle`` (simulated pucks only): tests and demos
+    of the CAN link watchdog. ``drop_replies``: replies lost with ``probability``; ``silent_puck``: ``puck``
+    neither answers nor obeys; ``garbage_replies``: replies replaced by malformed frames with ``probability``;
+    ``garbage_frames``: ``count`` malformed frames sent at once; ``stop_answering``: no puck answers;
+    ``bus_error``: the host's next ``count`` transmissions fail with ``can.CanError``."""
+    kind: Literal["drop_replies", "silent_puck", "garbage_replies", "garbage_frames", "stop_answering",
+                  "bus_error"]
+    at_cycle: int = Field(250, ge=0, description="control cycle (0 = first) at which the fault starts")
+    puck: Joint = Field(7, description="silent_puck: the puck (1..7)")
+    probability: float = Field(1.0, gt=0.0, le=1.0)
+    count: int = Field(1, ge=1, le=1000)
+
+
 class CanBackendSpec(Strict):
     kind: Literal["can"]
     interface: str = Field("socketcan", description="python-can interface: socketcan, pcan, virtual, ...")
@@ -39,6 +53,22 @@ class CanBackendSpec(Strict):
     bitrate: int = 1_000_000
     simulate_pucks: bool = Field(False, description="answer as the simulated arm's pucks (virtual bus demos)")
     watchdog_cycles: int = Field(3, ge=1, le=50, description="missing position replies tolerated")
+    # added with the CAN backend (issue 9)
+    reply_timeout_s: float = Field(0.0015, gt=0.0, le=1.0,
+                                   description="wait for the 7 position replies; later ones count as missing")
+    start_tolerance_rad: float = Field(0.05, gt=0.0, le=0.5,
+                                       description="largest |q - q0_rad| accepted at start-up, per joint")
+    physics_substeps: int = Field(2, ge=1, le=50, description="simulate_pucks: physics steps per control period")
+    simulated_fault: SimulatedFault | None = Field(None, description="simulate_pucks: inject a link fault")
+
+    @model_validator(mode="after")
+    def _fault_needs_simulation(self):
+        if self.simulated_fault is not None and not self.simulate_pucks:
+            raise ValueError("simulated_fault needs simulate_pucks: true")
+        if self.simulate_pucks and self.interface != "virtual":
+            raise ValueError(f"simulate_pucks needs interface: virtual (python-can's in-process bus), not "
+                             f"{self.interface!r}: simulated pucks must never answer on a bus with a real arm")
+        return self
 
 
 BackendSpec = Annotated[Union[SimBackendSpec, CanBackendSpec], Field(discriminator="kind")]

@@ -105,7 +105,7 @@ def pid_filters(kp: float, kd: float, ki: float, dt_s: float) -> tuple[np.ndarra
     if not np.all(np.isfinite(a)) or a[0] <= 0:
         raise ValueError(f"PID gains give no causal IFT filter: kp={kp}, kd={kd}, ki={ki}")
     roots = np.roots(a)
-    if roots.size and np.max(np.abs(roots)) >= 1.0:
+    if roots.size and np.max(np.abs(roots)) > 1.0 + 1e-9:
         raise ValueError(f"1/C is unstable for kp={kp:g}, kd={kd:g}, ki={ki:g} (|root| "
                          f"{np.max(np.abs(roots)):.4f} >= 1): the IFT filters would diverge")
     b = np.array([[T, -T, 0.0],           # kp: dC/dkp = 1         -> T (1 - q) / N

@@ -122,4 +122,18 @@ def closed_loop_stage(backend: ArmBackend, controller: JointController, referenc
         rec.flush()
         if writer is not None:
             writer.close()
+        if run is not None:
+            _record_backend_state(backend, run, t_offset_s)
     return rec.result()
+
+
+def _record_backend_state(backend: ArmBackend, run: RunDir, t_offset_s: float) -> None:
+    """After a stage (even a failed one): refresh the manifest's backend entry (the CAN backend's loop
+    statistics and watchdog verdict change during a run) and record the events the backend reports through
+    an optional ``drain_events() -> [(t_s, kind, joint, detail)]`` (overruns, link faults)."""
+    try:
+        run.update_manifest(backend=backend.describe())
+        for t_s, kind, joint, detail in getattr(backend, "drain_events", list)():
+            run.event(t_offset_s + t_s, kind, joint, detail)
+    except Exception:  # noqa: BLE001 - bookkeeping must not mask the stage's own outcome
+        log.exception("recording the backend's state failed")

@@ -109,6 +109,8 @@ def write_report(run_path: Path, out_dir: Path | None = None, formats=("md", "ht
     if kind not in REPORTERS:
         raise WamctlError(f"{run_path}: no report for run kind {kind!r}")
     mod = importlib.import_module(REPORTERS[kind])
+    if out_dir is not None:
+        Path(out_dir).mkdir(parents=True, exist_ok=True)
     doc = mod.report(Path(run_path), manifest, spec, out_dir)
     doc.write(Path(out_dir or run_path), "report", formats)
     return doc

@@ -1,0 +1,3 @@
+from wamctl.cli import main
+
+main()

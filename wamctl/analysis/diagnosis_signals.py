@@ -1,0 +1,194 @@
+"""Signals for the model diagnosis: smoothed states, the rigid-body torque residual, the masks (no I/O).
+
+Conventions
+-----------
+* Arrays are (n, 7) per joint (0-based columns), time ``t_s`` (n,) uniform after :func:`uniform_grid`.
+* Torque timing: a sampled controller reads ``q[k]`` at ``t[k]`` and holds ``tau[k]`` over ``[t[k], t[k+1])``
+  (zero-order hold, as the simulator and libbarrett do). The torque acting *around* ``t[k]`` is therefore
+  ``(tau[k-1] + tau[k]) / 2``; using it removes the half-sample lag between the logged torque and the
+  positions, so that a delay found later is a real one.
+* Differentiation: a Savitzky-Golay filter (cubic, centred window of about ``window_s``) gives ``q``, ``qd``
+  and ``qdd`` with no phase lag; the same filter (derivative 0) is applied to the torque, so that the inertial
+  term ``B qdd`` and the torque are smoothed alike and the residual is not made of filter mismatch.
+* The residual ``y = tau_s - rnea(q_s, qd_s, qdd_s)`` is what friction and any missing effect must explain.
+* Masks: where a joint sticks (smoothed speed below a few times the velocity noise) the friction torque is
+  static and unknown, so those samples, and every sample whose filter window touches them, are excluded.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.ndimage import binary_dilation
+from scipy.signal import savgol_coeffs, savgol_filter
+
+from wamctl.errors import DataFormatError
+from wamctl.model import params as P
+
+log = logging.getLogger(__name__)
+
+N7 = P.N_JOINTS
+POLYORDER = 3
+DEFAULT_WINDOW_S = 0.042       # ~21 samples at 500 Hz: cuts quantisation noise, keeps ~10 Hz content
+MIN_RATE_HZ = 50.0             # below this, accelerations cannot be estimated over a window this short
+MIN_MOVING_SAMPLES = 200       # a joint needs this many sliding samples to be diagnosed
+MIN_TRAVEL_RAD = 0.02
+
+
+@dataclass
+class Signals:
+    """Smoothed, aligned signals of one run (full rate) and the per-joint analysis masks.
+
+    Attributes
+    ----------
+    t_s : (n,) uniform time, s (starting where the data start).
+    dt_s : sample period, s.
+    window : Savitzky-Golay window length, samples (odd).
+    q_rad, qd_rad_s, qdd_rad_s2 : (n, 7) smoothed position and its derivatives.
+    tau_Nm : (n, 7) logged torque, half-sample aligned and smoothed like ``q``.
+    q_raw_rad, q_ref_rad, tau_raw_Nm : (n, 7) the data as logged (on the uniform grid).
+    moving : (n, 7) bool, samples usable for the torque residual (sliding, away from stick, not at the ends).
+    joints : 0-based joints that moved enough to be diagnosed.
+    skipped : {joint (0-based): reason} for joints that were commanded to move but cannot be diagnosed.
+    v_stick_rad_s : (7,) speed threshold under which a joint counts as stuck.
+    """
+
+    t_s: np.ndarray
+    dt_s: float
+    window: int
+    q_rad: np.ndarray
+    qd_rad_s: np.ndarray
+    qdd_rad_s2: np.ndarray
+    tau_Nm: np.ndarray
+    q_raw_rad: np.ndarray
+    q_ref_rad: np.ndarray
+    tau_raw_Nm: np.ndarray
+    moving: np.ndarray
+    joints: list[int]
+    skipped: dict[int, str] = field(default_factory=dict)
+    v_stick_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(N7))
+    resampled: bool = False
+
+    @property
+    def n(self) -> int:
+        return len(self.t_s)
+
+    @property
+    def duration_s(self) -> float:
+        return float(self.t_s[-1] - self.t_s[0])
+
+
+def uniform_grid(t_s: np.ndarray, *arrays: np.ndarray, rate_hz: float) -> tuple[np.ndarray, list, bool]:
+    """Resample (n, k) arrays onto a uniform grid at ``rate_hz`` when the time stamps jitter.
+
+    Returns ``(t_uniform, arrays, resampled)``. Jitter below 1 % of the period is left alone.
+    """
+    dt = 1.0 / rate_hz
+    steps = np.diff(t_s)
+    if np.abs(steps - dt).max() <= 0.01 * dt:
+        return t_s - 0.0, list(arrays), False
+    n = int(np.floor((t_s[-1] - t_s[0]) / dt)) + 1
+    tu = t_s[0] + np.arange(n) * dt
+    out = []
+    for a in arrays:
+        out.append(np.column_stack([np.interp(tu, t_s, a[:, j]) for j in range(a.shape[1])]))
+    return tu, out, True
+
+
+def window_samples(rate_hz: float, window_s: float = DEFAULT_WINDOW_S) -> int:
+    """Odd Savitzky-Golay window of about ``window_s`` at ``rate_hz`` (at least POLYORDER + 4 samples)."""
+    w = int(round(window_s * rate_hz))
+    w = max(w, POLYORDER + 4)
+    return w + 1 - w % 2
+
+
+def savgol_gain(window: int, f_cycles_per_sample: np.ndarray) -> np.ndarray:
+    """Amplitude response of the smoothing filter (real, zero phase) at normalised frequencies (cycles/sample)."""
+    c = savgol_coeffs(window, POLYORDER)
+    k = np.arange(window) - window // 2
+    return np.cos(2 * np.pi * np.outer(np.asarray(f_cycles_per_sample, float).ravel(), k)) @ c
+
+
+def velocity_noise_rad_s(q_raw: np.ndarray, dt_s: float, window: int) -> np.ndarray:
+    """(7,) standard deviation of the smoothed velocity caused by position noise/quantisation.
+
+    The position noise is estimated from the part of ``q`` a short cubic fit does not explain (robust MAD),
+    and propagated through the derivative filter's noise gain.
+    """
+    short = min(window, 7 if len(q_raw) > 7 else POLYORDER + 2)
+    short += 1 - short % 2
+    hf = q_raw - savgol_filter(q_raw, short, POLYORDER, axis=0)
+    sig_q = 1.4826 * np.median(np.abs(hf - np.median(hf, axis=0)), axis=0)
+    # quantised signals: the MAD of a mostly-zero high-pass can be 0; use the smallest step instead
+    steps = np.abs(np.diff(q_raw, axis=0))
+    for j in range(q_raw.shape[1]):
+        nz = steps[:, j][steps[:, j] > 1e-12]
+        if len(nz):
+            sig_q[j] = max(sig_q[j], np.percentile(nz, 5) / np.sqrt(12))
+    c1 = savgol_coeffs(window, POLYORDER, deriv=1, delta=dt_s)
+    return sig_q * np.sqrt(np.sum(c1 ** 2))
+
+
+def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, tau_Nm: np.ndarray,
+                    rate_hz: float, joints_hint: list[int] | None = None,
+                    window_s: float = DEFAULT_WINDOW_S) -> Signals:
+    """Align, smooth and mask a run's samples.
+
+    Parameters
+    ----------
+    t_s : (n,) time stamps, s (strictly increasing).
+    q_rad, q_ref_rad, tau_Nm : (n, 7) measured positions, reference, logged torque.
+    rate_hz : nominal sample rate.
+    joints_hint : 0-based joints the metadata says moved (others are also diagnosed if they moved).
+
+    Raises
+    ------
+    DataFormatError
+        Non-finite samples, a sample rate too low to differentiate, or too few samples.
+    """
+    for name, a in (("t", t_s), ("q", q_rad), ("q_ref", q_ref_rad), ("tau", tau_Nm)):
+        if not np.isfinite(a).all():
+            bad = np.argwhere(~np.isfinite(np.atleast_2d(a.T).T))[0]
+            raise DataFormatError(f"{name}: non-finite value at data row {int(bad[0]) + 1}; "
+                                  "the diagnosis needs complete samples")
+    if rate_hz < MIN_RATE_HZ:
+        raise DataFormatError(f"sample_rate_hz is {rate_hz:g}; the diagnosis differentiates positions twice "
+                              f"and needs at least {MIN_RATE_HZ:g} Hz")
+    t, (q, q_ref, tau), resampled = uniform_grid(np.asarray(t_s, float), q_rad, q_ref_rad, tau_Nm,
+                                                 rate_hz=rate_hz)
+    dt = 1.0 / rate_hz
+    w = window_samples(rate_hz, window_s)
+    if len(t) < 4 * w:
+        raise DataFormatError(f"only {len(t)} samples; the diagnosis needs at least {4 * w} "
+                              f"({4 * w * dt:.2f} s at {rate_hz:g} Hz)")
+    tau_c = tau.copy()
+    tau_c[1:] = 0.5 * (tau[1:] + tau[:-1])          # torque acting around t[k] (zero-order hold)
+    qs = savgol_filter(q, w, POLYORDER, axis=0)
+    qd = savgol_filter(q, w, POLYORDER, deriv=1, delta=dt, axis=0)
+    qdd = savgol_filter(q, w, POLYORDER, deriv=2, delta=dt, axis=0)
+    taus = savgol_filter(tau_c, w, POLYORDER, axis=0)
+
+    v_noise = velocity_noise_rad_s(q, dt, w)
+    # stuck: slower than 4 sigma of the velocity noise, and never faster than a floor of 1 mrad/s
+    v_stick = np.maximum(4.0 * v_noise, 1e-3)
+    stuck = np.abs(qd) < v_stick[None, :]
+    moving = ~binary_dilation(stuck, structure=np.ones((2 * (w // 2) + 1, 1), bool))
+    edge = w  # the filter's edge samples are extrapolations
+    moving[:edge] = False
+    moving[-edge:] = False
+
+    hint = set(joints_hint or [])
+    joints, skipped = [], {}
+    for j in range(N7):
+        travel = float(np.ptp(q[:, j]))
+        n_mov = int(moving[:, j].sum())
+        commanded = j in hint or np.ptp(q_ref[:, j]) > MIN_TRAVEL_RAD
+        if travel < MIN_TRAVEL_RAD or n_mov < MIN_MOVING_SAMPLES:
+            if commanded:
+                skipped[j] = (f"moved {travel:.4f} rad with {n_mov} sliding samples; at least "
+                              f"{MIN_TRAVEL_RAD} rad and {MIN_MOVING_SAMPLES} samples are needed")
+            continue
+        joints.append(j)
+    return Signals(t, dt, w, qs, qd, qdd, taus, q, q_ref, tau, moving, joints, skipped, v_stick, resampled)
