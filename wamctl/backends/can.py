@@ -556,6 +556,7 @@ class LoopTiming:
         self.period_s = float(period_s)
         self._starts = np.empty(4096)
         self._late = np.empty(4096)
+        self._busy = np.full(4096, np.nan)
         self.n = 0
         self.overruns = 0
         self.skipped_periods = 0
@@ -570,6 +571,14 @@ class LoopTiming:
         self._late[self.n] = late_s
         self.n += 1
 
+    def cycle_ended(self, t_s: float) -> None:
+        """Record the end of the current cycle's work (perf_counter time): its busy time."""
+        if self.n:
+            i = self.n - 1
+            if i >= self._busy.size:
+                self._busy = np.concatenate([self._busy, np.full_like(self._busy, np.nan)])
+            self._busy[i] = t_s - self._starts[i]
+
     def overrun(self, late_s: float, skipped: int) -> None:
         self.overruns += 1
         self.skipped_periods += skipped
@@ -582,14 +591,19 @@ class LoopTiming:
 
     def summary(self) -> dict:
         """``cycles, overruns, skipped_periods, worst_overrun_s``, and percentiles (p50, p99, max) of the
-        period, of the jitter ``|period - T|`` and of the wake-up lateness after each release point, s."""
+        period, of the jitter ``|period - T|``, of the wake-up lateness after each release point and of
+        each cycle's busy time (start to the wait), s."""
         per = self.periods_s
         out: dict[str, Any] = {"cycles": self.n, "period_nominal_s": self.period_s, "overruns": self.overruns,
                                "skipped_periods": self.skipped_periods, "worst_overrun_s": self.worst_overrun_s}
         if per.size:
             jit = np.abs(per - self.period_s)
             late = self._late[1: self.n]
-            for name, x in (("period", per), ("jitter", jit), ("wake_late", late)):
+            busy = self._busy[: self.n]
+            busy = busy[np.isfinite(busy)]
+            for name, x in (("period", per), ("jitter", jit), ("wake_late", late), ("busy", busy)):
+                if not x.size:
+                    continue
                 out[f"{name}_p50_s"] = float(np.percentile(x, 50))
                 out[f"{name}_p99_s"] = float(np.percentile(x, 99))
                 out[f"{name}_max_s"] = float(x.max())
@@ -751,8 +765,9 @@ class CanBackend(ArmBackend):
                         f"({self.timing.skipped_periods} periods skipped), first {MAX_OVERRUN_EVENTS} listed"))
         return out
 
-    def _event(self, kind: str, detail: str, joint: int | None = None) -> None:
-        self._events.append((self.time_s, kind, joint, detail))
+    def _event(self, kind: str, detail: str, joint: int | None = None, cycle: int | None = None) -> None:
+        c = self._cycle if cycle is None else cycle
+        self._events.append((c * self.control_period_s, kind, joint, detail))
 
     # ---------------------------------------------------------------- open / close
     def _open(self) -> None:
@@ -1064,6 +1079,7 @@ class CanBackend(ArmBackend):
         if self._t0 is None:
             self._t0 = now
             self.timing.cycle_started(now, 0.0)
+        self.timing.cycle_ended(now)
         self._cycle += 1
         k = self._cycle + self.timing.skipped_periods
         deadline = self._t0 + k * T
@@ -1073,7 +1089,7 @@ class CanBackend(ArmBackend):
             self.timing.overrun(late, skipped)
             if self.timing.overruns <= MAX_OVERRUN_EVENTS:
                 self._event("overrun", f"cycle {self._cycle - 1} ended {late * 1e3:.2f} ms after its deadline"
-                            + (f"; {skipped} release points skipped" if skipped else ""))
+                            + (f"; {skipped} release points skipped" if skipped else ""), cycle=self._cycle - 1)
             self.timing.cycle_started(now, late - skipped * T)
             return
         while True:
