@@ -50,7 +50,7 @@ log = logging.getLogger(__name__)
 MODEL_NAMES = ("classic", "classic_symmetric", "stribeck")
 MAP_COLUMNS = ["joint", "move", "direction", "v_cmd_rad_s", "t_start_s", "t_end_s", "n_samples",
                "velocity_rad_s", "velocity_std_rad_s", "velocity_ci95_rad_s", "friction_Nm", "friction_std_Nm",
-               "friction_ci95_Nm", "stick_fraction", "accepted", "reason"]
+               "friction_se_Nm", "friction_ci95_Nm", "stick_fraction", "accepted", "reason"]
 
 
 # ================================================================================================ signals
@@ -274,14 +274,16 @@ def constant_velocity_stage(t_s: np.ndarray, q: np.ndarray, i0: int, i1: int, si
     return Stage(i0 + lo, i0 + hi)
 
 
-def _batch_ci95(x: np.ndarray, blocks: int = 10) -> float:
-    """Half-width of the 95 % confidence interval of the mean of an autocorrelated series, by batch means."""
+def batch_mean_se(x: np.ndarray, blocks: int = 10) -> tuple[float, float]:
+    """Standard error of the mean of an autocorrelated series by batch means, and the half-width of its 95 %
+    confidence interval (Student t with blocks - 1 degrees of freedom). NaN for fewer than 60 samples."""
     n = len(x)
     k = min(blocks, n // 20)
     if k < 3:
-        return float("nan")
+        return float("nan"), float("nan")
     means = np.array([b.mean() for b in np.array_split(x, k)])
-    return float(stats.t.ppf(0.975, k - 1) * means.std(ddof=1) / math.sqrt(k))
+    se = float(means.std(ddof=1) / math.sqrt(k))
+    return se, float(stats.t.ppf(0.975, k - 1) * se)
 
 
 # ================================================================================================ map
@@ -296,6 +298,7 @@ class MapOptions:
     band_sigmas: float = 4.0
     derivative_window_s: float = 0.1  # Savitzky-Golay window of qd, qdd for the inverse dynamics
     stick_fraction_max: float = 0.5   # reject stages where the joint stands still more than this
+    velocity_tolerance: float = 0.03  # with a commanded speed: reject stages off it by more (not steady)
 
 
 def friction_samples(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, rows: np.ndarray, dynamics,
@@ -367,6 +370,9 @@ def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndar
                            stick_fraction=still)
                 if np.sign(v) != m.direction:
                     row.update(accepted=False, reason="moved against the commanded direction")
+                elif np.isfinite(m.v_cmd_rad_s) and abs(v / m.v_cmd_rad_s - 1) > o.velocity_tolerance:
+                    row.update(accepted=False, reason=f"mean velocity {v:.4g} rad/s is {abs(v / m.v_cmd_rad_s - 1):.0%} "
+                                                      f"off the commanded {m.v_cmd_rad_s:.4g}: not in steady state")
                 elif still > o.stick_fraction_max:
                     row.update(accepted=False, reason=f"stands still {still:.0%} of the stage (stick-slip)")
                 stage_rows.append(np.arange(st.s0, st.s1))
@@ -387,19 +393,23 @@ def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndar
             pos += n
             df.at[idx, "friction_Nm"] = float(fj.mean())
             df.at[idx, "friction_std_Nm"] = float(fj.std(ddof=1))
-            df.at[idx, "friction_ci95_Nm"] = _batch_ci95(fj)
+            df.at[idx, "friction_se_Nm"], df.at[idx, "friction_ci95_Nm"] = batch_mean_se(fj)
     df["accepted"] = df["accepted"].astype(bool)
     return df
 
 
 # ================================================================================================ models
-def _as_vf(data) -> tuple[np.ndarray, np.ndarray]:
-    """(velocity, friction) arrays from a map DataFrame (accepted rows) or a (v, F) pair."""
+def _as_vf(data) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(velocity, friction, sigma) arrays from a map DataFrame (accepted rows; ``sigma_Nm`` if present, else
+    ones) or a ``(v, F)`` / ``(v, F, sigma)`` tuple."""
     if isinstance(data, pd.DataFrame):
-        d = data[data["accepted"]] if "accepted" in data else data
-        return d["velocity_rad_s"].to_numpy(float), d["friction_Nm"].to_numpy(float)
-    v, f = data
-    return np.asarray(v, float), np.asarray(f, float)
+        d = data[data["accepted"].astype(bool)] if "accepted" in data else data
+        s = d["sigma_Nm"].to_numpy(float) if "sigma_Nm" in d else np.ones(len(d))
+        return d["velocity_rad_s"].to_numpy(float), d["friction_Nm"].to_numpy(float), s
+    v, f, *rest = data
+    v, f = np.asarray(v, float), np.asarray(f, float)
+    s = np.asarray(rest[0], float) if rest and rest[0] is not None else np.ones(len(v))
+    return v, f, s
 
 
 class _LsqFriction:
@@ -420,9 +430,11 @@ class _LsqFriction:
     def n_params(self) -> int:
         return len(self.param_names)
 
-    def _check(self, v, f):
-        if len(v) != len(f) or not np.all(np.isfinite(v)) or not np.all(np.isfinite(f)):
+    def _check(self, v, f, s):
+        if len(v) != len(f) or len(s) != len(v) or not np.all(np.isfinite(v)) or not np.all(np.isfinite(f)):
             raise ValueError("velocity and friction must be finite arrays of one length")
+        if not np.all(np.isfinite(s)) or (s <= 0).any():
+            raise ValueError("sigma must be positive and finite")
         for side, m in (("positive", v > 0), ("negative", v < 0)):
             if m.sum() < self._min_per_side:
                 raise ValueError(f"{self.name}: needs {self._min_per_side} points at {side} velocity, "
@@ -430,28 +442,35 @@ class _LsqFriction:
 
     _min_per_side = 2
 
-    def _solve(self, v, f, x0, bounds):
+    def _solve(self, v, f, s, x0, bounds):
+        """Minimise sum(rho(((F(v) - f) / s)^2)) from ``x0``."""
         scale = self.f_scale
         if self.loss != "linear" and scale is None:
-            r0 = f - self._predict(np.asarray(x0, float), v)
-            scale = max(1.4826 * float(np.median(np.abs(r0 - np.median(r0)))), 1e-3 * max(np.abs(f).max(), 1e-9))
-        return least_squares(lambda p: self._predict(p, v) - f, x0, bounds=bounds, loss=self.loss,
-                             f_scale=scale if scale else 1.0, method="trf", x_scale="jac", max_nfev=2000)
+            z0 = (self._predict(np.asarray(x0, float), v) - f) / s
+            scale = max(1.4826 * float(np.median(np.abs(z0 - np.median(z0)))), 1e-9)
+        return least_squares(lambda p: (self._predict(p, v) - f) / s, x0, bounds=bounds, loss=self.loss,
+                             f_scale=scale if scale else 1.0, method="trf", x_scale="jac", max_nfev=3000)
 
-    def _finish(self, res, v, f):
+    def _finish(self, res, v, f, s):
+        """Fitted attributes; the covariance scales (J^T J)^-1 by the reduced chi-square (the weights are
+        relative, as ``scipy.optimize.curve_fit`` with ``absolute_sigma=False``)."""
         self.params_ = np.asarray(res.x, float)
         r = self._predict(self.params_, v) - f
+        z = r / s
         self.residuals_ = r
         self.n_points_ = len(v)
         dof = max(len(v) - self.n_params, 1)
-        self.sigma_ = float(np.sqrt(np.sum(r ** 2) / dof))
+        self.chi2_ = float(np.sum(z ** 2))
+        scale2 = self.chi2_ / dof
         jac = np.asarray(res.jac, float)
-        self.cov_ = np.linalg.pinv(jac.T @ jac) * self.sigma_ ** 2
+        jtj = jac.T @ jac
+        self.cov_ = np.linalg.pinv(jtj) * scale2
         self.params_std_ = np.sqrt(np.clip(np.diag(self.cov_), 0, None))
-        ill = np.linalg.matrix_rank(jac) < self.n_params
-        if ill:
-            self.params_std_ = np.where(np.diag(jac.T @ jac) > 0, self.params_std_, np.inf)
+        if np.linalg.matrix_rank(jac) < self.n_params:   # a parameter the data do not determine
+            self.params_std_ = np.where(np.diag(jtj) > 1e-12 * max(np.diag(jtj).max(), 1e-300),
+                                        self.params_std_, np.inf)
         self.rss_ = float(np.sum(r ** 2))
+        self.sigma_ = float(np.sqrt(self.rss_ / dof))
         return self
 
     def predict(self, v) -> np.ndarray:
@@ -459,9 +478,9 @@ class _LsqFriction:
         return self._predict(self.params_, np.asarray(v, float))
 
     def information_criteria(self) -> dict:
-        """In-sample Gaussian AIC and BIC: ``n ln(RSS/n) + 2k`` and ``+ k ln n``."""
+        """In-sample Gaussian AIC and BIC on the weighted residuals: ``n ln(chi2/n) + 2k`` and ``+ k ln n``."""
         n, k = self.n_points_, self.n_params
-        ll = n * math.log(max(self.rss_ / n, 1e-300))
+        ll = n * math.log(max(self.chi2_ / n, 1e-300))
         return {"aic": ll + 2 * k, "bic": ll + k * math.log(n)}
 
     def params(self) -> dict:
@@ -499,8 +518,10 @@ class ClassicFriction(_LsqFriction):
         return np.where(v > 0, p[0] + p[1] * v, np.where(v < 0, -p[2] + p[3] * v, 0.0))
 
     def fit(self, data) -> "ClassicFriction":
-        v, f = _as_vf(data)
-        self._check(v, f)
+        """Fit on a map (DataFrame with ``velocity_rad_s``, ``friction_Nm`` [, ``sigma_Nm``, ``accepted``]) or
+        a ``(v, F[, sigma])`` tuple of (n,) arrays; returns self."""
+        v, f, s = _as_vf(data)
+        self._check(v, f, s)
         # the linear least-squares solution starts the (possibly robust) fit
         if self.symmetric:
             a = np.column_stack([np.sign(v), v])
@@ -508,9 +529,9 @@ class ClassicFriction(_LsqFriction):
             pos = v > 0
             pf = pos.astype(float)
             a = np.column_stack([pf, pf * v, -(1.0 - pf), (1.0 - pf) * v])
-        x0 = np.linalg.lstsq(a, f, rcond=None)[0]
-        res = self._solve(v, f, x0, (-np.inf, np.inf))
-        self._finish(res, v, f)
+        x0 = np.linalg.lstsq(a / s[:, None], f / s, rcond=None)[0]
+        res = self._solve(v, f, s, x0, (-np.inf, np.inf))
+        self._finish(res, v, f, s)
         p, s = self.params_, self.params_std_
         if self.symmetric:
             self.fc_pos_ = self.fc_neg_ = float(p[0])
@@ -533,9 +554,13 @@ class StribeckFriction(_LsqFriction):
     """Stribeck model (thesis eq. 2.8) per direction with shared ``vs`` and ``delta``:
     ``F = s (fc_s + (fs_s - fc_s) exp(-|v / vs|^delta)) + sigma2_s v`` with s the sign of v.
 
-    Non-linear least squares from several starts (vs on a grid); ``fit_delta=False`` keeps ``delta``.
-    Fitted attributes as :class:`ClassicFriction`, plus ``fs_pos_``, ``fs_neg_``, ``vs_``, ``delta_`` (and
-    ``*_std_``).
+    The breakaway level is at least the Coulomb level (``fs = fc + dfs``, ``dfs >= 0``: the Stribeck effect
+    is friction rising towards rest); ``vs`` lies between a fifth of the slowest and half the fastest speed
+    measured (beyond the data it would only bend the viscous line); ``delta`` in [0.5, 4] (``fit_delta=False``
+    keeps ``delta``). Non-linear least squares from several starts (``vs`` on a grid).
+
+    Fitted attributes as :class:`ClassicFriction`, plus ``fs_pos_``, ``fs_neg_``, ``vs_``, ``delta_`` and
+    their ``*_std_`` (``fs`` by the delta method).
     """
 
     name = "stribeck"
@@ -546,7 +571,7 @@ class StribeckFriction(_LsqFriction):
         self.fit_delta = fit_delta
         self.delta = delta
         self.vs_starts = tuple(vs_starts)
-        self.param_names = ("fc_pos", "fs_pos", "sigma2_pos", "fc_neg", "fs_neg", "sigma2_neg", "vs") + \
+        self.param_names = ("fc_pos", "dfs_pos", "sigma2_pos", "fc_neg", "dfs_neg", "sigma2_neg", "vs") + \
             (("delta",) if fit_delta else ())
         self._min_per_side = 3
 
@@ -555,42 +580,61 @@ class StribeckFriction(_LsqFriction):
         return p[0], p[1], p[2], p[3], p[4], p[5], p[6], d
 
     def _predict(self, p, v):
-        fcp, fsp, bp, fcn, fsn, bn, vs, d = self._unpack(p)
+        fcp, dfp, bp, fcn, dfn, bn, vs, d = self._unpack(p)
         e = np.exp(-np.abs(v / vs) ** d)
-        return np.where(v > 0, fcp + (fsp - fcp) * e + bp * v,
-                        np.where(v < 0, -(fcn + (fsn - fcn) * e) + bn * v, 0.0))
+        return np.where(v > 0, fcp + dfp * e + bp * v, np.where(v < 0, -(fcn + dfn * e) + bn * v, 0.0))
 
     def fit(self, data) -> "StribeckFriction":
-        v, f = _as_vf(data)
-        self._check(v, f)
-        c = ClassicFriction().fit((v, f))
-        lo = [0, 0, -np.inf, 0, 0, -np.inf, 1e-4] + ([0.3] if self.fit_delta else [])
-        hi = [np.inf, np.inf, np.inf, np.inf, np.inf, np.inf, 5.0] + ([6.0] if self.fit_delta else [])
+        """As :meth:`ClassicFriction.fit`."""
+        v, f, s = _as_vf(data)
+        self._check(v, f, s)
+        c = ClassicFriction().fit((v, f, s))
         vmin = max(np.abs(v[v != 0]).min(), 1e-4)
+        vmax = 0.5 * min(np.abs(v[v > 0]).max(), np.abs(v[v < 0]).max())
+        vs_lo, vs_hi = 0.2 * vmin, max(vmax, 2 * vmin)
+        lo = [0, 0, -np.inf, 0, 0, -np.inf, vs_lo] + ([0.5] if self.fit_delta else [])
+        hi = [np.inf, np.inf, np.inf, np.inf, np.inf, np.inf, vs_hi] + ([4.0] if self.fit_delta else [])
         best = None
         for vs0 in self.vs_starts:
             for d0 in ((1.0, 2.0) if self.fit_delta else (self.delta,)):
-                x0 = [max(c.fc_pos_, 1e-6), max(c.fc_pos_, 1e-6) * 1.2, c.sigma2_pos_,
-                      max(c.fc_neg_, 1e-6), max(c.fc_neg_, 1e-6) * 1.2, c.sigma2_neg_, max(vs0, vmin)]
+                x0 = [max(c.fc_pos_, 1e-6) * 0.9, max(c.fc_pos_, 1e-6) * 0.2, c.sigma2_pos_,
+                      max(c.fc_neg_, 1e-6) * 0.9, max(c.fc_neg_, 1e-6) * 0.2, c.sigma2_neg_,
+                      float(np.clip(vs0, vs_lo * 1.01, vs_hi * 0.99))]
                 if self.fit_delta:
                     x0.append(d0)
                 try:
-                    res = self._solve(v, f, np.array(x0), (lo, hi))
+                    res = self._solve(v, f, s, np.array(x0), (lo, hi))
                 except (ValueError, np.linalg.LinAlgError):
                     continue
                 if best is None or res.cost < best.cost:
                     best = res
         if best is None:
             raise ValueError("stribeck: no start converged")
-        self._finish(best, v, f)
-        p, s = self.params_, self.params_std_
-        (self.fc_pos_, self.fs_pos_, self.sigma2_pos_, self.fc_neg_, self.fs_neg_, self.sigma2_neg_,
-         self.vs_) = map(float, p[:7])
-        (self.fc_pos_std_, self.fs_pos_std_, self.sigma2_pos_std_, self.fc_neg_std_, self.fs_neg_std_,
-         self.sigma2_neg_std_, self.vs_std_) = map(float, s[:7])
+        self._finish(best, v, f, s)
+        p, sd, cov = self.params_, self.params_std_, self.cov_
+        self.fc_pos_, self.sigma2_pos_, self.fc_neg_, self.sigma2_neg_, self.vs_ = map(float, p[[0, 2, 3, 5, 6]])
+        self.fs_pos_, self.fs_neg_ = float(p[0] + p[1]), float(p[3] + p[4])
+        (self.fc_pos_std_, self.sigma2_pos_std_, self.fc_neg_std_, self.sigma2_neg_std_,
+         self.vs_std_) = map(float, sd[[0, 2, 3, 5, 6]])
+        self.fs_pos_std_ = float(np.sqrt(max(cov[0, 0] + cov[1, 1] + 2 * cov[0, 1], 0.0)))
+        self.fs_neg_std_ = float(np.sqrt(max(cov[3, 3] + cov[4, 4] + 2 * cov[3, 4], 0.0)))
+        if not (np.isfinite(sd[0]) and np.isfinite(sd[1])):
+            self.fs_pos_std_ = float("inf")
+        if not (np.isfinite(sd[3]) and np.isfinite(sd[4])):
+            self.fs_neg_std_ = float("inf")
         self.delta_ = float(p[7]) if self.fit_delta else float(self.delta)
-        self.delta_std_ = float(s[7]) if self.fit_delta else 0.0
+        self.delta_std_ = float(sd[7]) if self.fit_delta else 0.0
         return self
+
+    def params(self) -> dict:
+        out = super().params()
+        out.update(fs_pos=self.fs_pos_, fs_neg=self.fs_neg_)
+        return out
+
+    def params_std(self) -> dict:
+        out = super().params_std()
+        out.update(fs_pos=self.fs_pos_std_, fs_neg=self.fs_neg_std_)
+        return out
 
     def joint_params(self) -> dict:
         return {"fc_pos_Nm": max(self.fc_pos_, 0.0), "fc_neg_Nm": max(self.fc_neg_, 0.0),
@@ -625,13 +669,54 @@ def fold_labels(v: np.ndarray, folds: int) -> np.ndarray:
     return labels
 
 
+def segment_sigma(v: np.ndarray, f: np.ndarray, se: np.ndarray, max_iter: int = 60) -> np.ndarray:
+    """Per-segment standard deviation for weighted fits: ``sqrt(se_i^2 + tau^2)``.
+
+    ``se_i`` is the segment's standard error (batch means); ``tau^2`` the between-segment variance the
+    within-segment noise does not explain, found (Paule-Mandel) so that the classic per-direction fit has
+    ``chi^2 = n - p``. Without such excess, tau = 0 and the weights are the segments' own precision; with a
+    misfit (a Stribeck plant seen by the classic model) tau grows and the weights even out. (n,) arrays.
+    """
+    se = np.asarray(se, float).copy()
+    good = np.isfinite(se) & (se > 0)
+    if not good.any():
+        return np.ones(len(v))
+    se[~good] = 3.0 * np.nanmax(se[good])
+    se = np.maximum(se, 1e-6 * max(np.abs(f).max(), 1e-9))
+    try:
+        def chi2(tau2):
+            s = np.sqrt(se ** 2 + tau2)
+            return ClassicFriction().fit((v, f, s)).chi2_
+        dof = len(v) - 4
+        if dof <= 0 or chi2(0.0) <= dof:
+            return se
+        lo, hi = 0.0, max(float(np.var(f)), 1e-12)
+        while chi2(hi) > dof and hi < 1e6:
+            hi *= 4.0
+        for _ in range(max_iter):
+            mid = 0.5 * (lo + hi)
+            lo, hi = (mid, hi) if chi2(mid) > dof else (lo, mid)
+            if hi - lo <= 1e-6 * hi:
+                break
+        return np.sqrt(se ** 2 + hi)
+    except ValueError:
+        return np.ones(len(v))
+
+
 def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic",
-                 loss: str = "linear") -> tuple[pd.DataFrame, str, dict]:
+                 loss: str = "linear", weighting: str = "se") -> tuple[pd.DataFrame, str, dict]:
     """Held-out model selection over segments.
 
-    Each model is fitted on k-1 folds and predicts the held-out fold; the pooled held-out residuals give
-    ``SSE_cv``, and ``aic_cv = n ln(SSE_cv / n) + 2k``, ``bic_cv = n ln(SSE_cv / n) + k ln n`` (k parameters,
-    n points). The model with the smallest criterion wins; every model is then refitted on all points.
+    Each model is fitted on k-1 folds and predicts the held-out fold; the pooled held-out residuals,
+    standardised by the segments' sigma (:func:`segment_sigma`, or 1 with ``weighting="none"``, the thesis'
+    eq. 4.2) give ``S_cv``, and ``aic_cv = n ln(S_cv / n) + 2k``, ``bic_cv = n ln(S_cv / n) + k ln n``
+    (k parameters, n points). The model with the smallest criterion wins; every model is then refitted on
+    all points.
+
+    Parameters
+    ----------
+    data : map DataFrame of one joint (``velocity_rad_s``, ``friction_Nm``, ``friction_se_Nm``,
+        ``accepted``) or a ``(v, F[, se])`` tuple.
 
     Returns
     -------
@@ -639,13 +724,19 @@ def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic
     chosen : name of the winner.
     fitted : model name -> estimator fitted on all points (models that cannot be fitted are left out).
     """
-    v, f = _as_vf(data)
+    if isinstance(data, pd.DataFrame):
+        d = data[data["accepted"].astype(bool)] if "accepted" in data else data
+        v, f = d["velocity_rad_s"].to_numpy(float), d["friction_Nm"].to_numpy(float)
+        se = d["friction_se_Nm"].to_numpy(float) if "friction_se_Nm" in d else np.full(len(d), np.nan)
+    else:
+        v, f, se = _as_vf(data)
+    sigma = segment_sigma(v, f, se) if weighting == "se" else np.ones(len(v))
     labels = fold_labels(v, folds)
     rows, fitted = [], {}
     n = len(v)
     for name in models:
         try:
-            full = make_estimator(name, loss).fit((v, f))
+            full = make_estimator(name, loss).fit((v, f, sigma))
         except ValueError as exc:
             log.info("model %s not fitted: %s", name, exc)
             continue
@@ -656,17 +747,18 @@ def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic
             if not test.any():
                 continue
             try:
-                est = make_estimator(name, loss).fit((v[~test], f[~test]))
+                est = make_estimator(name, loss).fit((v[~test], f[~test], sigma[~test]))
             except ValueError:
                 continue
             pred[test] = est.predict(v[test])
         held = np.isfinite(pred)
-        sse = float(np.sum((pred[held] - f[held]) ** 2))
         nh = int(held.sum())
         kpar = full.n_params
         if nh == n and nh > 0:
-            ll = nh * math.log(max(sse / nh, 1e-300))
-            aic_cv, bic_cv, cv_rmse = ll + 2 * kpar, ll + kpar * math.log(nh), math.sqrt(sse / nh)
+            s_cv = float(np.sum(((pred - f) / sigma) ** 2))
+            ll = nh * math.log(max(s_cv / nh, 1e-300))
+            aic_cv, bic_cv = ll + 2 * kpar, ll + kpar * math.log(nh)
+            cv_rmse = math.sqrt(float(np.mean((pred - f) ** 2)))
         else:  # some folds could not be fitted (too few points): not comparable
             aic_cv = bic_cv = cv_rmse = float("inf")
         ic = full.information_criteria()
@@ -676,8 +768,10 @@ def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic
         raise ValueError("no friction model could be fitted (too few accepted segments)")
     table = pd.DataFrame(rows).set_index("model")
     key = f"{criterion}_cv"
-    chosen = str(table[key].idxmin()) if np.isfinite(table[key]).any() else "classic_symmetric" \
-        if "classic_symmetric" in table.index else str(table.index[0])
+    if np.isfinite(table[key]).any():
+        chosen = str(table[key].idxmin())
+    else:
+        chosen = "classic_symmetric" if "classic_symmetric" in table.index else str(table.index[0])
     table["chosen"] = table.index == chosen
     return table, chosen, fitted
 
@@ -755,11 +849,11 @@ def json_records(df: pd.DataFrame) -> list[dict]:
 
 
 def identify_from_map(fmap: pd.DataFrame, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic",
-                      loss: str = "linear") -> FrictionIdentification:
+                      loss: str = "linear", weighting: str = "se") -> FrictionIdentification:
     """Fit and select per joint on an existing map; the chosen models as one :class:`FrictionModel`
     (joints without enough segments keep zero friction)."""
     result = FrictionIdentification(fmap, options={"models": list(models), "folds": folds,
-                                                   "criterion": criterion, "loss": loss})
+                                                   "criterion": criterion, "loss": loss, "weighting": weighting})
     arrays = {k: np.zeros(P.N_JOINTS) for k in ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad",
                                                  "viscous_neg_Nm_s_rad")}
     arrays.update({k: np.full(P.N_JOINTS, np.nan) for k in ("fs_pos_Nm", "fs_neg_Nm", "vs_rad_s")})
@@ -768,7 +862,7 @@ def identify_from_map(fmap: pd.DataFrame, models=MODEL_NAMES, folds: int = 5, cr
         mj = fmap[(fmap["joint"] == j)]
         acc = mj[mj["accepted"] & mj["friction_Nm"].notna()]
         try:
-            table, chosen, fitted = select_model(acc, models, folds, criterion, loss)
+            table, chosen, fitted = select_model(acc, models, folds, criterion, loss, weighting)
         except ValueError as exc:
             log.warning("joint %d: %s", j, exc)
             continue
@@ -787,7 +881,7 @@ def identify(run, options: dict | None = None, map_options: MapOptions | None = 
     """
     from wamctl.model.dynamics import Payload, WamDynamics
 
-    o = {"loss": "linear", "criterion": "bic", "folds": 5, "models": list(MODEL_NAMES)}
+    o = {"loss": "linear", "criterion": "bic", "folds": 5, "models": list(MODEL_NAMES), "weighting": "se"}
     o.update(options or {})
     meta = run.meta
     joints = [j for j in meta.experiment.joints] or list(range(1, P.N_JOINTS + 1))
@@ -798,4 +892,4 @@ def identify(run, options: dict | None = None, map_options: MapOptions | None = 
     if not len(fmap) or not fmap["accepted"].any():
         raise DataFormatError(f"{run.source}: no constant-velocity stage found in the data of joints {joints}; "
                               "is this a friction sweep (moves at constant velocities)?")
-    return identify_from_map(fmap, o["models"], o["folds"], o["criterion"], o["loss"])
+    return identify_from_map(fmap, o["models"], o["folds"], o["criterion"], o["loss"], o["weighting"])

@@ -6,7 +6,9 @@ as the simulator's), so the same specs, run directories and reports work on the 
 - ``_open``: open ``can.Bus(interface=..., channel=..., bitrate=...)`` (python-can imports the vendor driver
   of the chosen interface only), probe pucks 1..7 (a get of STAT each), wake those in the monitor
   (STAT=READY), read VERS (firmware check), ROLE, CTS, IPNM and PIDX, read the positions and check them
-  against the spec's start configuration, send zero torque and switch the pucks to TORQUE mode (read back).
+  against the spec's start configuration. The pucks stay idle until the first torque command, which is
+  preceded by MODE=TORQUE (so there is no moment of zero torque in TORQUE mode while the caller gets ready)
+  and followed by a get of MODE, whose replies the next cycles check (a puck not in TORQUE mode trips).
 - ``_read_positions``: one get of P to the whole-WAM group (0x404), the seven 22-bit replies decoded to motor
   counts, turned into joint angles through ``J2MP`` and each puck's CTS.
 - ``_send_torques``: joint torques -> motor torques (``J2MP^-T``) -> puck units (IPNM) -> the two packed
@@ -460,10 +462,11 @@ def bus_check(interface: str, channel: str, bitrate: int = 1_000_000, *, simulat
 class SimulatedArm:
     """A :class:`~wamctl.backends.puck_sim.PlantAdapter` over a :class:`~wamctl.backends.sim.SimBackend`.
 
-    Runs on the puck simulator's thread only. Each position request while any puck is in TORQUE mode (at
-    this request and the previous one) advances the physics by one control period under the torques the
-    pucks hold (zero-order hold, like the direct simulation), then returns the encoders' reading. While
-    the pucks are idle the arm is held at rest.
+    Runs on the puck simulator's thread only. Each position request (but the very first) made while a
+    puck is in TORQUE mode advances the physics by one control period under the torques the pucks hold
+    (zero-order hold, like the direct simulation), then returns the encoders' reading. While the pucks
+    are idle the arm is held at rest. With the host switching to TORQUE mode at its first torque command
+    (cycle 0), the arm's cycle count matches the host's.
 
     Parameters
     ----------
@@ -473,7 +476,7 @@ class SimulatedArm:
     Attributes
     ----------
     cycle : int
-        Control periods simulated (index of the current cycle), -1 before the first.
+        Control periods simulated: the index of the current cycle.
     zero_torque_since_cycle : numpy.ndarray, shape (7,)
         Per joint, the cycle since which the applied torque has been exactly zero (-1: since before the
         loop; NaN: not zero now).
@@ -484,9 +487,9 @@ class SimulatedArm:
         sim.open()
         self._lock = threading.Lock()
         self._tau_Nm = np.zeros(P.N_JOINTS)
-        self._running = False
+        self._requested = False
         self._simulator = None
-        self.cycle = -1
+        self.cycle = 0
         self.zero_torque_since_cycle = np.full(P.N_JOINTS, -1.0)
 
     def attach(self, simulator) -> None:
@@ -499,15 +502,14 @@ class SimulatedArm:
         return any(m == pp.Mode.TORQUE for m in self._simulator.modes().values())
 
     def joint_positions_rad(self) -> np.ndarray:
-        """Advance one control period if the pucks were and are in TORQUE mode; the encoders' reading."""
+        """Advance one control period if a puck is in TORQUE mode; the encoders' reading."""
         torque_mode = self._torque_mode()
         with self._lock:
-            if torque_mode:
-                if self._running:
-                    self.sim.command_torques(self._tau_Nm)
-                    self.sim.wait_next_cycle()
+            if torque_mode and self._requested:
+                self.sim.command_torques(self._tau_Nm)
+                self.sim.wait_next_cycle()
                 self.cycle += 1
-            self._running = torque_mode
+            self._requested = True
             return self.sim.read_positions().copy()
 
     def apply_joint_torques_Nm(self, tau: np.ndarray) -> None:
@@ -528,7 +530,7 @@ class SimulatedArm:
 
     def describe(self) -> dict:
         with self._lock:
-            return {"cycles_simulated": self.cycle + 1, **self.sim.describe(),
+            return {"cycles_simulated": self.cycle, **self.sim.describe(),
                     "zero_torque_since_cycle": [None if np.isnan(c) else int(c)
                                                 for c in self.zero_torque_since_cycle]}
 
@@ -687,6 +689,10 @@ class CanBackend(ArmBackend):
         self.idle_confirmed: list[int] = []
         self._tx_failures_pending = 0
         self._fault_injected_cycle: int | None = None
+        # TORQUE mode: set with the first torque command, confirmed by the pucks' MODE replies
+        self._mode_sent_cycle: int | None = None
+        self._mode_replies: dict[int, int] = {}
+        self.torque_mode_confirmed = False
 
     # ---------------------------------------------------------------- construction
     @classmethod
@@ -733,7 +739,7 @@ class CanBackend(ArmBackend):
         d: dict[str, Any] = {
             "name": self.name, "interface": self.interface, "channel": self.channel, "bitrate": self.bitrate,
             "simulated_pucks": self.simulated_arm is not None, "watchdog_cycles": self.watchdog_cycles,
-            "reply_timeout_s": self.reply_timeout_s,
+            "reply_timeout_s": self.reply_timeout_s, "torque_mode_confirmed": self.torque_mode_confirmed,
             "pucks": {str(i): {k: v for k, v in info.to_dict().items() if k in ("vers", "cts", "ipnm", "pidx", "sn")}
                       for i, info in self.pucks.items()},
             "loop": self.timing.summary(), "link": dict(self._stats),
@@ -830,14 +836,7 @@ class CanBackend(ArmBackend):
                                        f"{self.q0_rad[j]:.4f} rad (tolerance {self.start_tolerance_rad} rad): "
                                        f"move the arm to q0_rad or change q0_rad")
         self._q[:] = q
-        # zero torque, then TORQUE mode, read back
-        self._tx_torque_units(np.zeros(P.N_JOINTS))
-        self._tx(pp.make_set_property(pp.GROUP_WAM, pp.Prop.MODE, pp.Mode.TORQUE))
-        modes = read_property(bus, pp.WAM_PUCK_IDS, pp.Prop.MODE)
-        not_torque = [i for i in pp.WAM_PUCK_IDS if modes.get(i) != pp.Mode.TORQUE]
-        if not_torque:
-            raise BackendError(f"pucks {not_torque} did not enter TORQUE mode (MODE={[modes.get(i) for i in not_torque]})")
-        logger.info("pucks in TORQUE mode")
+        logger.info("pucks found and idle; TORQUE mode comes with the first torque command")
 
     def _poll_positions_once(self, timeout_s: float) -> np.ndarray | None:
         counts = np.zeros(P.N_JOINTS)
@@ -922,9 +921,34 @@ class CanBackend(ArmBackend):
                 logger.error("sending zero torque at shutdown failed: %s", exc)
             return
         try:
-            self._tx_torque_units(tau_Nm)
+            if self._mode_sent_cycle is None:
+                # TORQUE mode right before the first command (no moment of zero torque in TORQUE mode), read
+                # back asynchronously: the replies are checked by the next cycles' reads
+                self._tx(pp.make_set_property(pp.GROUP_WAM, pp.Prop.MODE, pp.Mode.TORQUE))
+                self._mode_sent_cycle = self._cycle
+                self._tx_torque_units(tau_Nm)
+                self._tx(pp.make_get_property(pp.GROUP_WAM, pp.Prop.MODE))
+            else:
+                self._tx_torque_units(tau_Nm)
         except can.CanError as exc:
             self._trip(f"CAN transmit error: {exc}", BackendError)
+
+    def _check_torque_mode(self) -> None:
+        """Trip if a puck reported another MODE than TORQUE, or not all did in time."""
+        if self._mode_sent_cycle is None or self.torque_mode_confirmed:
+            return
+        wrong = {i: m for i, m in self._mode_replies.items() if m != pp.Mode.TORQUE}
+        if wrong:
+            self._trip(f"pucks {sorted(wrong)} report MODE {sorted(set(wrong.values()))} instead of TORQUE "
+                       f"({int(pp.Mode.TORQUE)}): is the WAM activated (Shift+Activate on the pendant)?", BackendError)
+        if len(self._mode_replies) == pp.N_JOINTS:
+            self.torque_mode_confirmed = True
+            self._event("torque_mode", f"pucks 1-7 confirmed in TORQUE mode (cycle {self._cycle})")
+            logger.info("pucks 1-7 in TORQUE mode")
+        elif self._cycle - self._mode_sent_cycle > self.watchdog_cycles + 1:
+            missing = [i for i in pp.WAM_PUCK_IDS if i not in self._mode_replies]
+            self._trip(f"pucks {missing} did not confirm TORQUE mode within {self._cycle - self._mode_sent_cycle} "
+                       "cycles", BackendError)
 
     # ---------------------------------------------------------------- receive
     def _decode(self, msg: can.Message) -> pp.BusId | None:
@@ -947,7 +971,9 @@ class CanBackend(ArmBackend):
         """A position reply's (puck, counts); None for a property reply; PuckFrameError if malformed."""
         if bid.target == _FEEDBACK_POSITION_TARGET:
             return pp.parse_position_reply(msg)
-        pp.parse_property_reply(msg)
+        reply = pp.parse_property_reply(msg)
+        if reply.prop == pp.Prop.MODE and self._mode_sent_cycle is not None and not self.torque_mode_confirmed:
+            self._mode_replies[reply.puck_id] = reply.value
         return None
 
     def _read_positions(self) -> np.ndarray:
@@ -1020,6 +1046,7 @@ class CanBackend(ArmBackend):
                 self._event("link", f"cycle {self._cycle}: replies back after {self._bad_cycles} bad cycles")
             self._bad_cycles = 0
             self._bad_run_start = None
+        self._check_torque_mode()
         self._q[:] = pp.counts_to_joint_rad(self._counts, self._cts, pp.J2MP)
         return self._q
 

@@ -29,7 +29,7 @@ def print_document_tables(doc: Document) -> None:
         t = Table(title=f"{doc.title}: {name}", caption=caption or None)
         frame = df.reset_index() if df.index.name else df
         for c in frame.columns:
-            t.add_column(str(c), justify="right")
+            t.add_column(str(c).replace("_", " "), justify="right", overflow="fold")
         for row in frame.itertuples(index=False):
             t.add_row(*[f"{v:.{digits}f}" if isinstance(v, float) else str(v) for v in row])
         console.print(t)

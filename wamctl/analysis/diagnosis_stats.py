@@ -1,0 +1,107 @@
+"""Statistics of the model diagnosis: cross-validated least squares, nested-model tests, whiteness (no I/O).
+
+Residuals of smoothed signals are autocorrelated, so a test that counts every sample as independent would
+call any faint structure significant. Every test here therefore uses an *effective* sample size,
+``n_eff = n / tau_int``, with ``tau_int`` the integrated autocorrelation time of the residual (Geyer's initial
+positive sequence), and is made on held-out (cross-validated) residuals: the model with the extra effect
+must predict samples it was not fitted on better than the declared model does.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from scipy import stats
+
+
+def orth_basis(X: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
+    """Orthonormal basis (m, r) of the column space of ``X`` (m, p); rank-deficient columns dropped."""
+    if X.shape[1] == 0:
+        return X
+    u, s, _ = np.linalg.svd(X, full_matrices=False)
+    if s.size == 0 or s[0] == 0:
+        return u[:, :0]
+    return u[:, s > s[0] * rtol]
+
+
+def lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Minimum-norm least squares with column scaling (columns of very different sizes)."""
+    scale = np.sqrt((X ** 2).sum(axis=0))
+    scale[scale == 0] = 1.0
+    theta = np.linalg.lstsq(X / scale, y, rcond=1e-10)[0]
+    return theta / scale
+
+
+def projection_gain(U: np.ndarray, r: np.ndarray, Z: np.ndarray) -> float:
+    """Drop of the sum of squares of ``r`` (residual of a fit on basis ``U``) when columns ``Z`` are added."""
+    Zr = Z - U @ (U.T @ Z)
+    B = orth_basis(Zr)
+    if B.shape[1] == 0:
+        return 0.0
+    a = B.T @ r
+    return float(a @ a)
+
+
+def integrated_autocorr_time(e: np.ndarray, max_lag: int | None = None) -> float:
+    """Integrated autocorrelation time ``1 + 2 sum rho_k`` (Geyer's initial positive sequence), >= 1."""
+    e = np.asarray(e, float) - np.mean(e)
+    n = len(e)
+    if n < 8 or not np.any(e):
+        return 1.0
+    max_lag = min(max_lag or n // 4, n - 1)
+    nfft = 1 << int(np.ceil(np.log2(2 * n)))
+    f = np.fft.rfft(e, nfft)
+    acf = np.fft.irfft(f * np.conj(f), nfft)[: max_lag + 1]
+    acf = acf / acf[0]
+    # pairs Gamma_m = rho_{2m} + rho_{2m+1}, summed while positive (and monotonised)
+    tau = -1.0
+    prev = np.inf
+    for m in range(0, max_lag // 2):
+        g = acf[2 * m] + acf[2 * m + 1]
+        if g <= 0:
+            break
+        g = min(g, prev)
+        prev = g
+        tau += 2 * g
+    return float(max(tau, 1.0))
+
+
+def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int) -> dict:
+    """Nested-model F-test and BIC change between held-out residuals of two models.
+
+    Parameters
+    ----------
+    e0, e1 : (m,) held-out residuals of the declared (nested) model and of the model with the effect.
+    p_extra : parameters the effect adds (its columns plus one per shape parameter chosen on a grid).
+    k1 : parameters of the larger model.
+
+    Returns
+    -------
+    dict with ``p_value``, ``delta_bic`` (negative: the effect is worth its parameters), ``F``, ``n``,
+    ``n_eff``, ``tau_int``, ``ssr_ratio`` (held-out SSR with / without the effect).
+    """
+    n = len(e0)
+    ssr0 = float(e0 @ e0)
+    ssr1 = float(e1 @ e1)
+    tau = integrated_autocorr_time(e1)
+    n_eff = max(n / tau, k1 + 2.0)
+    ratio = ssr1 / ssr0 if ssr0 > 0 else 1.0
+    if ssr1 >= ssr0 or ssr0 == 0:
+        F, p = 0.0, 1.0
+    else:
+        F = ((ssr0 - ssr1) / p_extra) / (ssr1 / (n_eff - k1))
+        p = float(stats.f.sf(F, p_extra, n_eff - k1))
+    dbic = n_eff * np.log(max(ratio, 1e-300)) + p_extra * np.log(n_eff)
+    return {"p_value": p, "delta_bic": float(dbic), "F": float(F), "n": int(n), "n_eff": float(n_eff),
+            "tau_int": float(tau), "ssr_ratio": float(ratio)}
+
+
+def whiteness_p(e: np.ndarray, spacing: int, lags: int = 10) -> float:
+    """Ljung-Box p-value of a residual taken every ``spacing`` samples (the smoothing window), so that the
+    filter's own correlation does not count as structure. NaN when there are too few samples."""
+    from statsmodels.stats.diagnostic import acorr_ljungbox
+
+    x = np.asarray(e, float)[:: max(1, spacing)]
+    if len(x) < 3 * lags or not np.any(x - x.mean()):
+        return float("nan")
+    res = acorr_ljungbox(x - x.mean(), lags=[lags], return_df=True)
+    return float(res["lb_pvalue"].iloc[0])
