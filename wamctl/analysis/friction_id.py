@@ -297,7 +297,7 @@ class MapOptions:
     consistency: float = 0.05
     band_sigmas: float = 4.0
     derivative_window_s: float = 0.1  # Savitzky-Golay window of qd, qdd for the inverse dynamics
-    stick_fraction_max: float = 0.5   # reject stages where the joint stands still more than this
+    stick_fraction_max: float = 0.1   # reject stages where the joint stands still more than this
     velocity_tolerance: float = 0.03  # with a commanded speed: reject stages off it by more (not steady)
 
 

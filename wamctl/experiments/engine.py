@@ -14,6 +14,7 @@ import logging
 from contextlib import nullcontext
 
 import numpy as np
+from numba import njit
 
 from wamctl.backends.base import ArmBackend
 from wamctl.control.controllers import JointController
@@ -57,25 +58,35 @@ class LoopRecorder:
         return self.rows[: self.n]
 
 
+@njit(cache=True)
+def _record(rows, i, t, q_ref, q, tau, q_true, qd_true):
+    """Write one tick into row i (the truth columns only when the table has them)."""
+    n = q.shape[0]
+    rows[i, 0] = t
+    for j in range(n):
+        rows[i, 1 + j] = q_ref[j]
+        rows[i, 1 + n + j] = q[j]
+        rows[i, 1 + 2 * n + j] = tau[j]
+    if rows.shape[1] > 1 + 3 * n:
+        for j in range(n):
+            rows[i, 1 + 3 * n + j] = q_true[j]
+            rows[i, 1 + 4 * n + j] = qd_true[j]
+
+
 def run_loop(backend: ArmBackend, controller: JointController, reference: Reference,
              recorder: LoopRecorder, progress=None, chunk_ticks: int = 2500) -> None:
     """Execute ``reference`` tick by tick. Raises whatever the backend raises (safety faults, Ctrl-C);
     the caller flushes ``recorder`` and records the status."""
     rows = recorder.rows
-    truth = getattr(backend, "truth", None) if rows.shape[1] > 22 else None
+    truth = backend.truth() if hasattr(backend, "truth") else (np.zeros(P.N_JOINTS), np.zeros(P.N_JOINTS))
     q_ref = reference.q_rad
+    t_s = reference.t_s + recorder.t_offset_s
     n = len(reference)
     update_every = max(1, n // 200)
     for k in range(n):
         q = backend.read_positions()
         tau = backend.command_torques(controller.update(q_ref[k], q))
-        row = rows[recorder.n]
-        row[0] = recorder.t_offset_s + reference.t_s[k]
-        row[1:8] = q_ref[k]
-        row[8:15] = q
-        row[15:22] = tau
-        if truth is not None:
-            row[22:29], row[29:36] = truth()
+        _record(rows, recorder.n, t_s[k], q_ref[k], q, tau, truth[0], truth[1])
         recorder.n += 1
         backend.wait_next_cycle()
         if recorder.writer is not None and recorder.n - recorder._flushed >= chunk_ticks:
