@@ -222,3 +222,21 @@ def test_killed_run_keeps_every_chunk_and_says_interrupted(tmp_path, sig):
     assert len(data) == rows >= 5000
     assert data["t_s"].is_monotonic_increasing
     assert data.notna().all().all()
+
+
+def test_report_hmi_results_reproduces_table_6_11(tmp_path):
+    """Table 6.11 from Table 6.10 (8 complete subjects) and the repeated-measures ANOVA, through the CLI."""
+    csv = ROOT / "tests" / "fixtures" / "hmi" / "thesis_t6_10_subjects.csv"
+    r = wamctl("report", "--hmi-results", csv, "--out", tmp_path, "--json")
+    assert r.returncode == 0, r.stderr
+    rep = json.loads(r.stdout)["reports"][0]
+    anova = {row["source"]: row for row in rep["tables"]["thesis_t6_10_subjects_anova_hit_rate"]}
+    between = anova["Between Groups"]
+    assert (between["df"], anova["Within Groups"]["df"]) == (5, 42)
+    assert round(between["F"], 2) == 2.86 and round(between["p"], 4) == 0.0262
+    rm = {row["source"]: row for row in rep["tables"]["thesis_t6_10_subjects_rm_anova_hit_rate"]}
+    assert round(rm["condition"]["F"], 2) == 3.04 and round(rm["condition"]["p"], 3) == 0.022
+    assert rm["Error"]["df"] == 35
+    md = (tmp_path / "thesis_t6_10_subjects_report.md").read_text()
+    assert "subject 9: missing" in md and "Greenhouse-Geisser" in md
+    assert (tmp_path / "thesis_t6_10_subjects_mean.png").stat().st_size > 1000

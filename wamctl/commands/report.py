@@ -12,8 +12,11 @@ from wamctl.commands.common import console, emit_json
 
 
 @app.command()
-def report(run_dirs: Annotated[list[Path], typer.Argument(help="One or more run directories.",
-                                                          show_default=False)],
+def report(run_dirs: Annotated[Optional[list[Path]], typer.Argument(help="One or more run directories.",
+                                                                    show_default=False)] = None,
+           hmi_results: Annotated[Optional[list[Path]], typer.Option(
+               "--hmi-results", help="An HMI results CSV (raw trials: subject,condition,location,attempt,hit,time_s; "
+               "or per-unit summaries); repeatable. Reported with ANOVA tables beside the runs.")] = None,
            out: Annotated[Optional[Path], typer.Option("--out", help="Write the report(s) here instead of "
                                                        "into each run directory.")] = None,
            format: Annotated[str, typer.Option("--format", help="Comma-separated: md, html, json.")] = "md,html,json",
@@ -22,7 +25,9 @@ def report(run_dirs: Annotated[list[Path], typer.Argument(help="One or more run 
     """Analyse run directories and write their reports (tables, figures; Markdown, HTML, JSON).
 
     Each run is recognised by the kind in its manifest (rotation, friction_sweep, ift, diagnosis, hmi_block,
-    or an imported measured run). With several runs, a combined report is written too.
+    or an imported measured run). With several runs, a combined report is written too. HMI results files
+    (--hmi-results) get per-unit tables (mean, SD, SEM), the one-way ANOVA table, and for per-subject data the
+    repeated-measures ANOVA with Mauchly's test, Greenhouse-Geisser correction and Holm-corrected pairs.
     """
     from wamctl.commands.run import print_document_tables
     from wamctl.errors import WamctlError
@@ -32,7 +37,15 @@ def report(run_dirs: Annotated[list[Path], typer.Argument(help="One or more run 
     bad = [f for f in formats if f not in ("md", "html", "json")]
     if bad:
         raise WamctlError(f"--format: unknown format(s) {', '.join(bad)}; choose from md, html, json")
-    docs, written = report_runs(run_dirs, out, formats)
+    if not run_dirs and not hmi_results:
+        raise WamctlError("nothing to report: give run directories and/or --hmi-results FILE.csv")
+    docs, written = report_runs(run_dirs, out, formats) if run_dirs else ([], [])
+    for csv in hmi_results or []:
+        from wamctl.report.hmi_stats import hmi_results_report
+        dest = Path(out or csv.parent)
+        doc = hmi_results_report(csv, dest)
+        docs.append(doc)
+        written += doc.write(dest, f"{csv.stem}_report", formats)
     if json:
         emit_json({"reports": [d.to_json() for d in docs], "written": [str(p) for p in written]})
         return
