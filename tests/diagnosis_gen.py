@@ -2,8 +2,8 @@
 
 Each run is the real simulator (:class:`wamctl.backends.sim.SimBackend` with a :class:`wamctl.model.plant.Plant`
 holding Table 4.1 friction and 4096-count encoders) driven by libbarrett's PD + gravity controller along a
-varied excitation: a chain of LSPB moves, each moving a random subset of joints by a random amount in either
-direction at a random cruise speed, with short holds between some of them. The declared model (rigid body +
+varied excitation: a chain of LSPB moves, each moving a random subset of joints by a random amount, mostly
+turning back, at a random cruise speed, with short holds between some of them. The declared model (rigid body +
 armature + classic friction) never knows the injected effect. The run is written in the measured-run format
 (``meta.yaml`` + ``data.parquet``); the truth goes to a separate ``truth.yaml`` that the diagnosis never reads.
 
@@ -60,30 +60,34 @@ class GeneratedRun:
 def make_reference(rng: np.random.Generator, q0: np.ndarray, duration_s: float = 30.0):
     """A varied excitation: LSPB moves of random joint subsets, both directions, several speeds.
 
-    Every joint moves in at least a third of the moves; positions stay within ``q0 +- EXCURSION_RAD``.
+    Each move takes every joint with probability one half; a joint mostly turns back (two moves in three),
+    so that every joint reverses several times; positions stay within ``q0 +- EXCURSION_RAD``.
     """
     lo = np.maximum(q0 - EXCURSION_RAD, P.Q_MIN_RAD + 0.1)
     hi = np.minimum(q0 + EXCURSION_RAD, P.Q_MAX_RAD - 0.1)
     b = ReferenceBuilder(q0, DT_S).hold(0.3, "settle")
     q = q0.copy()
+    last = rng.choice([-1.0, 1.0], P.N_JOINTS)
     t = 0.3
     k = 0
     while t < duration_s:
-        n_move = rng.integers(2, 8)
-        joints = rng.choice(P.N_JOINTS, size=n_move, replace=False)
+        joints = np.flatnonzero(rng.random(P.N_JOINTS) < 0.5)
+        if len(joints) == 0:
+            joints = rng.integers(0, P.N_JOINTS, 1)
         deltas = {}
         for j in joints:
-            amp = rng.uniform(0.15, 0.7) * (hi[j] - lo[j]) / 2
-            sign = rng.choice([-1.0, 1.0])
+            amp = rng.uniform(0.1, 0.5) * (hi[j] - lo[j]) / 2
+            sign = -last[j] if rng.random() < 2 / 3 else last[j]
             if not lo[j] <= q[j] + sign * amp <= hi[j]:
                 sign = -sign
             target = float(np.clip(q[j] + sign * amp, lo[j], hi[j]))
-            deltas[int(j)] = target - q[j]
-        deltas = {j: d for j, d in deltas.items() if abs(d) > 0.02}
+            if abs(target - q[j]) > 0.02:
+                deltas[int(j)] = target - q[j]
+                last[j] = np.sign(target - q[j])
         if not deltas:
             continue
         amp = max(abs(d) for d in deltas.values())
-        v = float(np.exp(rng.uniform(np.log(0.06), np.log(0.7))))
+        v = float(np.exp(rng.uniform(np.log(0.08), np.log(0.8))))
         v = min(v, amp / 0.3)                                      # keep t_f >= 2 t_c + a little
         tc = float(rng.uniform(0.15, 0.4))
         tc = min(tc, 0.45 * (tc + amp / v))
@@ -91,8 +95,8 @@ def make_reference(rng: np.random.Generator, q0: np.ndarray, duration_s: float =
         for j, d in deltas.items():
             q[j] += d
         t += tc + amp / v
-        if rng.random() < 0.4:
-            hold = float(rng.uniform(0.05, 0.4))
+        if rng.random() < 0.3:
+            hold = float(rng.uniform(0.05, 0.3))
             b.hold(hold, "hold")
             t += hold
         k += 1

@@ -33,13 +33,16 @@ import logging
 from dataclasses import dataclass, field
 
 import numpy as np
+from scipy.signal import savgol_filter
 
+from wamctl.analysis.diagnosis_backlash import (MIN_ONSETS, MIN_REVERSALS, breakaway_ratio, find_onsets,
+                                                hidden_travel, onset_test, resolution_rad)
 from wamctl.analysis.diagnosis_candidates import (
-    BACKLASH_TIME_CONSTANTS_S, D7_M, DELAY_GRID_S, DRIFT_T_GRID_FRACTION, EFFECT_NAMES, RIPPLE_PERIOD_MAX_RAD,
-    RIPPLE_PERIOD_MIN_RAD, STRIBECK_VS_GRID_RAD_S, JointData, backlash_columns, drift_columns,
-    friction_columns, reversal_times, ripple_columns, stribeck_columns)
-from wamctl.analysis.diagnosis_signals import Signals, prepare_signals, savgol_gain
-from wamctl.analysis.diagnosis_stats import lstsq, nested_test, orth_basis, projection_gain, whiteness_p
+    D7_M, DELAY_GRID_S, DRIFT_T_GRID_FRACTION, EFFECT_NAMES, RIPPLE_PERIOD_MAX_RAD, RIPPLE_PERIOD_MIN_RAD,
+    STRIBECK_VS_GRID_RAD_S, JointData, friction_columns, ripple_columns, stribeck_columns)
+from wamctl.analysis.diagnosis_signals import POLYORDER, Signals, prepare_signals, savgol_gain
+from wamctl.analysis.diagnosis_stats import (MIN_EFFECT, lstsq, nested_test, orth_basis, projection_gain,
+                                             whiteness_p)
 from wamctl.errors import DataFormatError
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
@@ -50,8 +53,8 @@ log = logging.getLogger(__name__)
 N7 = P.N_JOINTS
 DECLARED_MODEL = "wam7 rigid body + armature + classic friction (Coulomb + viscous, per direction)"
 TEST_NAME = "nested F-test on held-out folds"
-N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 4, "delay": 1, "friction_drift": 4,
-             "backlash": len(BACKLASH_TIME_CONSTANTS_S) + 1}
+N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 10, "delay": 0, "friction_drift": 4,
+             "backlash": 1}
 HAS_GRID = {"stribeck": True, "position_ripple": True, "payload": False, "delay": True,
             "friction_drift": True, "backlash": False}
 MAX_SAMPLES_PER_JOINT = 30000     # decimation above this (smoothed signals: little information is lost)
@@ -112,6 +115,8 @@ class ModelDiagnosis:
     declared : the declared model (default: classic friction fitted from the data).
     max_steps : effects kept per joint at most.
     window_s : smoothing window of the differentiation filter.
+    simulate : run the closed-loop position check (:mod:`wamctl.analysis.diagnosis_sim`).
+    max_sim_samples : samples simulated per model in that check.
 
     Attributes (after ``fit``)
     --------------------------
@@ -124,7 +129,8 @@ class ModelDiagnosis:
 
     def __init__(self, *, alpha: float = 0.01, n_blocks: int = 10, n_folds: int = 5,
                  candidates: tuple[str, ...] = EFFECT_NAMES, declared: DeclaredModel | None = None,
-                 max_steps: int = 3, window_s: float | None = None):
+                 max_steps: int = 3, window_s: float | None = None, simulate: bool = True,
+                 max_sim_samples: int | None = None):
         self.alpha = alpha
         self.n_blocks = n_blocks
         self.n_folds = n_folds
@@ -132,6 +138,8 @@ class ModelDiagnosis:
         self.declared = declared
         self.max_steps = max_steps
         self.window_s = window_s
+        self.simulate = simulate
+        self.max_sim_samples = max_sim_samples
 
     # ------------------------------------------------------------------------------------------ fit
     def fit(self, data) -> "ModelDiagnosis":
@@ -165,9 +173,17 @@ class ModelDiagnosis:
         self.declared_effects_ = set(declared.effects or {})
         self._prepare_joint_data()
         tests = [c for c in self.candidates if c not in self.declared_effects_]
-        self.threshold_ = self.alpha / max(1, len(sig.joints) * max(1, len(tests)))
+        # every test of the run: one per joint and candidate, and Stribeck twice (sliding data, breakaways)
+        n_tests = len(tests) + (1 if "stribeck" in tests else 0)
+        self.threshold_ = self.alpha / max(1, len(sig.joints) * max(1, n_tests))
+        torque_tests = [c for c in tests if c != "backlash"]
         for j in sig.joints:
-            self.joints_[j] = self._diagnose_joint(self.jd_[j], tests)
+            self.joints_[j] = self._diagnose_joint(self.jd_[j], torque_tests)
+        self._check_payload()
+        self.onsets_ = {}
+        if "backlash" in tests or "stribeck" in tests:
+            for j in sig.joints:
+                self._onset_tests(j, tests)
         strength = {}
         for res in self.joints_.values():
             for k in res.kept:
@@ -175,6 +191,14 @@ class ModelDiagnosis:
         self.effects_found_ = sorted(strength, key=lambda n: -strength[n])
         self._finalise_effects()
         self.conclusive_ = True
+        self.positions_ = None
+        if self.simulate:
+            from wamctl.analysis.diagnosis_sim import MAX_SIM_SAMPLES, position_check
+            pc = position_check(self, data, self.max_sim_samples or MAX_SIM_SAMPLES)
+            self.positions_ = pc
+            for j, res in self.joints_.items():
+                res.position_rms_before_rad = pc["rms_before"].get(j, float("nan"))
+                res.position_rms_after_rad = pc["rms_after"].get(j, float("nan"))
         return self
 
     # ------------------------------------------------------------------------------------------ data
@@ -192,11 +216,18 @@ class ModelDiagnosis:
         q, qd, qdd = sig.q_rad, sig.qd_rad_s, sig.qdd_rad_s2
         rnea = np.empty((len(union), N7))
         want_payload = "payload" in self.candidates and "payload" not in self.declared_effects_
-        reg = np.empty((len(union), N7, 4)) if want_payload else None
+        reg = np.empty((len(union), N7, 10)) if want_payload else None
         for k, i in enumerate(union):
             rnea[k] = dyn.inverse_dynamics(q[i], qd[i], qdd[i])
             if want_payload:
-                reg[k] = dyn.regressor_basis(q[i], qd[i], qdd[i])[:, 60:64]
+                reg[k] = dyn.regressor_basis(q[i], qd[i], qdd[i])[:, 60:70]
+        # the rigid-body torque on a uniform grid (the delay feature shifts it in time)
+        stride = max(1, sig.n // 60000)
+        grid = np.arange(0, sig.n, stride)
+        if grid[-1] != sig.n - 1:
+            grid = np.append(grid, sig.n - 1)
+        rg = np.array([dyn.inverse_dynamics(q[i], qd[i], qdd[i]) for i in grid])
+        self.rnea_full_ = np.column_stack([np.interp(np.arange(sig.n), grid, rg[:, j]) for j in range(N7)])
         # gravity stiffness dg_j/dq_j (backlash: the link sits w/2 away from the encoder), on a coarse grid
         coarse = union[:: max(1, len(union) // 3000)]
         dgdq_c = np.zeros((len(coarse), N7))
@@ -210,26 +241,24 @@ class ModelDiagnosis:
         pos = np.searchsorted(union, np.arange(sig.n))
         self.union_ = union
         tau_full = sig.tau_Nm
-        known = self._declared_torque()                      # (n, 7) torque the declared model file adds
+        self.known_ = self._declared_torque()                # (n, 7) torque the declared model file adds
         delay_given = float((self.declared_.effects.get("delay") or {}).get("delay_s", 0.0))
+        if delay_given > 0:
+            tau_full = np.column_stack([np.interp(sig.t_s - delay_given, sig.t_s, tau_full[:, j])
+                                        for j in range(N7)])
+        self.tau_model_ = tau_full
         folds = fold_of(sig.t_s, self.n_blocks, self.n_folds)
+        self.folds_ = folds
         self.jd_ = {}
         t0 = sig.t_s[0]
         for j in sig.joints:
             idx = np.flatnonzero(keep & sig.moving[:, j])
             u = pos[idx]
-            tau_j = tau_full[:, j]
-            if delay_given > 0:
-                tau_now = np.interp(sig.t_s[idx] - delay_given, sig.t_s, tau_j)
-            else:
-                tau_now = tau_j[idx]
-            y = tau_now - rnea[u, j] - known[idx, j]
-            extra = {"tau_now": tau_now, "tau_full": tau_j, "t_rel": sig.t_s[idx] - t0,
-                     "dgdq": np.interp(sig.t_s[idx], sig.t_s[coarse], dgdq_c[:, j])}
+            y = tau_full[idx, j] - rnea[u, j] - self.known_[idx, j]
+            extra = {"t_rel": sig.t_s[idx] - t0,
+                     "dgdq_full": np.interp(sig.t_s, sig.t_s[coarse], dgdq_c[:, j])}
             if want_payload:
                 extra["payload"] = reg[u, j, :]
-            ev_t, ev_s = reversal_times(sig.t_s, sig.qd_rad_s[:, j], sig.moving[:, j])
-            extra["reversals"] = (ev_t, ev_s)
             self.jd_[j] = JointData(j, idx, sig.t_s[idx], q[idx, j], qd[idx, j], qdd[idx, j], y, folds[idx], extra)
 
     def _declared_torque(self) -> np.ndarray:
@@ -279,27 +308,38 @@ class ModelDiagnosis:
             return []  # searched, see _select_ripple
         return [None]
 
-    def _cols(self, name: str, jd: JointData, h) -> np.ndarray:
+    def _cols(self, name: str, jd: JointData, h, d: float = 0.0) -> np.ndarray:
+        """Columns (m, p) of term ``name`` with shape parameter ``h`` at the joint's samples, with the state
+        taken ``d`` seconds later (a delay term).
+
+        Features that are nonlinear functions of the state are built at the full rate and smoothed by the
+        same filter as the torque, so that feature and torque are averaged alike over each window."""
         cache = jd.extra.setdefault("_cache", {})
-        key = (name, None if h is None else round(float(h), 12))
+        key = (name, None if h is None else round(float(h), 12), round(float(d), 9))
         if key in cache:
             return cache[key]
         sig = self.signals_
+        j = jd.j
+        qd_f = sig.qd_rad_s[:, j]
+
+        def sample(full):
+            if not d:
+                return full[jd.idx]
+            return np.column_stack([np.interp(jd.t_s + d, sig.t_s, c) for c in full.T])
+
         if name == "friction":
-            X = friction_columns(jd.qd_rad_s)
+            X = sample(self._smooth(friction_columns(qd_f)))
         elif name == "stribeck":
-            X = stribeck_columns(jd.qd_rad_s, h)
+            X = sample(self._smooth(stribeck_columns(qd_f, h)))
         elif name == "position_ripple":
-            X = ripple_columns(jd.q_rad, jd.qd_rad_s, h, sig.window, sig.dt_s)
+            ph = 2 * np.pi * sig.q_rad[:, j] / h
+            X = sample(self._smooth(np.column_stack([np.sin(ph), np.cos(ph)])))
         elif name == "payload":
             X = jd.extra["payload"]
-        elif name == "delay":
-            X = (jd.extra["tau_now"] - np.interp(jd.t_s - h, sig.t_s, jd.extra["tau_full"]))[:, None]
         elif name == "friction_drift":
-            X = drift_columns(jd.qd_rad_s, jd.extra["t_rel"], h)
+            X = self._cols("friction", jd, None, d) * np.exp(-jd.extra["t_rel"] / h)[:, None]
         elif name == "backlash":
-            ev_t, ev_s = jd.extra["reversals"]
-            X = backlash_columns(jd.t_s, jd.qd_rad_s, ev_t, ev_s, jd.extra["dgdq"])
+            X = sample(self._smooth((jd.extra["dgdq_full"] * np.sign(qd_f))[:, None]))
         else:
             raise ValueError(name)
         if len(cache) > 400:
@@ -307,73 +347,100 @@ class ModelDiagnosis:
         cache[key] = X
         return X
 
-    def _design(self, jd: JointData, terms: list[dict], fold: int | None) -> np.ndarray:
-        cols = [self._cols("friction", jd, None)]
-        for t in terms:
-            h = t["h_all"] if fold is None else t["h_fold"][fold]
-            cols.append(self._cols(t["name"], jd, h))
-        return np.hstack(cols)
+    def _smooth(self, X: np.ndarray) -> np.ndarray:
+        return savgol_filter(X, self.signals_.window, POLYORDER, axis=0)
 
-    # ------------------------------------------------------------------------------------------ selection
-    def _select(self, name: str, jd: JointData, rows: np.ndarray, Xb: np.ndarray):
-        """Shape parameter of candidate ``name`` that best explains the base residual on ``rows``."""
-        grid = self._grid(name, jd)
+    def _shifted_target(self, jd: JointData, d: float) -> np.ndarray:
+        """Target with the positions taken ``d`` later: ``y_d = tau - rnea(q(t + d))`` (a measurement ``d``
+        late means ``tau(t) = model(q(t + d))``)."""
+        cache = jd.extra.setdefault("_shift", {})
+        key = round(float(d), 9)
+        if key not in cache:
+            sig = self.signals_
+            model = self.rnea_full_[:, jd.j] + self.known_[:, jd.j]
+            if len(cache) > 100:
+                cache.clear()
+            cache[key] = self.tau_model_[jd.idx, jd.j] - np.interp(jd.t_s + d, sig.t_s, model)
+        return cache[key]
+
+    def _yx(self, jd: JointData, terms: list[dict], fold: int | None) -> tuple[np.ndarray, np.ndarray]:
+        """Target and design of ``friction + terms`` (a delay term shifts target and friction instead of adding
+        columns); shape parameters of fold ``fold`` (None: chosen on all data)."""
+        def h_of(t):
+            return t["h_all"] if fold is None else t["h_fold"][fold]
+        d = next((h_of(t) for t in terms if t["name"] == "delay"), None)
+        if d:
+            y = self._shifted_target(jd, d)
+        else:
+            y, d = jd.y_Nm, 0.0
+        cols = [self._cols("friction", jd, None, d)]
+        cols += [self._cols(t["name"], jd, h_of(t), d) for t in terms if t["name"] != "delay"]
+        return y, np.hstack(cols)
+
+    def _design(self, jd: JointData, terms: list[dict], fold: int | None) -> np.ndarray:
+        return self._yx(jd, terms, fold)[1]
+
+    def _select(self, name: str, jd: JointData, rows: np.ndarray, Xb: np.ndarray, y: np.ndarray, terms=()):
+        """Shape parameter of candidate ``name`` that best explains the current residual on ``rows``
+        (``terms``: the other terms, with ``h_all`` set; used by the delay, whose grid changes everything)."""
+        if name == "delay":
+            best, arg = np.inf, None
+            for d in DELAY_GRID_S:
+                yd, X = self._yx(jd, list(terms) + [{"name": "delay", "h_all": d}], None)
+                th = lstsq(X[rows], yd[rows])
+                r = yd[rows] - X[rows] @ th
+                if r @ r < best:
+                    best, arg = float(r @ r), float(d)
+            return arg
         if name == "position_ripple":
-            return self._select_ripple(jd, rows, Xb)
+            return self._select_ripple(jd, rows, Xb, y)
+        grid = self._grid(name, jd)
         if len(grid) == 1:
             return grid[0]
+        d = next((t["h_all"] for t in terms if t["name"] == "delay"), 0.0) or 0.0
         U = orth_basis(Xb[rows])
-        r = jd.y_Nm[rows] - U @ (U.T @ jd.y_Nm[rows])
-        gains = [projection_gain(U, r, self._cols(name, jd, h)[rows]) for h in grid]
+        r = y[rows] - U @ (U.T @ y[rows])
+        gains = [projection_gain(U, r, self._cols(name, jd, h, d)[rows]) for h in grid]
         return grid[int(np.argmax(gains))]
 
-    def _select_ripple(self, jd: JointData, rows: np.ndarray, Xb: np.ndarray) -> float:
-        """Period of the strongest position-periodic component of the base residual (coarse scan of
-        2 pi / period, then a local refinement); the columns are the filter-attenuated sin/cos."""
+    def _select_ripple(self, jd: JointData, rows: np.ndarray, Xb: np.ndarray, y_all: np.ndarray) -> float:
+        """Period of the strongest position-periodic component of the base residual on ``rows``.
+
+        The residual is binned over the joint angle (bins of a tenth of the shortest period) and its
+        periodogram over the angle taken by FFT (zero-padded 4x); the highest peaks are then compared by
+        their exact least-squares gain (filter-attenuated sin/cos, see ``ripple_columns``)."""
         sig = self.signals_
-        sub = rows[:: max(1, len(rows) // 4000)]
-        U = orth_basis(Xb[sub])
-        y = jd.y_Nm[sub]
+        U = orth_basis(Xb[rows])
+        y = y_all[rows]
         r = y - U @ (U.T @ y)
-        q, qd = jd.q_rad[sub], jd.qd_rad_s[sub]
-        span = max(float(np.ptp(jd.q_rad)), 0.05)
-        k_lo, k_hi = 1.0 / RIPPLE_PERIOD_MAX_RAD, 1.0 / RIPPLE_PERIOD_MIN_RAD
-        step = 1.0 / (4.0 * span)
-        n_k = int((k_hi - k_lo) / step) + 1
-        if n_k > 3000:
-            n_k = 3000
-        ks = np.linspace(k_lo, k_hi, n_k)
-        f_tab = np.linspace(0.0, 0.5, 1025)
-        g_tab = savgol_gain(sig.window, f_tab)
-        speed = np.abs(qd) * sig.dt_s
-
-        def scores(kk):
-            out = np.empty(len(kk))
-            for c0 in range(0, len(kk), 256):
-                kc = kk[c0:c0 + 256]
-                g = np.interp(np.minimum(np.outer(speed, kc), 0.5), f_tab, g_tab)
-                ph = 2 * np.pi * np.outer(q, kc)
-                S, C = g * np.sin(ph), g * np.cos(ph)
-                S = S - U @ (U.T @ S)
-                C = C - U @ (U.T @ C)
-                a, b = S.T @ r, C.T @ r
-                ss, cc, sc = (S * S).sum(0), (C * C).sum(0), (S * C).sum(0)
-                det = ss * cc - sc ** 2
-                ok = det > 1e-12 * (ss * cc + 1e-300)
-                val = np.where(ok, (a * a * cc - 2 * a * b * sc + b * b * ss) / np.where(ok, det, 1.0), 0.0)
-                out[c0:c0 + 256] = val
-            return out
-
-        s = scores(ks)
-        best_k = ks[int(np.argmax(s))]
-        top = ks[np.argsort(s)[-3:]]
-        fine = np.unique(np.concatenate([np.linspace(k - step, k + step, 17) for k in top]))
-        fine = fine[(fine >= k_lo) & (fine <= k_hi)]
-        if len(fine):
-            sf = scores(fine)
-            if sf.max() > s.max():
-                best_k = fine[int(np.argmax(sf))]
-        return float(1.0 / best_k)
+        q = jd.q_rad[rows]
+        dq = RIPPLE_PERIOD_MIN_RAD / 10
+        q0 = float(q.min())
+        nb = int(np.ptp(q) / dq) + 2
+        rb = np.bincount(((q - q0) / dq).astype(int), weights=r, minlength=nb)
+        L = 1 << int(np.ceil(np.log2(4 * nb)))
+        L = min(L, 1 << 22)
+        power = np.abs(np.fft.rfft(rb, L)) ** 2
+        k = np.arange(len(power)) / (L * dq)                      # cycles per rad
+        band = (k >= 1 / RIPPLE_PERIOD_MAX_RAD) & (k <= 1 / RIPPLE_PERIOD_MIN_RAD)
+        if not band.any():
+            return RIPPLE_PERIOD_MAX_RAD
+        pb = np.where(band, power, -1.0)
+        peak = (pb[1:-1] >= pb[:-2]) & (pb[1:-1] >= pb[2:]) & band[1:-1]
+        cand = np.flatnonzero(peak) + 1
+        if len(cand) == 0:
+            cand = np.array([int(np.argmax(pb))])
+        cand = cand[np.argsort(pb[cand])[-5:]]
+        step = 1.0 / (L * dq)
+        ks = np.unique(np.concatenate([k[c] + step * np.array([-0.3, 0.0, 0.3]) for c in cand]))
+        ks = ks[(ks >= 1 / RIPPLE_PERIOD_MAX_RAD) & (ks <= 1 / RIPPLE_PERIOD_MIN_RAD)]
+        sub = rows[:: max(1, len(rows) // 6000)]
+        Us = orth_basis(Xb[sub])
+        ys = y_all[sub]
+        rs = ys - Us @ (Us.T @ ys)
+        gains = [projection_gain(Us, rs, ripple_columns(jd.q_rad[sub], jd.qd_rad_s[sub], 1 / kk, sig.window,
+                                                         sig.dt_s)) for kk in ks]
+        return float(1.0 / ks[int(np.argmax(gains))])
 
     # ------------------------------------------------------------------------------------------ CV
     def _cv(self, jd: JointData, terms: list[dict], cand: str | None = None):
@@ -384,36 +451,56 @@ class ModelDiagnosis:
             te = jd.fold == f
             tr = ~te
             if not te.any():
-                h_fold.append(None)
+                h_fold.append(h_fold[-1] if h_fold else self._default_h(cand, jd))
                 continue
-            Xb = self._design(jd, terms, f)
             trr = np.flatnonzero(tr)
-            if cand is not None:
-                h = self._select(cand, jd, trr, Xb)
-                h_fold.append(h)
-                X = np.hstack([Xb, self._cols(cand, jd, h)])
-            else:
+            te_i = np.flatnonzero(te)
+            # held-out samples in a direction the training folds never moved in cannot be predicted by any
+            # model of this joint: they are left out of every held-out figure (NaN)
+            Fb = self._cols("friction", jd, None)
+            support = (np.abs(Fb[trr]) > 1e-12).sum(axis=0)
+            thin = support < 20
+            unpredictable = te_i[(np.abs(Fb[te_i][:, thin]) > 1e-12).any(axis=1)] if thin.any() else te_i[:0]
+            y, Xb = self._yx(jd, terms, f)
+            if cand is None:
                 h_fold.append(None)
                 X = Xb
+            elif cand == "delay":
+                h = self._select("delay", jd, trr, Xb, y, [dict(t, h_all=t["h_fold"][f]) for t in terms])
+                h_fold.append(h)
+                y, X = self._yx(jd, terms + [{"name": "delay", "h_fold": [h] * self.n_folds}], f)
+            else:
+                here = [dict(t, h_all=t["h_fold"][f]) for t in terms]
+                h = self._select(cand, jd, trr, Xb, y, here)
+                h_fold.append(h)
+                d = next((t["h_all"] for t in here if t["name"] == "delay"), 0.0) or 0.0
+                X = np.hstack([Xb, self._cols(cand, jd, h, d)])
             if len(trr) < X.shape[1] + 5:
-                e[te] = jd.y_Nm[te] - np.mean(jd.y_Nm[trr]) if len(trr) else jd.y_Nm[te]
+                e[te] = y[te] - (np.mean(y[trr]) if len(trr) else 0.0)
                 continue
-            theta = lstsq(X[trr], jd.y_Nm[trr])
-            e[te] = jd.y_Nm[te] - X[te] @ theta
+            theta = lstsq(X[trr], y[trr])
+            e[te] = y[te] - X[te] @ theta
+            e[unpredictable] = np.nan
         return e, h_fold
+
+    def _default_h(self, name, jd):
+        if name is None:
+            return None
+        g = self._grid(name, jd)
+        return g[len(g) // 2] if g else 0.2
 
     def _fit_all(self, jd: JointData, terms: list[dict]) -> tuple[list[dict], np.ndarray]:
         """Refit on all data: shape parameters chosen one term at a time with the others fixed."""
         terms = [dict(t) for t in terms]
+        for t in terms:
+            t.setdefault("h_all", self._first_h(t))
         rows = np.arange(jd.n)
         for i, t in enumerate(terms):
             others = terms[:i] + terms[i + 1:]
-            for o in others:
-                o.setdefault("h_all", self._first_h(o))
-            Xb = self._design(jd, others, None)
-            t["h_all"] = self._select(t["name"], jd, rows, Xb)
-        X = self._design(jd, terms, None)
-        return terms, lstsq(X, jd.y_Nm)
+            y, Xb = self._yx(jd, others, None)
+            t["h_all"] = self._select(t["name"], jd, rows, Xb, y, others)
+        y, X = self._yx(jd, terms, None)
+        return terms, lstsq(X, y)
 
     @staticmethod
     def _first_h(t: dict):
@@ -421,9 +508,13 @@ class ModelDiagnosis:
         return float(np.median(hs)) if hs and not isinstance(hs[0], str) else (hs[0] if hs else None)
 
     # ------------------------------------------------------------------------------------------ joint
-    def _diagnose_joint(self, jd: JointData, tests: list[str]) -> JointResult:
+    def _diagnose_joint(self, jd: JointData, tests: list[str], rejected: dict | None = None) -> JointResult:
+        """Forward selection of the torque-domain candidates at one joint.
+
+        ``rejected`` maps candidates excluded beforehand to the reason (e.g. a payload whose mass fitted over
+        all joints is not positive)."""
+        rejected = dict(rejected or {})
         res = JointResult(jd.j)
-        spacing = max(1, self.signals_.window // self.decimation_)
         e_base, _ = self._cv(jd, [])
         if self.declared_.fitted:
             e_before = e_base
@@ -431,9 +522,10 @@ class ModelDiagnosis:
             e_before = jd.y_Nm.copy()    # the given model, not refitted
         res.e_before = e_before
         res.theta_before = lstsq(self._cols("friction", jd, None), jd.y_Nm)
+        jd.extra["theta_before"] = res.theta_before
         terms: list[dict] = []
         current = e_base
-        remaining = list(tests)
+        remaining = [c for c in tests if c not in rejected]
         last = {}
         for step in range(self.max_steps):
             trial = {}
@@ -452,8 +544,7 @@ class ModelDiagnosis:
             chosen = None
             for c in passing:
                 t, h_fold, e1 = trial[c]
-                cand_terms = terms + [{"name": c, "h_fold": h_fold}]
-                fitted, theta = self._fit_all(jd, cand_terms)
+                fitted, theta = self._fit_all(jd, terms + [{"name": c, "h_fold": h_fold}])
                 ok, why = self._plausible(c, jd, fitted, theta)
                 if ok:
                     chosen = (c, t, h_fold, e1)
@@ -463,41 +554,224 @@ class ModelDiagnosis:
             if chosen is None:
                 break
             c, t, h_fold, e1 = chosen
-            terms.append({"name": c, "h_fold": h_fold, "evidence": t,
-                          "gain": 1.0 - t["ssr_ratio"] if step == 0 else
-                          (1.0 - t["ssr_ratio"]) * float(current @ current) / float(e_base @ e_base)})
+            base_ssr = _ss(e_base)
+            gain = (_ss(current) - _ss(e1)) / base_ssr if base_ssr > 0 else 0.0
+            terms.append({"name": c, "h_fold": h_fold, "evidence": t, "gain": gain})
             current = e1
             remaining.remove(c)
+        self._set_after(res, jd, terms, current)
+        kept_names = {t["name"] for t in res.kept}
+        for c in tests:
+            if c in rejected:
+                res.candidates[c] = dict(last.get(c, {"p_value": float("nan"), "delta_bic": float("nan")}),
+                                         kept=False, reason=rejected[c])
+                continue
+            if c not in last:
+                res.candidates[c] = {"p_value": float("nan"), "delta_bic": float("nan"), "kept": False,
+                                     "reason": "not testable on this joint"}
+                continue
+            t = last[c]
+            if c in kept_names:
+                ev = next(k["evidence"] for k in res.kept if k["name"] == c)
+                res.candidates[c] = dict(ev, kept=True, reason="kept")
+                continue
+            res.candidates[c] = dict(t, kept=False, reason=t.get("reason") or self._why_rejected(t))
+        return res
+
+    def _why_rejected(self, t: dict) -> str:
+        if t["ssr_ratio"] >= 1:
+            return "does not predict held-out data better than the model without it"
+        if t["p_value"] >= self.threshold_:
+            return f"p = {t['p_value']:.3g} not below the threshold {self.threshold_:.3g}"
+        return f"BIC does not drop (delta {t['delta_bic']:.1f})"
+
+    def _set_after(self, res: JointResult, jd: JointData, terms: list[dict], e_after: np.ndarray) -> None:
+        """Refit the final model of a joint on all data and record the held-out figures."""
+        spacing = max(1, self.signals_.window // self.decimation_)
         fitted, theta = self._fit_all(jd, terms)
         res.kept = fitted
         res.theta_after = theta
         res.columns_after = [("friction", 4)] + [(t["name"], N_COLUMNS[t["name"]]) for t in fitted]
-        res.e_after = current
-        res.torque_rms_before_Nm = float(np.sqrt(np.mean(e_before ** 2)))
-        res.torque_rms_after_Nm = float(np.sqrt(np.mean(current ** 2)))
-        res.whiteness_p_before = whiteness_p(e_before, spacing)
-        res.whiteness_p_after = whiteness_p(current, spacing)
-        kept_names = {t["name"] for t in fitted}
-        for c in tests:
-            if c not in last:
-                res.candidates[c] = {"p_value": float("nan"), "delta_bic": float("nan"), "kept": False,
-                                     "reason": "not testable on this joint (no regressor)"}
-                continue
-            t = last[c]
-            if c in kept_names:
-                ev = next(k["evidence"] for k in fitted if k["name"] == c)
-                res.candidates[c] = dict(ev, kept=True, reason="kept")
-                continue
-            reason = t.get("reason")
-            if reason is None:
-                if t["p_value"] >= self.threshold_:
-                    reason = f"p = {t['p_value']:.3g} not below the threshold {self.threshold_:.3g}"
-                else:
-                    reason = f"BIC does not drop (delta {t['delta_bic']:.1f})"
-                if t["ssr_ratio"] >= 1:
-                    reason = "does not predict held-out data better than the model without it"
-            res.candidates[c] = dict(t, kept=False, reason=reason)
-        return res
+        res.e_after = e_after
+        res.torque_rms_before_Nm = float(np.sqrt(np.nanmean(res.e_before ** 2)))
+        res.torque_rms_after_Nm = float(np.sqrt(np.nanmean(e_after ** 2)))
+        res.whiteness_p_before = whiteness_p(res.e_before, spacing)
+        res.whiteness_p_after = whiteness_p(e_after, spacing)
+
+    # ------------------------------------------------------------------------------------------ global
+    def _payload_fit(self, rows_of=None) -> dict | None:
+        """One payload for the whole arm, fitted over every joint that kept it (shared mass and first moment,
+        each joint's other terms free, joints weighted by their residual); ``rows_of`` restricts the samples."""
+        with_p = [j for j, r in self.joints_.items() if any(t["name"] == "payload" for t in r.kept)]
+        if not with_p:
+            return None
+        blocks, ys, shared, wts = [], [], [], []
+        for j in with_p:
+            res, jd = self.joints_[j], self.jd_[j]
+            mask = np.ones(jd.n, bool) if rows_of is None else rows_of(jd)
+            sub = np.flatnonzero(mask)
+            sub = sub[:: max(1, len(sub) // 5000)]
+            others = [t for t in res.kept if t["name"] != "payload"]
+            y_o, X_o = self._yx(jd, others, None)
+            blocks.append(X_o[sub])
+            shared.append(self._cols("payload", jd, None)[sub])
+            ys.append(y_o[sub])
+            wts.append(np.full(len(sub), 1.0 / max(res.torque_rms_after_Nm, 1e-9)))
+        n_own = sum(b.shape[1] for b in blocks)
+        X = np.zeros((sum(len(y) for y in ys), n_own + 10))
+        r0, c0 = 0, 0
+        for b, z in zip(blocks, shared):
+            X[r0:r0 + len(b), c0:c0 + b.shape[1]] = b
+            X[r0:r0 + len(b), n_own:] = z
+            r0 += len(b)
+            c0 += b.shape[1]
+        w = np.concatenate(wts)
+        theta = lstsq(X * w[:, None], np.concatenate(ys) * w)
+        pi = theta[n_own:n_own + 4]     # mass and first moment (the inertia columns are nuisance here)
+        m = float(pi[0])
+        com = pi[1:4] / m - np.array([0.0, 0.0, D7_M]) if m > 0 else np.zeros(3)
+        return {"mass_kg": m, "com_m": [float(x) for x in com], "joints_fitted": [j + 1 for j in with_p]}
+
+    def _check_payload(self) -> None:
+        """A payload is one mass for the whole arm: reject it everywhere if the mass fitted over every joint
+        that kept it is not positive (and diagnose those joints again without it)."""
+        self.payload_ = None
+        fit = self._payload_fit()
+        if fit is None:
+            return
+        if fit["mass_kg"] <= 0:
+            why = (f"the payload mass fitted over joints {fit['joints_fitted']} is {fit['mass_kg']:.3g} kg "
+                   "(not positive)")
+            log.info(why)
+            tests = [c for c in self.candidates if c not in self.declared_effects_ and c != "backlash"]
+            for j in [jj - 1 for jj in fit["joints_fitted"]]:
+                self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"payload": why})
+            return
+        self.payload_ = fit
+
+    def _onsets(self, j: int) -> dict:
+        """Hidden travel at the joint's onsets with the current model of the joint (see
+        :mod:`wamctl.analysis.diagnosis_backlash`)."""
+        sig, res = self.signals_, self.joints_[j]
+        q_raw = sig.q_raw_rad[:, j]
+        quantum = resolution_rad(q_raw)
+        tol = max(2.0 * quantum, 1e-6)
+        ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, sig.window)
+        fr = self.friction_after(j)
+        stri = next((self.effect_params(j, "stribeck") for t in res.kept if t["name"] == "stribeck"), None)
+        fs_pos = max(stri["Fs_pos_Nm"], 0.0) if stri else None
+        fs_neg = max(stri["Fs_neg_Nm"], 0.0) if stri else None
+        tau = sig.tau_raw_Nm
+        dyn = self.dynamics_
+        travel, rev, t_on, withstood, sign = [], [], [], [], []
+        for o in ons:
+            ii = np.arange(o.start, o.end)
+            u = np.empty(len(ii))
+            for k, i in enumerate(ii):
+                qd_i = sig.qd_rad_s[i].copy()
+                qdd_i = sig.qdd_rad_s2[i].copy()
+                qd_i[j] = 0.0
+                qdd_i[j] = 0.0
+                tc = 0.5 * (tau[i, j] + tau[i - 1, j]) if i > 0 else tau[i, j]
+                u[k] = tc - dyn.inverse_dynamics(sig.q_rad[i], qd_i, qdd_i)[j] - self.known_[i, j]
+            inertia = float(dyn.mass_matrix(sig.q_rad[o.end])[j, j])
+            x = hidden_travel(u, sig.dt_s, inertia, max(fr["fc_pos_Nm"], 0.0), max(fr["fc_neg_Nm"], 0.0),
+                              max(fr["viscous_pos_Nm_s_rad"], 0.0), max(fr["viscous_neg_Nm_s_rad"], 0.0),
+                              fs_pos, fs_neg)
+            travel.append(o.sign_new * x[-1] - tol)
+            rev.append(o.reversal)
+            t_on.append(o.t_s)
+            if not o.reversal:
+                withstood.append(breakaway_ratio(
+                    u, sig.dt_s, inertia, max(fr["fc_pos_Nm"], 1e-6), max(fr["fc_neg_Nm"], 1e-6),
+                    max(fr["viscous_pos_Nm_s_rad"], 0.0), max(fr["viscous_neg_Nm_s_rad"], 0.0), tol))
+            else:
+                withstood.append(np.nan)
+            sign.append(o.sign_new)
+        t_on = np.asarray(t_on)
+        t0, t1 = sig.t_s[0], sig.t_s[-1]
+        folds = (np.minimum(((t_on - t0) / max(t1 - t0, 1e-9) * self.n_blocks).astype(int), self.n_blocks - 1)
+                 % self.n_folds) if len(t_on) else np.zeros(0, int)
+        return {"travel_rad": np.asarray(travel), "reversal": np.asarray(rev, bool), "t_s": t_on,
+                "fold": folds, "breakaway_ratio": np.asarray(withstood), "sign": np.asarray(sign),
+                "resolution_rad": quantum, "tol_rad": tol}
+
+    def _onset_tests(self, j: int, tests: list[str]) -> None:
+        """Effects seen at onsets (:mod:`wamctl.analysis.diagnosis_backlash`).
+
+        * backlash: hidden travel ``d`` at reversals, ``d = c + w [reversal]`` against ``d = c`` (``c`` only
+          when there are same-direction onsets to estimate it);
+        * Stribeck at breakaway (when the torque residual did not already keep it): the log breakaway ratio
+          ``l = log(rho)`` at same-direction onsets, ``l = c`` against ``l = 0``.
+        """
+        res = self.joints_[j]
+        ons = self._onsets(j)
+        self.onsets_[j] = ons
+        d, rev, fold = ons["travel_rad"], ons["reversal"], ons["fold"]
+        tol = ons["tol_rad"]
+        found = []
+        if "backlash" in tests:
+            r = self._onset_candidate(
+                "backlash", d, rev, fold, lambda coef: coef >= tol,
+                lambda coef: f"fitted dead band {coef:.2g} rad is below two measurement steps ({tol:.2g} rad)")
+            res.candidates["backlash"] = {k: v for k, v in r.items() if k != "coef"}
+            if r["kept"]:
+                found.append(("backlash", r))
+        if "stribeck" in tests and not any(t["name"] == "stribeck" for t in res.kept):
+            same = ~rev & np.isfinite(ons["breakaway_ratio"])
+            ell = np.log(ons["breakaway_ratio"][same])
+            r = self._onset_candidate(
+                "stribeck", ell, None, fold[same], lambda coef: coef > 0,
+                lambda coef: f"breakaway ratio {np.exp(coef):.2f} is not above 1")
+            note = {k: r[k] for k in ("p_value", "delta_bic", "reason") if k in r}
+            if r["kept"]:
+                found.append(("stribeck", r))
+            elif "stribeck" in res.candidates:
+                res.candidates["stribeck"]["onset_test"] = note
+        for name, r in sorted(found, key=lambda x: x[1]["ssr_ratio"]):
+            self._add_onset_effect(j, name, r, ons)
+
+    def _onset_candidate(self, name, values, rev, fold, plausible, why_not) -> dict:
+        """Nested test at onsets of one candidate: ``rev is None`` tests a common offset against zero;
+        otherwise a reversal term against a common offset (or zero without same-direction onsets)."""
+        n = len(values)
+        if n < MIN_ONSETS or (rev is not None and rev.sum() < MIN_REVERSALS):
+            what = "onsets" if rev is None else "reversals"
+            have = n if rev is None else int(rev.sum())
+            need = MIN_ONSETS if rev is None else MIN_REVERSALS
+            return {"p_value": float("nan"), "delta_bic": float("nan"), "kept": False,
+                    "reason": f"not testable: {have} {what} measured (at least {need} needed)"}
+        if rev is None:
+            X0, X1 = np.zeros((n, 0)), np.ones((n, 1))
+        else:
+            X0 = np.ones((n, 1)) if (~rev).sum() >= 2 else np.zeros((n, 0))
+            X1 = np.column_stack([X0, rev.astype(float)])
+        t = onset_test(values, X0, X1, fold, self.n_folds, MIN_EFFECT)
+        coef = float(t["coef"][-1])
+        out = {k: v for k, v in t.items() if k not in ("e0", "e1", "coef")}
+        out["coef"] = coef
+        kept = t["p_value"] < self.threshold_ and t["delta_bic"] < 0
+        if kept and not plausible(coef):
+            out.update(kept=False, reason=why_not(coef))
+        else:
+            out.update(kept=kept, reason="kept (seen at onsets)" if kept else self._why_rejected(t))
+        return out
+
+    def _add_onset_effect(self, j: int, name: str, r: dict, ons: dict) -> None:
+        """Add an effect found at onsets to the joint's model (its torque-domain part refitted)."""
+        res, jd = self.joints_[j], self.jd_[j]
+        ev = {k: v for k, v in r.items() if k in ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")}
+        extra = {}
+        if name == "backlash":
+            extra["width_rad"] = float(r["coef"])
+        else:
+            extra["onset_ratio"] = float(np.exp(r["coef"]))
+        e1, h_fold = self._cv(jd, res.kept, name)
+        term = {"name": name, "h_fold": h_fold, "evidence": ev, "gain": 1.0 - r["ssr_ratio"], **extra}
+        if _ss(e1) > _ss(res.e_after):
+            e1 = res.e_after
+        self._set_after(res, jd, res.kept + [term], e1)
+        res.candidates[name] = {k: v for k, v in r.items() if k != "coef"}
 
     # ------------------------------------------------------------------------------------------ params
     def _split(self, res_terms: list[dict], theta: np.ndarray) -> dict:
@@ -518,40 +792,46 @@ class ModelDiagnosis:
             w = np.array([pos, neg], float)
             if (coef * w).sum() <= 0:
                 return False, "fitted breakaway below the Coulomb level (not a Stribeck effect)"
-        if name == "payload" and coef[0] <= 0:
-            return False, f"fitted payload mass {coef[0]:.3g} kg is not positive"
         if name == "delay":
             h = next(t["h_all"] for t in terms if t["name"] == "delay")
-            if coef[0] <= 0:
-                return False, "the torque leads the positions (negative delay)"
-            if coef[0] * h > 2 * DELAY_GRID_S[-1]:
-                return False, f"fitted delay {coef[0] * h * 1e3:.1f} ms outside the range searched"
+            if h >= DELAY_GRID_S[-1] - 1e-12:
+                return False, f"fitted delay at the end of the range searched ({h * 1e3:.1f} ms): not a delay"
+            if h < self.signals_.dt_s * (1 + 1e-9):
+                return False, (f"fitted delay {h * 1e3:.1f} ms is not longer than one sample period "
+                               f"({self.signals_.dt_s * 1e3:.1f} ms): within the timing convention of the log")
         return True, ""
 
-    def effect_params(self, j: int, name: str) -> dict:
-        """Parameters of kept effect ``name`` at 0-based joint ``j`` (units in the key names)."""
+    def effect_params(self, j: int, name: str, theta: np.ndarray | None = None) -> dict:
+        """Parameters of kept effect ``name`` at 0-based joint ``j`` (units in the key names); ``theta``
+        overrides the coefficients fitted on all data (see :meth:`refit`)."""
         res = self.joints_[j]
-        c = self._split(res.kept, res.theta_after)
+        c = self._split(res.kept, res.theta_after if theta is None else theta)
         t = next(t for t in res.kept if t["name"] == name)
-        h = t["h_all"]
+        h = t.get("h_all")
         fr = c["friction"]
         coef = c[name]
         if name == "stribeck":
-            return {"Fs_pos_Nm": float(fr[0] + coef[0]), "Fs_neg_Nm": float(fr[1] + coef[1]),
-                    "Fc_pos_Nm": float(fr[0]), "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(h)}
+            out = {"Fs_pos_Nm": float(fr[0] + coef[0]), "Fs_neg_Nm": float(fr[1] + coef[1]),
+                   "Fc_pos_Nm": float(fr[0]), "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(h)}
+            if t.get("onset_ratio"):      # found at breakaways: the level the joint withstood
+                out["Fs_pos_Nm"] = t["onset_ratio"] * out["Fc_pos_Nm"]
+                out["Fs_neg_Nm"] = t["onset_ratio"] * out["Fc_neg_Nm"]
+                out["seen_at"] = "breakaways"
+            return out
         if name == "position_ripple":
             a, b = -coef[0], -coef[1]          # y = friction - ripple: the plant's ripple is minus the fit
             return {"amplitude_Nm": float(np.hypot(a, b)), "period_rad": float(h),
                     "phase_rad": float(np.arctan2(b, a) % (2 * np.pi))}
         if name == "payload":
+            if self.payload_ is not None and theta is None:
+                return dict(self.payload_)
             m = float(coef[0])
             com = coef[1:4] / m - np.array([0.0, 0.0, D7_M]) if m > 0 else np.zeros(3)
             return {"mass_kg": m, "com_m": [float(x) for x in com]}
         if name == "delay":
-            return {"delay_s": float(coef[0] * h), "grid_delay_s": float(h), "scale": float(coef[0])}
+            return {"delay_s": float(h)}
         if name == "friction_drift":
-            jd = self.jd_[j]
-            X = friction_columns(jd.qd_rad_s)
+            X = self._cols("friction", self.jd_[j], None)
             f0 = X @ (fr + coef)                # friction at t = 0
             f1 = X @ coef                        # the part that decays
             frac = -float(f1 @ f0 / max(f0 @ f0, 1e-300))
@@ -560,33 +840,62 @@ class ModelDiagnosis:
                                     "viscous_pos_Nm_s_rad": float(fr[2] + coef[2]),
                                     "viscous_neg_Nm_s_rad": float(fr[3] + coef[3])}}
         if name == "backlash":
-            return {"width_rad": float(2 * abs(coef[-1])),
-                    "reversal_terms_Nm": [float(x) for x in coef[:-1]],
-                    "time_constants_s": list(BACKLASH_TIME_CONSTANTS_S)}
+            ons = self.onsets_.get(j, {})
+            return {"width_rad": float(t["width_rad"]), "gravity_offset_rad": float(coef[0]),
+                    "reversals": int(np.sum(ons.get("reversal", []))),
+                    "same_direction_onsets": int(np.sum(~np.asarray(ons.get("reversal", []), bool)))}
         raise ValueError(name)
 
-    def friction_after(self, j: int) -> dict:
+    def friction_after(self, j: int, theta: np.ndarray | None = None) -> dict:
         """Classic friction of 0-based joint ``j`` in the final model (at t = 0 when friction drifts)."""
         res = self.joints_[j]
-        c = self._split(res.kept, res.theta_after)
+        c = self._split(res.kept, res.theta_after if theta is None else theta)
         fr = np.array(c["friction"], float)
         if "friction_drift" in c:
             fr = fr + c["friction_drift"]
         return {"fc_pos_Nm": float(fr[0]), "fc_neg_Nm": float(fr[1]),
                 "viscous_pos_Nm_s_rad": float(fr[2]), "viscous_neg_Nm_s_rad": float(fr[3])}
 
-    def friction_before(self, j: int) -> dict:
-        fr = self.joints_[j].theta_before
+    def friction_before(self, j: int, theta: np.ndarray | None = None) -> dict:
+        """Classic friction of the declared model (fitted, or the model file's levels plus the fitted
+        correction when a model file gives them)."""
+        fr = self.joints_[j].theta_before if theta is None else theta
         return {"fc_pos_Nm": float(fr[0]), "fc_neg_Nm": float(fr[1]),
                 "viscous_pos_Nm_s_rad": float(fr[2]), "viscous_neg_Nm_s_rad": float(fr[3])}
+
+    def refit(self, rows_of) -> dict:
+        """Coefficients of the declared and the final model of every joint fitted on a subset of samples.
+
+        Parameters
+        ----------
+        rows_of : callable ``JointData -> (m,) bool``, the samples to fit on (shape parameters are kept).
+
+        Returns
+        -------
+        {joint: (theta_before, theta_after)}, and under key ``"payload"`` the payload fitted on the subset.
+        """
+        out = {}
+        for j, res in self.joints_.items():
+            jd = self.jd_[j]
+            rows = np.flatnonzero(rows_of(jd))
+            if len(rows) < 20:
+                out[j] = (res.theta_before, res.theta_after)
+                continue
+            tb = lstsq(self._cols("friction", jd, None)[rows], jd.y_Nm[rows])
+            y, X = self._yx(jd, res.kept, None)
+            out[j] = (tb, lstsq(X[rows], y[rows]))
+        out["payload"] = self._payload_fit(rows_of) if self.payload_ is not None else None
+        return out
 
     def _finalise_effects(self) -> None:
         for j, res in self.joints_.items():
             res.effects = []
             for t in res.kept:
                 ev = t["evidence"]
+                test = TEST_NAME if t["name"] != "backlash" else \
+                    "nested F-test on held-out folds (hidden travel at onsets)"
                 res.effects.append({"name": t["name"], "params": self.effect_params(j, t["name"]),
-                                    "evidence": {"test": TEST_NAME, "p_value": float(ev["p_value"]),
+                                    "evidence": {"test": test, "p_value": float(ev["p_value"]),
                                                  "delta_bic": float(ev["delta_bic"])}})
 
     # ------------------------------------------------------------------------------------------ output
@@ -622,6 +931,11 @@ class ModelDiagnosis:
                              "samples": sig.n, "resampled": sig.resampled,
                              "decimation": getattr(self, "decimation_", 1)}
         return out
+
+
+def _ss(e: np.ndarray) -> float:
+    """Sum of squares of the finite entries (held-out residuals are NaN where no model can predict)."""
+    return float(np.nansum(np.asarray(e, float) ** 2))
 
 
 def _num(x):

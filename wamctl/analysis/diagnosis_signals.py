@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import logging
 from dataclasses import dataclass, field
+from functools import lru_cache
 
 import numpy as np
 from scipy.ndimage import binary_dilation
@@ -104,11 +105,21 @@ def window_samples(rate_hz: float, window_s: float = DEFAULT_WINDOW_S) -> int:
     return w + 1 - w % 2
 
 
-def savgol_gain(window: int, f_cycles_per_sample: np.ndarray) -> np.ndarray:
-    """Amplitude response of the smoothing filter (real, zero phase) at normalised frequencies (cycles/sample)."""
+@lru_cache(maxsize=16)
+def _gain_table(window: int) -> tuple[np.ndarray, np.ndarray]:
+    f = np.linspace(0.0, 0.5, 2049)
     c = savgol_coeffs(window, POLYORDER)
     k = np.arange(window) - window // 2
-    return np.cos(2 * np.pi * np.outer(np.asarray(f_cycles_per_sample, float).ravel(), k)) @ c
+    return f, np.cos(2 * np.pi * np.outer(f, k)) @ c
+
+
+def savgol_gain(window: int, f_cycles_per_sample: np.ndarray) -> np.ndarray:
+    """Amplitude response of the smoothing filter (real, zero phase) at normalised frequencies (cycles/sample);
+    frequencies above Nyquist are folded back (aliasing)."""
+    f = np.abs(np.asarray(f_cycles_per_sample, float)) % 1.0
+    f = np.where(f > 0.5, 1.0 - f, f)
+    ft, gt = _gain_table(window)
+    return np.interp(f, ft, gt)
 
 
 def velocity_noise_rad_s(q_raw: np.ndarray, dt_s: float, window: int) -> np.ndarray:
@@ -174,7 +185,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     # stuck: slower than 4 sigma of the velocity noise, and never faster than a floor of 1 mrad/s
     v_stick = np.maximum(4.0 * v_noise, 1e-3)
     stuck = np.abs(qd) < v_stick[None, :]
-    moving = ~binary_dilation(stuck, structure=np.ones((2 * (w // 2) + 1, 1), bool))
+    moving = ~binary_dilation(stuck, structure=np.ones((2 * w + 1, 1), bool))
     edge = w  # the filter's edge samples are extrapolations
     moving[:edge] = False
     moving[-edge:] = False

@@ -14,36 +14,54 @@ from scipy import stats
 
 
 def orth_basis(X: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
-    """Orthonormal basis (m, r) of the column space of ``X`` (m, p); rank-deficient columns dropped."""
+    """Orthonormal basis (m, r) of the column space of ``X`` (m, p); rank-deficient directions dropped.
+
+    Built from the Gram matrix (``p`` is small, ``m`` large): ``X V diag(1/sqrt(lambda))``, then
+    re-orthonormalised once by QR for accuracy.
+    """
     if X.shape[1] == 0:
         return X
-    u, s, _ = np.linalg.svd(X, full_matrices=False)
-    if s.size == 0 or s[0] == 0:
-        return u[:, :0]
-    return u[:, s > s[0] * rtol]
+    scale = np.sqrt((X ** 2).sum(axis=0))
+    live = scale > 0
+    if not live.any():
+        return X[:, :0]
+    Xs = X[:, live] / scale[live]
+    lam, V = np.linalg.eigh(Xs.T @ Xs)
+    keep = lam > lam.max() * rtol
+    B = Xs @ (V[:, keep] / np.sqrt(lam[keep]))
+    return np.linalg.qr(B)[0]
 
 
 def lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Minimum-norm least squares with column scaling (columns of very different sizes)."""
+    """Minimum-norm least squares (normal equations on scaled columns, pseudo-inverse for rank deficiency)."""
     scale = np.sqrt((X ** 2).sum(axis=0))
     scale[scale == 0] = 1.0
-    theta = np.linalg.lstsq(X / scale, y, rcond=1e-10)[0]
+    Xs = X / scale
+    G = Xs.T @ Xs
+    lam, V = np.linalg.eigh(G)
+    keep = lam > max(lam.max(), 1e-300) * 1e-12
+    theta = V[:, keep] @ ((V[:, keep].T @ (Xs.T @ y)) / lam[keep])
     return theta / scale
 
 
 def projection_gain(U: np.ndarray, r: np.ndarray, Z: np.ndarray) -> float:
     """Drop of the sum of squares of ``r`` (residual of a fit on basis ``U``) when columns ``Z`` are added."""
     Zr = Z - U @ (U.T @ Z)
-    B = orth_basis(Zr)
-    if B.shape[1] == 0:
+    G = Zr.T @ Zr
+    a = Zr.T @ r
+    lam, V = np.linalg.eigh(G)
+    keep = lam > max(lam.max(), 1e-300) * 1e-10
+    if not keep.any():
         return 0.0
-    a = B.T @ r
-    return float(a @ a)
+    b = V[:, keep].T @ a
+    return float(b @ (b / lam[keep]))
 
 
 def integrated_autocorr_time(e: np.ndarray, max_lag: int | None = None) -> float:
     """Integrated autocorrelation time ``1 + 2 sum rho_k`` (Geyer's initial positive sequence), >= 1."""
-    e = np.asarray(e, float) - np.mean(e)
+    e = np.asarray(e, float)
+    e = e[np.isfinite(e)]
+    e = e - np.mean(e) if len(e) else e
     n = len(e)
     if n < 8 or not np.any(e):
         return 1.0
@@ -65,8 +83,17 @@ def integrated_autocorr_time(e: np.ndarray, max_lag: int | None = None) -> float
     return float(max(tau, 1.0))
 
 
-def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int) -> dict:
+MIN_EFFECT = 0.05   # an effect must explain at least this fraction of the residual variance to matter
+
+
+def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int, min_effect: float = MIN_EFFECT) -> dict:
     """Nested-model F-test and BIC change between held-out residuals of two models.
+
+    The null hypothesis is that the effect explains at most ``min_effect`` of the residual variance (a
+    minimum-effect test: the F statistic against a non-central F with ``lambda = n_eff f0^2``,
+    ``f0^2 = min_effect / (1 - min_effect)``), so that a trace of structure that a very long record makes
+    "significant" but that would not change the model is not called an effect. ``min_effect = 0`` gives the
+    classical F-test.
 
     Parameters
     ----------
@@ -79,17 +106,28 @@ def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int) -> dict:
     dict with ``p_value``, ``delta_bic`` (negative: the effect is worth its parameters), ``F``, ``n``,
     ``n_eff``, ``tau_int``, ``ssr_ratio`` (held-out SSR with / without the effect).
     """
+    e0 = np.asarray(e0, float)
+    e1 = np.asarray(e1, float)
+    ok = np.isfinite(e0) & np.isfinite(e1)
+    e0, e1 = e0[ok], e1[ok]
     n = len(e0)
     ssr0 = float(e0 @ e0)
     ssr1 = float(e1 @ e1)
     tau = integrated_autocorr_time(e1)
     n_eff = max(n / tau, k1 + 2.0)
     ratio = ssr1 / ssr0 if ssr0 > 0 else 1.0
+    df2 = max(n_eff - k1, 1.0)
     if ssr1 >= ssr0 or ssr0 == 0:
         F, p = 0.0, 1.0
     else:
-        F = ((ssr0 - ssr1) / p_extra) / (ssr1 / (n_eff - k1))
-        p = float(stats.f.sf(F, p_extra, n_eff - k1))
+        F = ((ssr0 - ssr1) / p_extra) / (ssr1 / df2)
+        if min_effect > 0:
+            lam = n_eff * min_effect / (1.0 - min_effect)
+            p = float(stats.ncf.sf(F, p_extra, df2, lam))
+        else:
+            p = float(stats.f.sf(F, p_extra, df2))
+        if not np.isfinite(p):
+            p = 0.0 if F > p_extra else 1.0
     dbic = n_eff * np.log(max(ratio, 1e-300)) + p_extra * np.log(n_eff)
     return {"p_value": p, "delta_bic": float(dbic), "F": float(F), "n": int(n), "n_eff": float(n_eff),
             "tau_int": float(tau), "ssr_ratio": float(ratio)}
@@ -100,7 +138,8 @@ def whiteness_p(e: np.ndarray, spacing: int, lags: int = 10) -> float:
     filter's own correlation does not count as structure. NaN when there are too few samples."""
     from statsmodels.stats.diagnostic import acorr_ljungbox
 
-    x = np.asarray(e, float)[:: max(1, spacing)]
+    x = np.asarray(e, float)
+    x = x[np.isfinite(x)][:: max(1, spacing)]
     if len(x) < 3 * lags or not np.any(x - x.mean()):
         return float("nan")
     res = acorr_ljungbox(x - x.mean(), lags=[lags], return_df=True)

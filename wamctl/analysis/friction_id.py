@@ -119,11 +119,13 @@ class Move:
     v_cmd_rad_s: float = float("nan")
 
 
-def moves_from_reference(t_s: np.ndarray, q_ref: np.ndarray, min_travel_rad: float = 1e-4) -> list[Move]:
+def moves_from_reference(t_s: np.ndarray, q_ref: np.ndarray, min_travel_rad: float = 1e-4,
+                         creep_s: float = 2.0) -> list[Move]:
     """Moves of one joint from its reference (the commanded schedule as a hint).
 
-    Each window runs from the start of a reference move to the start of the next one (the joint may creep on
-    after its reference stops). ``q_ref`` (n,).
+    Each window runs from the start of a reference move to the start of the next one, but at most
+    ``creep_s`` (or half the move's duration, if longer) past the end of the reference move: a joint under PD
+    creeps on after its reference stops. ``q_ref`` (n,).
     """
     dq = np.diff(q_ref)
     moving = np.abs(dq) > 1e-12
@@ -142,6 +144,8 @@ def moves_from_reference(t_s: np.ndarray, q_ref: np.ndarray, min_travel_rad: flo
             starts.append((s0, s1, int(np.sign(travel)), v * np.sign(travel)))
     for k, (s0, s1, d, v) in enumerate(starts):
         end = starts[k + 1][0] if k + 1 < len(starts) else len(q_ref)
+        t_end = t_s[s1] + max(creep_s, 0.5 * (t_s[s1] - t_s[s0]))
+        end = min(end, int(np.searchsorted(t_s, t_end)))
         out.append(Move(int(s0), int(end), d, float(v)))
     return out
 
@@ -296,13 +300,15 @@ class MapOptions:
     guard_s: float = 0.02
     consistency: float = 0.05
     band_sigmas: float = 4.0
-    derivative_window_s: float = 0.1  # Savitzky-Golay window of qd, qdd for the inverse dynamics
+    # Savitzky-Golay window of qd, qdd for the inverse dynamics; short, because a longer one smooths away the
+    # decaying oscillation after a blend and biases the inertial correction of short, fast stages
+    derivative_window_s: float = 0.04
     stick_fraction_max: float = 0.1   # reject stages where the joint stands still more than this
     velocity_tolerance: float = 0.03  # with a commanded speed: reject stages off it by more (not steady)
 
 
 def friction_samples(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, rows: np.ndarray, dynamics,
-                     window_s: float = 0.1) -> np.ndarray:
+                     window_s: float = 0.04) -> np.ndarray:
     """Friction torque at the samples ``rows``: ``tau - inverse_dynamics(q, qd, qdd)``, all joints.
 
     Parameters
@@ -412,6 +418,15 @@ def _as_vf(data) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return v, f, s
 
 
+@dataclass
+class _Solution:
+    """A least-squares solution in the shape of scipy's result: ``x``, ``jac`` (of the weighted residuals)."""
+
+    x: np.ndarray
+    jac: np.ndarray
+    cost: float = 0.0
+
+
 class _LsqFriction:
     """Base of the friction estimators: a least-squares fit of ``F(v)`` with parameter standard errors."""
 
@@ -442,14 +457,19 @@ class _LsqFriction:
 
     _min_per_side = 2
 
+    def _jac(self, p, v):  # pragma: no cover - abstract
+        """(n, k) derivative of F(v) with respect to the parameters."""
+        raise NotImplementedError
+
     def _solve(self, v, f, s, x0, bounds):
-        """Minimise sum(rho(((F(v) - f) / s)^2)) from ``x0``."""
+        """Minimise sum(rho(((F(v) - f) / s)^2)) from ``x0`` (analytic Jacobian)."""
         scale = self.f_scale
         if self.loss != "linear" and scale is None:
             z0 = (self._predict(np.asarray(x0, float), v) - f) / s
             scale = max(1.4826 * float(np.median(np.abs(z0 - np.median(z0)))), 1e-9)
-        return least_squares(lambda p: (self._predict(p, v) - f) / s, x0, bounds=bounds, loss=self.loss,
-                             f_scale=scale if scale else 1.0, method="trf", x_scale="jac", max_nfev=3000)
+        return least_squares(lambda p: (self._predict(p, v) - f) / s, x0,
+                             jac=lambda p: self._jac(p, v) / s[:, None], bounds=bounds, loss=self.loss,
+                             f_scale=scale if scale else 1.0, method="trf", x_scale="jac", max_nfev=500)
 
     def _finish(self, res, v, f, s):
         """Fitted attributes; the covariance scales (J^T J)^-1 by the reduced chi-square (the weights are
@@ -477,10 +497,11 @@ class _LsqFriction:
         """F(v), N m, same shape as ``v``."""
         return self._predict(self.params_, np.asarray(v, float))
 
-    def information_criteria(self) -> dict:
-        """In-sample Gaussian AIC and BIC on the weighted residuals: ``n ln(chi2/n) + 2k`` and ``+ k ln n``."""
+    def information_criteria(self, known_sigma: bool = True) -> dict:
+        """In-sample Gaussian AIC and BIC: with the points' sigma known, ``chi2 + 2k`` and ``chi2 + k ln n``;
+        otherwise (sigma estimated from the residuals) ``n ln(chi2 / n) + 2k`` and ``+ k ln n``."""
         n, k = self.n_points_, self.n_params
-        ll = n * math.log(max(self.chi2_ / n, 1e-300))
+        ll = self.chi2_ if known_sigma else n * math.log(max(self.chi2_ / n, 1e-300))
         return {"aic": ll + 2 * k, "bic": ll + k * math.log(n)}
 
     def params(self) -> dict:
@@ -512,25 +533,31 @@ class ClassicFriction(_LsqFriction):
         self.param_names = ("fc", "sigma2") if symmetric else ("fc_pos", "sigma2_pos", "fc_neg", "sigma2_neg")
         self._min_per_side = 1 if symmetric else 2
 
-    def _predict(self, p, v):
+    def _design(self, v):
+        """(n, k) design matrix: the classic model is linear, F = A(v) p."""
         if self.symmetric:
-            return p[0] * np.sign(v) + p[1] * v
-        return np.where(v > 0, p[0] + p[1] * v, np.where(v < 0, -p[2] + p[3] * v, 0.0))
+            return np.column_stack([np.sign(v), v])
+        pf, nf = (v > 0).astype(float), (v < 0).astype(float)
+        return np.column_stack([pf, pf * v, -nf, nf * v])
+
+    def _predict(self, p, v):
+        return self._design(np.asarray(v, float)) @ np.asarray(p, float)
+
+    def _jac(self, p, v):
+        return self._design(v)
 
     def fit(self, data) -> "ClassicFriction":
         """Fit on a map (DataFrame with ``velocity_rad_s``, ``friction_Nm`` [, ``sigma_Nm``, ``accepted``]) or
         a ``(v, F[, sigma])`` tuple of (n,) arrays; returns self."""
         v, f, s = _as_vf(data)
         self._check(v, f, s)
-        # the linear least-squares solution starts the (possibly robust) fit
-        if self.symmetric:
-            a = np.column_stack([np.sign(v), v])
+        # linear least squares; it starts the fit when the loss is robust
+        a = self._design(v) / s[:, None]
+        x0 = np.linalg.lstsq(a, f / s, rcond=None)[0]
+        if self.loss == "linear":
+            res = _Solution(x0, a)
         else:
-            pos = v > 0
-            pf = pos.astype(float)
-            a = np.column_stack([pf, pf * v, -(1.0 - pf), (1.0 - pf) * v])
-        x0 = np.linalg.lstsq(a / s[:, None], f / s, rcond=None)[0]
-        res = self._solve(v, f, s, x0, (-np.inf, np.inf))
+            res = self._solve(v, f, s, x0, (-np.inf, np.inf))
         self._finish(res, v, f, s)
         p, s = self.params_, self.params_std_
         if self.symmetric:
@@ -557,7 +584,7 @@ class StribeckFriction(_LsqFriction):
     The breakaway level is at least the Coulomb level (``fs = fc + dfs``, ``dfs >= 0``: the Stribeck effect
     is friction rising towards rest); ``vs`` lies between a fifth of the slowest and half the fastest speed
     measured (beyond the data it would only bend the viscous line); ``delta`` in [0.5, 4] (``fit_delta=False``
-    keeps ``delta``). Non-linear least squares from several starts (``vs`` on a grid).
+    keeps ``delta``). Non-linear least squares started from a (vs, delta) grid.
 
     Fitted attributes as :class:`ClassicFriction`, plus ``fs_pos_``, ``fs_neg_``, ``vs_``, ``delta_`` and
     their ``*_std_`` (``fs`` by the delta method).
@@ -566,11 +593,10 @@ class StribeckFriction(_LsqFriction):
     name = "stribeck"
 
     def __init__(self, loss: str = "linear", f_scale: float | None = None, fit_delta: bool = True,
-                 delta: float = 2.0, vs_starts=(0.005, 0.02, 0.05, 0.2)):
+                 delta: float = 2.0):
         super().__init__(loss, f_scale)
         self.fit_delta = fit_delta
         self.delta = delta
-        self.vs_starts = tuple(vs_starts)
         self.param_names = ("fc_pos", "dfs_pos", "sigma2_pos", "fc_neg", "dfs_neg", "sigma2_neg", "vs") + \
             (("delta",) if fit_delta else ())
         self._min_per_side = 3
@@ -584,32 +610,57 @@ class StribeckFriction(_LsqFriction):
         e = np.exp(-np.abs(v / vs) ** d)
         return np.where(v > 0, fcp + dfp * e + bp * v, np.where(v < 0, -(fcn + dfn * e) + bn * v, 0.0))
 
+    def _jac(self, p, v):
+        fcp, dfp, bp, fcn, dfn, bn, vs, d = self._unpack(p)
+        pos, neg = (v > 0).astype(float), (v < 0).astype(float)
+        x = np.abs(v) / vs
+        xd = x ** d
+        e = np.exp(-xd)
+        de_dvs = e * d * xd / vs
+        de_dd = -e * xd * np.log(np.where(x > 0, x, 1.0))
+        df = pos * dfp - neg * dfn          # the signed level of the Stribeck term
+        cols = [pos, pos * e, pos * v, -neg, -neg * e, neg * v, df * de_dvs]
+        if self.fit_delta:
+            cols.append(df * de_dd)
+        return np.column_stack(cols)
+
+    def _linear_part(self, v, f, s, vs, d):
+        """Given vs and delta the model is linear in (fc, dfs, sigma2) per direction: the least-squares
+        solution (levels clipped at 0) and its weighted cost (variable projection)."""
+        e = np.exp(-np.abs(v / vs) ** d)
+        pos, neg = (v > 0).astype(float), (v < 0).astype(float)
+        a = np.column_stack([pos, pos * e, pos * v, -neg, -neg * e, neg * v]) / s[:, None]
+        x = np.linalg.lstsq(a, f / s, rcond=None)[0]
+        x[[0, 1, 3, 4]] = np.maximum(x[[0, 1, 3, 4]], 0.0)
+        r = a @ x - f / s
+        return x, float(r @ r)
+
     def fit(self, data) -> "StribeckFriction":
-        """As :meth:`ClassicFriction.fit`."""
+        """As :meth:`ClassicFriction.fit`. Starts from the best point of a (vs, delta) grid where the rest of
+        the parameters are solved linearly, then refines all of them together."""
         v, f, s = _as_vf(data)
         self._check(v, f, s)
-        c = ClassicFriction().fit((v, f, s))
         vmin = max(np.abs(v[v != 0]).min(), 1e-4)
         vmax = 0.5 * min(np.abs(v[v > 0]).max(), np.abs(v[v < 0]).max())
         vs_lo, vs_hi = 0.2 * vmin, max(vmax, 2 * vmin)
         lo = [0, 0, -np.inf, 0, 0, -np.inf, vs_lo] + ([0.5] if self.fit_delta else [])
         hi = [np.inf, np.inf, np.inf, np.inf, np.inf, np.inf, vs_hi] + ([4.0] if self.fit_delta else [])
+        deltas = (0.5, 1.0, 1.5, 2.0, 3.0, 4.0) if self.fit_delta else (self.delta,)
+        grid = [(self._linear_part(v, f, s, vs, d), vs, d)
+                for vs in np.geomspace(vs_lo * 1.01, vs_hi * 0.99, 24) for d in deltas]
+        starts = sorted(grid, key=lambda g: g[0][1])[:2]
         best = None
-        for vs0 in self.vs_starts:
-            for d0 in ((1.0, 2.0) if self.fit_delta else (self.delta,)):
-                x0 = [max(c.fc_pos_, 1e-6) * 0.9, max(c.fc_pos_, 1e-6) * 0.2, c.sigma2_pos_,
-                      max(c.fc_neg_, 1e-6) * 0.9, max(c.fc_neg_, 1e-6) * 0.2, c.sigma2_neg_,
-                      float(np.clip(vs0, vs_lo * 1.01, vs_hi * 0.99))]
-                if self.fit_delta:
-                    x0.append(d0)
-                try:
-                    res = self._solve(v, f, s, np.array(x0), (lo, hi))
-                except (ValueError, np.linalg.LinAlgError):
-                    continue
-                if best is None or res.cost < best.cost:
-                    best = res
+        for (x_lin, _), vs0, d0 in starts:
+            x0 = np.concatenate([x_lin, [vs0], [d0] if self.fit_delta else []])
+            x0 = np.clip(x0, np.array(lo, float) + 1e-12, np.array(hi, float) - 1e-12)
+            try:
+                res = self._solve(v, f, s, x0, (lo, hi))
+            except (ValueError, np.linalg.LinAlgError):
+                continue
+            if best is None or res.cost < best.cost:
+                best = res
         if best is None:
-            raise ValueError("stribeck: no start converged")
+            raise ValueError("stribeck: the fit did not converge")
         self._finish(best, v, f, s)
         p, sd, cov = self.params_, self.params_std_, self.cov_
         self.fc_pos_, self.sigma2_pos_, self.fc_neg_, self.sigma2_neg_, self.vs_ = map(float, p[[0, 2, 3, 5, 6]])
@@ -669,49 +720,61 @@ def fold_labels(v: np.ndarray, folds: int) -> np.ndarray:
     return labels
 
 
-def segment_sigma(v: np.ndarray, f: np.ndarray, se: np.ndarray, max_iter: int = 60) -> np.ndarray:
-    """Per-segment standard deviation for weighted fits: ``sqrt(se_i^2 + tau^2)``.
+def segment_sigma(v: np.ndarray, f: np.ndarray, se: np.ndarray, rel_floor: float = 0.005,
+                  reference: str = "stribeck", iterations: int = 14) -> np.ndarray:
+    """Per-segment standard deviation of the map points: ``sqrt(se_i^2 + (rel_floor F_i)^2 + tau^2)``.
 
-    ``se_i`` is the segment's standard error (batch means); ``tau^2`` the between-segment variance the
-    within-segment noise does not explain, found (Paule-Mandel) so that the classic per-direction fit has
-    ``chi^2 = n - p``. Without such excess, tau = 0 and the weights are the segments' own precision; with a
-    misfit (a Stribeck plant seen by the classic model) tau grows and the weights even out. (n,) arrays.
+    ``se_i`` is the segment's standard error (batch means). ``rel_floor`` stands for the systematic errors
+    the within-segment spread cannot show (at slow speeds the encoder-count kicks of the PD make a joint
+    jitter, which biases its mean friction by a few tenths of a percent on the wrist joints); without it,
+    micro-newton-metre structure would count as evidence for a richer model. ``tau^2`` is the between-segment
+    variance that even the ``reference`` model (the richest one compared; as sigma^2 of Mallows' Cp is taken
+    from the full model) leaves unexplained, set (Paule-Mandel, by bisection) so that its fit has
+    ``chi^2 = n - k``; zero when it fits within the segments' own precision. (n,) arrays.
     """
     se = np.asarray(se, float).copy()
     good = np.isfinite(se) & (se > 0)
     if not good.any():
-        return np.ones(len(v))
-    se[~good] = 3.0 * np.nanmax(se[good])
+        se = np.zeros(len(v))
+    else:
+        se[~good] = 3.0 * np.nanmax(se[good])
+    se = np.sqrt(se ** 2 + (rel_floor * np.abs(f)) ** 2)
     se = np.maximum(se, 1e-6 * max(np.abs(f).max(), 1e-9))
-    try:
-        def chi2(tau2):
-            s = np.sqrt(se ** 2 + tau2)
-            return ClassicFriction().fit((v, f, s)).chi2_
-        dof = len(v) - 4
-        if dof <= 0 or chi2(0.0) <= dof:
-            return se
-        lo, hi = 0.0, max(float(np.var(f)), 1e-12)
-        while chi2(hi) > dof and hi < 1e6:
-            hi *= 4.0
-        for _ in range(max_iter):
-            mid = 0.5 * (lo + hi)
-            lo, hi = (mid, hi) if chi2(mid) > dof else (lo, mid)
-            if hi - lo <= 1e-6 * hi:
-                break
-        return np.sqrt(se ** 2 + hi)
-    except ValueError:
-        return np.ones(len(v))
+
+    def chi2(tau2):
+        return make_estimator(ref).fit((v, f, np.sqrt(se ** 2 + tau2))).chi2_
+
+    for ref in (reference, "classic"):
+        try:
+            dof = len(v) - make_estimator(ref).n_params
+            if dof <= 0:
+                continue
+            if chi2(0.0) <= dof:
+                return se
+            lo, hi = 0.0, max(float(np.var(f)), float(np.median(se)) ** 2, 1e-12)
+            while chi2(hi) > dof and hi < 1e8:
+                hi *= 10.0
+            lo = hi / 1e6
+            for _ in range(iterations):     # bisection in log tau^2
+                mid = math.sqrt(lo * hi)
+                lo, hi = (mid, hi) if chi2(mid) > dof else (lo, mid)
+            return np.sqrt(se ** 2 + hi)
+        except ValueError:
+            continue
+    return se
 
 
 def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic",
-                 loss: str = "linear", weighting: str = "se") -> tuple[pd.DataFrame, str, dict]:
+                 loss: str = "linear", weighting: str = "se", margin: float = 2.0) -> tuple[pd.DataFrame, str, dict]:
     """Held-out model selection over segments.
 
-    Each model is fitted on k-1 folds and predicts the held-out fold; the pooled held-out residuals,
-    standardised by the segments' sigma (:func:`segment_sigma`, or 1 with ``weighting="none"``, the thesis'
-    eq. 4.2) give ``S_cv``, and ``aic_cv = n ln(S_cv / n) + 2k``, ``bic_cv = n ln(S_cv / n) + k ln n``
-    (k parameters, n points). The model with the smallest criterion wins; every model is then refitted on
-    all points.
+    Each model is fitted on k-1 folds and predicts the held-out fold. With ``weighting="se"`` every point has
+    a known sigma (:func:`segment_sigma`) and the held-out residuals give ``chi2_cv = sum(((F_i - f_i) /
+    sigma_i)^2)``, scored as ``aic_cv = chi2_cv + 2k`` or ``bic_cv = chi2_cv + k ln n``. With
+    ``weighting="none"`` (the thesis' unweighted least squares, eq. 4.2) sigma is unknown and the score is
+    ``n ln(SSE_cv / n) + 2k`` (or ``+ k ln n``). k parameters, n points. The smallest score wins, except that
+    a simpler model within ``margin`` of it is preferred (a difference below 2 is "not worth more than a bare
+    mention", Kass and Raftery 1995). Every model is refitted on all points.
 
     Parameters
     ----------
@@ -730,7 +793,9 @@ def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic
         se = d["friction_se_Nm"].to_numpy(float) if "friction_se_Nm" in d else np.full(len(d), np.nan)
     else:
         v, f, se = _as_vf(data)
-    sigma = segment_sigma(v, f, se) if weighting == "se" else np.ones(len(v))
+    known = weighting == "se"
+    richest = max(models, key=lambda m: make_estimator(m).n_params)
+    sigma = segment_sigma(v, f, se, reference=richest) if known else np.ones(len(v))
     labels = fold_labels(v, folds)
     rows, fitted = [], {}
     n = len(v)
@@ -751,17 +816,15 @@ def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic
             except ValueError:
                 continue
             pred[test] = est.predict(v[test])
-        held = np.isfinite(pred)
-        nh = int(held.sum())
         kpar = full.n_params
-        if nh == n and nh > 0:
+        if np.isfinite(pred).all() and n > 0:
             s_cv = float(np.sum(((pred - f) / sigma) ** 2))
-            ll = nh * math.log(max(s_cv / nh, 1e-300))
-            aic_cv, bic_cv = ll + 2 * kpar, ll + kpar * math.log(nh)
+            ll = s_cv if known else n * math.log(max(s_cv / n, 1e-300))
+            aic_cv, bic_cv = ll + 2 * kpar, ll + kpar * math.log(n)
             cv_rmse = math.sqrt(float(np.mean((pred - f) ** 2)))
         else:  # some folds could not be fitted (too few points): not comparable
             aic_cv = bic_cv = cv_rmse = float("inf")
-        ic = full.information_criteria()
+        ic = full.information_criteria(known)
         rows.append({"model": name, "k": kpar, "n": n, "cv_rmse_Nm": cv_rmse, "aic_cv": aic_cv, "bic_cv": bic_cv,
                      "rmse_Nm": math.sqrt(full.rss_ / n), "aic": ic["aic"], "bic": ic["bic"]})
     if not rows:
@@ -769,7 +832,9 @@ def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic
     table = pd.DataFrame(rows).set_index("model")
     key = f"{criterion}_cv"
     if np.isfinite(table[key]).any():
-        chosen = str(table[key].idxmin())
+        best = float(table[key].min())
+        close = table[table[key] <= best + margin]
+        chosen = str(close.sort_values(["k", key]).index[0])
     else:
         chosen = "classic_symmetric" if "classic_symmetric" in table.index else str(table.index[0])
     table["chosen"] = table.index == chosen

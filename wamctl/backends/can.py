@@ -139,7 +139,7 @@ def _as_property_reply(msg: can.Message) -> pp.PropertyReply | None:
 
 
 def read_property(bus: can.BusABC, ids: Iterable[int], prop: int, timeout_s: float = PROBE_TIMEOUT_S,
-                  retries: int = 1) -> dict[int, int]:
+                  retries: int = 1, send=None) -> dict[int, int]:
     """Get one property from several pucks (one get each), collecting the replies.
 
     Parameters
@@ -153,20 +153,26 @@ def read_property(bus: can.BusABC, ids: Iterable[int], prop: int, timeout_s: flo
         Wait for the replies, per attempt.
     retries : int
         Further attempts for the pucks that did not answer.
+    send : callable, optional
+        ``send(msg)`` used to transmit (default ``bus.send`` with a short timeout).
 
     Returns
     -------
     dict of int to int
-        Value per puck that answered (pucks that did not are absent).
+        Value per puck that answered (pucks that did not are absent). Frames already waiting when it is
+        called are discarded first.
     """
     wanted = list(dict.fromkeys(int(i) for i in ids))
+    send = send or (lambda msg: bus.send(msg, timeout=TX_TIMEOUT_S))
     out: dict[int, int] = {}
+    while bus.recv(timeout=0.0) is not None:  # replies to earlier requests must not pass for answers
+        pass
     for _ in range(1 + max(0, retries)):
         todo = [i for i in wanted if i not in out]
         if not todo:
             break
         for i in todo:
-            bus.send(pp.make_get_property(i, prop), timeout=TX_TIMEOUT_S)
+            send(pp.make_get_property(i, prop))
 
         def handle(msg: can.Message) -> bool:
             reply = _as_property_reply(msg)
@@ -229,7 +235,8 @@ def _enum_name(enum_cls, value: int | None) -> str | None:
 
 
 def probe_pucks(bus: can.BusABC, ids: Iterable[int] = pp.WAM_PUCK_IDS, *, wake: bool = True,
-                timeout_s: float = PROBE_TIMEOUT_S, wake_timeout_s: float = WAKE_TIMEOUT_S) -> dict[int, PuckInfo]:
+                timeout_s: float = PROBE_TIMEOUT_S, wake_timeout_s: float = WAKE_TIMEOUT_S,
+                send=None) -> dict[int, PuckInfo]:
     """Find the pucks answering on the bus, wake motor pucks left in the monitor, read their properties.
 
     Parameters
@@ -242,6 +249,8 @@ def probe_pucks(bus: can.BusABC, ids: Iterable[int] = pp.WAM_PUCK_IDS, *, wake: 
         PIDX and MODE); a woken puck is left idle.
     timeout_s, wake_timeout_s : float
         Reply timeout per request; the longest wait for pucks to wake.
+    send : callable, optional
+        ``send(msg)`` used to transmit (default ``bus.send``).
 
     Returns
     -------
@@ -249,28 +258,29 @@ def probe_pucks(bus: can.BusABC, ids: Iterable[int] = pp.WAM_PUCK_IDS, *, wake: 
         The nodes that answered, by id. Motor pucks (1..7) that are awake and have firmware >= 68 carry
         CTS, IPNM, PIDX and MODE.
     """
-    stat = read_property(bus, ids, pp.Prop.STAT, timeout_s)
+    send = send or (lambda msg: bus.send(msg, timeout=TX_TIMEOUT_S))
+    stat = read_property(bus, ids, pp.Prop.STAT, timeout_s, send=send)
     found = {i: PuckInfo(i, s) for i, s in sorted(stat.items())}
     asleep = [i for i, info in found.items() if info.stat != pp.Status.READY and i in pp.WAM_PUCK_IDS]
     if wake and asleep:
         logger.info("waking pucks %s", asleep)
         for i in asleep:
-            bus.send(pp.make_set_property(i, pp.Prop.STAT, pp.Status.READY), timeout=TX_TIMEOUT_S)
+            send(pp.make_set_property(i, pp.Prop.STAT, pp.Status.READY))
         t_end = time.perf_counter() + wake_timeout_s
         while asleep and time.perf_counter() < t_end:
             time.sleep(0.02)
-            for i, s in read_property(bus, asleep, pp.Prop.STAT, timeout_s, retries=0).items():
+            for i, s in read_property(bus, asleep, pp.Prop.STAT, timeout_s, retries=0, send=send).items():
                 found[i].stat = s
             asleep = [i for i in asleep if found[i].stat != pp.Status.READY]
     ids_found = list(found)
     for field, prop in (("vers", pp.Prop.VERS), ("role", pp.Prop.ROLE), ("sn", pp.Prop.SN)):
-        for i, v in read_property(bus, ids_found, prop, timeout_s).items():
+        for i, v in read_property(bus, ids_found, prop, timeout_s, send=send).items():
             setattr(found[i], field, v)
     motors = [i for i in ids_found if i in pp.WAM_PUCK_IDS and found[i].stat == pp.Status.READY
               and found[i].firmware_ok]
     for field, prop in (("cts", pp.Prop.CTS), ("ipnm", pp.Prop.IPNM), ("pidx", pp.Prop.PIDX),
                         ("mode", pp.Prop.MODE)):
-        for i, v in read_property(bus, motors, prop, timeout_s).items():
+        for i, v in read_property(bus, motors, prop, timeout_s, send=send).items():
             setattr(found[i], field, v)
     return found
 
@@ -592,12 +602,13 @@ class LoopTiming:
         return np.diff(self._starts[: self.n])
 
     def summary(self) -> dict:
-        """``cycles, overruns, skipped_periods, worst_overrun_s``, and percentiles (p50, p99, max) of the
+        """``cycle_starts, overruns, skipped_periods, worst_overrun_s``, and percentiles (p50, p99, max) of the
         period, of the jitter ``|period - T|``, of the wake-up lateness after each release point and of
         each cycle's busy time (start to the wait), s."""
         per = self.periods_s
-        out: dict[str, Any] = {"cycles": self.n, "period_nominal_s": self.period_s, "overruns": self.overruns,
-                               "skipped_periods": self.skipped_periods, "worst_overrun_s": self.worst_overrun_s}
+        out: dict[str, Any] = {"cycle_starts": self.n, "period_nominal_s": self.period_s,
+                               "overruns": self.overruns, "skipped_periods": self.skipped_periods,
+                               "worst_overrun_s": self.worst_overrun_s}
         if per.size:
             jit = np.abs(per - self.period_s)
             late = self._late[1: self.n]
@@ -735,14 +746,18 @@ class CanBackend(ArmBackend):
         return self._cycle
 
     def describe(self) -> dict:
-        """Interface, pucks, loop statistics (overruns, jitter), link counters and the watchdog's verdict."""
+        """Interface, pucks, loop statistics (overruns, jitter), link counters and the watchdog's verdict.
+
+        With simulated pucks, first waits (up to a second) until they have handled every frame sent, so
+        their state (modes, torques) is the consequence of everything the host did."""
+        self._sync_simulator()
         d: dict[str, Any] = {
             "name": self.name, "interface": self.interface, "channel": self.channel, "bitrate": self.bitrate,
             "simulated_pucks": self.simulated_arm is not None, "watchdog_cycles": self.watchdog_cycles,
             "reply_timeout_s": self.reply_timeout_s, "torque_mode_confirmed": self.torque_mode_confirmed,
-            "pucks": {str(i): {k: v for k, v in info.to_dict().items() if k in ("vers", "cts", "ipnm", "pidx", "sn")}
-                      for i, info in self.pucks.items()},
-            "loop": self.timing.summary(), "link": dict(self._stats),
+            "pucks": {str(i): {"vers": info.vers, "cts": info.cts, "ipnm": info.ipnm, "pidx": info.pidx,
+                               "sn": info.sn} for i, info in self.pucks.items()},
+            "loop": {**self.timing.summary(), "cycles": self._cycle}, "link": dict(self._stats),
             "watchdog": {"tripped": self.trip_reason is not None, "reason": self.trip_reason,
                          "fault_onset_cycle": self.fault_onset_cycle, "trip_cycle": self.trip_cycle,
                          "zero_torque_cycle": self.zero_torque_cycle,
@@ -761,6 +776,14 @@ class CanBackend(ArmBackend):
                 sim["fault"] = {**self.simulated_fault.model_dump(), "injected_cycle": self._fault_injected_cycle}
             d["simulation"] = sim
         return d
+
+    def _sync_simulator(self, timeout_s: float = 1.0) -> None:
+        sim = self.simulator
+        if sim is None or not sim.running:
+            return
+        t_end = time.monotonic() + timeout_s
+        while sim.stats.frames_handled < self._stats["frames_sent"] and time.monotonic() < t_end:
+            time.sleep(0.001)
 
     def drain_events(self) -> list[tuple[float, str, int | None, str]]:
         """Events since the last call, ``(t_s, kind, joint, detail)`` with loop time ``t_s``; an overrun
@@ -798,7 +821,7 @@ class CanBackend(ArmBackend):
     def _start_pucks(self) -> None:
         bus = self._bus
         assert bus is not None
-        found = probe_pucks(bus, pp.WAM_PUCK_IDS, wake=True)
+        found = probe_pucks(bus, pp.WAM_PUCK_IDS, wake=True, send=self._tx)
         missing = [i for i in pp.WAM_PUCK_IDS if i not in found]
         if missing:
             raise BackendError(f"WAM pucks {missing} did not answer on {self.interface} channel "
@@ -882,7 +905,8 @@ class CanBackend(ArmBackend):
             except can.CanError as exc:
                 logger.error("setting the pucks IDLE failed (attempt %d): %s", attempt + 1, exc)
         try:
-            modes = read_property(self._bus, pp.WAM_PUCK_IDS, pp.Prop.MODE, PROBE_TIMEOUT_S, retries=0)
+            modes = read_property(self._bus, pp.WAM_PUCK_IDS, pp.Prop.MODE, PROBE_TIMEOUT_S, retries=0,
+                                  send=self._tx)
         except can.CanError as exc:
             logger.error("reading MODE back failed: %s", exc)
             modes = {}
@@ -940,7 +964,8 @@ class CanBackend(ArmBackend):
         wrong = {i: m for i, m in self._mode_replies.items() if m != pp.Mode.TORQUE}
         if wrong:
             self._trip(f"pucks {sorted(wrong)} report MODE {sorted(set(wrong.values()))} instead of TORQUE "
-                       f"({int(pp.Mode.TORQUE)}): is the WAM activated (Shift+Activate on the pendant)?", BackendError)
+                       f"({int(pp.Mode.TORQUE)}): is the WAM activated (Shift+Activate on the pendant)?",
+                       BackendError)
         if len(self._mode_replies) == pp.N_JOINTS:
             self.torque_mode_confirmed = True
             self._event("torque_mode", f"pucks 1-7 confirmed in TORQUE mode (cycle {self._cycle})")

@@ -98,6 +98,7 @@ class SimStats:
     """Counters of what the simulated pucks saw and did (a snapshot; see :attr:`PuckSimulator.stats`)."""
 
     frames_received: int = 0
+    frames_handled: int = 0  # frames whose handling has finished (lets a host wait until it caught up)
     position_requests: int = 0
     property_gets: int = 0
     property_sets: int = 0
@@ -396,6 +397,8 @@ class PuckSimulator:
             except Exception:  # noqa: BLE001 - a plant or protocol bug must not kill the pucks silently
                 logger.exception("puck simulator: handling %s failed", msg)
                 self._count("handler_errors")
+            finally:
+                self._count("frames_handled")
 
     def _count(self, name: str, n: int = 1) -> None:
         with self._lock:

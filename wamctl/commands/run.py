@@ -98,8 +98,20 @@ def validate(spec: SpecArg,
     import yaml
 
     from wamctl.experiments.runner import plan_only
-    from wamctl.specs import load_spec
+    from wamctl.specs import load_spec, load_yaml
 
+    raw = load_yaml(spec)
+    if isinstance(raw, dict) and "vary" in raw:  # a sweep spec: every point (wamctl.sweep, issue 10)
+        from wamctl.sweep import check_plans, load_sweep
+        sw = load_sweep(spec)
+        checks = check_plans(sw)
+        if json:
+            emit_json({"valid": True, "sweep": True, "kind": sw.kind, "points": len(sw.points),
+                       "parameters": sw.parameters, "checks": checks})
+        else:
+            console.print(f"{spec}: valid sweep of {len(sw.points)} {sw.kind} points over "
+                          f"{', '.join(sw.parameters)}; every point within the limits", highlight=False)
+        return
     s = load_spec(spec)
     summary, checks = plan_only(s, spec.resolve().parent)
     if json:

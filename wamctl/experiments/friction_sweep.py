@@ -18,6 +18,7 @@ the report shows both (tables ``validation_pd_g`` and ``validation_pd_g_ff`` of 
 from __future__ import annotations
 
 import logging
+from functools import lru_cache
 from pathlib import Path
 from typing import Literal, Union
 
@@ -41,6 +42,35 @@ IDENT_FILE = "identification.json"
 VALIDATION_TABLES = {"pd_g": "validation_pd_g", "pd_g_ff": "validation_pd_g_ff"}
 
 
+GRAVITY_BUDGET = 0.6  # largest gravity torque allowed along a sweep, as a fraction of each joint's torque limit
+
+
+@lru_cache(maxsize=256)
+def _travel_problem(q0: tuple, joint: int, travel_rad: float, payload) -> tuple[str, float]:
+    """Why moving ``joint`` by ``travel_rad`` from ``q0`` is not allowed ('' if it is), and the largest
+    gravity load along the way as a fraction of the torque limit."""
+    dyn = _dynamics(payload)
+    q = np.tile(np.asarray(q0, float), (9, 1))
+    q[:, joint - 1] += np.linspace(0.0, travel_rad, 9)
+    try:
+        check_positions(q, f"joint {joint} moved by {travel_rad:+.3g} rad from q0_rad")
+    except ValueError as exc:
+        return str(exc), np.inf
+    ratio = np.array([np.abs(dyn.gravity(x)) / P.TAU_MAX_NM for x in q])
+    worst = float(ratio.max())
+    if worst > GRAVITY_BUDGET:
+        i, k = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        return (f"moved by {travel_rad:+.3g} rad, joint {k + 1} would need {ratio[i, k] * P.TAU_MAX_NM[k]:.1f} N m "
+                f"against gravity, over {GRAVITY_BUDGET:.0%} of its {P.TAU_MAX_NM[k]:g} N m limit"), worst
+    return "", worst
+
+
+@lru_cache(maxsize=4)
+def _dynamics(payload):
+    from wamctl.model.dynamics import Payload, WamDynamics
+    return WamDynamics(Payload(payload[0], payload[1]) if payload else None)
+
+
 class SweepSection(Strict):
     """What the sweep does: joints, speeds (magnitudes; each run both ways), travel and timing."""
 
@@ -49,7 +79,7 @@ class SweepSection(Strict):
         default_factory=lambda: list(DEFAULT_VELOCITIES_RAD_S),
         description="speed magnitudes, shared or per joint ({joint: [...]}); each is run in both directions")
     travel_rad: Union[float, dict[Joint, float]] = Field(
-        0.8, description="largest travel of one move (shared or per joint); slow moves travel v * cruise_s + "
+        0.6, description="largest travel of one move (shared or per joint); slow moves travel v * cruise_s + "
                          "lag_margin_rad")
     cruise_s: float = Field(2.0, gt=0.0, le=60.0, description="target length of the constant-velocity stage")
     lag_margin_rad: Union[Literal["auto"], float, dict[Joint, float]] = Field(
@@ -58,8 +88,10 @@ class SweepSection(Strict):
     min_cruise_s: float = Field(0.4, gt=0.0, description="shortest constant-velocity stage accepted")
     tc_s: float = Field(0.25, gt=0.0, le=2.0, description="LSPB blend (acceleration) time")
     settle_s: float = Field(0.4, ge=0.0, le=10.0, description="hold before each move")
-    first_direction: Union[Literal["positive", "negative"], dict[Joint, Literal["positive", "negative"]]] = \
-        Field("positive", description="direction of the first move of each pair (shared or per joint)")
+    first_direction: Union[Literal["auto", "positive", "negative"],
+                           dict[Joint, Literal["auto", "positive", "negative"]]] = Field(
+        "auto", description="direction of the first move of each pair (shared or per joint); auto: the side "
+                            "within the joint limits with the smaller gravity load")
 
     @field_validator("joints")
     @classmethod
@@ -101,10 +133,9 @@ class SweepSection(Strict):
         t = self.travel_rad
         return float(t.get(joint, 0.6)) if isinstance(t, dict) else float(t)
 
-    def direction(self, joint: int) -> float:
+    def direction_setting(self, joint: int) -> str:
         d = self.first_direction
-        d = d.get(joint, "positive") if isinstance(d, dict) else d
-        return 1.0 if d == "positive" else -1.0
+        return d.get(joint, "auto") if isinstance(d, dict) else d
 
     def lag_margin(self, joint: int, kp: np.ndarray) -> float:
         """Extra travel of a slow move of ``joint`` (rad); ``kp`` (7,) are the sweep's proportional gains."""
@@ -126,11 +157,18 @@ class ValidationSection(Strict):
     """Rotation test (thesis 4.4) after the identification, under pd_g and under pd_g_ff with the new model."""
 
     joints: list[Joint] = Field(default_factory=lambda: list(range(1, P.N_JOINTS + 1)))
-    amplitude_rad: float = Field(P.ROTATION_AMPLITUDE_RAD, ne=0.0)
+    amplitude_rad: float = P.ROTATION_AMPLITUDE_RAD
     velocity_rad_s: float = Field(P.ROTATION_VELOCITY_RAD_S, gt=0.0, le=2.0)
     tc_s: float = Field(P.LSPB_TC_S, gt=0.0)
     settle_s: float = Field(0.3, ge=0.0)
     hold_s: float = Field(1.0, ge=0.0)
+
+    @field_validator("amplitude_rad")
+    @classmethod
+    def _nonzero(cls, v):
+        if v == 0:
+            raise ValueError("the rotation must not be zero")
+        return v
 
 
 class IdentificationSection(Strict):
@@ -139,9 +177,12 @@ class IdentificationSection(Strict):
     loss: Literal["linear", "soft_l1", "huber", "cauchy"] = Field(
         "linear", description="least-squares loss; soft_l1/huber/cauchy down-weight outlying segments")
     criterion: Literal["bic", "aic"] = "bic"
+    weighting: Literal["se", "none"] = Field(
+        "se", description="se: weight segments by their standard error (plus a model-error term); none: the "
+                          "thesis' unweighted least squares (eq. 4.2)")
     folds: int = Field(5, ge=2, le=20, description="k-fold over segments for the held-out criterion")
     models: list[Literal["classic", "classic_symmetric", "stribeck"]] = \
-        Field(default_factory=lambda: ["classic", "classic_symmetric", "stribeck"])
+        Field(default_factory=lambda: ["classic", "classic_symmetric", "stribeck"], min_length=1)
 
 
 class FrictionSweepSpec(Common):
@@ -159,12 +200,6 @@ class FrictionSweepSpec(Common):
             vals = s.lag_margin_rad.values() if isinstance(s.lag_margin_rad, dict) else [s.lag_margin_rad]
             if any(not 0 <= x <= 0.5 for x in vals):
                 raise ValueError("sweep.lag_margin_rad: between 0 and 0.5 rad")
-        for key in ("velocities_rad_s", "travel_rad", "first_direction", "lag_margin_rad"):
-            v = getattr(s, key)
-            if isinstance(v, dict):
-                extra = sorted(set(v) - set(s.joints))
-                if extra:
-                    raise ValueError(f"sweep.{key}: joint(s) {extra} are not in sweep.joints {s.joints}")
         if isinstance(s.velocities_rad_s, dict):
             missing = [j for j in s.joints if j not in s.velocities_rad_s]
             if missing:
@@ -181,20 +216,39 @@ class FrictionSweepSpec(Common):
                     raise ValueError(f"sweep.travel_rad: joint {j} at {v} rad/s travels {s.move_travel(j, v, kp):.3g} "
                                      f"rad, only {cruise:.2f} s at constant velocity (min_cruise_s "
                                      f"{s.min_cruise_s} s); raise travel_rad or drop the speed")
-            q = q0.copy()
-            q[j - 1] += s.direction(j) * s.travel(j)
-            try:
-                check_positions(q, f"sweep.travel_rad (joint {j} from q0_rad)")
-            except ValueError as exc:
-                raise ValueError(f"{exc}; shorten sweep.travel_rad or set sweep.first_direction") from None
+            self.first_sign(j)  # raises naming the field when neither allowed direction fits
         if self.validation is not None:
             for j in self.validation.joints:
                 q = q0.copy()
                 q[j - 1] += self.validation.amplitude_rad
                 check_positions(q, "validation.amplitude_rad")
-        if self.controller.kind == "pid":
-            log.debug("friction sweep under PID: the integral term absorbs friction too (the map stays valid)")
         return self
+
+    def _payload(self):
+        p = self.plant.effects.payload or self.controller.declared_payload
+        return (p.mass_kg, tuple(p.com_m)) if p else None
+
+    def first_sign(self, joint: int) -> float:
+        """+1 or -1: direction of the first move of each pair of ``joint`` (resolves ``auto``).
+
+        A direction is allowed when the whole travel stays within the joint limits and the gravity torque of
+        every joint stays within :data:`GRAVITY_BUDGET` of its torque limit (the rest is for the PD, friction
+        and acceleration; beyond it the arm sags on the torque limit and the sweep is spoilt).
+        """
+        s = self.sweep
+        setting = s.direction_setting(joint)
+        options = {"positive": [1.0], "negative": [-1.0], "auto": [1.0, -1.0]}[setting]
+        problems, best = [], None
+        for sign in options:
+            why, load = _travel_problem(tuple(self.q0_rad), joint, sign * s.travel(joint), self._payload())
+            if why:
+                problems.append(why)
+            elif best is None or load < best[1] - 1e-9:
+                best = (sign, load)
+        if best is None:
+            raise ValueError(f"sweep.travel_rad: joint {joint}: {'; '.join(problems)}; shorten sweep.travel_rad"
+                             + (" or set sweep.first_direction" if setting != "auto" else "") + " or change q0_rad")
+        return best[0]
 
 
 # ------------------------------------------------------------------------------------------------ plan
@@ -207,7 +261,7 @@ def build_reference(spec: FrictionSweepSpec):
     moves = []
     n = 0
     for j in s.joints:
-        sign = s.direction(j)
+        sign = spec.first_sign(j)
         for v in s.speeds(j):
             d = s.move_travel(j, v, kp)
             for direction in (sign, -sign):
@@ -232,7 +286,7 @@ def plan(spec: FrictionSweepSpec, base_dir: Path | None = None) -> Plan:
                f"blend {s.tc_s} s, settle {s.settle_s} s, travel <= {s.travel_rad} rad, cruise <= {s.cruise_s} s",
                f"{len(ref)} ticks at {P.CONTROL_RATE_HZ:.0f} Hz = {arm_s:.1f} s of arm time"]
     for j in s.joints:
-        summary.append(f"  joint {j}: speeds {s.speeds(j)} rad/s, travel "
+        summary.append(f"  joint {j}: first {'+' if spec.first_sign(j) > 0 else '-'}, speeds {s.speeds(j)} rad/s, travel "
                        + ", ".join(f"{s.move_travel(j, v, kp):.3g}" for v in s.speeds(j)) + " rad")
     if spec.validation is not None:
         val = validation_specs(spec, None)
@@ -255,10 +309,10 @@ def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, bas
         run.event(ref.t_s[i], "move", j, f"velocity_rad_s={v:.6g} travel_rad={d:.6g}")
     run.flush_events()
     n_total = len(ref)
-    n_val = 0
     val_specs = validation_specs(spec, run.path) if spec.validation is not None else {}
-    val_plans = {k: _rotation_plan(v, base_dir) for k, v in val_specs.items()}
-    n_val = sum(len(p.reference) for p in val_plans.values())
+    # the references do not depend on the controller: size the progress bar before the model file exists
+    n_val = sum(len(_rotation_plan(v).reference) for v in validation_specs(spec, None).values()) \
+        if val_specs else 0
 
     def sub_progress(offset, label):
         if progress is None:
@@ -324,3 +378,57 @@ def _rotation_plan(rspec: RotationSpec, base_dir: Path | None = None) -> Plan:
 def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None):
     from wamctl.report.friction import friction_report
     return friction_report(run_path, manifest, spec, out_dir)
+
+
+# ------------------------------------------------------------------------------------------------ recorded data
+def analyse_recorded(source: Path, out: Path | None = None, runs_dir: Path = Path("runs"),
+                     name: str | None = None, options: dict | None = None):
+    """Identify friction from a recorded sweep (a measured-run directory or a run directory).
+
+    Without ``out`` a new run directory of kind ``friction_sweep`` is created under ``runs_dir`` holding the
+    samples (so that ``wamctl report`` takes it again), the friction model and the report; with ``out`` the
+    friction model, map and report are written into ``out`` and nothing else is created.
+
+    Returns
+    -------
+    (directory written, FrictionIdentification, Document)
+    """
+    from wamctl.analysis.friction_id import identify
+    from wamctl.measured import load_run_data
+    from wamctl.report.friction import friction_document
+    from wamctl.store import open_run
+
+    source = Path(source)
+    rd = load_run_data(source)   # DataFormatError naming the file, key, column or row
+    ident = identify(rd, options)
+    src_spec: dict = {}
+    src_backend = "measured"
+    if (source / "manifest.json").is_file():
+        manifest, src_spec = open_run(source)
+        src_backend = (manifest.get("backend") or {}).get("name", "measured")
+        name = name or manifest.get("name")
+    if out is None:
+        meta = rd.meta.model_dump(mode="json")
+        spec = {"kind": "friction_sweep", "name": name or source.name, "q0_rad": meta.get("q0"),
+                "controller": {"kind": rd.meta.controller.kind, "kp": rd.meta.controller.kp,
+                               "kd": rd.meta.controller.kd, "gravity_compensation": rd.meta.gravity_compensation},
+                "identification": dict(options or {}), "measured_meta": meta}
+        if rd.truth is not None:
+            spec["plant"] = rd.truth   # keeps the simulated truth for the report
+        run = RunDir.create(runs_dir, spec["name"], spec, None, "friction_sweep",
+                            {"backend": {"name": "sim" if rd.truth is not None else src_backend},
+                             "analysed_from": str(source.resolve())})
+        w = run.table("data", list(rd.data.columns), chunk_rows=max(1, len(rd.data)))
+        for row in rd.data.to_numpy():
+            w.append(row)
+        w.close()
+        run.finish("completed", None)
+        target = run.path
+    else:
+        target = Path(out)
+        target.mkdir(parents=True, exist_ok=True)
+    write_identification(target, ident)
+    header = f"Recorded sweep {source} ({'run directory' if src_spec else 'measured run'})."
+    doc = friction_document(rd, ident, target, f"Friction identification: {name or source.name}", header)
+    doc.write(target, "report")
+    return target, ident, doc

@@ -54,7 +54,6 @@ from __future__ import annotations
 import json
 import logging
 import os
-import signal  # noqa: F401  (re-exported for tests that simulate termination)
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Literal, Union
@@ -72,7 +71,7 @@ from wamctl.experiments.common import Plan, declared_dynamics, make_backend
 from wamctl.experiments.engine import LoopRecorder, data_columns, run_loop
 from wamctl.model import params as P
 from wamctl.model.plant import Plant, resolve_friction
-from wamctl.specs import (Common, ControllerSpec, Effects, Joint, PayloadEffect, PlantSpec, SensorSpec, Strict,
+from wamctl.specs import (Common, ControllerSpec, Joint, PayloadEffect, PlantSpec, SensorSpec, Strict,
                           Vec7, check_positions, format_validation_error, load_model_file)
 from wamctl.store import RunDir, read_events, utc_now
 
@@ -88,13 +87,20 @@ STRATEGIES = ("pd_g", "pd_g_ff", "pid")
 class IftTask(Strict):
     """Per joint: hold at q0 (``settle_s``), an LSPB move of ``amplitude_rad`` at ``velocity_rad_s``, hold
     (``hold_s``). J is taken over these samples. Thesis: 0.5 rad at 0.083 rad/s, ~7.3 s per rotation."""
-    amplitude_rad: float = Field(P.ROTATION_AMPLITUDE_RAD, ne=0.0)
+    amplitude_rad: float = P.ROTATION_AMPLITUDE_RAD
     velocity_rad_s: float = Field(P.ROTATION_VELOCITY_RAD_S, gt=0.0, le=2.0)
     tc_s: float = Field(P.LSPB_TC_S, gt=0.0)
     settle_s: float = Field(0.2, ge=0.0)
     hold_s: float = Field(1.0, ge=0.0)
     return_to_start: bool | None = Field(None, description="move back after the hold (not part of J); default: "
                                          "only on the CAN arm, which must end where the next experiment starts")
+
+    @field_validator("amplitude_rad")
+    @classmethod
+    def _nonzero(cls, v):
+        if v == 0:
+            raise ValueError("amplitude_rad must not be 0")
+        return v
 
 
 class IftPlantSource(Strict):
@@ -212,8 +218,8 @@ class IftSpec(Common):
     @model_validator(mode="after")
     def _check(self):
         if self.controller.kind == "pd_g_ff":
-            raise ValueError("controller.kind: ift tunes a PID (gravity compensation as controller says); use "
-                             "pid or pd_g, whose kp/kd are the starting gains")
+            raise ValueError("controller.kind: ift tunes a PID (gravity compensation as controller says), not "
+                             "pd_g_ff; use pid or pd_g, whose kp/kd are the starting gains")
         q0 = np.array(self.q0_rad)
         for j in self.ift.joints:
             q = q0.copy()
@@ -268,14 +274,17 @@ def gain_bounds(spec: IftSpec) -> tuple[np.ndarray, np.ndarray]:
 def task_reference(spec: IftSpec, joint: int, with_return: bool) -> tuple[Reference, int]:
     """The first experiment's reference for ``joint`` (1-based) and the number of samples J covers."""
     t = spec.ift.task
-    b = ReferenceBuilder(spec.q0_rad, DT_S)
-    b.hold(t.settle_s, f"settle joint {joint}")
-    b.move({joint - 1: t.amplitude_rad}, t.velocity_rad_s, t.tc_s, f"move joint {joint}")
-    b.hold(t.hold_s, f"hold joint {joint}")
-    n_task = sum(len(p[0]) for p in b._parts)
-    if with_return:
-        b.move({joint - 1: -t.amplitude_rad}, t.velocity_rad_s, t.tc_s, f"return joint {joint}")
-    return b.build(), n_task
+
+    def build(back: bool) -> Reference:
+        b = ReferenceBuilder(spec.q0_rad, DT_S)
+        b.hold(t.settle_s, f"settle joint {joint}")
+        b.move({joint - 1: t.amplitude_rad}, t.velocity_rad_s, t.tc_s, f"move joint {joint}")
+        b.hold(t.hold_s, f"hold joint {joint}")
+        if back:
+            b.move({joint - 1: -t.amplitude_rad}, t.velocity_rad_s, t.tc_s, f"return joint {joint}")
+        return b.build()
+    task = build(False)
+    return (build(True) if with_return else task), len(task)
 
 
 def returns_to_start(spec: IftSpec) -> bool:
@@ -313,8 +322,8 @@ def plan(spec: IftSpec, base_dir: Path | None = None) -> Plan:
     s = spec.ift
     ret = returns_to_start(spec)
     refs = [task_reference(spec, j, ret)[0] for j in s.joints]
-    ref = Reference(np.concatenate([r.t_s + i * 1e3 for i, r in enumerate(refs)]),
-                    np.concatenate([r.q_rad for r in refs]), np.concatenate([r.qd_rad_s for r in refs]),
+    q = np.concatenate([r.q_rad for r in refs])   # every joint's experiment once, for the limit checks
+    ref = Reference(np.arange(len(q)) * DT_S, q, np.concatenate([r.qd_rad_s for r in refs]),
                     np.concatenate([r.qdd_rad_s2 for r in refs]), [])
     # the model and the measured runs must resolve now (a dry run names a missing file)
     mspec, mdir = model_plant_spec(spec, base_dir)
@@ -535,10 +544,12 @@ class IftTuner:
             reason = f"safety limit: {exc}"
         finally:
             self.plant_experiments += 1
+            cols = rec.columns if rec is not None else data_columns(False)
+            rows = rec.result() if rec is not None else np.empty((0, len(cols)))
+            self.last_plant_rows = (joint, rows, cols)   # kept for the tables if an interruption propagates
             if rec is not None:
                 self.plant_time_s += rec.n * DT_S
-        cols = rec.columns if rec is not None else data_columns(False)
-        return (rec.result() if rec is not None else np.empty((0, len(cols)))), cols, reason
+        return rows, cols, reason
 
     def _run_model(self, gains: np.ndarray, q_ref: np.ndarray, seed: int) -> tuple[np.ndarray, str | None]:
         """The model's closed loop on ``q_ref`` (n, 7) from rest at ``q_ref[0]``; rows as data_columns(True)."""
@@ -557,7 +568,7 @@ class IftTuner:
         return rec.result(), reason
 
     def _model_seed(self, joint: int) -> int:
-        return self._plant_seed(-1, joint, 7)
+        return self._plant_seed(1_000_000, joint, 7)
 
     # ------------------------------------------------------------------ first experiment
     def first_experiment(self, k: int, joint: int, rho: np.ndarray, gains: np.ndarray,
@@ -570,12 +581,18 @@ class IftTuner:
             r, y, qref, rho_run, df = self._measured_experiment(k, joint, rho)
         else:
             ref, n_task = task_reference(self.spec, joint, self.with_return)
-            rows, cols, reason = self._run_backend(joint, g, ref, self._plant_seed(k, joint))
+            self.last_plant_rows = None
+            try:
+                rows, cols, reason = self._run_backend(joint, g, ref, self._plant_seed(k, joint))
+            except BaseException:      # Ctrl-C, a device error: the samples so far still reach the table
+                if self.last_plant_rows is not None:
+                    _, rows, cols = self.last_plant_rows
+                    tables.exp1.append(pd.DataFrame(rows, columns=cols).assign(joint=joint))
+                raise
             df = pd.DataFrame(rows, columns=cols)
             df.insert(0, "joint", joint)
             if reason is not None:
                 tables.exp1.append(df)
-                self._write_tables(k, tables)
                 raise SafetyLimitError(f"joint {joint}, iteration {k}: the first experiment stopped: {reason}")
             r = rows[:n_task, 1 + j0]
             y = rows[:n_task, 8 + j0]
@@ -642,7 +659,7 @@ class IftTuner:
             rows, reason = self._run_model(g, q2, seed)
             if reason is not None:
                 raise WamctlError(f"joint {joint}: the second experiment is unstable on the model: {reason}")
-            y2 = (rows[:, 22 + j0] - y_base) / eps
+            y2 = (rows[:, 22 + j0] - y_base) / eps   # the model's true positions: no quantisation in y2
         else:
             q2 = np.tile(qref[0], (len(r), 1))
             q2[:, j0] = qref[0, j0] + r2
@@ -693,6 +710,7 @@ class IftTuner:
         sg = self.s.safeguards
         joint = st.joint
         lo, hi = self.lo[joint - 1], self.hi[joint - 1]
+        tried: dict[tuple, CheckResult] = {}   # (method, gamma) already simulated from these gains
         while st.stage < len(self.s.schedule):
             stage = self.s.schedule[st.stage]
             if stage.method == "bfgs":
@@ -709,7 +727,11 @@ class IftTuner:
                                    f"iteration {k}: {stage.method} gamma={gamma:g}: no change (gains at bounds or "
                                    f"zero gradient)")
                     break
-                res = self.check(joint, new, gains, qref, st.J_model)
+                key = (stage.method, float(np.float32(gamma)), st.stage if stage.method == "bfgs" else -1)
+                if key in tried:        # a later stage repeating a step already rejected from these gains
+                    gamma *= sg.backtrack_factor
+                    continue
+                res = tried[key] = self.check(joint, new, gains, qref, st.J_model)
                 if res.rows is not None:
                     tables.check.append(pd.DataFrame({
                         "joint": joint, "attempt": attempt, "gamma": gamma, "kp": new[0], "kd": new[1],
@@ -746,66 +768,70 @@ class IftTuner:
         """Iteration ``k`` for every active joint: first experiment on the plant at the pending proposal (the
         initial gains at k = 0), acceptance, second experiment, next proposal."""
         tables = _Tables()
-        # The other joints hold with their initial gains during the tuning, so that each joint's J depends on its
-        # own gains only (decentralised tuning; the order of the joints does not matter). The comparison runs
-        # every joint with its tuned gains.
-        gains = self.g0.copy()
-        active = [j for j in self.s.joints if k == 0 or (not self.joints[j].done and self.joints[j].pending)]
-        for n, joint in enumerate(active):
-            if self.progress:
-                self.progress(n, len(active), f"IFT iteration {k}: joint {joint}")
-            if k == 0:
-                rho = self.g0[joint - 1].copy()
-                st = self.joints[joint] = JointState(joint, rho)
-            else:
-                st = self.joints[joint]
-                rho = np.asarray(st.pending["rho"], float)
-            r, y1, qref, rho = self.first_experiment(k, joint, rho, gains, tables)
-            J = A.objective(y1 - r)
-            if k == 0:
-                st.rho, st.J, st.iteration = rho, J, 0
-                res = self.check(joint, rho, gains, qref, float("nan"))
-                st.J_model = res.J_model
-                if not res.ok:
-                    self.run.event(self.plant_time_s, "ift_warning", joint,
-                                   f"the initial gains fail the model check: {res.reason}")
-                self.rows.append(_row(0, joint, "initial", float("nan"), rho, J, st.J_model, "initial", 0, ""))
-                accepted = True
-            else:
-                p = st.pending
-                accepted = A.decreased(J, st.J, self.s.stop_digits)
-                self.rows.append(_row(k, joint, p["method"], p["gamma"], rho, J, p["J_model"],
-                                      "accepted" if accepted else "plant_rejected", p["stage"],
-                                      "" if accepted else f"J {J:.4e} did not decrease below {st.J:.4e}"))
-                st.pending = None
-                if accepted:
-                    st.prev_rho, st.prev_gradient = st.rho.copy(), st.gradient.copy()
-                    st.rho, st.J, st.J_model, st.iteration = rho, J, p["J_model"], k
-                    st.stage_accepted += 1
+        try:
+            # The other joints hold with their initial gains during the tuning, so that each joint's J depends on its
+            # own gains only (decentralised tuning; the order of the joints does not matter). The comparison runs
+            # every joint with its tuned gains.
+            gains = self.g0.copy()
+            active = [j for j in self.s.joints if k == 0 or (not self.joints[j].done and self.joints[j].pending)]
+            for n, joint in enumerate(active):
+                if self.progress:
+                    self.progress(n, len(active), f"IFT iteration {k}: joint {joint}")
+                if k == 0:
+                    rho = self.g0[joint - 1].copy()
+                    st = self.joints[joint] = JointState(joint, rho)
                 else:
-                    self.run.event(self.plant_time_s, "ift_no_decrease", joint,
-                                   f"iteration {k}: J = {J:.4e} on the plant, not below {st.J:.4e}: previous gains "
-                                   f"kept")
-                    self._next_stage(k, st, "J stopped decreasing on the plant")
-            if accepted:
-                est = self.estimate(k, joint, st.rho, gains, r, y1, qref, tables)
-                st.gradient, st.gauss_newton = est.gradient, est.gauss_newton
-                if (k > 0 and st.bfgs_B is not None and st.prev_rho is not None
-                        and self.s.schedule[min(st.stage, len(self.s.schedule) - 1)].method == "bfgs"):
-                    st.bfgs_B, updated = A.bfgs_update(st.bfgs_B, st.rho - st.prev_rho, st.gradient - st.prev_gradient)
-                    if not updated:
-                        self.run.event(self.plant_time_s, "ift_bfgs_skip", joint,
-                                       f"iteration {k}: z^T s <= 0, B kept (eq. 2.17)")
-                stage = self.s.schedule[st.stage] if st.stage < len(self.s.schedule) else None
-                if stage is not None and stage.iterations is not None and st.stage_accepted >= stage.iterations:
-                    self._next_stage(k, st, f"{stage.method} gamma={stage.gamma:g}: {stage.iterations} iteration(s)")
-            if not st.done and k >= self.s.max_iterations:
-                st.done, st.done_reason = True, f"max_iterations ({self.s.max_iterations})"
-                self.run.event(self.plant_time_s, "ift_done", joint, f"iteration {k}: max_iterations reached")
-            if not st.done:
-                # with measured runs, a proposal is made even after the last run: it is what to record next
-                self.propose(k, st, gains, qref, tables)
-        self._write_tables(k, tables)
+                    st = self.joints[joint]
+                    rho = np.asarray(st.pending["rho"], float)
+                r, y1, qref, rho = self.first_experiment(k, joint, rho, gains, tables)
+                J = A.objective(y1 - r)
+                if k == 0:
+                    st.rho, st.J, st.iteration = rho, J, 0
+                    res = self.check(joint, rho, gains, qref, float("nan"))
+                    st.J_model = res.J_model
+                    if not res.ok:
+                        self.run.event(self.plant_time_s, "ift_warning", joint,
+                                       f"the initial gains fail the model check: {res.reason}")
+                    self.rows.append(_row(0, joint, "initial", float("nan"), rho, J, st.J_model, "initial", 0, ""))
+                    accepted = True
+                else:
+                    p = st.pending
+                    accepted = A.decreased(J, st.J, self.s.stop_digits)
+                    self.rows.append(_row(k, joint, p["method"], p["gamma"], rho, J, p["J_model"],
+                                          "accepted" if accepted else "plant_rejected", p["stage"],
+                                          "" if accepted else f"J {J:.4e} did not decrease below {st.J:.4e}"))
+                    st.pending = None
+                    if accepted:
+                        st.prev_rho, st.prev_gradient = st.rho.copy(), st.gradient.copy()
+                        st.rho, st.J, st.J_model, st.iteration = rho, J, p["J_model"], k
+                        st.stage_accepted += 1
+                    else:
+                        self.run.event(self.plant_time_s, "ift_no_decrease", joint,
+                                       f"iteration {k}: J = {J:.4e} on the plant, not below {st.J:.4e}: previous gains "
+                                       f"kept")
+                        self._next_stage(k, st, "J stopped decreasing on the plant")
+                if accepted:
+                    est = self.estimate(k, joint, st.rho, gains, r, y1, qref, tables)
+                    st.gradient, st.gauss_newton = est.gradient, est.gauss_newton
+                    if (k > 0 and st.bfgs_B is not None and st.prev_rho is not None
+                            and self.s.schedule[min(st.stage, len(self.s.schedule) - 1)].method == "bfgs"):
+                        st.bfgs_B, updated = A.bfgs_update(st.bfgs_B, st.rho - st.prev_rho,
+                                                           st.gradient - st.prev_gradient)
+                        if not updated:
+                            self.run.event(self.plant_time_s, "ift_bfgs_skip", joint,
+                                           f"iteration {k}: z^T s <= 0, B kept (eq. 2.17)")
+                    stage = self.s.schedule[st.stage] if st.stage < len(self.s.schedule) else None
+                    if stage is not None and stage.iterations is not None and st.stage_accepted >= stage.iterations:
+                        self._next_stage(k, st, f"{stage.method} gamma={stage.gamma:g}: "
+                                                f"{stage.iterations} iteration(s)")
+                if not st.done and k >= self.s.max_iterations:
+                    st.done, st.done_reason = True, f"max_iterations ({self.s.max_iterations})"
+                    self.run.event(self.plant_time_s, "ift_done", joint, f"iteration {k}: max_iterations reached")
+                if not st.done:
+                    # with measured runs, a proposal is made even after the last run: it is what to record next
+                    self.propose(k, st, gains, qref, tables)
+        finally:  # also an interrupted iteration's experiments reach the tables (resume redoes it)
+            self._write_tables(k, tables)
 
     def _write_tables(self, k: int, tables: _Tables) -> None:
         for name, parts in (("exp1", tables.exp1), ("exp2", tables.exp2), ("check", tables.check)):

@@ -671,6 +671,9 @@ class VirtualSubject(_SourceBase):
         Time of the first sample.
     timeout_s : float
         Default wait of :meth:`read` (only matters when ``realtime``).
+    session_start_s : float or None
+        Start of the session for the fatigue clock (``t0_s`` if None): a subject simulated trial by trial
+        keeps tiring over the session.
     """
 
     def __init__(self, target_px: Callable[[float], tuple[float, float] | None], *, seed: int = 0,
@@ -678,7 +681,7 @@ class VirtualSubject(_SourceBase):
                  jitter_s: float = 0.001, blink_rate_hz: float = 0.25, voluntary_min_s: float = 0.75,
                  voluntary_max_s: float = 1.4, artifact_prob: float = 0.002, edge_artifact_prob: float = 0.15,
                  duration_s: float | None = None, realtime: bool = False, t0_s: float = 0.0,
-                 timeout_s: float = 0.1) -> None:
+                 timeout_s: float = 0.1, session_start_s: float | None = None) -> None:
         if not 0.0 <= skill <= 1.0:
             raise ValueError(f"skill must be in [0, 1], got {skill}")
         if rate_hz <= 0 or not 0 < voluntary_min_s <= voluntary_max_s:
@@ -698,6 +701,7 @@ class VirtualSubject(_SourceBase):
         self.realtime = realtime
         self.t0_s = t0_s
         self.timeout_s = timeout_s
+        self.session_start_s = t0_s if session_start_s is None else session_start_s
         #: Ground truth of every blink so far, in order.
         self.blinks: list[BlinkTruth] = []
         self._rng = np.random.default_rng(seed)
@@ -763,7 +767,7 @@ class VirtualSubject(_SourceBase):
         return math.inf if rate_hz <= 0 else float(self._rng.exponential(1.0 / rate_hz))
 
     def _fatigue(self, t_s: float) -> float:
-        return 1.0 + self.fatigue_per_min * (t_s - self.t0_s) / 60.0
+        return 1.0 + self.fatigue_per_min * (t_s - self.session_start_s) / 60.0
 
     def _reaction_s(self, mean_s: float) -> float:
         return mean_s * self._fatigue(self._prev_t_s) * math.exp(0.25 * float(self._rng.standard_normal()))

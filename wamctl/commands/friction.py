@@ -1,0 +1,139 @@
+"""wamctl friction-id: run a friction sweep and identify, or identify from a recorded sweep."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from wamctl.cli import app
+from wamctl.commands.common import console, emit_json, err_console, progress_bar
+
+
+@app.command("friction-id")
+def friction_id(
+    spec: Annotated[Optional[Path], typer.Argument(help="A friction_sweep spec (YAML).", show_default=False)] = None,
+    data: Annotated[Optional[Path], typer.Option("--data", help="Analyse a recorded sweep instead: a measured-run "
+                                                 "directory (meta.yaml + data) or a run directory.",
+                                                 show_default=False)] = None,
+    out: Annotated[Optional[Path], typer.Option("--out", help="With a spec: parent of the run directory. With "
+                                                "--data: write the model and report here (default: a new run "
+                                                "directory under runs/).", show_default=False)] = None,
+    compare: Annotated[Optional[list[Path]], typer.Option("--compare", help="Compare two rotation runs, pd_g "
+                                                          "then pd_g_ff (give the option twice); writes into --out.",
+                                                          show_default=False)] = None,
+    loss: Annotated[Optional[str], typer.Option("--loss", help="With --data: least-squares loss, linear (default), "
+                                                "soft_l1, huber or cauchy (robust to outlying segments).",
+                                                show_default=False)] = None,
+    criterion: Annotated[Optional[str], typer.Option("--criterion", help="With --data: bic (default) or aic for "
+                                                     "the held-out model selection.", show_default=False)] = None,
+    dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the sweep plan and check every setpoint "
+                                          "against the limits; move nothing.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no tables.")] = False,
+    json: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (for scripts).")] = False,
+):
+    """Identify joint friction (thesis ch. 4): constant-velocity sweeps in both directions, the friction-velocity
+    map, fitted classic / symmetric / Stribeck models chosen by a held-out information criterion.
+
+    Writes friction_model.yaml (usable as controller.friction_ff, plant.friction, or a declared model), the
+    map (friction_map.csv), identification.json and the report (Table 4.1 layout, maps, selection).
+    Exit code 0 on success, 1 when the run failed, 2 for a bad spec or data file, 130 when interrupted.
+    """
+    from wamctl.errors import SpecError
+
+    given = [x for x in (spec, data, compare) if x]
+    if len(given) != 1:
+        raise SpecError("friction-id: give exactly one of SPEC.yaml, --data MEASURED_RUN, or --compare PD FF")
+    if compare:
+        return _compare(compare, out, quiet, json)
+    if data is not None:
+        options = {}
+        if loss is not None:
+            if loss not in ("linear", "soft_l1", "huber", "cauchy"):
+                raise SpecError(f"--loss: {loss!r}; choose linear, soft_l1, huber or cauchy")
+            options["loss"] = loss
+        if criterion is not None:
+            if criterion not in ("bic", "aic"):
+                raise SpecError(f"--criterion: {criterion!r}; choose bic or aic")
+            options["criterion"] = criterion
+        return _from_data(data, out, quiet, json, options)
+    if loss is not None or criterion is not None:
+        raise SpecError("--loss/--criterion go with --data; a spec sets them in its identification: section")
+    return _from_spec(spec, out, dry_run, quiet, json)
+
+
+def _from_spec(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as_json: bool) -> None:
+    from wamctl.commands.run import print_document_tables
+    from wamctl.errors import SpecError
+    from wamctl.experiments.friction_sweep import MODEL_FILE
+    from wamctl.experiments.runner import plan_only, run_spec, write_report
+    from wamctl.specs import load_spec
+
+    s = load_spec(spec_path)
+    if s.kind != "friction_sweep":
+        raise SpecError(f"{spec_path}: kind: friction-id runs `friction_sweep` specs, not `{s.kind}`")
+    base = spec_path.resolve().parent
+    if dry_run:
+        summary, checks = plan_only(s, base)
+        if as_json:
+            emit_json({"spec": str(spec_path), "kind": s.kind, "plan": summary, "checks": checks})
+        else:
+            console.print("\n".join(summary), highlight=False)
+            for c in checks:
+                console.print(f"[green]ok[/] {c}")
+            console.print("dry run: nothing moved")
+        return
+    with progress_bar(f"friction sweep {s.name}", enabled=not (quiet or as_json)) as progress:
+        outcome = run_spec(s, base, out, progress, make_report=False)
+    doc = write_report(outcome.path) if outcome.status == "completed" else None
+    model = outcome.path / MODEL_FILE
+    if as_json:
+        emit_json({"run_dir": str(outcome.path), "status": outcome.status, "reason": outcome.reason,
+                   "friction_model": str(model) if model.is_file() else None,
+                   "report": doc.to_json() if doc else None})
+        if outcome.status != "completed":
+            raise typer.Exit(1)
+        return
+    if doc is not None and not quiet:
+        print_document_tables(doc)
+    if outcome.status == "completed":
+        console.print(f"[green]completed[/]  run directory: {outcome.path}\nfriction model: {model}", highlight=False)
+    else:
+        err_console.print(f"[red]{outcome.status}[/]: {outcome.reason}  run directory: {outcome.path}",
+                          highlight=False)
+        raise typer.Exit(1)
+
+
+def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options: dict) -> None:
+    from wamctl.commands.run import print_document_tables
+    from wamctl.experiments.friction_sweep import MODEL_FILE, analyse_recorded
+
+    target, ident, doc = analyse_recorded(data, out, options=options)
+    if as_json:
+        emit_json({"out": str(target), "friction_model": str(target / MODEL_FILE), "report": doc.to_json()})
+        return
+    if not quiet:
+        print_document_tables(doc)
+    console.print(f"identified from {data}\nwritten to: {target}\nfriction model: {target / MODEL_FILE}",
+                  highlight=False)
+
+
+def _compare(runs: list[Path], out: Path | None, quiet: bool, as_json: bool) -> None:
+    from wamctl.commands.run import print_document_tables
+    from wamctl.errors import SpecError
+    from wamctl.report.friction import comparison_document
+
+    if len(runs) != 2:
+        raise SpecError("--compare: give two rotation runs, the pd_g run then the pd_g_ff run")
+    if out is None:
+        raise SpecError("--compare: --out DIR is required (where the comparison report goes)")
+    doc = comparison_document(runs[0], runs[1], out)
+    written = doc.write(out, "ff_comparison")
+    if as_json:
+        emit_json({"report": doc.to_json(), "written": [str(p) for p in written]})
+        return
+    if not quiet:
+        print_document_tables(doc)
+    for p in written:
+        console.print(f"wrote {p}", highlight=False)

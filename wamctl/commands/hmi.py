@@ -1,0 +1,75 @@
+"""wamctl hmi-session: a block of gaze-controlled reach-and-grasp trials (thesis chapter 6, issue 7)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+
+from wamctl.cli import app
+from wamctl.commands.common import console, emit_json, err_console, progress_bar
+from wamctl.commands.run import JsonOpt, OutOpt, QuietOpt, print_document_tables, run_and_report
+
+
+def _console_prompt(message: str) -> None:
+    """The supervisor's start: a line on the terminal, answered with Enter."""
+    console.input(f"[bold]{message}[/] ")
+
+
+@app.command("hmi-session")
+def hmi_session(
+        spec: Annotated[Optional[Path], typer.Argument(
+            help="hmi_block spec (YAML). Optional with --resume (the run's own spec is used).",
+            show_default=False)] = None,
+        out: OutOpt = None,
+        resume: Annotated[Optional[Path], typer.Option(
+            "--resume", help="Continue the block in this run directory at its next trial.",
+            show_default=False)] = None,
+        dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan (start pose, spots, trials) and "
+                                              "check it; move nothing.")] = False,
+        quiet: QuietOpt = False, json: JsonOpt = False):
+    """Run a block of gaze-controlled reach-and-grasp trials (kind hmi_block) and report hits and times.
+
+    The gaze (a virtual subject by default, a recorded gaze file, or a live tracker on a serial port or any
+    pyserial URL) steers the hand palm down over the table; a voluntary blink closes the hand; three voluntary
+    blinks in a row end the session and send the arm home. Each trial is a hit when the hand closes within the hit
+    radius of the object before the time-out; its execution time runs to the grasp. The run directory holds
+    trials.csv (one row per trial), hmi_events.csv, the hand trajectory and the report (per-location table as
+    thesis Tables 6.2-6.4). Exit code 0 when completed, 1 when failed, 2 for a bad spec, 130 when interrupted
+    (continue with --resume RUN_DIR).
+    """
+    from wamctl.errors import SpecError
+    from wamctl.experiments import hmi_block
+    from wamctl.experiments.runner import write_report
+    from wamctl.specs import load_spec
+
+    if not (quiet or json):
+        hmi_block.set_supervisor_prompt(_console_prompt)
+    if resume is None:
+        if spec is None:
+            raise SpecError("give a spec (SPEC.yaml) or --resume RUN_DIR")
+        run_and_report(spec, out, dry_run, quiet, json, expect_kind="hmi_block")
+        return
+    if dry_run:
+        raise SpecError("--dry-run and --resume exclude each other")
+    s = None
+    if spec is not None:
+        s = load_spec(spec)
+        if s.kind != "hmi_block":
+            raise SpecError(f"{spec}: kind: this command runs `hmi_block` specs, not `{s.kind}`")
+    with progress_bar(f"hmi_block {resume.name} (resumed)", enabled=not (quiet or json)) as progress:
+        outcome = hmi_block.resume(resume, s, progress)
+    doc = write_report(outcome.path) if outcome.status == "completed" else None
+    if json:
+        emit_json({"run_dir": str(outcome.path), "status": outcome.status, "reason": outcome.reason,
+                   "report": doc.to_json() if doc else None})
+        return
+    if doc is not None and not quiet:
+        print_document_tables(doc)
+    colour = "green" if outcome.status == "completed" else "red"
+    msg = f"[{colour}]{outcome.status}[/]" + (f": {outcome.reason}" if outcome.reason else "")
+    (console if outcome.status == "completed" else err_console).print(f"{msg}  run directory: {outcome.path}",
+                                                                      highlight=False)
+    if outcome.status != "completed":
+        raise typer.Exit(1)

@@ -1,0 +1,114 @@
+"""wamctl sweep: one spec with a ``vary:`` section, many runs, on a Dask cluster."""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.table import Table
+
+from wamctl.cli import app
+from wamctl.commands.common import console, emit_json, err_console, progress_bar
+
+
+@app.command()
+def sweep(
+    spec: Annotated[Optional[Path], typer.Argument(
+        help="Spec (YAML) of any kind with a `vary:` section (grid / zip / points over dotted paths). "
+             "Optional with --resume (the sweep directory keeps its spec).", show_default=False)] = None,
+    out: Annotated[Optional[Path], typer.Option(
+        "--out", help="Parent directory of the sweep directory (default: the spec's out_dir, normally runs/).")]
+    = None,
+    scheduler: Annotated[Optional[str], typer.Option(
+        "--scheduler", help="Address of a running Dask scheduler (tcp://host:8786); default: a local cluster. "
+                            "The sweep directory must be on a file system the workers share.")] = None,
+    workers: Annotated[Optional[int], typer.Option(
+        "--workers", min=1, help="Worker processes of the local cluster (default: one per core).")] = None,
+    resume: Annotated[Optional[Path], typer.Option(
+        "--resume", help="Finish an interrupted sweep directory: its completed points are skipped.")] = None,
+    dry_run: Annotated[bool, typer.Option(
+        "--dry-run", help="Validate every point and list them; run nothing.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no tables.")] = False,
+    json: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (for scripts).")] = False,
+):
+    """Run every point of a sweep as an ordinary run directory, on Dask, and index them in a sweep directory.
+
+    The sweep directory (runs/<UTC time>-<name>-sweep/) holds the spec, a manifest, index.csv/json (point,
+    parameter values, status, run directory, error, key figures) and a combined report; the runs are under
+    runs/<point>/. A failed point is recorded with its error and the others go on. Ctrl-C writes the index;
+    --resume DIR then runs only the points not completed. Exit code 0 when every point completed, 1 when some
+    failed, 2 for a bad spec, 130 when interrupted.
+    """
+    from wamctl.errors import SpecError
+    from wamctl.sweep import _import_distributed, load_sweep, open_sweep_dir, run_sweep
+
+    if spec is None and resume is None:
+        raise SpecError("give a spec with a `vary:` section, or --resume SWEEP_DIR")
+    if resume is not None:
+        sw, _ = open_sweep_dir(resume)
+        if spec is not None:
+            given = load_sweep(spec)
+            if [(p.point_id, p.spec) for p in given.points] != [(p.point_id, p.spec) for p in sw.points]:
+                raise SpecError(f"{spec}: not the spec of the sweep in {resume} (its points differ); resume "
+                                f"without the spec, or start a new sweep")
+    else:
+        sw = load_sweep(spec)
+    if dry_run:
+        from wamctl.sweep import check_plans
+        _dry_run(sw, check_plans(sw), json)
+        return
+    if not logging.getLogger().isEnabledFor(logging.INFO):  # without --verbose: only dask's errors
+        _import_distributed()  # it configures its loggers on import
+        logging.getLogger("distributed").setLevel(logging.ERROR)
+    show = not (quiet or json)
+    failures: list[dict] = []
+
+    def on_point(row: dict) -> None:
+        if row["status"] == "failed" and show:
+            failures.append(row)
+            err_console.print(f"[red]failed[/] {row['point']}: {row.get('error')}", highlight=False)
+
+    with progress_bar(f"sweep {sw.name}", enabled=show) as progress:
+        result = run_sweep(sw, out, resume_dir=resume, scheduler=scheduler, n_workers=workers,
+                           progress=progress, on_point=on_point)
+    if json:
+        emit_json({"sweep_dir": str(result.sweep_dir), "counts": result.counts, "points": len(sw.points),
+                   "ran": result.ran, "skipped": result.skipped, "wall_s": result.wall_s,
+                   "n_workers": result.n_workers, "max_concurrent": result.max_concurrent,
+                   "efficiency": result.efficiency, "report": [str(p) for p in result.report]})
+    elif not quiet:
+        t = Table(title=f"sweep {sw.name}: {len(sw.points)} points")
+        for c in ("completed", "failed", "ran now", "skipped", "workers", "at once", "wall (s)", "busy"):
+            t.add_column(c, justify="right")
+        eff = f"{100 * result.efficiency:.0f} %" if result.efficiency is not None else "-"
+        t.add_row(str(result.counts["completed"]), str(result.counts["failed"]), str(result.ran),
+                  str(result.skipped), str(result.n_workers), str(result.max_concurrent), f"{result.wall_s:.1f}",
+                  eff)
+        console.print(t)
+    if not json:
+        colour = "green" if result.ok else "red"
+        (console if result.ok else err_console).print(
+            f"[{colour}]{'completed' if result.ok else 'some points failed'}[/]  sweep directory: "
+            f"{result.sweep_dir}", highlight=False)
+    if not result.ok:
+        raise typer.Exit(1)
+
+
+def _dry_run(sw, checks: list[str], as_json: bool) -> None:
+    if as_json:
+        emit_json({"spec": sw.source, "kind": sw.kind, "name": sw.name, "parameters": sw.parameters,
+                   "checks": checks, "points": [{"point": p.point_id, **p.values} for p in sw.points]})
+        return
+    t = Table(title=f"sweep {sw.name}: {len(sw.points)} points of {sw.kind}")
+    t.add_column("point")
+    for p in sw.parameters:
+        t.add_column(p, justify="right")
+    for p in sw.points[:50]:
+        t.add_row(p.point_id, *[str(p.values.get(k, "")) for k in sw.parameters])
+    console.print(t)
+    if len(sw.points) > 50:
+        console.print(f"... {len(sw.points) - 50} more points")
+    console.print(f"[green]ok[/] every point planned; first point: {'; '.join(checks)}", highlight=False)
+    console.print(f"{sw.source}: {len(sw.points)} valid points; dry run: nothing run")

@@ -1,0 +1,283 @@
+"""IFT report: the iteration table in the layout of thesis Table 5.1, the gains, the rejected proposals,
+convergence plots, the error of the first experiment per iteration (Fig. 5.1) and the strategy comparison of
+section 5.4 (RPE per joint beside the thesis' figures, error plots side by side as Fig. 5.3)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from wamctl.analysis.rotation import rotation_metrics
+from wamctl.model import params as P
+from wamctl.report.document import Document
+from wamctl.report.figures import joint_grid, save
+from wamctl.store import read_events
+
+# Thesis Table 5.1: J(rho) per joint; columns initial PID, iterations 1 (BFGS) and 2-5 (Newton-Gauss); blank
+# cells are NaN. Copied from the thesis (chapter 5, Table 5.1); its J is in the thesis' own units.
+THESIS_TABLE_5_1 = pd.DataFrame(
+    [[0.0715, 0.0321, 0.0296, np.nan, np.nan, np.nan],
+     [0.5837, np.nan, 0.6142, 0.5933, np.nan, np.nan],
+     [0.2343, 0.0105, 0.0132, np.nan, 0.4753, 0.4585],
+     [1.5818, 0.6169, 0.5765, 0.5235, np.nan, np.nan],
+     [0.3137, 0.1705, np.nan, np.nan, np.nan, np.nan],
+     [0.3511, 0.1352, np.nan, np.nan, np.nan, np.nan],
+     [2.0517, 0.9095, 0.8613, np.nan, np.nan, np.nan]],
+    index=pd.Index(range(1, 8), name="joint"), columns=["initial", "1", "2", "3", "4", "5"])
+
+# Thesis section 5.4: RPE (%) of the final position under the tuned PID (joint 1..7). The PD + gravity and
+# PD + gravity + feed-forward figures are the same as chapters 3 and 4 (wamctl.model.params.THESIS_RPE_PCT).
+THESIS_RPE_PID_PCT = np.array([0.0003, 0.0, 0.0004, 0.0003, 0.0003, 0.0003, 0.0007])
+THESIS_RPE = {"pd_g": P.THESIS_RPE_PCT["pd_g"], "pd_g_ff": P.THESIS_RPE_PCT["pd_g_ff"], "pid": THESIS_RPE_PID_PCT}
+STRATEGY_LABELS = {"pd_g": "PD + gravity", "pd_g_ff": "PD + gravity + ff friction", "pid": "tuned PID"}
+
+
+def read_iterations(run_path: Path) -> pd.DataFrame:
+    p = Path(run_path) / "iterations.parquet"
+    if p.is_file():
+        return pd.read_parquet(p)
+    p = Path(run_path) / "iterations.csv"
+    return pd.read_csv(p) if p.is_file() else pd.DataFrame()
+
+
+def plant_rows(it: pd.DataFrame) -> pd.DataFrame:
+    """Rows evaluated on the plant (initial, accepted, rejected by the plant)."""
+    return it[it["status"].isin(["initial", "accepted", "plant_rejected"])]
+
+
+def table_5_1(it: pd.DataFrame) -> pd.DataFrame:
+    """J on the plant per joint (rows) and iteration (columns ``initial``, ``1``, ``2``, ...), as Table 5.1.
+    A proposal the plant rejected (J did not decrease) is shown too; :func:`method_table` marks which."""
+    pr = plant_rows(it)
+    if pr.empty:
+        return pd.DataFrame()
+    wide = pr.pivot_table(index="joint", columns="iteration", values="J", aggfunc="first")
+    wide.columns = ["initial" if c == 0 else str(int(c)) for c in wide.columns]
+    return wide
+
+
+def method_table(it: pd.DataFrame) -> pd.DataFrame:
+    """Method and gamma behind each cell of :func:`table_5_1` ("bfgs 0.5", "gauss_newton 0.1 (rejected)")."""
+    pr = plant_rows(it)
+    if pr.empty:
+        return pd.DataFrame()
+    lab = pr.assign(label=[("PID" if r.status == "initial" else f"{r.method} {r.gamma:g}")
+                           + (" (J rose: kept previous)" if r.status == "plant_rejected" else "")
+                           for r in pr.itertuples()])
+    wide = lab.pivot_table(index="joint", columns="iteration", values="label", aggfunc="first").fillna("")
+    wide.columns = ["initial" if c == 0 else str(int(c)) for c in wide.columns]
+    return wide
+
+
+def gains_table(it: pd.DataFrame) -> pd.DataFrame:
+    """Per joint: initial and tuned gains, J initial and final (accepted), their ratio, plant experiments."""
+    rows = []
+    for j, g in it.groupby("joint"):
+        ini = g[g["status"] == "initial"].iloc[0]
+        acc = g[g["status"].isin(["initial", "accepted"])].sort_values("iteration").iloc[-1]
+        rows.append({"joint": int(j), "kp_initial": ini.kp, "kd_initial": ini.kd, "ki_initial": ini.ki,
+                     "kp_tuned": acc.kp, "kd_tuned": acc.kd, "ki_tuned": acc.ki, "J_initial": ini.J,
+                     "J_tuned": acc.J, "J_ratio": acc.J / ini.J if ini.J else np.nan,
+                     "accepted": int((g["status"] == "accepted").sum()),
+                     "plant_experiments": int(g["status"].isin(["initial", "accepted", "plant_rejected"]).sum()),
+                     "model_rejections": int((g["status"] == "model_rejected").sum())})
+    return pd.DataFrame(rows).set_index("joint") if rows else pd.DataFrame()
+
+
+def comparison_table(run_path: Path) -> pd.DataFrame:
+    """RPE (%) of the final position per joint under each strategy (ours and the thesis')."""
+    out = {}
+    for s in THESIS_RPE:
+        p = Path(run_path) / f"compare-{s}.parquet"
+        if not p.is_file():
+            continue
+        df = pd.read_parquet(p)
+        for joint, part in df.groupby("joint"):
+            m = rotation_metrics(part.drop(columns="joint").reset_index(drop=True))
+            if int(joint) in m.index:
+                out.setdefault(int(joint), {})[f"rpe_{s}_pct"] = float(m.loc[int(joint), "rpe_pct"])
+                out[int(joint)][f"max_abs_error_{s}_rad"] = float(m.loc[int(joint), "max_abs_error_rad"])
+    if not out:
+        return pd.DataFrame()
+    t = pd.DataFrame.from_dict(out, orient="index").sort_index()
+    t.index.name = "joint"
+    for s, v in THESIS_RPE.items():
+        if f"rpe_{s}_pct" in t:
+            t[f"thesis_rpe_{s}_pct"] = [v[j - 1] for j in t.index]
+    order = [c for s in THESIS_RPE for c in (f"rpe_{s}_pct", f"thesis_rpe_{s}_pct") if c in t]
+    return t[order + [c for c in t.columns if c not in order]]
+
+
+# ------------------------------------------------------------------------------------------------ figures
+def _convergence_figure(it: pd.DataFrame, path: Path) -> Path:
+    joints = sorted(it["joint"].unique())
+    fig, axes = joint_grid(len(joints), "IFT convergence: J on the plant per iteration")
+    for ax, j in zip(axes, joints):
+        g = it[it["joint"] == j]
+        ok = g[g["status"].isin(["initial", "accepted"])].sort_values("iteration")
+        bad = g[g["status"] == "plant_rejected"]
+        ax.semilogy(ok["iteration"], ok["J"], "o-", label="accepted")
+        if len(bad):
+            ax.semilogy(bad["iteration"], bad["J"], "x", color="C3", ms=8, label="J rose (kept previous)")
+        mod = g[g["status"] == "model_rejected"]
+        if len(mod):
+            ax.semilogy(mod["iteration"], np.clip(mod["J_model"].replace(np.inf, np.nan), 1e-300, None), "|",
+                        color="C7", ms=10, label="rejected on the model")
+        ax.set_title(f"joint {j}")
+        ax.set_xlabel("iteration")
+        ax.set_ylabel("J (rad^2)")
+        ax.grid(alpha=0.3, which="both")
+    axes[0].legend(fontsize=7)
+    return save(fig, path)
+
+
+def _gains_figure(it: pd.DataFrame, path: Path) -> Path:
+    import matplotlib.pyplot as plt
+    fig, axes = plt.subplots(1, 3, figsize=(12, 3.5))
+    acc = it[it["status"].isin(["initial", "accepted"])].sort_values("iteration")
+    for name, ax in zip(("kp", "kd", "ki"), axes):
+        for j, g in acc.groupby("joint"):
+            ax.semilogy(g["iteration"], np.clip(g[name].to_numpy(), 1e-6, None), "o-", label=f"joint {j}")
+        ax.set_title(f"{name} (accepted)")
+        ax.set_xlabel("iteration")
+        ax.grid(alpha=0.3, which="both")
+    axes[0].legend(fontsize=7)
+    return save(fig, path)
+
+
+def _errors_figure(run_path: Path, it: pd.DataFrame, path: Path) -> Path | None:
+    """Fig. 5.1: the first experiment's position error at the initial, an intermediate and the final accepted
+    iteration of each joint."""
+    joints = sorted(it["joint"].unique())
+    fig, axes = joint_grid(len(joints), "Position error q_ref - q of the first experiment (Fig. 5.1)")
+    cache: dict[int, pd.DataFrame] = {}
+    drew = False
+    for ax, j in zip(axes, joints):
+        acc = it[(it["joint"] == j) & it["status"].isin(["initial", "accepted"])].sort_values("iteration")
+        its = list(acc["iteration"])
+        pick = sorted(set([its[0], its[len(its) // 2], its[-1]])) if its else []
+        for k in pick:
+            if k not in cache:
+                p = Path(run_path) / f"iter-{int(k):03d}-exp1.parquet"
+                cache[k] = pd.read_parquet(p) if p.is_file() else pd.DataFrame()
+            d = cache[k]
+            if d.empty:
+                continue
+            d = d[d["joint"] == j]
+            e = (d[f"q_ref_{j}_rad"] - d[f"q_{j}_rad"]).to_numpy()
+            ax.plot(d["t_s"].to_numpy(), e * 1e3, lw=0.8, label="initial" if k == 0 else f"iteration {int(k)}")
+            drew = True
+        ax.set_title(f"joint {j}")
+        ax.set_ylabel("error (mrad)")
+        ax.set_xlabel("t (s)")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=7)
+    if not drew:
+        import matplotlib.pyplot as plt
+        plt.close(fig)
+        return None
+    return save(fig, path)
+
+
+def _comparison_figure(run_path: Path, path: Path) -> Path | None:
+    """Fig. 5.3: per joint (rows) the error under each strategy (columns), same y scale per row."""
+    import matplotlib.pyplot as plt
+    data = {s: pd.read_parquet(Path(run_path) / f"compare-{s}.parquet") for s in THESIS_RPE
+            if (Path(run_path) / f"compare-{s}.parquet").is_file()}
+    if not data:
+        return None
+    joints = sorted(next(iter(data.values()))["joint"].unique())
+    fig, axes = plt.subplots(len(joints), len(data), figsize=(12, 1.9 * len(joints) + 0.8), squeeze=False,
+                             sharey="row")
+    fig.suptitle("Position error q_ref - q under the three strategies (Fig. 5.3)")
+    for r, j in enumerate(joints):
+        for c, (s, df) in enumerate(data.items()):
+            d = df[df["joint"] == j]
+            ax = axes[r, c]
+            ax.plot(d["t_s"].to_numpy(), (d[f"q_ref_{j}_rad"] - d[f"q_{j}_rad"]).to_numpy() * 1e3, lw=0.8)
+            ax.grid(alpha=0.3)
+            if r == 0:
+                ax.set_title(STRATEGY_LABELS[s])
+            if c == 0:
+                ax.set_ylabel(f"joint {j}\nerror (mrad)")
+            if r == len(joints) - 1:
+                ax.set_xlabel("t (s)")
+    return save(fig, path)
+
+
+# ------------------------------------------------------------------------------------------------ report
+def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
+    run_path = Path(run_path)
+    out_dir = Path(out_dir or run_path)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    s = spec.get("ift") or {}
+    it = read_iterations(run_path)
+    info = manifest.get("ift") or {}
+    doc = Document(f"Iterative feedback tuning: {manifest.get('name', run_path.name)}")
+    plant = s.get("plant") or {}
+    fx = ", ".join(k for k, v in ((spec.get("plant") or {}).get("effects") or {}).items() if v) or "none"
+    doc.text(f"Run {run_path.name}: status {manifest.get('status')}"
+             + (f" ({manifest.get('reason')})" if manifest.get("reason") else "")
+             + f"; joints {s.get('joints')}; first experiment on "
+             + (f"the {spec.get('backend', {}).get('kind')} backend (plant effects: {fx})"
+                if plant.get("source", "backend") == "backend" else f"{len(plant.get('runs') or [])} measured runs")
+             + f"; second experiment ({s.get('second_experiment')}) on the model; J on "
+             f"{s.get('objective_signal')} positions, compared at {s.get('stop_digits')} digits. "
+             f"{info.get('plant_experiments', '?')} plant experiments, {info.get('model_experiments', '?')} model "
+             f"simulations, {info.get('last_completed_iteration', '?')} as the last completed iteration "
+             f"(phase {info.get('phase', '?')}).")
+    sched = ", ".join(f"{st['method']} gamma={st['gamma']}" + (f" x{st['iterations']}" if st.get("iterations") else "")
+                      for st in s.get("schedule") or [])
+    doc.text(f"Schedule: {sched}. Each proposal was simulated on the model first; rejected proposals are listed "
+             f"below and never ran on the plant.")
+    if it.empty:
+        doc.text("No iteration completed.")
+        return doc
+    doc.heading("Objective function J per iteration (layout of thesis Table 5.1)")
+    t51 = table_5_1(it)
+    doc.table("ift_J", t51, "J = 1/(2N) sum (y - r)^2 on the plant, rad^2, per joint and iteration; an iteration "
+              "whose J did not decrease kept the previous gains (see the method table).", digits=4)
+    doc.table("ift_methods", method_table(it), "Hessian method and step gamma that produced each iteration's gains.")
+    doc.table("thesis_table_5_1", THESIS_TABLE_5_1, "The thesis' Table 5.1 (real WAM, its own units) for "
+              "comparison: initial PID, BFGS iteration 1, Newton-Gauss iterations 2-5.", digits=4)
+    gt = gains_table(it)
+    doc.heading("Gains")
+    doc.table("ift_gains", gt, "Initial (PD gains, ki = kd/10) and tuned gains; J_ratio = J_tuned / J_initial.",
+              digits=4)
+    doc.data["J"] = {str(j): {"initial": float(r.J_initial), "tuned": float(r.J_tuned)} for j, r in gt.iterrows()}
+    doc.data["tuned_gains"] = {str(j): {"kp": float(r.kp_tuned), "kd": float(r.kd_tuned), "ki": float(r.ki_tuned)}
+                               for j, r in gt.iterrows()}
+    ev = read_events(run_path)
+    rej = ev[ev["kind"] == "ift_rejected"] if len(ev) else ev
+    doc.heading("Proposals rejected on the model")
+    if len(rej):
+        rej = rej.assign(joint=rej["joint"].astype("Int64"))
+        doc.table("ift_rejected", rej[["joint", "detail"]].reset_index(drop=True),
+                  "Simulated on the model and rejected before reaching the plant (unstable, diverging error, "
+                  "torque limit, or J not decreasing); gamma was then reduced.")
+    else:
+        doc.text("None.")
+    doc.data["rejected_on_model"] = int(len(rej))
+    doc.figure(_convergence_figure(it, out_dir / "ift_convergence.png"), "J per iteration (log scale)")
+    doc.figure(_gains_figure(it, out_dir / "ift_gains.png"), "accepted gains per iteration")
+    f = _errors_figure(run_path, it, out_dir / "ift_errors.png")
+    if f is not None:
+        doc.figure(f, "position error of the first experiment at the initial, an intermediate and the final "
+                      "accepted gains (Fig. 5.1)")
+    ct = comparison_table(run_path)
+    doc.heading("Strategy comparison (thesis section 5.4)")
+    if ct.empty:
+        doc.text("Not run (comparison disabled, measured first experiments, or the tuning did not finish).")
+    else:
+        doc.table("comparison_rpe", ct, "RPE = |final error / amplitude| x 100 % (eq. 3.2) at the end of the hold, "
+                  "on the plant; thesis_*: the thesis' figures (chapters 3-5) for the same task on the real arm.",
+                  digits=4)
+        doc.data["rpe_pct"] = {s: {str(j): float(v) for j, v in ct[f"rpe_{s}_pct"].items()}
+                               for s in THESIS_RPE if f"rpe_{s}_pct" in ct}
+        f = _comparison_figure(run_path, out_dir / "ift_comparison_errors.png")
+        if f is not None:
+            doc.figure(f, "position error per joint under PD + gravity, PD + gravity + feed-forward friction and "
+                          "the tuned PID (Fig. 5.3)")
+    return doc
