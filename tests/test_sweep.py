@@ -14,7 +14,6 @@ import time
 from pathlib import Path
 
 import numpy as np
-import pandas as pd
 import pytest
 import yaml
 
@@ -92,6 +91,18 @@ def test_a_friction_sweep_is_varied_through_its_own_sweep_field():
     assert sw.kind == "friction_sweep" and len(sw.points) == 4
     assert [p.spec["sweep"]["joints"] for p in sw.points] == [[1], [1], [7], [7]]
     assert sw.points[3].spec["sweep"]["travel_rad"] == {1: 0.8, 7: 1.5}  # the rest of its schedule is kept
+
+
+def test_hmi_subjects_crossed_with_conditions():
+    raw = yaml.safe_load((ROOT / "configs" / "hmi_block.yaml").read_text())
+    raw["vary"] = {"points": [{"hmi.subject": {"id": "S1", "seed": 11, "skill": 0.8}},
+                              {"hmi.subject": {"id": "S2", "seed": 12, "skill": 0.6}}],
+                   "grid": {"hmi.strategy": ["four", "vector"], "hmi.filter.window_s": [0.3, 0.5]}}
+    sw = sweep_from_mapping(raw, "hmi.yaml")
+    assert sw.kind == "hmi_block" and len(sw.points) == 8
+    p5 = sw.points[5].spec["hmi"]
+    assert p5["subject"]["id"] == "S2" and p5["strategy"] == "four" and p5["filter"] == {"kind": "ma", "window_s": 0.5}
+    assert p5["profile"] == raw["hmi"]["profile"]
 
 
 def test_paths_into_missing_mappings_and_joint_keyed_mappings():
@@ -333,20 +344,19 @@ def test_mjcf_model_matches_pinocchio():
     mujoco = pytest.importorskip("mujoco")
     from wamctl.model.dynamics import WamDynamics
     from wamctl.model.friction import FrictionModel
-    from wamctl.model.mjcf import load_mujoco_model, mujoco_friction
+    from wamctl.model.mjcf import full_mass_matrix, load_mujoco_model, mujoco_friction
 
     m = load_mujoco_model()
     d = mujoco.MjData(m)
     dyn = WamDynamics()
     site = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_SITE, "link7")
     rng = np.random.default_rng(7)
-    mm = np.zeros((7, 7))
     for _ in range(50):
         q = rng.uniform(P.Q_MIN_RAD, P.Q_MAX_RAD)
         d.qpos[:] = q
         d.qvel[:] = 0.0
         mujoco.mj_forward(m, d)
-        mujoco.mj_fullM(m, d, mm)
+        mm = full_mass_matrix(m, d)
         assert np.allclose(mm, dyn.mass_matrix(q), rtol=0, atol=1e-10)          # incl. armature
         assert np.allclose(d.qfrc_bias, dyn.gravity(q), rtol=0, atol=1e-9)      # zero velocity: gravity only
         pose = dyn.link7_pose(q)

@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from wamctl.errors import DataFormatError
 from wamctl.model import params as P
-from wamctl.store import RunDir, open_run, read_table
+from wamctl.store import RunDir, open_run, read_table, write_csv
 
 log = logging.getLogger(__name__)
 
@@ -230,7 +230,7 @@ def export_run(run_path: str | Path, to: str | Path, fmt: str = "parquet") -> Pa
     (to / "meta.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
     ext = _to_external(rd.data)
     if fmt == "csv":
-        ext.to_csv(to / "data.csv", index=False)
+        write_csv(ext, to / "data.csv")
     else:
         ext.to_parquet(to / "data.parquet", index=False)
     return to

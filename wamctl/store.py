@@ -108,8 +108,16 @@ class TableWriter:
         self.flush()
         df = read_chunks(self._dir, self.columns)
         df.to_parquet(self.run_dir / f"{self.name}.parquet", index=False)
-        df.to_csv(self.run_dir / f"{self.name}.csv", index=False)
+        write_csv(df, self.run_dir / f"{self.name}.csv")
         return df
+
+
+def write_csv(df: pd.DataFrame, path: Path) -> None:
+    """CSV with a header row, no index, full float precision (pyarrow's writer: ~10x faster than pandas')."""
+    import pyarrow as pa
+    import pyarrow.csv as pcsv
+    pcsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), path,
+                   pcsv.WriteOptions(quoting_style="needed"))
 
 
 def read_chunks(chunk_dir: Path, columns: list[str] | None = None) -> pd.DataFrame:

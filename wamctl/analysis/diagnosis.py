@@ -30,6 +30,7 @@ The closed-loop position check and the model file are in :mod:`wamctl.analysis.d
 from __future__ import annotations
 
 import logging
+from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -58,6 +59,7 @@ N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 10, "delay": 0, "fr
 HAS_GRID = {"stribeck": True, "position_ripple": True, "payload": False, "delay": True,
             "friction_drift": True, "backlash": False}
 MAX_SAMPLES_PER_JOINT = 30000     # decimation above this (smoothed signals: little information is lost)
+MIN_DECLARED_R2 = 0.25            # below: the data are not this arm under this model (garbage in)
 
 
 @dataclass
@@ -87,6 +89,7 @@ class JointResult:
     theta_after: np.ndarray | None = None                    # all coefficients of the final model
     columns_after: list[tuple[str, int]] = field(default_factory=list)   # (term name, n columns)
     e_before: np.ndarray | None = None                        # held-out residuals (JointData order)
+    e_base: np.ndarray | None = None                          # held-out residual of the fitted declared model
     e_after: np.ndarray | None = None
     torque_rms_before_Nm: float = float("nan")
     torque_rms_after_Nm: float = float("nan")
@@ -95,6 +98,19 @@ class JointResult:
     position_rms_before_rad: float = float("nan")
     position_rms_after_rad: float = float("nan")
     effects: list[dict] = field(default_factory=list)         # report-ready: name, params, evidence
+
+
+@contextmanager
+def _single_threaded_blas():
+    """The diagnosis multiplies tall, thin matrices: one BLAS thread is fastest, and several threads on a
+    shared machine are ten times slower (OpenBLAS spin-waits). threadpoolctl is optional."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
 
 
 def fold_of(t_s: np.ndarray, n_blocks: int, n_folds: int) -> np.ndarray:
@@ -144,6 +160,10 @@ class ModelDiagnosis:
     # ------------------------------------------------------------------------------------------ fit
     def fit(self, data) -> "ModelDiagnosis":
         """Diagnose a :class:`wamctl.measured.RunData` (a run directory or a measured run, loaded)."""
+        with _single_threaded_blas():
+            return self._fit(data)
+
+    def _fit(self, data) -> "ModelDiagnosis":
         declared = self.declared or DeclaredModel()
         meta = data.meta
         self.declared_ = declared
@@ -179,6 +199,14 @@ class ModelDiagnosis:
         torque_tests = [c for c in tests if c != "backlash"]
         for j in sig.joints:
             self.joints_[j] = self._diagnose_joint(self.jd_[j], torque_tests)
+        r2 = self._declared_r2()
+        if r2 < MIN_DECLARED_R2:
+            self.reason_ = (f"the declared model explains only {max(r2, 0.0):.0%} of the torque of the moving "
+                            f"joints (at least {MIN_DECLARED_R2:.0%} expected): the data do not look like this "
+                            "arm under this model (torque units? joint order? gravity?), so no effect is named")
+            log.warning(self.reason_)
+            self.joints_ = {}
+            return self
         self._check_payload()
         self.onsets_ = {}
         if "backlash" in tests or "stribeck" in tests:
@@ -200,6 +228,15 @@ class ModelDiagnosis:
                 res.position_rms_before_rad = pc["rms_before"].get(j, float("nan"))
                 res.position_rms_after_rad = pc["rms_after"].get(j, float("nan"))
         return self
+
+    def _declared_r2(self) -> float:
+        """Share of the moving joints' torque variance the fitted declared model explains (held-out)."""
+        ss_res, ss_tot = 0.0, 0.0
+        for j, res in self.joints_.items():
+            tau = self.tau_model_[self.jd_[j].idx, j]
+            ss_res += _ss(res.e_base)
+            ss_tot += float(np.sum((tau - tau.mean()) ** 2))
+        return 1.0 - ss_res / ss_tot if ss_tot > 0 else 0.0
 
     # ------------------------------------------------------------------------------------------ data
     def _prepare_joint_data(self) -> None:
@@ -384,14 +421,20 @@ class ModelDiagnosis:
         """Shape parameter of candidate ``name`` that best explains the current residual on ``rows``
         (``terms``: the other terms, with ``h_all`` set; used by the delay, whose grid changes everything)."""
         if name == "delay":
-            best, arg = np.inf, None
-            for d in DELAY_GRID_S:
+            # coarse grid (every fourth value), then the neighbours of the best
+            def ssr(d):
                 yd, X = self._yx(jd, list(terms) + [{"name": "delay", "h_all": d}], None)
                 th = lstsq(X[rows], yd[rows])
                 r = yd[rows] - X[rows] @ th
-                if r @ r < best:
-                    best, arg = float(r @ r), float(d)
-            return arg
+                return float(r @ r)
+            grid = DELAY_GRID_S
+            coarse = list(range(0, len(grid), 4)) + [len(grid) - 1]
+            scores = {i: ssr(grid[i]) for i in coarse}
+            i0 = min(scores, key=scores.get)
+            for i in range(max(0, i0 - 3), min(len(grid), i0 + 4)):
+                if i not in scores:
+                    scores[i] = ssr(grid[i])
+            return float(grid[min(scores, key=scores.get)])
         if name == "position_ripple":
             return self._select_ripple(jd, rows, Xb, y)
         grid = self._grid(name, jd)
@@ -443,8 +486,9 @@ class ModelDiagnosis:
         return float(1.0 / ks[int(np.argmax(gains))])
 
     # ------------------------------------------------------------------------------------------ CV
-    def _cv(self, jd: JointData, terms: list[dict], cand: str | None = None):
-        """Held-out residuals of ``friction + terms (+ cand)``; returns (residual, per-fold shape params)."""
+    def _cv(self, jd: JointData, terms: list[dict], cand: str | None = None, fixed_h=None):
+        """Held-out residuals of ``friction + terms (+ cand)``; returns (residual, per-fold shape params).
+        ``fixed_h`` fixes the candidate's shape parameter instead of choosing it on each fold."""
         e = np.zeros(jd.n)
         h_fold = []
         for f in range(self.n_folds):
@@ -471,7 +515,7 @@ class ModelDiagnosis:
                 y, X = self._yx(jd, terms + [{"name": "delay", "h_fold": [h] * self.n_folds}], f)
             else:
                 here = [dict(t, h_all=t["h_fold"][f]) for t in terms]
-                h = self._select(cand, jd, trr, Xb, y, here)
+                h = fixed_h if fixed_h is not None else self._select(cand, jd, trr, Xb, y, here)
                 h_fold.append(h)
                 d = next((t["h_all"] for t in here if t["name"] == "delay"), 0.0) or 0.0
                 X = np.hstack([Xb, self._cols(cand, jd, h, d)])
@@ -496,6 +540,9 @@ class ModelDiagnosis:
             t.setdefault("h_all", self._first_h(t))
         rows = np.arange(jd.n)
         for i, t in enumerate(terms):
+            if t.get("fixed_h") is not None:
+                t["h_all"] = t["fixed_h"]
+                continue
             others = terms[:i] + terms[i + 1:]
             y, Xb = self._yx(jd, others, None)
             t["h_all"] = self._select(t["name"], jd, rows, Xb, y, others)
@@ -521,6 +568,7 @@ class ModelDiagnosis:
         else:
             e_before = jd.y_Nm.copy()    # the given model, not refitted
         res.e_before = e_before
+        res.e_base = e_base
         res.theta_before = lstsq(self._cols("friction", jd, None), jd.y_Nm)
         jd.extra["theta_before"] = res.theta_before
         terms: list[dict] = []
@@ -649,23 +697,41 @@ class ModelDiagnosis:
             return
         self.payload_ = fit
 
-    def _onsets(self, j: int) -> dict:
+    def _onsets(self, j: int, extend: int = 100) -> dict:
         """Hidden travel at the joint's onsets with the current model of the joint (see
-        :mod:`wamctl.analysis.diagnosis_backlash`)."""
+        :mod:`wamctl.analysis.diagnosis_backlash`).
+
+        The torque available to the joint, ``u = tau - rnea_j(q, qd, qdd with the joint's own velocity and
+        acceleration zeroed)``, uses the model with its kept effects (payload in the rigid body, ripple
+        added), and the friction levels are scaled by a kept drift at the onset's time."""
         sig, res = self.signals_, self.joints_[j]
         q_raw = sig.q_raw_rad[:, j]
         quantum = resolution_rad(q_raw)
         tol = max(2.0 * quantum, 1e-6)
         ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, sig.window)
         fr = self.friction_after(j)
-        stri = next((self.effect_params(j, "stribeck") for t in res.kept if t["name"] == "stribeck"), None)
-        fs_pos = max(stri["Fs_pos_Nm"], 0.0) if stri else None
-        fs_neg = max(stri["Fs_neg_Nm"], 0.0) if stri else None
-        tau = sig.tau_raw_Nm
+        kept = {t["name"]: t for t in res.kept}
+        stri = self.effect_params(j, "stribeck") if "stribeck" in kept else None
+        fs_ratio = None
+        if stri:
+            fs_ratio = (stri["Fs_pos_Nm"] / max(stri["Fc_pos_Nm"], 1e-9), stri["Fs_neg_Nm"] / max(stri["Fc_neg_Nm"], 1e-9))
+        drift = self.effect_params(j, "friction_drift") if "friction_drift" in kept else None
+        ripple = self.effect_params(j, "position_ripple") if "position_ripple" in kept else None
         dyn = self.dynamics_
-        travel, rev, t_on, withstood, sign = [], [], [], [], []
+        if "payload" in kept and self.payload_ is not None:
+            pl = self.payload_
+            decl = self.payload_declared_
+            if decl is not None:
+                m = decl.mass_kg + pl["mass_kg"]
+                com = (decl.mass_kg * np.asarray(decl.com_m) + pl["mass_kg"] * np.asarray(pl["com_m"])) / m
+                dyn = WamDynamics(Payload(m, tuple(com)))
+            else:
+                dyn = WamDynamics(Payload(pl["mass_kg"], tuple(pl["com_m"])))
+        tau = sig.tau_raw_Nm
+        t0 = sig.t_s[0]
+        travel, rev, t_on, ratio, sign, windows = [], [], [], [], [], []
         for o in ons:
-            ii = np.arange(o.start, o.end)
+            ii = np.arange(o.start, min(o.end + extend, sig.n))
             u = np.empty(len(ii))
             for k, i in enumerate(ii):
                 qd_i = sig.qd_rad_s[i].copy()
@@ -674,27 +740,59 @@ class ModelDiagnosis:
                 qdd_i[j] = 0.0
                 tc = 0.5 * (tau[i, j] + tau[i - 1, j]) if i > 0 else tau[i, j]
                 u[k] = tc - dyn.inverse_dynamics(sig.q_rad[i], qd_i, qdd_i)[j] - self.known_[i, j]
+            if ripple:
+                u += ripple["amplitude_Nm"] * np.sin(2 * np.pi * q_raw[ii] / ripple["period_rad"]
+                                                     + ripple["phase_rad"])
+            scale = 1.0
+            if drift:
+                scale = 1 + drift["fraction"] * (1 - np.exp(-(o.t_s - t0) / drift["time_constant_s"]))
+            f = {k: max(v, 0.0) * scale for k, v in fr.items()}
             inertia = float(dyn.mass_matrix(sig.q_rad[o.end])[j, j])
-            x = hidden_travel(u, sig.dt_s, inertia, max(fr["fc_pos_Nm"], 0.0), max(fr["fc_neg_Nm"], 0.0),
-                              max(fr["viscous_pos_Nm_s_rad"], 0.0), max(fr["viscous_neg_Nm_s_rad"], 0.0),
-                              fs_pos, fs_neg)
+            stall = o.end - o.start
+            fsp = f["fc_pos_Nm"] * fs_ratio[0] if fs_ratio else None
+            fsn = f["fc_neg_Nm"] * fs_ratio[1] if fs_ratio else None
+            x = hidden_travel(u[:stall], sig.dt_s, inertia, f["fc_pos_Nm"], f["fc_neg_Nm"],
+                              f["viscous_pos_Nm_s_rad"], f["viscous_neg_Nm_s_rad"], fsp, fsn)
             travel.append(o.sign_new * x[-1] - tol)
             rev.append(o.reversal)
             t_on.append(o.t_s)
             if not o.reversal:
-                withstood.append(breakaway_ratio(
-                    u, sig.dt_s, inertia, max(fr["fc_pos_Nm"], 1e-6), max(fr["fc_neg_Nm"], 1e-6),
-                    max(fr["viscous_pos_Nm_s_rad"], 0.0), max(fr["viscous_neg_Nm_s_rad"], 0.0), tol))
+                ratio.append(breakaway_ratio(u[:stall], sig.dt_s, inertia, max(f["fc_pos_Nm"], 1e-6),
+                                             max(f["fc_neg_Nm"], 1e-6), f["viscous_pos_Nm_s_rad"],
+                                             f["viscous_neg_Nm_s_rad"], tol))
             else:
-                withstood.append(np.nan)
+                ratio.append(np.nan)
             sign.append(o.sign_new)
+            windows.append({"u": u, "inertia": inertia, "friction": f, "start": o.start, "end": o.end,
+                            "sign": o.sign_new, "q": q_raw[ii] - q_raw[o.start], "reversal": o.reversal})
         t_on = np.asarray(t_on)
-        t0, t1 = sig.t_s[0], sig.t_s[-1]
+        t1 = sig.t_s[-1]
         folds = (np.minimum(((t_on - t0) / max(t1 - t0, 1e-9) * self.n_blocks).astype(int), self.n_blocks - 1)
                  % self.n_folds) if len(t_on) else np.zeros(0, int)
         return {"travel_rad": np.asarray(travel), "reversal": np.asarray(rev, bool), "t_s": t_on,
-                "fold": folds, "breakaway_ratio": np.asarray(withstood), "sign": np.asarray(sign),
-                "resolution_rad": quantum, "tol_rad": tol}
+                "fold": folds, "breakaway_ratio": np.asarray(ratio), "sign": np.asarray(sign),
+                "resolution_rad": quantum, "tol_rad": tol, "windows": windows}
+
+    def _slip_vs(self, j: int, ons: dict, ratio: float) -> float | None:
+        """Stribeck velocity that best reproduces the measured slips after each same-direction breakaway
+        (the joint integrated open-loop from rest with the logged torque, ``Fs = ratio Fc``)."""
+        sig = self.signals_
+        wins = [w for w in ons["windows"] if not w["reversal"]]
+        if not wins:
+            return None
+        best, arg = np.inf, None
+        for vs in STRIBECK_VS_GRID_RAD_S:
+            ssr = 0.0
+            for w in wins:
+                f = w["friction"]
+                x = hidden_travel(w["u"], sig.dt_s, w["inertia"], f["fc_pos_Nm"], f["fc_neg_Nm"],
+                                  f["viscous_pos_Nm_s_rad"], f["viscous_neg_Nm_s_rad"], ratio * f["fc_pos_Nm"],
+                                  ratio * f["fc_neg_Nm"], vs_rad_s=vs)
+                err = x - w["q"]
+                ssr += float(err @ err)
+            if ssr < best:
+                best, arg = ssr, float(vs)
+        return arg
 
     def _onset_tests(self, j: int, tests: list[str]) -> None:
         """Effects seen at onsets (:mod:`wamctl.analysis.diagnosis_backlash`).
@@ -766,7 +864,9 @@ class ModelDiagnosis:
             extra["width_rad"] = float(r["coef"])
         else:
             extra["onset_ratio"] = float(np.exp(r["coef"]))
-        e1, h_fold = self._cv(jd, res.kept, name)
+            extra["onset_vs"] = self._slip_vs(j, ons, extra["onset_ratio"])
+            extra["fixed_h"] = extra["onset_vs"]
+        e1, h_fold = self._cv(jd, res.kept, name, extra.get("fixed_h"))
         term = {"name": name, "h_fold": h_fold, "evidence": ev, "gain": 1.0 - r["ssr_ratio"], **extra}
         if _ss(e1) > _ss(res.e_after):
             e1 = res.e_after
@@ -816,6 +916,8 @@ class ModelDiagnosis:
             if t.get("onset_ratio"):      # found at breakaways: the level the joint withstood
                 out["Fs_pos_Nm"] = t["onset_ratio"] * out["Fc_pos_Nm"]
                 out["Fs_neg_Nm"] = t["onset_ratio"] * out["Fc_neg_Nm"]
+                if t.get("onset_vs"):
+                    out["vs_rad_s"] = t["onset_vs"]
                 out["seen_at"] = "breakaways"
             return out
         if name == "position_ripple":

@@ -26,6 +26,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numba import njit
 
 from wamctl.analysis.diagnosis_stats import nested_test
 
@@ -108,22 +109,31 @@ def find_onsets(t_s: np.ndarray, q_raw: np.ndarray, qd_s: np.ndarray, v_stick: f
 
 def hidden_travel(u_Nm: np.ndarray, dt_s: float, inertia: float, fc_pos: float, fc_neg: float,
                   b_pos: float, b_neg: float, fs_pos: float | None = None, fs_neg: float | None = None,
-                  substeps: int = 4) -> np.ndarray:
+                  substeps: int = 4, vs_rad_s: float = 0.0) -> np.ndarray:
     """Link position (m,) integrated from rest through a stall with the implicit stick/slip friction step.
 
     ``u_Nm`` (m,) is the torque available to the joint (zero-order hold per sample); ``fs_*`` are breakaway
-    levels (default: the Coulomb levels).
+    levels (default: the Coulomb levels); with ``vs_rad_s > 0`` the level decays from ``fs`` to ``fc`` with
+    speed as ``exp(-(v/vs)^2)`` (Stribeck), otherwise the breakaway level only holds a joint at rest.
     """
     fs_pos = fc_pos if fs_pos is None else fs_pos
     fs_neg = fc_neg if fs_neg is None else fs_neg
+    return _travel_kernel(np.ascontiguousarray(u_Nm, dtype=float), float(dt_s), float(inertia), float(fc_pos),
+                          float(fc_neg), float(b_pos), float(b_neg), float(fs_pos), float(fs_neg), int(substeps),
+                          float(vs_rad_s), TRAVEL_CAP_RAD)
+
+
+@njit(cache=True)
+def _travel_kernel(u_Nm, dt_s, inertia, fc_pos, fc_neg, b_pos, b_neg, fs_pos, fs_neg, substeps, vs, cap):
     h = dt_s / substeps
     k = h / inertia
     x = 0.0
     v = 0.0
     out = np.empty(len(u_Nm))
     stick = min(fs_pos, fs_neg)
-    for i, u in enumerate(u_Nm):
-        if (v == 0.0 and abs(u) < stick) or abs(x) >= TRAVEL_CAP_RAD:   # stuck, or far enough
+    for i in range(len(u_Nm)):
+        u = u_Nm[i]
+        if (v == 0.0 and abs(u) < stick) or abs(x) >= cap:   # stuck, or far enough
             out[i] = x
             continue
         for _ in range(substeps):
@@ -131,6 +141,10 @@ def hidden_travel(u_Nm: np.ndarray, dt_s: float, inertia: float, fc_pos: float, 
             pos = vf > 0 if v == 0 else v > 0
             if v == 0:
                 level = fs_pos if pos else fs_neg
+            elif vs > 0:
+                fc = fc_pos if pos else fc_neg
+                fs = fs_pos if pos else fs_neg
+                level = fc + (fs - fc) * np.exp(-(v / vs) ** 2)
             else:
                 level = fc_pos if pos else fc_neg
             b = b_pos if pos else b_neg

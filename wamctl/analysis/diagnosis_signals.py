@@ -167,6 +167,12 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     if rate_hz < MIN_RATE_HZ:
         raise DataFormatError(f"sample_rate_hz is {rate_hz:g}; the diagnosis differentiates positions twice "
                               f"and needs at least {MIN_RATE_HZ:g} Hz")
+    steps = np.diff(np.asarray(t_s, float))
+    if len(steps) and steps.max() > 5.5 / rate_hz:
+        k = int(np.argmax(steps))
+        raise DataFormatError(f"t: a gap of {steps[k]:.4g} s after t = {t_s[k]:.6g} s ({steps[k] * rate_hz:.0f} "
+                              "sample periods); the diagnosis differentiates positions and needs contiguous "
+                              "samples (gaps of up to 5 samples are interpolated)")
     t, (q, q_ref, tau), resampled = uniform_grid(np.asarray(t_s, float), q_rad, q_ref_rad, tau_Nm,
                                                  rate_hz=rate_hz)
     dt = 1.0 / rate_hz

@@ -27,7 +27,7 @@ from wamctl.control.controllers import JointController
 from wamctl.control.trajectory import Reference
 from wamctl.errors import SafetyLimitError
 from wamctl.model import params as P
-from wamctl.model.dynamics import WamDynamics
+from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel
 from wamctl.specs import MODEL_FILE_FORMAT, PlantSpec
 
@@ -208,8 +208,9 @@ def position_check(diag, data, max_samples: int = MAX_SIM_SAMPLES) -> dict:
     block = np.minimum(((sig.t_s - sig.t_s[0]) / max(sig.duration_s, 1e-9) * diag.n_blocks).astype(int),
                        diag.n_blocks - 1)
     half = block % 2
-    payload_decl = diag.payload_declared_
-    dyn = WamDynamics(payload_decl)
+    mp = diag.meta_.payload      # what the controller's gravity compensation knew
+    ctl_payload = Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None
+    dyn = WamDynamics(ctl_payload)
     ff = feedforward_from_log(diag.meta_, t, q_ref, q_meas, sig.tau_raw_Nm[:n],
                               dyn.gravity if diag.meta_.gravity_compensation else None)
     traces = {"before": np.full((n, N7), np.nan), "after": np.full((n, N7), np.nan)}
@@ -220,7 +221,7 @@ def position_check(diag, data, max_samples: int = MAX_SIM_SAMPLES) -> dict:
             if which == "after" and same:
                 continue
             plant = plant_dict(diag, which, thetas)
-            q_sim = simulate_positions(plant, diag.meta_, t, q_ref, q_meas[0], ff, payload_decl)
+            q_sim = simulate_positions(plant, diag.meta_, t, q_ref, q_meas[0], ff, ctl_payload)
             sel = half[:n] == h
             traces[which][sel] = q_sim[sel]
     if same:

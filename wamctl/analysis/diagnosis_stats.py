@@ -17,7 +17,7 @@ def orth_basis(X: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     """Orthonormal basis (m, r) of the column space of ``X`` (m, p); rank-deficient directions dropped.
 
     Built from the Gram matrix (``p`` is small, ``m`` large): ``X V diag(1/sqrt(lambda))``, then
-    re-orthonormalised once by QR for accuracy.
+    re-orthonormalised once the same way for accuracy (no QR of the tall matrix: it is slow here).
     """
     if X.shape[1] == 0:
         return X
@@ -29,7 +29,8 @@ def orth_basis(X: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     lam, V = np.linalg.eigh(Xs.T @ Xs)
     keep = lam > lam.max() * rtol
     B = Xs @ (V[:, keep] / np.sqrt(lam[keep]))
-    return np.linalg.qr(B)[0]
+    lam2, V2 = np.linalg.eigh(B.T @ B)
+    return B @ (V2 / np.sqrt(np.maximum(lam2, 1e-300))) @ V2.T
 
 
 def lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:

@@ -377,8 +377,9 @@ def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndar
                 if np.sign(v) != m.direction:
                     row.update(accepted=False, reason="moved against the commanded direction")
                 elif np.isfinite(m.v_cmd_rad_s) and abs(v / m.v_cmd_rad_s - 1) > o.velocity_tolerance:
-                    row.update(accepted=False, reason=f"mean velocity {v:.4g} rad/s is {abs(v / m.v_cmd_rad_s - 1):.0%} "
-                                                      f"off the commanded {m.v_cmd_rad_s:.4g}: not in steady state")
+                    off = abs(v / m.v_cmd_rad_s - 1)
+                    row.update(accepted=False, reason=f"mean velocity {v:.4g} rad/s is {off:.0%} off the commanded "
+                                                      f"{m.v_cmd_rad_s:.4g}: not in steady state")
                 elif still > o.stick_fraction_max:
                     row.update(accepted=False, reason=f"stands still {still:.0%} of the stage (stick-slip)")
                 stage_rows.append(np.arange(st.s0, st.s1))

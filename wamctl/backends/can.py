@@ -35,6 +35,15 @@ request while any puck is in TORQUE mode (the arm is held at rest while the puck
 holds the WAM while activating it). The simulated arm therefore advances at the loop's real-time rate,
 and a run over the virtual bus reproduces the direct simulation up to the protocol's quantisation.
 
+Fault injection for tests and demos (``backend.simulated_fault``, simulated pucks only): the fault starts
+at a given control cycle (dropped replies, a silent puck, garbled replies, garbage frames, pucks that stop
+answering, or host transmit errors).
+
+Limits: torque frames get no reply, so a torque frame lost on the way (SocketCAN can drop transmit frames
+silently) is noticed only through the position replies; and a puck that neither answers nor listens cannot
+be commanded at all: the host sends zero torque and IDLE, the other pucks obey, that puck keeps its last
+command (the WAM's safety module is the backstop).
+
 Conventions: pucks 1..7 on the bus, arrays 0..6; SI units in names; the host is node 0.
 """
 

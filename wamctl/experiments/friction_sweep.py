@@ -25,7 +25,7 @@ from typing import Literal, Union
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
-from wamctl.control.trajectory import ReferenceBuilder, lspb_final_time_s
+from wamctl.control.trajectory import ReferenceBuilder
 from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_backend, make_controller
 from wamctl.model import params as P
 from wamctl.specs import Common, Joint, RotationSpec, Strict, check_positions
@@ -259,7 +259,6 @@ def build_reference(spec: FrictionSweepSpec):
     kp = spec.controller.gains()[0]
     b = ReferenceBuilder(spec.q0_rad, 1.0 / P.CONTROL_RATE_HZ)
     moves = []
-    n = 0
     for j in s.joints:
         sign = spec.first_sign(j)
         for v in s.speeds(j):
@@ -268,7 +267,6 @@ def build_reference(spec: FrictionSweepSpec):
                 b.hold(s.settle_s, f"settle joint {j}")
                 b.move({j - 1: direction * d}, v, s.tc_s, f"joint {j} v={direction * v:+.4g} rad/s")
                 moves.append((j, direction * v, direction * d))
-                n += 1
     ref = b.hold(s.settle_s, "final hold").build()
     starts = [i for i, label in ref.segments if label.startswith("joint ")]
     return ref, [(i, *m) for i, m in zip(starts, moves)]
@@ -286,8 +284,8 @@ def plan(spec: FrictionSweepSpec, base_dir: Path | None = None) -> Plan:
                f"blend {s.tc_s} s, settle {s.settle_s} s, travel <= {s.travel_rad} rad, cruise <= {s.cruise_s} s",
                f"{len(ref)} ticks at {P.CONTROL_RATE_HZ:.0f} Hz = {arm_s:.1f} s of arm time"]
     for j in s.joints:
-        summary.append(f"  joint {j}: first {'+' if spec.first_sign(j) > 0 else '-'}, speeds {s.speeds(j)} rad/s, travel "
-                       + ", ".join(f"{s.move_travel(j, v, kp):.3g}" for v in s.speeds(j)) + " rad")
+        summary.append(f"  joint {j}: first {'+' if spec.first_sign(j) > 0 else '-'}, speeds {s.speeds(j)} rad/s, "
+                       "travel " + ", ".join(f"{s.move_travel(j, v, kp):.3g}" for v in s.speeds(j)) + " rad")
     if spec.validation is not None:
         val = validation_specs(spec, None)
         extra = sum(len(_rotation_plan(v).reference) for v in val.values()) / P.CONTROL_RATE_HZ
@@ -305,7 +303,7 @@ def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, bas
     for i, label in ref.segments:
         if not label.startswith("joint "):
             run.event(ref.t_s[i], "segment", None, label)
-    for i, j, v, d in _moves_of(spec):
+    for i, j, v, d in build_reference(spec)[1]:
         run.event(ref.t_s[i], "move", j, f"velocity_rad_s={v:.6g} travel_rad={d:.6g}")
     run.flush_events()
     n_total = len(ref)
@@ -332,10 +330,6 @@ def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, bas
             closed_loop_stage(backend, make_controller(rspec, rp.feedforward_Nm), rp.reference, run,
                               sub_progress(offset, f"rotation test {kind}"), table=VALIDATION_TABLES[kind])
         offset += len(rp.reference)
-
-
-def _moves_of(spec):
-    return build_reference(spec)[1]
 
 
 def write_identification(path: Path, result) -> None:

@@ -936,6 +936,8 @@ class HmiBlock:
         self._traj = []
         self._counts = {"blink": 0, "voluntary_blink": 0, "stall": 0}
         self.gaze.gripper_closed = False  # the arm side owns the hand: it is open now
+        if h.source.kind == "virtual":  # the subject's tracker starts with the trial: no stall before its first sample
+            self.gaze.watchdog.feed(t0)
         seed = trial_seed(h.subject.seed, self.plan.condition, trial.number)
         if h.source.kind == "virtual":
             rng = np.random.default_rng(np.random.SeedSequence([seed, 1]))

@@ -133,3 +133,15 @@ def load_mujoco_model(**kwargs):
         from wamctl.errors import BackendError
         raise BackendError("the MuJoCo model needs the mujoco package: pip install mujoco") from None
     return mujoco.MjModel.from_xml_string(wam_mjcf(**kwargs))
+
+
+def full_mass_matrix(model, data):
+    """The dense joint-space inertia matrix (nv, nv) of a MuJoCo model after ``mj_forward``; works with the
+    MuJoCo 4 signature ``mj_fullM(m, d, dst)`` and the MuJoCo 3 one ``mj_fullM(m, dst, d.qM)``."""
+    import mujoco
+    out = np.zeros((model.nv, model.nv))
+    try:
+        mujoco.mj_fullM(model, data, out)
+    except TypeError:
+        mujoco.mj_fullM(model, out, data.qM)
+    return out

@@ -19,14 +19,14 @@ def report_runs(run_dirs: list[Path], out: Path | None, formats=("md", "html", "
         docs.append(doc)
         written += [Path(target or rd) / f"report.{f}" for f in formats]
     if len(run_dirs) > 1:
-        combined = combined_document(run_dirs, docs)
         dest = Path(out or Path(run_dirs[0]).parent)
+        combined = combined_document(run_dirs, docs, dest)
         written += combined.write(dest, "combined_report", formats)
         docs.append(combined)
     return docs, written
 
 
-def combined_document(run_dirs, docs) -> Document:
+def combined_document(run_dirs, docs, out_dir: Path) -> Document:
     rows = []
     for rd, doc in zip(run_dirs, docs):
         m, _ = open_run(rd)
@@ -40,4 +40,6 @@ def combined_document(run_dirs, docs) -> Document:
         df = pd.DataFrame(rpe)
         df.index.name = "joint"
         combined.heading("RPE per joint (%)").table("rpe_pct", df)
+    from wamctl.report.hmi import study_report  # HMI blocks: per-location/per-subject tables and the ANOVA
+    study_report(run_dirs, out_dir, doc=combined)
     return combined

@@ -245,27 +245,7 @@ def study_report(run_dirs: Sequence[str | Path], out_dir: str | Path | None = No
     doc.data["hmi_study"] = {"subjects": [str(s) for s in subjects], "conditions": conditions,
                              "trials": int(len(trials)), "hit_pct": float(100.0 * trials["hit"].mean())}
     if len(conditions) > 1:
-        try:
-            analysis = unit_results.analyse()
-        except DataFormatError as exc:
-            doc.text(f"No ANOVA: {exc}")
-        else:
-            for m, a in analysis.one_way.items():
-                doc.table(f"hmi_anova_{m}", a.to_pandas(),
-                          f"One-way ANOVA of {m} across conditions, {analysis.unit_kind}s as units (Tables 6.5, "
-                          f"6.6, 6.9, 6.11 layout).", digits=4)
-            for m, a in analysis.rm.items():
-                doc.table(f"hmi_rm_anova_{m}", a.to_pandas(), f"Repeated-measures ANOVA of {m}.", digits=4)
-            ex = analysis.complete.to_pandas()
-            if len(ex):
-                doc.table("hmi_excluded", ex, "Units left out of the ANOVA (incomplete).")
-            doc.data["hmi_study"]["analysis"] = analysis.to_dict()
-        if out_dir is not None:
-            from wamctl.report.hmi_figures import save_bar_chart
-            Path(out_dir).mkdir(parents=True, exist_ok=True)
-            panels = {"Hits (%)": unit_results.wide("hit_pct"), "Execution time (s)": unit_results.wide("mean_time_s")}
-            doc.figure(save_bar_chart(panels, Path(out_dir) / "hmi_study_means.png", statistic="mean"),
-                       f"mean over {unit_results.unit_kind}s per condition (error bars: SEM), thesis Figure 6.28")
-            doc.figure(save_bar_chart(panels, Path(out_dir) / "hmi_study_medians.png", statistic="median"),
-                       f"median over {unit_results.unit_kind}s per condition (error bars: IQR), thesis Figure 6.29")
+        from wamctl.report.hmi_stats import add_hmi_analysis
+        add_hmi_analysis(doc, unit_results, Path(out_dir) if out_dir is not None else None, "hmi",
+                         unit_tables=False)
     return doc

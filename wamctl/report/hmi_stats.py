@@ -18,12 +18,14 @@ from wamctl.report.hmi_figures import save_bar_chart
 _LABELS = {"hit_pct": "Hits (%)", "hit_rate": "Hit rate", "mean_time_s": "Execution time (s)"}
 
 
-def add_hmi_analysis(doc: Document, results: HmiResults, out_dir: Path, stem: str = "hmi") -> Document:
-    """Append the tables, statistics and figures of ``results`` to ``doc`` (figures written to ``out_dir``)."""
-    out_dir = Path(out_dir)
-    out_dir.mkdir(parents=True, exist_ok=True)
+def add_hmi_analysis(doc: Document, results: HmiResults, out_dir: Path | None, stem: str = "hmi",
+                     unit_tables: bool = True) -> Document:
+    """Append the tables, statistics and figures of ``results`` to ``doc``.
+
+    Figures are written to ``out_dir`` (none when it is None); ``unit_tables=False`` leaves out the per-unit
+    tables when the caller already shows them in its own layout."""
     unit = results.unit_kind
-    for m in [m for m in results.measures if m != "hit_rate"]:
+    for m in [m for m in results.measures if m != "hit_rate"] if unit_tables else []:
         doc.heading(f"{_LABELS.get(m, m)} per {unit}")
         doc.table(f"{stem}_table_{m}", results.table(m), "Mean, SD (sample) and SEM over the available units.")
     try:
@@ -50,9 +52,12 @@ def add_hmi_analysis(doc: Document, results: HmiResults, out_dir: Path, stem: st
         pw = analysis.pairwise.get(m)
         if pw is not None:
             doc.table(f"{stem}_pairwise_{m}", pw.to_pandas(), "Paired t-tests, Holm-corrected p.")
+    if out_dir is None:
+        return doc
+    Path(out_dir).mkdir(parents=True, exist_ok=True)
     panels = {_LABELS.get(m, m): results.wide(m) for m in results.measures if m != "hit_rate"}
     for statistic in ("mean", "median"):
-        p = save_bar_chart(panels, out_dir / f"{stem}_{statistic}.png", statistic=statistic)
+        p = save_bar_chart(panels, Path(out_dir) / f"{stem}_{statistic}.png", statistic=statistic)
         doc.figure(p, f"{statistic} per condition with error bars ({'SEM' if statistic == 'mean' else 'IQR'})")
     return doc
 

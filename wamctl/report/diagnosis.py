@@ -1,0 +1,183 @@
+"""Report of a diagnosis run directory (``wamctl diagnose``): what the declared model lacked, the evidence for
+each candidate effect, the held-out torque residual before and after, and the measured positions against the
+closed-loop re-simulation of both models. Everything comes from the run directory (diagnosis.json,
+residuals.parquet, positions.parquet)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from wamctl.report.document import Document
+from wamctl.report.figures import joint_grid, save
+
+
+def _fmt_params(params: dict) -> str:
+    out = []
+    for k, v in params.items():
+        if isinstance(v, float):
+            out.append(f"{k}={v:.4g}")
+        elif isinstance(v, list) and all(isinstance(x, (int, float)) for x in v):
+            out.append(f"{k}=[{', '.join(f'{x:.3g}' for x in v)}]")
+        elif isinstance(v, dict):
+            continue
+        else:
+            out.append(f"{k}={v}")
+    return ", ".join(out)
+
+
+def summary_table(result: dict) -> pd.DataFrame:
+    rows = []
+    for j, d in result.get("joints", {}).items():
+        rows.append({"joint": int(j), "effects": ", ".join(e["name"] for e in d["effects"]) or "-",
+                     "torque_rms_before_Nm": d["torque_rms_before_Nm"],
+                     "torque_rms_after_Nm": d["torque_rms_after_Nm"],
+                     "position_rms_before_rad": d["position_rms_before_rad"],
+                     "position_rms_after_rad": d["position_rms_after_rad"],
+                     "whiteness_p_before": d["residual_whiteness_p_before"],
+                     "whiteness_p_after": d["residual_whiteness_p_after"]})
+    df = pd.DataFrame(rows)
+    return df.set_index("joint") if len(df) else df
+
+
+def effects_table(result: dict) -> pd.DataFrame:
+    rows = []
+    for j, d in result.get("joints", {}).items():
+        for e in d["effects"]:
+            rows.append({"joint": int(j), "effect": e["name"], "params": _fmt_params(e["params"]),
+                         "p_value": e["evidence"]["p_value"], "delta_bic": e["evidence"]["delta_bic"],
+                         "test": e["evidence"]["test"]})
+    return pd.DataFrame(rows)
+
+
+def candidates_table(result: dict) -> pd.DataFrame:
+    rows = []
+    for j, d in result.get("joints", {}).items():
+        for c in d["candidates"]:
+            rows.append({"joint": int(j), "candidate": c["name"], "p_value": c["p_value"],
+                         "delta_bic": c["delta_bic"], "kept": "yes" if c["kept"] else "no",
+                         "reason": c.get("reason", "")})
+    return pd.DataFrame(rows)
+
+
+def _figures(run_path: Path, out_dir: Path, result: dict, doc: Document) -> None:
+    joints = sorted(int(j) for j in result.get("joints", {}))
+    if not joints:
+        return
+    res_path = run_path / "residuals.parquet"
+    if res_path.is_file():
+        res = pd.read_parquet(res_path)
+        fig, axes = joint_grid(len(joints), "Held-out torque residual, declared model vs with the effects found")
+        for ax, j in zip(axes, joints):
+            r = res[res["joint"] == j]
+            ax.plot(r["t_s"], r["residual_before_Nm"], ".", ms=1.5, alpha=0.5, label="declared")
+            ax.plot(r["t_s"], r["residual_after_Nm"], ".", ms=1.5, alpha=0.5, label="with effects")
+            d = result["joints"][str(j)]
+            ax.set_title(f"joint {j}: RMS {d['torque_rms_before_Nm']:.3g} -> {d['torque_rms_after_Nm']:.3g} N m")
+            ax.set_ylabel("residual (N m)")
+            ax.set_xlabel("t (s)")
+            ax.grid(alpha=0.3)
+        axes[0].legend(markerscale=6)
+        doc.figure(save(fig, out_dir / "diagnosis_residuals.png"),
+                   "held-out torque residual (tau - model) per joint, before and after adding the effects")
+    # evidence: -log10 p of every candidate, with the threshold
+    thr = (result.get("method") or {}).get("test_threshold_p")
+    fig, axes = joint_grid(len(joints), "Evidence per candidate effect (held-out nested F-test)")
+    for ax, j in zip(axes, joints):
+        cands = result["joints"][str(j)]["candidates"]
+        names = [c["name"] for c in cands]
+        vals = [min(-np.log10(max(c["p_value"], 1e-300)), 300) if c["p_value"] is not None else 0.0
+                for c in cands]
+        colours = ["tab:green" if c["kept"] else "tab:gray" for c in cands]
+        ax.barh(names, vals, color=colours)
+        if thr:
+            ax.axvline(-np.log10(thr), color="tab:red", lw=1, label="threshold")
+        ax.set_xscale("symlog", linthresh=10)
+        ax.set_title(f"joint {j}")
+        ax.set_xlabel("-log10 p (green: kept)")
+    doc.figure(save(fig, out_dir / "diagnosis_evidence.png"),
+               "evidence for each candidate effect: -log10 of the held-out F-test p-value; the red line is the "
+               "run's threshold (alpha / number of tests)")
+    pos_path = run_path / "positions.parquet"
+    if pos_path.is_file():
+        pos = pd.read_parquet(pos_path)
+        t = pos["t_s"].to_numpy()
+        fig, axes = joint_grid(len(joints), "Measured positions and closed-loop re-simulation (held-out)",
+                               height_per_row=2.4)
+        for ax, j in zip(axes, joints):
+            qm = pos[f"q_{j}_rad"].to_numpy()
+            ax.plot(t, (pos[f"q_before_{j}_rad"] - qm) * 1e3, lw=0.8, label="declared model - measured")
+            ax.plot(t, (pos[f"q_after_{j}_rad"] - qm) * 1e3, lw=0.8, label="with effects - measured")
+            d = result["joints"][str(j)]
+            ax.set_title(f"joint {j}: RMS {_g(d['position_rms_before_rad'])} -> "
+                         f"{_g(d['position_rms_after_rad'])} rad")
+            ax.set_ylabel("mrad")
+            ax.set_xlabel("t (s)")
+            ax.grid(alpha=0.3)
+        axes[0].legend()
+        doc.figure(save(fig, out_dir / "diagnosis_positions.png"),
+                   "re-simulated minus measured joint positions, declared model vs with the effects found")
+        fig, axes = joint_grid(len(joints), "Measured and re-simulated positions", height_per_row=2.4)
+        for ax, j in zip(axes, joints):
+            ax.plot(t, pos[f"q_{j}_rad"], "k", lw=1.2, label="measured")
+            ax.plot(t, pos[f"q_before_{j}_rad"], "--", lw=0.8, label="declared model")
+            ax.plot(t, pos[f"q_after_{j}_rad"], ":", lw=1.0, label="with effects")
+            ax.set_title(f"joint {j}")
+            ax.set_ylabel("q (rad)")
+            ax.grid(alpha=0.3)
+        axes[0].legend()
+        doc.figure(save(fig, out_dir / "diagnosis_traces.png"),
+                   "measured positions and the closed-loop re-simulation of both models")
+
+
+def _g(x) -> str:
+    return "n/a" if x is None else f"{x:.3g}"
+
+
+def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
+    """Build the report of a diagnosis run directory."""
+    run_path = Path(run_path)
+    out_dir = Path(out_dir or run_path)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    result = json.loads((run_path / "diagnosis.json").read_text())
+    doc = Document(f"Model diagnosis: {manifest.get('name', run_path.name)}")
+    doc.text(f"Data: {result.get('data') or spec.get('data')}. Declared model: {result.get('declared_model')}.")
+    m = result.get("method") or {}
+    if m:
+        doc.text(f"{m.get('samples')} samples at {m.get('sample_rate_hz', 0):.0f} Hz; Savitzky-Golay window "
+                 f"{m.get('savgol_window_samples')} samples; {m.get('blocks')} time blocks in {m.get('folds')} "
+                 f"folds for held-out figures; an effect is kept when its held-out nested F-test gives "
+                 f"p < {_g(m.get('test_threshold_p'))} (alpha {m.get('alpha_per_run')} per run over every test) "
+                 "and the BIC drops.")
+    if not result.get("conclusive", True):
+        doc.heading("Nothing could be concluded")
+        doc.text(str(result.get("reason")))
+    else:
+        found = result.get("effects_found") or []
+        doc.heading("Effects found")
+        doc.text(", ".join(found) if found else "None: the data show nothing the declared model lacks.")
+    skipped = result.get("skipped_joints") or {}
+    for j, why in skipped.items():
+        doc.text(f"Joint {j} was not diagnosed: {why}.")
+    doc.data["diagnosis"] = result
+    if not result.get("joints"):
+        return doc
+    doc.heading("Before and after (held-out data)")
+    doc.table("summary", summary_table(result),
+              "torque: inverse-dynamics residual; position: closed-loop re-simulation minus measurement; "
+              "whiteness: Ljung-Box p of the residual taken once per filter window")
+    eff = effects_table(result)
+    if len(eff):
+        doc.heading("Effects and their evidence")
+        doc.table("effects", eff)
+    doc.heading("Candidates")
+    doc.table("candidates", candidates_table(result), "every candidate tested per joint, with the reason it was "
+              "kept or rejected")
+    _figures(run_path, out_dir, result, doc)
+    if (run_path / "model.yaml").is_file():
+        doc.text("The augmented model is in model.yaml (format wamctl-model/1); use it as `plant: model.yaml` in a "
+                 "spec to re-simulate an experiment with it.")
+    return doc
