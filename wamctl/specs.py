@@ -279,6 +279,8 @@ def parse_spec(data: Any, source: str = "spec") -> Common:
     if not isinstance(data, dict):
         raise SpecError(f"{source}: expected a mapping at the top level")
     kinds = spec_models()
+    if "vary" in data:
+        raise SpecError(f"{source}: vary: this spec varies parameters; run it with `wamctl sweep {source}`")
     if data.get("kind") not in kinds:
         raise SpecError(f"{source}: kind: {'missing' if 'kind' not in data else repr(data['kind']) + ' unknown'}; "
                         f"known kinds: {', '.join(sorted(kinds))}")
