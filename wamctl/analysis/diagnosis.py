@@ -41,10 +41,9 @@ from wamctl.analysis.diagnosis_backlash import (MIN_ONSETS, MIN_REVERSALS, break
 from wamctl.analysis.diagnosis_candidates import (
     D7_M, DELAY_GRID_S, DRIFT_T_GRID_FRACTION, EFFECT_NAMES, RIPPLE_PERIOD_MAX_RAD, RIPPLE_PERIOD_MIN_RAD,
     STRIBECK_VS_GRID_RAD_S, JointData, friction_columns, ripple_columns, stribeck_columns)
-from wamctl.analysis.diagnosis_signals import POLYORDER, Signals, prepare_signals, savgol_gain
+from wamctl.analysis.diagnosis_signals import POLYORDER, prepare_signals, savgol_gain
 from wamctl.analysis.diagnosis_stats import (MIN_EFFECT, lstsq, nested_test, orth_basis, projection_gain,
                                              whiteness_p)
-from wamctl.errors import DataFormatError
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel

@@ -11,7 +11,6 @@ Recorded columns (one row per control tick, wide and unit-named): ``t_s``, ``q_r
 from __future__ import annotations
 
 import logging
-from contextlib import nullcontext
 
 import numpy as np
 from numba import njit

@@ -96,7 +96,7 @@ import pandas as pd
 from pydantic import Field, model_validator
 
 from wamctl.control.trajectory import Reference
-from wamctl.errors import BackendError, DataFormatError, SafetyLimitError, SpecError, WamctlError
+from wamctl.errors import BackendError, DataFormatError, SpecError
 from wamctl.experiments.common import Plan, make_backend, make_controller
 from wamctl.hmi import arm as A
 from wamctl.hmi.gaze import CENTER_X_PX, CENTER_Y_PX, GazeSample, NOMINAL_RATE_HZ, VirtualSubject
@@ -1013,7 +1013,7 @@ def resume(run_path: str | Path, spec: HmiBlockSpec | None = None, progress=None
     ``spec``, if given, must have the same ``hmi`` section as the run's ``spec.yaml``. Returns a
     :class:`wamctl.experiments.runner.RunOutcome`; raises ``RunInterrupted`` if interrupted again.
     """
-    from wamctl.experiments.runner import RunInterrupted, RunOutcome, signals_as_interrupt
+    from wamctl.experiments.runner import record_outcome
     from wamctl.specs import parse_spec
 
     run_path = Path(run_path)
@@ -1035,23 +1035,7 @@ def resume(run_path: str | Path, spec: HmiBlockSpec | None = None, progress=None
     run.event(0.0, "resumed", None, f"previous status {manifest.get('status')}")
     run.update_manifest(status="running", reason=None, end_utc=None,
                         resumed=list(manifest.get("resumed") or []) + [utc_now()])
-    status, reason = "completed", None
-    with signals_as_interrupt():
-        try:
-            execute(run_spec, p, run, progress, base_dir)
-        except KeyboardInterrupt as exc:
-            status, reason = "interrupted", f"stopped by {exc.args[0] if exc.args else 'Ctrl-C'}"
-        except SafetyLimitError as exc:
-            status, reason = "failed", f"safety limit: {exc}"
-        except WamctlError as exc:
-            status, reason = "failed", str(exc)
-        except BaseException as exc:
-            run.finish("failed", f"{type(exc).__name__}: {exc}")
-            raise
-        run.finish(status, reason)
-    if status == "interrupted":
-        raise RunInterrupted(f"{run_path}: interrupted ({reason}); resume again with --resume {run_path}")
-    return RunOutcome(run_path, status, reason)
+    return record_outcome(run, lambda: execute(run_spec, p, run, progress, base_dir), resume_hint=True)
 
 
 def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None):

@@ -938,7 +938,7 @@ def resume(run_path: str | Path, spec: IftSpec, base_dir: Path | None = None, pr
     ``spec`` must equal the run's ``spec.yaml`` except for ``ift.plant.runs`` (more measured runs may be given).
     Returns a :class:`wamctl.experiments.runner.RunOutcome`; raises RunInterrupted if interrupted again.
     """
-    from wamctl.experiments.runner import RunInterrupted, RunOutcome, signals_as_interrupt
+    from wamctl.experiments.runner import record_outcome
     from wamctl.store import open_run
     run_path = Path(run_path)
     manifest, stored = open_run(run_path)
@@ -964,23 +964,7 @@ def resume(run_path: str | Path, spec: IftSpec, base_dir: Path | None = None, pr
               f"{manifest.get('status')}")
     run.update_manifest(status="running", reason=None, end_utc=None,
                         resumed=list(manifest.get("resumed") or []) + [utc_now()])
-    status, reason = "completed", None
-    with signals_as_interrupt():
-        try:
-            tuner.execute()
-        except KeyboardInterrupt as exc:
-            status, reason = "interrupted", f"stopped by {exc.args[0] if exc.args else 'Ctrl-C'}"
-        except SafetyLimitError as exc:
-            status, reason = "failed", f"safety limit: {exc}"
-        except WamctlError as exc:
-            status, reason = "failed", str(exc)
-        except BaseException as exc:
-            run.finish("failed", f"{type(exc).__name__}: {exc}")
-            raise
-        run.finish(status, reason)
-    if status == "interrupted":
-        raise RunInterrupted(f"{run_path}: interrupted ({reason}); resume again with --resume {run_path}")
-    return RunOutcome(run_path, status, reason)
+    return record_outcome(run, lambda: tuner.execute(), resume_hint=True)
 
 
 def _spec_differences(old, new, prefix="") -> list[str]:

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
 
 from wamctl.control.trajectory import ReferenceBuilder
 from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_backend, make_controller

@@ -65,6 +65,32 @@ def signals_as_interrupt():
             signal.signal(s, h)
 
 
+def record_outcome(run: RunDir, body, resume_hint: bool = False) -> RunOutcome:
+    """Run ``body()`` into ``run``: termination signals act as Ctrl-C, and the outcome becomes the run's status
+    (``completed``, ``failed`` with the reason, ``interrupted``), written however ``body`` ends.
+
+    Raises RunInterrupted when interrupted (the data so far are on disk); programming errors propagate after
+    the run is marked failed."""
+    status, reason = "completed", None
+    with signals_as_interrupt():
+        try:
+            body()
+        except KeyboardInterrupt as exc:
+            status, reason = "interrupted", f"stopped by {exc.args[0] if exc.args else 'Ctrl-C'}"
+        except SafetyLimitError as exc:
+            status, reason = "failed", f"safety limit: {exc}"
+        except WamctlError as exc:
+            status, reason = "failed", str(exc)
+        except BaseException as exc:
+            run.finish("failed", f"{type(exc).__name__}: {exc}")
+            raise
+        run.finish(status, reason)
+    if status == "interrupted":
+        hint = f"; continue with --resume {run.path}" if resume_hint else ""
+        raise RunInterrupted(f"{run.path}: interrupted ({reason}); the data recorded so far are readable{hint}")
+    return RunOutcome(run.path, status, reason)
+
+
 def plan_only(spec: Common, base_dir: Path | None = None) -> tuple[list[str], list[str]]:
     """The dry run: the plan's summary and the limit checks made (raises SpecError on a violation)."""
     mod = experiment_module(spec.kind)
@@ -81,25 +107,11 @@ def run_spec(spec: Common, base_dir: Path | None = None, out_dir: str | Path | N
     run = RunDir.create(out_dir or spec.out_dir, spec.name, spec.model_dump(mode="json"), spec.seed, spec.kind,
                         {"backend": {"name": spec.backend.kind}, "planned_duration_s": p.duration_s})
     log.info("run directory %s", run.path)
-    status, reason = "completed", None
-    with signals_as_interrupt():
-        try:
-            mod.execute(spec, p, run, progress, base_dir)
-        except KeyboardInterrupt as exc:
-            status, reason = "interrupted", f"stopped by {exc.args[0] if exc.args else 'Ctrl-C'}"
-        except SafetyLimitError as exc:
-            status, reason = "failed", f"safety limit: {exc}"
-        except WamctlError as exc:
-            status, reason = "failed", str(exc)
-        except BaseException as exc:
-            run.finish("failed", f"{type(exc).__name__}: {exc}")
-            raise
-        run.finish(status, reason)
-    if make_report and status != "interrupted":
+    outcome = record_outcome(run, lambda: mod.execute(spec, p, run, progress, base_dir),
+                             resume_hint=hasattr(mod, "resume"))
+    if make_report:
         write_report(run.path)
-    if status == "interrupted":
-        raise RunInterrupted(f"{run.path}: interrupted ({reason}); the data recorded so far are readable")
-    return RunOutcome(run.path, status, reason)
+    return outcome
 
 
 def write_report(run_path: Path, out_dir: Path | None = None, formats=("md", "html", "json")):
