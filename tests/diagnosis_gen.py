@@ -90,7 +90,7 @@ def make_reference(rng: np.random.Generator, q0: np.ndarray, duration_s: float =
         v = float(np.exp(rng.uniform(np.log(0.08), np.log(0.8))))
         v = min(v, amp / 0.3)                                      # keep t_f >= 2 t_c + a little
         tc = float(rng.uniform(0.15, 0.4))
-        tc = min(tc, 0.45 * (tc + amp / v))
+        tc = min(tc, 0.45 * amp / v)                               # 2 t_c < t_f (LSPB)
         b.move(deltas, v, tc, f"move {k}")
         for j, d in deltas.items():
             q[j] += d
