@@ -14,14 +14,22 @@ Method
    folds; every shape parameter of a candidate (Stribeck velocity, ripple period, delay, drift time
    constant) is chosen on the training folds only.
 4. **Candidates.** One signature per effect name (:mod:`wamctl.analysis.diagnosis_candidates`). Each is
-   tested as a nested model against the current model: an F-test and a BIC change on the held-out
-   residuals, with the sample count deflated by the residual's integrated autocorrelation time
-   (:mod:`wamctl.analysis.diagnosis_stats`). The threshold is ``alpha / (joints x candidates)``
-   (Bonferroni over every test of the run), so that a run with nothing missing reports nothing with
-   probability about ``1 - alpha``. An effect must also be physically plausible (breakaway above Coulomb, a
-   positive mass, a positive delay). Forward selection: the best passing candidate (largest held-out gain)
-   is added, the rest are tested again against the augmented model, until none passes.
-5. **After.** All parameters (friction and the kept effects) are refitted; the held-out torque RMS and the
+   tested as a nested model against the current model on the held-out residuals: an F-test whose sample
+   count is deflated by the residual's integrated autocorrelation time, against the null hypothesis that the
+   effect explains at most ``MIN_EFFECT`` (5 %) of the residual variance the declared model left (a
+   minimum-effect test, so that very long records do not turn traces into effects), and the BIC change
+   (:mod:`wamctl.analysis.diagnosis_stats`). The threshold is ``alpha / (joints x tests)`` (Bonferroni over
+   every test of the run), so that a run with nothing missing reports nothing with probability at least
+   about ``1 - alpha``. An effect must also be physically plausible (a breakaway above the Coulomb level,
+   one payload for the arm of 10 g to 10 kg within 0.5 m of the flange, a delay longer than one sample
+   period and inside the range searched, a dead band of at least two encoder steps). Forward selection:
+   the best passing candidate (largest held-out gain) is added, the rest are tested again against the
+   augmented model, until none passes.
+5. **Onsets.** Backlash (and Stribeck, when the joint sticks and slips so that few sliding samples remain)
+   shows where a joint starts to move: the link travel the model predicts before the measurement moved, and
+   the breakaway level the joint withstood (:mod:`wamctl.analysis.diagnosis_backlash`), tested the same way
+   on held-out onsets.
+6. **After.** All parameters (friction and the kept effects) are refitted; the held-out torque RMS and the
    residual whiteness (Ljung-Box on one sample per filter window) are reported before and after.
 
 The closed-loop position check and the model file are in :mod:`wamctl.analysis.diagnosis_sim`.
@@ -53,12 +61,16 @@ log = logging.getLogger(__name__)
 N7 = P.N_JOINTS
 DECLARED_MODEL = "wam7 rigid body + armature + classic friction (Coulomb + viscous, per direction)"
 TEST_NAME = "nested F-test on held-out folds"
-N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 10, "delay": 0, "friction_drift": 4,
+N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 10, "delay": 0, "friction_drift": 2,
              "backlash": 1}
 HAS_GRID = {"stribeck": True, "position_ripple": True, "payload": False, "delay": True,
             "friction_drift": True, "backlash": False}
 MAX_SAMPLES_PER_JOINT = 30000     # decimation above this (smoothed signals: little information is lost)
 MIN_DECLARED_R2 = 0.25            # below: the data are not this arm under this model (garbage in)
+# a wrist payload the WAM can carry (its rated payload is about 4 kg; PayloadEffect allows up to 5 kg), held
+# within half a metre of the flange
+PAYLOAD_MASS_RANGE_KG = (0.01, 10.0)
+PAYLOAD_MAX_COM_M = 0.5
 
 
 @dataclass
@@ -89,6 +101,8 @@ class JointResult:
     columns_after: list[tuple[str, int]] = field(default_factory=list)   # (term name, n columns)
     e_before: np.ndarray | None = None                        # held-out residuals (JointData order)
     e_base: np.ndarray | None = None                          # held-out residual of the fitted declared model
+    stall_before: np.ndarray | None = None                    # torque residual at stalls (set-valued friction)
+    stall_after: np.ndarray | None = None
     e_after: np.ndarray | None = None
     torque_rms_before_Nm: float = float("nan")
     torque_rms_after_Nm: float = float("nan")
@@ -373,7 +387,12 @@ class ModelDiagnosis:
         elif name == "payload":
             X = jd.extra["payload"]
         elif name == "friction_drift":
-            X = self._cols("friction", jd, None, d) * np.exp(-jd.extra["t_rel"] / h)[:, None]
+            # the Coulomb and the viscous torque of the declared fit, each drifting as exp(-t / T): two
+            # columns that keep the directions together (a direction seen only early in the run would
+            # otherwise be extrapolated in time)
+            F = self._cols("friction", jd, None, d)
+            tb = jd.extra["theta_before"]
+            X = np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * np.exp(-jd.extra["t_rel"] / h)[:, None]
         elif name == "backlash":
             X = sample(self._smooth((jd.extra["dgdq_full"] * np.sign(qd_f))[:, None]))
         else:
@@ -433,7 +452,16 @@ class ModelDiagnosis:
             for i in range(max(0, i0 - 3), min(len(grid), i0 + 4)):
                 if i not in scores:
                     scores[i] = ssr(grid[i])
-            return float(grid[min(scores, key=scores.get)])
+            i0 = min(scores, key=scores.get)
+            if 0 < i0 < len(grid) - 1:      # a parabola through the best three: a delay between grid points
+                s0, s1, s2 = scores[i0 - 1], scores[i0], scores[i0 + 1]
+                den = s0 - 2 * s1 + s2
+                if den > 0:
+                    step = grid[1] - grid[0]
+                    d = float(grid[i0] + 0.5 * step * (s0 - s2) / den)
+                    if ssr(d) < s1:
+                        return d
+            return float(grid[i0])
         if name == "position_ripple":
             return self._select_ripple(jd, rows, Xb, y)
         grid = self._grid(name, jd)
@@ -472,9 +500,9 @@ class ModelDiagnosis:
         cand = np.flatnonzero(peak) + 1
         if len(cand) == 0:
             cand = np.array([int(np.argmax(pb))])
-        cand = cand[np.argsort(pb[cand])[-5:]]
+        cand = cand[np.argsort(pb[cand])[-8:]]
         step = 1.0 / (L * dq)
-        ks = np.unique(np.concatenate([k[c] + step * np.array([-0.3, 0.0, 0.3]) for c in cand]))
+        ks = np.unique(np.concatenate([k[c] + step * np.linspace(-0.5, 0.5, 5) for c in cand]))
         ks = ks[(ks >= 1 / RIPPLE_PERIOD_MAX_RAD) & (ks <= 1 / RIPPLE_PERIOD_MIN_RAD)]
         sub = rows[:: max(1, len(rows) // 6000)]
         Us = orth_basis(Xb[sub])
@@ -498,12 +526,7 @@ class ModelDiagnosis:
                 continue
             trr = np.flatnonzero(tr)
             te_i = np.flatnonzero(te)
-            # held-out samples in a direction the training folds never moved in cannot be predicted by any
-            # model of this joint: they are left out of every held-out figure (NaN)
-            Fb = self._cols("friction", jd, None)
-            support = (np.abs(Fb[trr]) > 1e-12).sum(axis=0)
-            thin = support < 20
-            unpredictable = te_i[(np.abs(Fb[te_i][:, thin]) > 1e-12).any(axis=1)] if thin.any() else te_i[:0]
+            unpredictable = self._unpredictable(jd, trr, te_i)
             y, Xb = self._yx(jd, terms, f)
             if cand is None:
                 h_fold.append(None)
@@ -525,6 +548,24 @@ class ModelDiagnosis:
             e[te] = y[te] - X[te] @ theta
             e[unpredictable] = np.nan
         return e, h_fold
+
+    @staticmethod
+    def _unpredictable(jd: JointData, trr: np.ndarray, te_i: np.ndarray) -> np.ndarray:
+        """Held-out samples no model of the joint fitted on ``trr`` can predict: in a direction the training
+        folds never moved in, or at a speed outside the training speeds of that direction (by more than
+        25 %). They test extrapolation of the friction law, not an effect, and are left out of every held-out
+        figure (NaN)."""
+        qd = jd.qd_rad_s
+        bad = np.zeros(len(te_i), bool)
+        for sgn in (1.0, -1.0):
+            tr_v = np.abs(qd[trr][np.sign(qd[trr]) == sgn])
+            te_m = np.sign(qd[te_i]) == sgn
+            if len(tr_v) < 20:
+                bad |= te_m
+                continue
+            v = np.abs(qd[te_i])
+            bad |= te_m & ((v > 1.25 * tr_v.max()) | (v < tr_v.min() / 1.25))
+        return te_i[bad]
 
     def _default_h(self, name, jd):
         if name is None:
@@ -582,7 +623,10 @@ class ModelDiagnosis:
                 e1, h_fold = self._cv(jd, terms, c)
                 k1 = 4 + sum(N_COLUMNS[t["name"]] for t in terms) + N_COLUMNS[c]
                 p_extra = N_COLUMNS[c] + (1 if HAS_GRID[c] else 0)
-                t = nested_test(current, e1, p_extra, k1)
+                # the minimum effect is a share of what the declared model left, not of what is left now:
+                # after a strong effect, the traces of its imperfect model are not new effects
+                share = _ss(e_base) / max(_ss(current), 1e-300)
+                t = nested_test(current, e1, p_extra, k1, min(MIN_EFFECT * share, 0.9), jd.fold)
                 trial[c] = (t, h_fold, e1)
                 last[c] = dict(t, step=step)
             passing = sorted((c for c, (t, _, _) in trial.items()
@@ -625,6 +669,16 @@ class ModelDiagnosis:
             res.candidates[c] = dict(t, kept=False, reason=t.get("reason") or self._why_rejected(t))
         return res
 
+    @staticmethod
+    def _set_rms(res: JointResult) -> None:
+        """Held-out torque RMS over the sliding samples and (once the onsets are analysed) the stalls."""
+        for which in ("before", "after"):
+            e = getattr(res, f"e_{which}")
+            e = e[np.isfinite(e)]
+            st = getattr(res, f"stall_{which}")
+            both = np.concatenate([e, st]) if st is not None else e
+            setattr(res, f"torque_rms_{which}_Nm", float(np.sqrt(np.mean(both ** 2))) if len(both) else float("nan"))
+
     def _why_rejected(self, t: dict) -> str:
         if t["ssr_ratio"] >= 1:
             return "does not predict held-out data better than the model without it"
@@ -640,8 +694,7 @@ class ModelDiagnosis:
         res.theta_after = theta
         res.columns_after = [("friction", 4)] + [(t["name"], N_COLUMNS[t["name"]]) for t in fitted]
         res.e_after = e_after
-        res.torque_rms_before_Nm = float(np.sqrt(np.nanmean(res.e_before ** 2)))
-        res.torque_rms_after_Nm = float(np.sqrt(np.nanmean(e_after ** 2)))
+        self._set_rms(res)
         res.whiteness_p_before = whiteness_p(res.e_before, spacing)
         res.whiteness_p_after = whiteness_p(e_after, spacing)
 
@@ -686,9 +739,11 @@ class ModelDiagnosis:
         fit = self._payload_fit()
         if fit is None:
             return
-        if fit["mass_kg"] <= 0:
-            why = (f"the payload mass fitted over joints {fit['joints_fitted']} is {fit['mass_kg']:.3g} kg "
-                   "(not positive)")
+        far = float(np.linalg.norm(fit["com_m"]))
+        if not (PAYLOAD_MASS_RANGE_KG[0] <= fit["mass_kg"] <= PAYLOAD_MASS_RANGE_KG[1]) or far > PAYLOAD_MAX_COM_M:
+            why = (f"the payload fitted over joints {fit['joints_fitted']} is {fit['mass_kg']:.3g} kg at "
+                   f"{far:.3g} m from the flange: not a wrist payload (mass {PAYLOAD_MASS_RANGE_KG[0]} to "
+                   f"{PAYLOAD_MASS_RANGE_KG[1]} kg within {PAYLOAD_MAX_COM_M} m)")
             log.info(why)
             tests = [c for c in self.candidates if c not in self.declared_effects_ and c != "backlash"]
             for j in [jj - 1 for jj in fit["joints_fitted"]]:
@@ -729,16 +784,18 @@ class ModelDiagnosis:
         tau = sig.tau_raw_Nm
         t0 = sig.t_s[0]
         travel, rev, t_on, ratio, sign, windows = [], [], [], [], [], []
+        tau_c = tau[:, j].copy()
+        tau_c[1:] = 0.5 * (tau[1:, j] + tau[:-1, j])       # zero-order hold, as for the sliding residual
         for o in ons:
             ii = np.arange(o.start, min(o.end + extend, sig.n))
-            u = np.empty(len(ii))
-            for k, i in enumerate(ii):
-                qd_i = sig.qd_rad_s[i].copy()
-                qdd_i = sig.qdd_rad_s2[i].copy()
-                qd_i[j] = 0.0
-                qdd_i[j] = 0.0
-                tc = 0.5 * (tau[i, j] + tau[i - 1, j]) if i > 0 else tau[i, j]
-                u[k] = tc - dyn.inverse_dynamics(sig.q_rad[i], qd_i, qdd_i)[j] - self.known_[i, j]
+            b_jj = float(self.dynamics_.mass_matrix(sig.q_rad[o.end])[j, j])
+            # the rigid body without the joint's own acceleration (its velocity is ~0 in a stall)
+            u_decl = tau_c[ii] - self.rnea_full_[ii, j] + b_jj * sig.qdd_rad_s2[ii, j] - self.known_[ii, j]
+            u = u_decl
+            if dyn is not self.dynamics_:       # a kept payload: its torque along the window (gravity-like)
+                pts = ii[np.linspace(0, len(ii) - 1, min(len(ii), 12)).astype(int)]
+                extra_t = [dyn.gravity(sig.q_rad[i])[j] - self.dynamics_.gravity(sig.q_rad[i])[j] for i in pts]
+                u = u_decl - np.interp(ii, pts, extra_t)
             if ripple:
                 u += ripple["amplitude_Nm"] * np.sin(2 * np.pi * q_raw[ii] / ripple["period_rad"]
                                                      + ripple["phase_rad"])
@@ -755,15 +812,13 @@ class ModelDiagnosis:
             travel.append(o.sign_new * x[-1] - tol)
             rev.append(o.reversal)
             t_on.append(o.t_s)
-            if not o.reversal:
-                ratio.append(breakaway_ratio(u[:stall], sig.dt_s, inertia, max(f["fc_pos_Nm"], 1e-6),
-                                             max(f["fc_neg_Nm"], 1e-6), f["viscous_pos_Nm_s_rad"],
-                                             f["viscous_neg_Nm_s_rad"], tol))
-            else:
-                ratio.append(np.nan)
+            ratio.append(breakaway_ratio(u[:stall], sig.dt_s, inertia, max(f["fc_pos_Nm"], 1e-6),
+                                         max(f["fc_neg_Nm"], 1e-6), f["viscous_pos_Nm_s_rad"],
+                                         f["viscous_neg_Nm_s_rad"], tol))
             sign.append(o.sign_new)
-            windows.append({"u": u, "inertia": inertia, "friction": f, "start": o.start, "end": o.end,
-                            "sign": o.sign_new, "q": q_raw[ii] - q_raw[o.start], "reversal": o.reversal})
+            windows.append({"u": u, "u_declared": u_decl[:stall], "inertia": inertia, "friction": f,
+                            "start": o.start, "end": o.end, "sign": o.sign_new, "q": q_raw[ii] - q_raw[o.start],
+                            "reversal": o.reversal, "t_s": o.t_s})
         t_on = np.asarray(t_on)
         t1 = sig.t_s[-1]
         folds = (np.minimum(((t_on - t0) / max(t1 - t0, 1e-9) * self.n_blocks).astype(int), self.n_blocks - 1)
@@ -771,6 +826,53 @@ class ModelDiagnosis:
         return {"travel_rad": np.asarray(travel), "reversal": np.asarray(rev, bool), "t_s": t_on,
                 "fold": folds, "breakaway_ratio": np.asarray(ratio), "sign": np.asarray(sign),
                 "resolution_rad": quantum, "tol_rad": tol, "windows": windows}
+
+    def _stall_residual(self, j: int, ons: dict, after: bool) -> np.ndarray:
+        """Torque residual at the samples where the measured joint stood still before an onset (m,).
+
+        At rest, friction is set-valued: anything up to the breakaway level. The model is wrong at a stall
+        sample when its link, integrated from rest through the stall with the applied torque, has already
+        moved further than the measurement allows (two encoder steps; plus the dead band for a model with
+        backlash); the residual there is the torque beyond the level the model holds a joint with. The
+        declared model uses its Coulomb levels; the augmented one its breakaway levels, dead band, and the
+        torque of its other effects. Breakaway ratio and dead band come from the onsets of the other folds.
+        """
+        sig, res = self.signals_, self.joints_[j]
+        if not ons["windows"]:
+            return np.zeros(0)
+        kept = {t["name"]: t for t in res.kept} if after else {}
+        fold_coef = ons.get("fold_coef", {})
+        fb = self.friction_before(j)
+        out = []
+        for w, f_on in zip(ons["windows"], ons["fold"]):
+            stall = w["end"] - w["start"]
+            if after:
+                u = w["u"][:stall]
+                f = w["friction"]
+                ratio = 1.0
+                if "stribeck" in kept:
+                    r = fold_coef.get("stribeck", {}).get(int(f_on))
+                    p = self.effect_params(j, "stribeck")
+                    ratio = float(np.exp(r)) if r is not None else \
+                        0.5 * (p["Fs_pos_Nm"] / max(p["Fc_pos_Nm"], 1e-9) + p["Fs_neg_Nm"] / max(p["Fc_neg_Nm"], 1e-9))
+                band = 0.0
+                if "backlash" in kept and w["reversal"]:
+                    wf = fold_coef.get("backlash", {}).get(int(f_on))
+                    band = max(wf if wf is not None else kept["backlash"]["width_rad"], 0.0)
+            else:
+                u = w["u_declared"]
+                f = {k: max(v, 0.0) for k, v in fb.items()}
+                ratio, band = 1.0, 0.0
+            fsp, fsn = ratio * f["fc_pos_Nm"], ratio * f["fc_neg_Nm"]
+            x = hidden_travel(u, sig.dt_s, w["inertia"], f["fc_pos_Nm"], f["fc_neg_Nm"], f["viscous_pos_Nm_s_rad"],
+                              f["viscous_neg_Nm_s_rad"], fsp, fsn)
+            # travel toward the new direction may use the dead band; back along the old one may not
+            along = w["sign"] * x
+            allowed = ons["tol_rad"] + np.where(along > 0, band, 0.0)
+            wrong = np.abs(x) > allowed
+            level = np.where(u > 0, fsp, fsn)
+            out.append(np.where(wrong, np.sign(u) * np.maximum(np.abs(u) - level, 0.0), 0.0))
+        return np.concatenate(out) if out else np.zeros(0)
 
     def _slip_vs(self, j: int, ons: dict, ratio: float) -> float | None:
         """Stribeck velocity that best reproduces the measured slips after each same-direction breakaway
@@ -799,7 +901,8 @@ class ModelDiagnosis:
         * backlash: hidden travel ``d`` at reversals, ``d = c + w [reversal]`` against ``d = c`` (``c`` only
           when there are same-direction onsets to estimate it);
         * Stribeck at breakaway (when the torque residual did not already keep it): the log breakaway ratio
-          ``l = log(rho)`` at same-direction onsets, ``l = c`` against ``l = 0``.
+          ``l = log(rho)``, ``l = c`` against ``l = 0``, at every onset (at same-direction onsets only when
+          backlash was kept: a dead band also delays the measured breakaway at reversals).
         """
         res = self.joints_[j]
         ons = self._onsets(j)
@@ -811,11 +914,13 @@ class ModelDiagnosis:
             r = self._onset_candidate(
                 "backlash", d, rev, fold, lambda coef: coef >= tol,
                 lambda coef: f"fitted dead band {coef:.2g} rad is below two measurement steps ({tol:.2g} rad)")
-            res.candidates["backlash"] = {k: v for k, v in r.items() if k != "coef"}
+            res.candidates["backlash"] = {k: v for k, v in r.items() if k not in ("coef", "coef_fold")}
             if r["kept"]:
                 found.append(("backlash", r))
         if "stribeck" in tests and not any(t["name"] == "stribeck" for t in res.kept):
-            same = ~rev & np.isfinite(ons["breakaway_ratio"])
+            same = np.isfinite(ons["breakaway_ratio"])
+            if found:                   # backlash kept: reversals are not clean breakaways
+                same &= ~rev
             ell = np.log(ons["breakaway_ratio"][same])
             r = self._onset_candidate(
                 "stribeck", ell, None, fold[same], lambda coef: coef > 0,
@@ -825,8 +930,14 @@ class ModelDiagnosis:
                 found.append(("stribeck", r))
             elif "stribeck" in res.candidates:
                 res.candidates["stribeck"]["onset_test"] = note
+        ons["fold_coef"] = {}
         for name, r in sorted(found, key=lambda x: x[1]["ssr_ratio"]):
             self._add_onset_effect(j, name, r, ons)
+            ons["fold_coef"][name] = r.get("coef_fold", {})
+        # the torque residual at the stalls (set-valued friction at rest) joins the sliding residual
+        res.stall_before = self._stall_residual(j, ons, after=False)
+        res.stall_after = self._stall_residual(j, ons, after=True)
+        self._set_rms(res)
 
     def _onset_candidate(self, name, values, rev, fold, plausible, why_not) -> dict:
         """Nested test at onsets of one candidate: ``rev is None`` tests a common offset against zero;
@@ -845,8 +956,9 @@ class ModelDiagnosis:
             X1 = np.column_stack([X0, rev.astype(float)])
         t = onset_test(values, X0, X1, fold, self.n_folds, MIN_EFFECT)
         coef = float(t["coef"][-1])
-        out = {k: v for k, v in t.items() if k not in ("e0", "e1", "coef")}
+        out = {k: v for k, v in t.items() if k not in ("e0", "e1", "coef", "coef_fold")}
         out["coef"] = coef
+        out["coef_fold"] = t["coef_fold"]
         kept = t["p_value"] < self.threshold_ and t["delta_bic"] < 0
         if kept and not plausible(coef):
             out.update(kept=False, reason=why_not(coef))
@@ -870,7 +982,7 @@ class ModelDiagnosis:
         if _ss(e1) > _ss(res.e_after):
             e1 = res.e_after
         self._set_after(res, jd, res.kept + [term], e1)
-        res.candidates[name] = {k: v for k, v in r.items() if k != "coef"}
+        res.candidates[name] = {k: v for k, v in r.items() if k not in ("coef", "coef_fold")}
 
     # ------------------------------------------------------------------------------------------ params
     def _split(self, res_terms: list[dict], theta: np.ndarray) -> dict:
@@ -933,13 +1045,15 @@ class ModelDiagnosis:
             return {"delay_s": float(h)}
         if name == "friction_drift":
             X = self._cols("friction", self.jd_[j], None)
-            f0 = X @ (fr + coef)                # friction at t = 0
-            f1 = X @ coef                        # the part that decays
+            tb = self.jd_[j].extra["theta_before"]
+            dec = np.array([coef[0] * tb[0], coef[0] * tb[1], coef[1] * tb[2], coef[1] * tb[3]])
+            f0 = X @ (fr + dec)                  # friction at t = 0
+            f1 = X @ dec                         # the part that decays
             frac = -float(f1 @ f0 / max(f0 @ f0, 1e-300))
+            t0 = fr + dec
             return {"fraction": frac, "time_constant_s": float(h),
-                    "friction_t0": {"fc_pos_Nm": float(fr[0] + coef[0]), "fc_neg_Nm": float(fr[1] + coef[1]),
-                                    "viscous_pos_Nm_s_rad": float(fr[2] + coef[2]),
-                                    "viscous_neg_Nm_s_rad": float(fr[3] + coef[3])}}
+                    "friction_t0": {"fc_pos_Nm": float(t0[0]), "fc_neg_Nm": float(t0[1]),
+                                    "viscous_pos_Nm_s_rad": float(t0[2]), "viscous_neg_Nm_s_rad": float(t0[3])}}
         if name == "backlash":
             ons = self.onsets_.get(j, {})
             return {"width_rad": float(t["width_rad"]), "gravity_offset_rad": float(coef[0]),
@@ -953,7 +1067,9 @@ class ModelDiagnosis:
         c = self._split(res.kept, res.theta_after if theta is None else theta)
         fr = np.array(c["friction"], float)
         if "friction_drift" in c:
-            fr = fr + c["friction_drift"]
+            tb = self.jd_[j].extra["theta_before"]
+            cd = c["friction_drift"]
+            fr = fr + np.array([cd[0] * tb[0], cd[0] * tb[1], cd[1] * tb[2], cd[1] * tb[3]])
         return {"fc_pos_Nm": float(fr[0]), "fc_neg_Nm": float(fr[1]),
                 "viscous_pos_Nm_s_rad": float(fr[2]), "viscous_neg_Nm_s_rad": float(fr[3])}
 

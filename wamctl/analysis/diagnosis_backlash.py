@@ -182,12 +182,14 @@ def onset_test(travel: np.ndarray, X0: np.ndarray, X1: np.ndarray, fold: np.ndar
                min_effect: float) -> dict:
     """Nested test on held-out onsets: hidden travel ``d = X0 b0`` against ``d = X1 b1`` (X1 nests X0).
 
-    Returns the :func:`nested_test` dict plus ``coef`` (``X1`` fitted on all onsets) and the held-out
-    residuals ``e0``, ``e1``.
+    Returns the :func:`nested_test` dict plus ``coef`` (``X1`` fitted on all onsets), ``coef_fold`` (the last
+    coefficient fitted without each fold) and the held-out residuals ``e0``, ``e1``.
     """
     travel = np.asarray(travel, float)
 
-    def cv(X):
+    coef_fold = {}
+
+    def cv(X, keep=False):
         e = np.empty(len(travel))
         for f in range(n_folds):
             te = fold == f
@@ -199,10 +201,13 @@ def onset_test(travel: np.ndarray, X0: np.ndarray, X1: np.ndarray, fold: np.ndar
                 continue
             th = np.linalg.lstsq(X[tr], travel[tr], rcond=None)[0]
             e[te] = travel[te] - X[te] @ th
+            if keep:
+                coef_fold[f] = float(th[-1])
         return e
 
-    e0, e1 = cv(X0), cv(X1)
+    e0, e1 = cv(X0), cv(X1, keep=True)
     t = nested_test(e0, e1, X1.shape[1] - X0.shape[1], X1.shape[1], min_effect)
     t["coef"] = np.linalg.lstsq(X1, travel, rcond=None)[0]
+    t["coef_fold"] = coef_fold
     t["e0"], t["e1"] = e0, e1
     return t

@@ -1,22 +1,22 @@
-"""Candidate effect signatures for the model diagnosis: one per effect name of the diagnosis vocabulary.
+"""Candidate effect signatures of the model diagnosis: one per effect name of the diagnosis vocabulary.
 
-Every candidate turns the prepared signals of one joint into extra regressor columns, linear in its
-parameters once a few shape parameters (a grid) are fixed, so that "declared model + effect" is a linear model
-that nests the declared one. Shape parameters are chosen on training data only (see
-:mod:`wamctl.analysis.diagnosis`). Signs follow the residual ``y = tau - rnea(q, qd, qdd)``: what friction and
-the missing effects must supply.
+Every candidate turns the prepared signals of one joint into a change of the declared model that is linear in
+its parameters once a few shape parameters (a grid) are fixed, so that "declared model + effect" nests the
+declared model. Shape parameters are chosen on training data only (see :mod:`wamctl.analysis.diagnosis`).
+Signs follow the residual ``y = tau - rnea(q, qd, qdd)``: what friction and the missing effects must supply.
+Columns are built at the full rate and smoothed like the torque.
 
-=================  ===============================================================  ========  ============
-name               columns                                                          grid      count
-=================  ===============================================================  ========  ============
-stribeck           [qd>0] e^-(qd/vs)^2, -[qd<0] e^-(qd/vs)^2                        vs        2
-position_ripple    G(|qd|/P) [sin 2 pi q/P, cos 2 pi q/P] (G: smoothing filter gain)  period P  2
-payload            link-7 columns of the joint torque regressor (m, m c_x, m c_y, m c_z) none      4
-delay              tau(t) - tau(t - d) (the logged torque now vs d earlier)           d         1
-friction_drift     classic friction columns x exp(-t / T)                           T         4
-backlash           sigma_new exp(-(t - t_r) / T_k) after each direction reversal t_r,  none      4
-                   k = 1..3, and the gravity stiffness dg_j/dq_j x direction
-=================  ===============================================================  ========  ============
+=================  =================================================================  ==============  =====
+name               change of the model                                                grid            cols
+=================  =================================================================  ==============  =====
+stribeck           [qd>0] e^-(qd/vs)^2, -[qd<0] e^-(qd/vs)^2                          vs 4-400 mrad/s  2
+position_ripple    sin, cos of 2 pi q / P                                             P 0.01-2 rad     2
+payload            link-7 columns of the joint torque regressor (m, m c, inertia)     none             10
+delay              the whole model evaluated at the positions d later                 d 1-20 ms        0
+friction_drift     Coulomb and viscous torque of the declared fit x exp(-t / T)       T 0.05-4 x run   2
+backlash           (at onsets, :mod:`wamctl.analysis.diagnosis_backlash`) and the      none             1
+                   gravity stiffness x direction (the link sits w/2 off the encoder)
+=================  =================================================================  ==============  =====
 """
 
 from __future__ import annotations
@@ -35,8 +35,6 @@ RIPPLE_PERIOD_MIN_RAD = 0.01
 RIPPLE_PERIOD_MAX_RAD = 2.0
 DELAY_GRID_S = np.arange(2, 41) * 0.5e-3                # 1 to 20 ms
 DRIFT_T_GRID_FRACTION = np.geomspace(0.05, 4.0, 12)    # time constants as fractions of the run length
-BACKLASH_TIME_CONSTANTS_S = (0.015, 0.05, 0.15)
-BACKLASH_WINDOW_FACTOR = 4.0                            # a reversal term lasts 4 x its time constant
 D7_M = float(P.DH_D_M[6])
 
 
@@ -76,54 +74,15 @@ def friction_columns(qd: np.ndarray) -> np.ndarray:
 
 
 def stribeck_columns(qd: np.ndarray, vs: float) -> np.ndarray:
+    """Stribeck regressor (m, 2): breakaway excess per direction, decaying with speed as exp(-(qd/vs)^2)."""
     e = np.exp(-(qd / vs) ** 2)
     return np.column_stack([(qd > 0) * e, -1.0 * (qd < 0) * e])
 
 
 def ripple_columns(q: np.ndarray, qd: np.ndarray, period: float, window: int, dt_s: float) -> np.ndarray:
-    """sin/cos of 2 pi q / period, attenuated as the smoothing filter attenuates them at the current speed."""
+    """sin/cos of 2 pi q / period (m, 2), attenuated as the smoothing filter attenuates them at the current
+    speed (used to compare candidate periods; the kept columns are smoothed exactly)."""
     gain = savgol_gain(window, np.abs(qd) * dt_s / period)
     ph = 2 * np.pi * q / period
     return np.column_stack([gain * np.sin(ph), gain * np.cos(ph)])
 
-
-def drift_columns(qd: np.ndarray, t_rel: np.ndarray, T: float) -> np.ndarray:
-    return friction_columns(qd) * np.exp(-t_rel / T)[:, None]
-
-
-def reversal_times(t_s: np.ndarray, qd: np.ndarray, moving: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Times where a joint starts sliding opposite to its previous sliding direction, and the new direction.
-
-    Parameters
-    ----------
-    t_s, qd, moving : (n,) full-rate time, smoothed velocity and sliding mask of one joint.
-    """
-    sl = np.flatnonzero(moving)
-    if len(sl) == 0:
-        return np.zeros(0), np.zeros(0)
-    sgn = np.sign(qd[sl])
-    starts = np.flatnonzero(np.diff(sl) > 1) + 1            # first sample of each sliding stretch
-    ch = np.flatnonzero(sgn[1:] != sgn[:-1]) + 1             # sign flips inside the sliding samples
-    ev = np.union1d(starts, ch)
-    ev = ev[sgn[ev] != sgn[ev - 1]]
-    return t_s[sl[ev]], sgn[ev]
-
-
-def backlash_columns(t_s: np.ndarray, qd: np.ndarray, events_t: np.ndarray, events_sign: np.ndarray,
-                     dgdq: np.ndarray) -> np.ndarray:
-    """Reversal terms: for each time constant T_k, sigma_new exp(-(t - t_r)/T_k) over 4 T_k after the last
-    reversal t_r, plus the gravity stiffness times the direction (the link sits w/2 off the encoder)."""
-    cols = []
-    if len(events_t):
-        k = np.searchsorted(events_t, t_s, side="right") - 1
-        has = k >= 0
-        since = np.where(has, t_s - events_t[np.maximum(k, 0)], np.inf)
-        sgn = np.where(has, events_sign[np.maximum(k, 0)], 0.0)
-    else:
-        since = np.full(len(t_s), np.inf)
-        sgn = np.zeros(len(t_s))
-    for T in BACKLASH_TIME_CONSTANTS_S:
-        inside = since < BACKLASH_WINDOW_FACTOR * T
-        cols.append(np.where(inside, sgn * np.exp(-np.where(inside, since, 0.0) / T), 0.0))
-    cols.append(dgdq * np.sign(qd))
-    return np.column_stack(cols)

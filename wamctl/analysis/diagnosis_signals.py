@@ -12,7 +12,8 @@ Conventions
   term ``B qdd`` and the torque are smoothed alike and the residual is not made of filter mismatch.
 * The residual ``y = tau_s - rnea(q_s, qd_s, qdd_s)`` is what friction and any missing effect must explain.
 * Masks: where a joint sticks (smoothed speed below a few times the velocity noise) the friction torque is
-  static and unknown, so those samples, and every sample whose filter window touches them, are excluded.
+  static and unknown, so those samples are excluded, and one filter window on either side of them (half a
+  window because the smoothed speed leaks into the stuck stretch, half because the torque window reaches it).
 """
 
 from __future__ import annotations

@@ -87,7 +87,22 @@ def integrated_autocorr_time(e: np.ndarray, max_lag: int | None = None) -> float
 MIN_EFFECT = 0.05   # an effect must explain at least this fraction of the residual variance to matter
 
 
-def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int, min_effect: float = MIN_EFFECT) -> dict:
+def effective_tau(e: np.ndarray, groups: np.ndarray | None = None, min_group: int = 30) -> float:
+    """Integrated autocorrelation time of a held-out residual: the median over its folds (``groups``) of the
+    per-fold time, so that one fold a model extrapolates badly into does not set the sample count of all."""
+    e = np.asarray(e, float)
+    if groups is None:
+        return integrated_autocorr_time(e)
+    taus = []
+    for g in np.unique(groups):
+        x = e[groups == g]
+        if np.isfinite(x).sum() >= min_group:
+            taus.append(integrated_autocorr_time(x))
+    return float(np.median(taus)) if taus else integrated_autocorr_time(e)
+
+
+def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int, min_effect: float = MIN_EFFECT,
+                groups: np.ndarray | None = None) -> dict:
     """Nested-model F-test and BIC change between held-out residuals of two models.
 
     The null hypothesis is that the effect explains at most ``min_effect`` of the residual variance (a
@@ -101,6 +116,7 @@ def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int, min_effec
     e0, e1 : (m,) held-out residuals of the declared (nested) model and of the model with the effect.
     p_extra : parameters the effect adds (its columns plus one per shape parameter chosen on a grid).
     k1 : parameters of the larger model.
+    groups : fold of each sample (the autocorrelation time is taken per fold, see :func:`effective_tau`).
 
     Returns
     -------
@@ -114,7 +130,7 @@ def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int, min_effec
     n = len(e0)
     ssr0 = float(e0 @ e0)
     ssr1 = float(e1 @ e1)
-    tau = integrated_autocorr_time(e1)
+    tau = effective_tau(e1, None if groups is None else np.asarray(groups)[ok])
     n_eff = max(n / tau, k1 + 2.0)
     ratio = ssr1 / ssr0 if ssr0 > 0 else 1.0
     df2 = max(n_eff - k1, 1.0)

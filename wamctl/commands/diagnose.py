@@ -133,8 +133,11 @@ def diagnose(data: DataArg,
     if json:
         emit_json(dict(result, run_dir=str(path)))
         return
-    if not quiet:
-        print_document_tables(doc)
+    if not quiet:     # the summary and the effects; every candidate is in the report
+        from wamctl.report.document import Document
+        short = Document(doc.title, [b for b in doc.blocks if b[0] == "table" and b[1][0] in ("summary",
+                                                                                              "effects")])
+        print_document_tables(short)
     found = ", ".join(result["effects_found"]) or "none"
     msg = f"effects found: {found}" if result.get("conclusive") else f"nothing concluded: {result.get('reason')}"
     console.print(f"{msg}  run directory: {path}", highlight=False)

@@ -14,6 +14,8 @@ import pandas as pd
 from wamctl.report.document import Document
 from wamctl.report.figures import joint_grid, save
 
+CAP = 20      # -log10 p shown up to here: beyond, every effect is overwhelming
+
 
 def _fmt_params(params: dict) -> str:
     out = []
@@ -89,15 +91,15 @@ def _figures(run_path: Path, out_dir: Path, result: dict, doc: Document) -> None
     for ax, j in zip(axes, joints):
         cands = result["joints"][str(j)]["candidates"]
         names = [c["name"] for c in cands]
-        vals = [min(-np.log10(max(c["p_value"], 1e-300)), 300) if c["p_value"] is not None else 0.0
+        vals = [min(-np.log10(max(c["p_value"], 1e-300)), CAP) if c["p_value"] is not None else 0.0
                 for c in cands]
         colours = ["tab:green" if c["kept"] else "tab:gray" for c in cands]
         ax.barh(names, vals, color=colours)
         if thr:
             ax.axvline(-np.log10(thr), color="tab:red", lw=1, label="threshold")
-        ax.set_xscale("symlog", linthresh=10)
+        ax.set_xlim(0, CAP)
         ax.set_title(f"joint {j}")
-        ax.set_xlabel("-log10 p (green: kept)")
+        ax.set_xlabel(f"-log10 p, capped at {CAP} (green: kept)")
     doc.figure(save(fig, out_dir / "diagnosis_evidence.png"),
                "evidence for each candidate effect: -log10 of the held-out F-test p-value; the red line is the "
                "run's threshold (alpha / number of tests)")
