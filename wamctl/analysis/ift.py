@@ -44,7 +44,6 @@ import logging
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.signal import lfilter
 
 log = logging.getLogger(__name__)
 
@@ -121,6 +120,7 @@ def output_gradients(y2_rad: np.ndarray, kp: float, kd: float, ki: float, dt_s: 
     """
     y2 = np.asarray(y2_rad, float)
     b, a = pid_filters(kp, kd, ki, dt_s)
+    from scipy.signal import lfilter  # imported here: scipy.signal costs ~1 s at CLI start-up
     return np.stack([lfilter(b[i], a, y2) for i in range(N_PARAMS)], axis=1)
 
 
