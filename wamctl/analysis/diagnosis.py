@@ -210,6 +210,7 @@ class ModelDiagnosis:
         n_tests = len(tests) + (1 if "stribeck" in tests else 0)
         self.threshold_ = self.alpha / max(1, len(sig.joints) * max(1, n_tests))
         torque_tests = [c for c in tests if c != "backlash"]
+        self._onset_tests_on = True
         for j in sig.joints:
             self.joints_[j] = self._diagnose_joint(self.jd_[j], torque_tests)
         r2 = self._declared_r2()
@@ -615,6 +616,9 @@ class ModelDiagnosis:
         current = e_base
         remaining = [c for c in tests if c not in rejected]
         last = {}
+        # Stribeck seen at the breakaways under the declared model: when a joint sticks and slips, few sliding
+        # samples remain and a time-varying friction could explain them; the breakaways decide first
+        pre = self._stribeck_at_breakaways(jd.j) if "stribeck" in remaining and self._onset_tests_on else None
         for step in range(self.max_steps):
             trial = {}
             for c in remaining:
@@ -632,6 +636,19 @@ class ModelDiagnosis:
             passing = sorted((c for c, (t, _, _) in trial.items()
                               if t["p_value"] < self.threshold_ and t["delta_bic"] < 0),
                              key=lambda c: trial[c][0]["ssr_ratio"])
+            if step == 0 and pre is not None and "stribeck" in remaining and \
+                    (not passing or pre["p_value"] < min(trial[c][0]["p_value"] for c in passing)):
+                r, ons = pre
+                vs = self._slip_vs(jd.j, ons, float(np.exp(r["coef"]))) or float(np.median(STRIBECK_VS_GRID_RAD_S))
+                e1, h_fold = self._cv(jd, terms, "stribeck", vs)
+                ev = {k: r[k] for k in ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")}
+                terms.append({"name": "stribeck", "h_fold": h_fold, "fixed_h": vs, "evidence": ev,
+                              "gain": 1.0 - r["ssr_ratio"], "onset_ratio": float(np.exp(r["coef"])),
+                              "onset_vs": vs, "onset_test": True})
+                last["stribeck"] = dict(ev, step=step, reason="kept (seen at the breakaways)")
+                current = e1 if _ss(e1) < _ss(current) else current
+                remaining.remove("stribeck")
+                continue
             chosen = None
             for c in passing:
                 t, h_fold, e1 = trial[c]
@@ -751,20 +768,24 @@ class ModelDiagnosis:
             return
         self.payload_ = fit
 
-    def _onsets(self, j: int, extend: int = 100) -> dict:
+    def _onsets(self, j: int, extend: int = 100, declared: bool = False) -> dict:
         """Hidden travel at the joint's onsets with the current model of the joint (see
-        :mod:`wamctl.analysis.diagnosis_backlash`).
+        :mod:`wamctl.analysis.diagnosis_backlash`); with ``declared``, with the declared model fitted.
 
         The torque available to the joint, ``u = tau - rnea_j(q, qd, qdd with the joint's own velocity and
         acceleration zeroed)``, uses the model with its kept effects (payload in the rigid body, ripple
         added), and the friction levels are scaled by a kept drift at the onset's time."""
-        sig, res = self.signals_, self.joints_[j]
+        sig = self.signals_
         q_raw = sig.q_raw_rad[:, j]
         quantum = resolution_rad(q_raw)
         tol = max(2.0 * quantum, 1e-6)
         ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, sig.window)
-        fr = self.friction_after(j)
-        kept = {t["name"]: t for t in res.kept}
+        if declared:
+            fr = self.friction_before(j, self.jd_[j].extra["theta_before"])
+            kept = {}
+        else:
+            fr = self.friction_after(j)
+            kept = {t["name"]: t for t in self.joints_[j].kept}
         stri = self.effect_params(j, "stribeck") if "stribeck" in kept else None
         fs_ratio = None
         if stri:
@@ -894,6 +915,18 @@ class ModelDiagnosis:
             if ssr < best:
                 best, arg = ssr, float(vs)
         return arg
+
+    def _stribeck_at_breakaways(self, j: int):
+        """(test, onsets) when the breakaway ratios under the declared model show a Stribeck effect, else
+        None (see :meth:`_onset_tests`)."""
+        ons = self._onsets(j, declared=True)
+        ratio = ons["breakaway_ratio"]
+        ok = np.isfinite(ratio)
+        if ok.sum() < MIN_ONSETS:
+            return None
+        r = self._onset_candidate("stribeck", np.log(ratio[ok]), None, ons["fold"][ok], lambda c: c > 0,
+                                  lambda c: "")
+        return (r, ons) if r["kept"] else None
 
     def _onset_tests(self, j: int, tests: list[str]) -> None:
         """Effects seen at onsets (:mod:`wamctl.analysis.diagnosis_backlash`).
