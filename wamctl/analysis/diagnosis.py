@@ -221,6 +221,7 @@ class ModelDiagnosis:
             log.warning(self.reason_)
             self.joints_ = {}
             return self
+        self._check_delay(torque_tests)
         self._check_payload()
         self.onsets_ = {}
         if "backlash" in tests or "stribeck" in tests:
@@ -366,7 +367,7 @@ class ModelDiagnosis:
         Features that are nonlinear functions of the state are built at the full rate and smoothed by the
         same filter as the torque, so that feature and torque are averaged alike over each window."""
         cache = jd.extra.setdefault("_cache", {})
-        key = (name, None if h is None else round(float(h), 12), round(float(d), 9))
+        key = (name, h if (h is None or isinstance(h, tuple)) else round(float(h), 12), round(float(d), 9))
         if key in cache:
             return cache[key]
         sig = self.signals_
@@ -387,6 +388,9 @@ class ModelDiagnosis:
             X = sample(self._smooth(np.column_stack([np.sin(ph), np.cos(ph)])))
         elif name == "payload":
             X = jd.extra["payload"]
+            if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold
+                pi = self.payload_pi_[h[1]]
+                X = (X @ pi)[:, None]
         elif name == "friction_drift":
             # the Coulomb and the viscous torque of the declared fit, each drifting as exp(-t / T): two
             # columns that keep the directions together (a direction seen only early in the run would
@@ -550,6 +554,22 @@ class ModelDiagnosis:
             e[unpredictable] = np.nan
         return e, h_fold
 
+    def _cv_terms(self, jd: JointData, terms: list[dict]) -> np.ndarray:
+        """Held-out residual of ``friction + terms`` with the terms' per-fold shape parameters."""
+        e = np.zeros(jd.n)
+        for f in range(self.n_folds):
+            te = jd.fold == f
+            if not te.any():
+                continue
+            trr, te_i = np.flatnonzero(~te), np.flatnonzero(te)
+            y, X = self._yx(jd, terms, f)
+            if len(trr) < X.shape[1] + 5:
+                e[te] = np.nan
+                continue
+            e[te] = y[te] - X[te] @ lstsq(X[trr], y[trr])
+            e[self._unpredictable(jd, trr, te_i)] = np.nan
+        return e
+
     @staticmethod
     def _unpredictable(jd: JointData, trr: np.ndarray, te_i: np.ndarray) -> np.ndarray:
         """Held-out samples no model of the joint fitted on ``trr`` can predict: in a direction the training
@@ -593,7 +613,11 @@ class ModelDiagnosis:
     @staticmethod
     def _first_h(t: dict):
         hs = [h for h in t["h_fold"] if h is not None]
-        return float(np.median(hs)) if hs and not isinstance(hs[0], str) else (hs[0] if hs else None)
+        if not hs:
+            return None
+        if isinstance(hs[0], (tuple, str)):
+            return hs[0]
+        return float(np.median(hs))
 
     # ------------------------------------------------------------------------------------------ joint
     def _diagnose_joint(self, jd: JointData, tests: list[str], rejected: dict | None = None) -> JointResult:
@@ -625,7 +649,7 @@ class ModelDiagnosis:
                 if c == "payload" and "payload" not in jd.extra:
                     continue
                 e1, h_fold = self._cv(jd, terms, c)
-                k1 = 4 + sum(N_COLUMNS[t["name"]] for t in terms) + N_COLUMNS[c]
+                k1 = 4 + sum(_ncols(t) for t in terms) + N_COLUMNS[c]
                 p_extra = N_COLUMNS[c] + (1 if HAS_GRID[c] else 0)
                 # the minimum effect is a share of what the declared model left, not of what is left now:
                 # after a strong effect, the traces of its imperfect model are not new effects
@@ -637,7 +661,7 @@ class ModelDiagnosis:
                               if t["p_value"] < self.threshold_ and t["delta_bic"] < 0),
                              key=lambda c: trial[c][0]["ssr_ratio"])
             if step == 0 and pre is not None and "stribeck" in remaining and \
-                    (not passing or pre["p_value"] < min(trial[c][0]["p_value"] for c in passing)):
+                    (not passing or pre[0]["p_value"] < min(trial[c][0]["p_value"] for c in passing)):
                 r, ons = pre
                 vs = self._slip_vs(jd.j, ons, float(np.exp(r["coef"]))) or float(np.median(STRIBECK_VS_GRID_RAD_S))
                 e1, h_fold = self._cv(jd, terms, "stribeck", vs)
@@ -709,7 +733,7 @@ class ModelDiagnosis:
         fitted, theta = self._fit_all(jd, terms)
         res.kept = fitted
         res.theta_after = theta
-        res.columns_after = [("friction", 4)] + [(t["name"], N_COLUMNS[t["name"]]) for t in fitted]
+        res.columns_after = [("friction", 4)] + [(t["name"], _ncols(t)) for t in fitted]
         res.e_after = e_after
         self._set_rms(res)
         res.whiteness_p_before = whiteness_p(res.e_before, spacing)
@@ -744,10 +768,24 @@ class ModelDiagnosis:
             c0 += b.shape[1]
         w = np.concatenate(wts)
         theta = lstsq(X * w[:, None], np.concatenate(ys) * w)
-        pi = theta[n_own:n_own + 4]     # mass and first moment (the inertia columns are nuisance here)
+        pi = theta[n_own:n_own + 10]    # mass, first moment, inertia of the link-7 addition
         m = float(pi[0])
         com = pi[1:4] / m - np.array([0.0, 0.0, D7_M]) if m > 0 else np.zeros(3)
-        return {"mass_kg": m, "com_m": [float(x) for x in com], "joints_fitted": [j + 1 for j in with_p]}
+        return {"mass_kg": m, "com_m": [float(x) for x in com], "joints_fitted": [j + 1 for j in with_p],
+                "pi": pi}
+
+    def _check_delay(self, tests: list[str]) -> None:
+        """A late measurement delays every joint's positions: name a delay only where at least half of the
+        diagnosed joints show it (noise fed back by the controller can mimic a lag at one coupled pair)."""
+        with_d = [j for j, r in self.joints_.items() if any(t["name"] == "delay" for t in r.kept)]
+        need = int(np.ceil(len(self.joints_) / 2))
+        if not with_d or len(with_d) >= need:
+            return
+        why = (f"a delay was seen at joint(s) {[j + 1 for j in with_d]} only, {len(with_d)} of "
+               f"{len(self.joints_)}; a late measurement shows at every joint (at least {need} needed)")
+        log.info(why)
+        for j in with_d:
+            self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"delay": why})
 
     def _check_payload(self) -> None:
         """A payload is one mass for the whole arm: reject it everywhere if the mass fitted over every joint
@@ -766,7 +804,22 @@ class ModelDiagnosis:
             for j in [jj - 1 for jj in fit["joints_fitted"]]:
                 self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"payload": why})
             return
-        self.payload_ = fit
+        self.payload_ = {k: v for k, v in fit.items() if k != "pi"}
+        # every joint now carries the same payload: one column per joint (its torque), fitted without each
+        # fold for the held-out figures, and on all data for the model
+        self.payload_pi_ = {None: fit["pi"]}
+        for f in range(self.n_folds):
+            ff = self._payload_fit(lambda jd, f=f: jd.fold != f)
+            self.payload_pi_[f] = ff["pi"] if ff is not None else fit["pi"]
+        for j in [jj - 1 for jj in fit["joints_fitted"]]:
+            res, jd = self.joints_[j], self.jd_[j]
+            terms = []
+            for t in res.kept:
+                if t["name"] == "payload":
+                    t = dict(t, h_fold=[("global", f) for f in range(self.n_folds)], h_all=("global", None),
+                             fixed_h=("global", None))
+                terms.append(t)
+            self._set_after(res, jd, terms, self._cv_terms(jd, terms))
 
     def _onsets(self, j: int, extend: int = 100, declared: bool = False) -> dict:
         """Hidden travel at the joint's onsets with the current model of the joint (see
@@ -778,7 +831,8 @@ class ModelDiagnosis:
         sig = self.signals_
         q_raw = sig.q_raw_rad[:, j]
         quantum = resolution_rad(q_raw)
-        tol = max(2.0 * quantum, 1e-6)
+        # the measurement has moved once it left the stall value by two encoder steps (or four noise sigmas)
+        tol = max(2.0 * quantum, 4.0 * float(sig.q_noise_rad[j]), 1e-6)
         ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, sig.window)
         if declared:
             fr = self.friction_before(j, self.jd_[j].extra["theta_before"])
@@ -807,16 +861,28 @@ class ModelDiagnosis:
         travel, rev, t_on, ratio, sign, windows = [], [], [], [], [], []
         tau_c = tau[:, j].copy()
         tau_c[1:] = 0.5 * (tau[1:, j] + tau[:-1, j])       # zero-order hold, as for the sliding residual
+        delay = self.effect_params(j, "delay")["delay_s"] if "delay" in kept else 0.0
+        delay += float((self.declared_.effects.get("delay") or {}).get("delay_s", 0.0))
+        if delay > 0:   # positions measured d late: the torque that moved the link to q_meas(t) acted at t - d
+            tau_c = np.interp(sig.t_s - delay, sig.t_s, tau_c)
+        tau_c_decl = tau[:, j].copy()
+        tau_c_decl[1:] = 0.5 * (tau[1:, j] + tau[:-1, j])
         for o in ons:
             ii = np.arange(o.start, min(o.end + extend, sig.n))
             b_jj = float(self.dynamics_.mass_matrix(sig.q_rad[o.end])[j, j])
             # the rigid body without the joint's own acceleration (its velocity is ~0 in a stall)
-            u_decl = tau_c[ii] - self.rnea_full_[ii, j] + b_jj * sig.qdd_rad_s2[ii, j] - self.known_[ii, j]
-            u = u_decl
-            if dyn is not self.dynamics_:       # a kept payload: its torque along the window (gravity-like)
-                pts = ii[np.linspace(0, len(ii) - 1, min(len(ii), 12)).astype(int)]
-                extra_t = [dyn.gravity(sig.q_rad[i])[j] - self.dynamics_.gravity(sig.q_rad[i])[j] for i in pts]
-                u = u_decl - np.interp(ii, pts, extra_t)
+            rigid = self.rnea_full_[ii, j] - b_jj * sig.qdd_rad_s2[ii, j] + self.known_[ii, j]
+            u_decl = tau_c_decl[ii] - rigid
+            u = tau_c[ii] - rigid
+            if dyn is not self.dynamics_:       # a kept payload: its torque along the window, every 10 ms
+                pts = np.unique(np.r_[ii[::5], ii[-1]])
+                extra_t = []
+                for i in pts:
+                    qd_i, qdd_i = sig.qd_rad_s[i].copy(), sig.qdd_rad_s2[i].copy()
+                    qd_i[j] = qdd_i[j] = 0.0
+                    extra_t.append(dyn.inverse_dynamics(sig.q_rad[i], qd_i, qdd_i)[j]
+                                   - self.dynamics_.inverse_dynamics(sig.q_rad[i], qd_i, qdd_i)[j])
+                u = u - np.interp(ii, pts, extra_t)
             if ripple:
                 u += ripple["amplitude_Nm"] * np.sin(2 * np.pi * q_raw[ii] / ripple["period_rad"]
                                                      + ripple["phase_rad"])
@@ -1023,7 +1089,7 @@ class ModelDiagnosis:
         out = {"friction": theta[:4]}
         k = 4
         for t in res_terms:
-            n = N_COLUMNS[t["name"]]
+            n = _ncols(t)
             out[t["name"]] = theta[k:k + n]
             k += n
         return out
@@ -1069,7 +1135,7 @@ class ModelDiagnosis:
             return {"amplitude_Nm": float(np.hypot(a, b)), "period_rad": float(h),
                     "phase_rad": float(np.arctan2(b, a) % (2 * np.pi))}
         if name == "payload":
-            if self.payload_ is not None and theta is None:
+            if self.payload_ is not None and (theta is None or len(coef) == 1):
                 return dict(self.payload_)
             m = float(coef[0])
             com = coef[1:4] / m - np.array([0.0, 0.0, D7_M]) if m > 0 else np.zeros(3)
@@ -1181,6 +1247,13 @@ class ModelDiagnosis:
                              "samples": sig.n, "resampled": sig.resampled,
                              "decimation": getattr(self, "decimation_", 1)}
         return out
+
+
+def _ncols(term: dict) -> int:
+    """Columns a kept term adds (the arm's one payload, once fitted over all joints, adds one)."""
+    if term["name"] == "payload" and isinstance(term.get("h_all", term.get("fixed_h")), tuple):
+        return 1
+    return N_COLUMNS[term["name"]]
 
 
 def _ss(e: np.ndarray) -> float:

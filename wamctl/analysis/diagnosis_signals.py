@@ -55,6 +55,7 @@ class Signals:
     joints : 0-based joints that moved enough to be diagnosed.
     skipped : {joint (0-based): reason} for joints that were commanded to move but cannot be diagnosed.
     v_stick_rad_s : (7,) speed threshold under which a joint counts as stuck.
+    q_noise_rad : (7,) position noise (or quantisation) standard deviation.
     """
 
     t_s: np.ndarray
@@ -72,6 +73,7 @@ class Signals:
     skipped: dict[int, str] = field(default_factory=dict)
     v_stick_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(N7))
     resampled: bool = False
+    q_noise_rad: np.ndarray = field(default_factory=lambda: np.zeros(N7))
 
     @property
     def n(self) -> int:
@@ -123,24 +125,28 @@ def savgol_gain(window: int, f_cycles_per_sample: np.ndarray) -> np.ndarray:
     return np.interp(f, ft, gt)
 
 
-def velocity_noise_rad_s(q_raw: np.ndarray, dt_s: float, window: int) -> np.ndarray:
-    """(7,) standard deviation of the smoothed velocity caused by position noise/quantisation.
+def position_noise_rad(q_raw: np.ndarray) -> np.ndarray:
+    """(7,) standard deviation of the measured positions about the motion: position noise, or quantisation.
 
-    The position noise is estimated from the part of ``q`` a short cubic fit does not explain (robust MAD),
-    and propagated through the derivative filter's noise gain.
-    """
-    short = min(window, 7 if len(q_raw) > 7 else POLYORDER + 2)
+    Estimated from the part of ``q`` a short cubic fit does not explain (robust MAD); quantised signals whose
+    high-pass is mostly zero get the smallest step over root 12 instead."""
+    short = 7 if len(q_raw) > 7 else POLYORDER + 2
     short += 1 - short % 2
     hf = q_raw - savgol_filter(q_raw, short, POLYORDER, axis=0)
     sig_q = 1.4826 * np.median(np.abs(hf - np.median(hf, axis=0)), axis=0)
-    # quantised signals: the MAD of a mostly-zero high-pass can be 0; use the smallest step instead
     steps = np.abs(np.diff(q_raw, axis=0))
     for j in range(q_raw.shape[1]):
         nz = steps[:, j][steps[:, j] > 1e-12]
         if len(nz):
             sig_q[j] = max(sig_q[j], np.percentile(nz, 5) / np.sqrt(12))
+    return sig_q
+
+
+def velocity_noise_rad_s(q_raw: np.ndarray, dt_s: float, window: int) -> np.ndarray:
+    """(7,) standard deviation of the smoothed velocity caused by position noise/quantisation: the position
+    noise (:func:`position_noise_rad`) through the derivative filter's noise gain."""
     c1 = savgol_coeffs(window, POLYORDER, deriv=1, delta=dt_s)
-    return sig_q * np.sqrt(np.sum(c1 ** 2))
+    return position_noise_rad(q_raw) * np.sqrt(np.sum(c1 ** 2))
 
 
 def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, tau_Nm: np.ndarray,
@@ -188,7 +194,8 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     qdd = savgol_filter(q, w, POLYORDER, deriv=2, delta=dt, axis=0)
     taus = savgol_filter(tau_c, w, POLYORDER, axis=0)
 
-    v_noise = velocity_noise_rad_s(q, dt, w)
+    q_noise = position_noise_rad(q)
+    v_noise = q_noise * np.sqrt(np.sum(savgol_coeffs(w, POLYORDER, deriv=1, delta=dt) ** 2))
     # stuck: slower than 4 sigma of the velocity noise, and never faster than a floor of 1 mrad/s
     v_stick = np.maximum(4.0 * v_noise, 1e-3)
     stuck = np.abs(qd) < v_stick[None, :]
@@ -209,4 +216,5 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
                               f"{MIN_TRAVEL_RAD} rad and {MIN_MOVING_SAMPLES} samples are needed")
             continue
         joints.append(j)
-    return Signals(t, dt, w, qs, qd, qdd, taus, q, q_ref, tau, moving, joints, skipped, v_stick, resampled)
+    return Signals(t, dt, w, qs, qd, qdd, taus, q, q_ref, tau, moving, joints, skipped, v_stick, resampled,
+                   q_noise)
