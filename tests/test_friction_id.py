@@ -448,7 +448,7 @@ def test_cli_dry_run_and_wrong_kind(monkeypatch, capsys, tmp_path):
     rot = tmp_path / "rot.yaml"
     rot.write_text(yaml.safe_dump({"kind": "rotation"}))
     code, out, err = run_cli(monkeypatch, capsys, "friction-id", rot)
-    assert code == 2 and "friction-id runs `friction_sweep` specs" in err
+    assert code == 2 and "this command runs `friction_sweep` specs" in err
     code, out, err = run_cli(monkeypatch, capsys, "friction-id")
     assert code == 2 and "exactly one of" in err
 

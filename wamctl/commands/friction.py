@@ -8,7 +8,7 @@ from typing import Annotated, Optional
 import typer
 
 from wamctl.cli import app
-from wamctl.commands.common import console, emit_json, err_console, progress_bar
+from wamctl.commands.common import console, emit_json
 
 
 @app.command("friction-id")
@@ -64,45 +64,11 @@ def friction_id(
 
 
 def _from_spec(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as_json: bool) -> None:
-    from wamctl.commands.run import print_document_tables
-    from wamctl.errors import SpecError
+    from wamctl.commands.run import run_and_report
     from wamctl.experiments.friction_sweep import MODEL_FILE
-    from wamctl.experiments.runner import plan_only, run_spec, write_report
-    from wamctl.specs import load_spec
 
-    s = load_spec(spec_path)
-    if s.kind != "friction_sweep":
-        raise SpecError(f"{spec_path}: kind: friction-id runs `friction_sweep` specs, not `{s.kind}`")
-    base = spec_path.resolve().parent
-    if dry_run:
-        summary, checks = plan_only(s, base)
-        if as_json:
-            emit_json({"spec": str(spec_path), "kind": s.kind, "plan": summary, "checks": checks})
-        else:
-            console.print("\n".join(summary), highlight=False)
-            for c in checks:
-                console.print(f"[green]ok[/] {c}")
-            console.print("dry run: nothing moved")
-        return
-    with progress_bar(f"friction sweep {s.name}", enabled=not (quiet or as_json)) as progress:
-        outcome = run_spec(s, base, out, progress, make_report=False)
-    doc = write_report(outcome.path) if outcome.status == "completed" else None
-    model = outcome.path / MODEL_FILE
-    if as_json:
-        emit_json({"run_dir": str(outcome.path), "status": outcome.status, "reason": outcome.reason,
-                   "friction_model": str(model) if model.is_file() else None,
-                   "report": doc.to_json() if doc else None})
-        if outcome.status != "completed":
-            raise typer.Exit(1)
-        return
-    if doc is not None and not quiet:
-        print_document_tables(doc)
-    if outcome.status == "completed":
-        console.print(f"[green]completed[/]  run directory: {outcome.path}\nfriction model: {model}", highlight=False)
-    else:
-        err_console.print(f"[red]{outcome.status}[/]: {outcome.reason}  run directory: {outcome.path}",
-                          highlight=False)
-        raise typer.Exit(1)
+    run_and_report(spec_path, out, dry_run, quiet, as_json, expect_kind="friction_sweep",
+                   files=lambda run_path: {"friction_model": run_path / MODEL_FILE})
 
 
 def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options: dict) -> None:

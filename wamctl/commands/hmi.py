@@ -8,8 +8,8 @@ from typing import Annotated, Optional
 import typer
 
 from wamctl.cli import app
-from wamctl.commands.common import console, emit_json, err_console, progress_bar
-from wamctl.commands.run import JsonOpt, OutOpt, QuietOpt, print_document_tables, run_and_report
+from wamctl.commands.common import console, progress_bar
+from wamctl.commands.run import JsonOpt, OutOpt, QuietOpt, run_and_report, show_outcome
 
 
 def _console_prompt(message: str) -> None:
@@ -41,7 +41,6 @@ def hmi_session(
     """
     from wamctl.errors import SpecError
     from wamctl.experiments import hmi_block
-    from wamctl.experiments.runner import write_report
     from wamctl.specs import load_spec
 
     if not (quiet or json):
@@ -60,16 +59,4 @@ def hmi_session(
             raise SpecError(f"{spec}: kind: this command runs `hmi_block` specs, not `{s.kind}`")
     with progress_bar(f"hmi_block {resume.name} (resumed)", enabled=not (quiet or json)) as progress:
         outcome = hmi_block.resume(resume, s, progress)
-    doc = write_report(outcome.path) if outcome.status == "completed" else None
-    if json:
-        emit_json({"run_dir": str(outcome.path), "status": outcome.status, "reason": outcome.reason,
-                   "report": doc.to_json() if doc else None})
-        return
-    if doc is not None and not quiet:
-        print_document_tables(doc)
-    colour = "green" if outcome.status == "completed" else "red"
-    msg = f"[{colour}]{outcome.status}[/]" + (f": {outcome.reason}" if outcome.reason else "")
-    (console if outcome.status == "completed" else err_console).print(f"{msg}  run directory: {outcome.path}",
-                                                                      highlight=False)
-    if outcome.status != "completed":
-        raise typer.Exit(1)
+    show_outcome(outcome, quiet, json)

@@ -8,8 +8,8 @@ from typing import Annotated, Optional
 import typer
 
 from wamctl.cli import app
-from wamctl.commands.common import console, emit_json, err_console, progress_bar
-from wamctl.commands.run import JsonOpt, OutOpt, QuietOpt, SpecArg, print_document_tables, run_and_report
+from wamctl.commands.common import progress_bar
+from wamctl.commands.run import JsonOpt, OutOpt, QuietOpt, SpecArg, run_and_report, show_outcome
 
 
 @app.command("tune-ift")
@@ -35,7 +35,6 @@ def tune_ift(spec: SpecArg, out: OutOpt = None,
         return
     from wamctl.errors import SpecError
     from wamctl.experiments import ift
-    from wamctl.experiments.runner import write_report
     from wamctl.specs import load_spec
 
     s = load_spec(spec)
@@ -45,16 +44,4 @@ def tune_ift(spec: SpecArg, out: OutOpt = None,
         raise SpecError("--dry-run and --resume exclude each other")
     with progress_bar(f"ift {s.name} (resumed)", enabled=not (quiet or json)) as progress:
         outcome = ift.resume(resume, s, spec.resolve().parent, progress)
-    doc = write_report(outcome.path) if outcome.status == "completed" else None
-    if json:
-        emit_json({"run_dir": str(outcome.path), "status": outcome.status, "reason": outcome.reason,
-                   "report": doc.to_json() if doc else None})
-        return
-    if doc is not None and not quiet:
-        print_document_tables(doc)
-    colour = "green" if outcome.status == "completed" else "red"
-    msg = f"[{colour}]{outcome.status}[/]" + (f": {outcome.reason}" if outcome.reason else "")
-    (console if outcome.status == "completed" else err_console).print(f"{msg}  run directory: {outcome.path}",
-                                                                      highlight=False)
-    if outcome.status != "completed":
-        raise typer.Exit(1)
+    show_outcome(outcome, quiet, json)

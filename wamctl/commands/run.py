@@ -36,10 +36,12 @@ def print_document_tables(doc: Document) -> None:
 
 
 def run_and_report(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as_json: bool,
-                   expect_kind: str | None = None) -> None:
-    """Shared by `run` and the per-kind commands (`friction-id`, `tune-ift`, `hmi-session`)."""
+                   expect_kind: str | None = None, files=None) -> None:
+    """Shared by `run` and the per-kind commands (`friction-id`, `tune-ift`, `hmi-session`).
+
+    ``files(run_path) -> {name: path}`` names products of the run to show (e.g. the friction model file)."""
     from wamctl.errors import SpecError
-    from wamctl.experiments.runner import plan_only, run_spec, write_report
+    from wamctl.experiments.runner import plan_only, run_spec
     from wamctl.specs import load_spec
 
     spec = load_spec(spec_path)
@@ -58,17 +60,27 @@ def run_and_report(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool
         return
     with progress_bar(f"{spec.kind} {spec.name}", enabled=not (quiet or as_json)) as progress:
         outcome = run_spec(spec, base, out, progress, make_report=False)
+    show_outcome(outcome, quiet, as_json, files(outcome.path) if files else None)
+
+
+def show_outcome(outcome, quiet: bool, as_json: bool, files: dict | None = None) -> None:
+    """A finished run on the terminal: write its report, print its tables (or a JSON summary) and the status;
+    exit code 1 unless it completed."""
+    from wamctl.experiments.runner import write_report
+
     doc = write_report(outcome.path) if outcome.status == "completed" else None
+    shown = {k: (str(v) if v is not None and Path(v).exists() else None) for k, v in (files or {}).items()}
     if as_json:
-        emit_json({"run_dir": str(outcome.path), "status": outcome.status, "reason": outcome.reason,
+        emit_json({"run_dir": str(outcome.path), "status": outcome.status, "reason": outcome.reason, **shown,
                    "report": doc.to_json() if doc else None})
-        return
-    if doc is not None and not quiet:
-        print_document_tables(doc)
-    colour = "green" if outcome.status == "completed" else "red"
-    msg = f"[{colour}]{outcome.status}[/]" + (f": {outcome.reason}" if outcome.reason else "")
-    (console if outcome.status == "completed" else err_console).print(f"{msg}  run directory: {outcome.path}",
-                                                                      highlight=False)
+    else:
+        if doc is not None and not quiet:
+            print_document_tables(doc)
+        colour = "green" if outcome.status == "completed" else "red"
+        msg = f"[{colour}]{outcome.status}[/]" + (f": {outcome.reason}" if outcome.reason else "")
+        lines = [f"{msg}  run directory: {outcome.path}"] + [f"{k.replace('_', ' ')}: {v}" for k, v in shown.items()
+                                                             if v is not None]
+        (console if outcome.status == "completed" else err_console).print("\n".join(lines), highlight=False)
     if outcome.status != "completed":
         raise typer.Exit(1)
 
