@@ -127,6 +127,18 @@ def read_chunks(chunk_dir: Path, columns: list[str] | None = None) -> pd.DataFra
     return pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
 
 
+def new_stamped_dir(out_dir: str | Path, name: str) -> Path:
+    """Create and return ``<out_dir>/<UTC timestamp>-<name>`` (``-2``, ``-3``... if it already exists)."""
+    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")[:-4] + "Z"
+    path = Path(out_dir) / f"{stamp}-{name}"
+    n = 1
+    while path.exists():
+        n += 1
+        path = Path(out_dir) / f"{stamp}-{name}-{n}"
+    path.mkdir(parents=True)
+    return path
+
+
 class RunDir:
     """A run directory being written. Create with :meth:`create`, end with :meth:`finish`."""
 
@@ -137,13 +149,7 @@ class RunDir:
     @classmethod
     def create(cls, out_dir: str | Path, name: str, spec: dict, seed: int | None,
                kind: str, extra: dict | None = None) -> "RunDir":
-        stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")[:-4] + "Z"
-        path = Path(out_dir) / f"{stamp}-{name}"
-        n = 1
-        while path.exists():
-            n += 1
-            path = Path(out_dir) / f"{stamp}-{name}-{n}"
-        path.mkdir(parents=True)
+        path = new_stamped_dir(out_dir, name)
         run = cls(path)
         (path / "spec.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
         manifest = {

@@ -73,7 +73,7 @@ from pydantic import Field, ValidationError, model_validator
 from wamctl.errors import BackendError, SpecError, WamctlError
 from wamctl.report.document import Document
 from wamctl.specs import Strict, load_model_file, load_yaml, parse_spec
-from wamctl.store import git_revision, package_versions, utc_now
+from wamctl.store import git_revision, new_stamped_dir, package_versions, utc_now
 
 log = logging.getLogger(__name__)
 
@@ -623,13 +623,7 @@ def _ignore_sigint_plugin():
 
 
 def create_sweep_dir(sweep: Sweep, out_dir: str | Path) -> Path:
-    stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")[:-4] + "Z"
-    path = Path(out_dir) / f"{stamp}-{sweep.name}-sweep"
-    n = 1
-    while path.exists():
-        n += 1
-        path = Path(out_dir) / f"{stamp}-{sweep.name}-sweep-{n}"
-    path.mkdir(parents=True)
+    path = new_stamped_dir(out_dir, f"{sweep.name}-sweep")
     (path / "sweep.yaml").write_text(yaml.safe_dump(sweep.raw, sort_keys=False))
     manifest = {"format": SWEEP_FORMAT, "kind": sweep.kind, "name": sweep.name, "source": sweep.source,
                 "base_dir": str(sweep.base_dir) if sweep.base_dir else None,
