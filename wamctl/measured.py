@@ -250,9 +250,6 @@ def import_measured(path: str | Path, out_dir: str | Path = "runs", name: str | 
             "measured_meta": m.model_dump(mode="json")}
     run = RunDir.create(out_dir, spec["name"], spec, None, kind,
                         {"backend": {"name": "measured"}, "imported_from": str(Path(path).resolve())})
-    w = run.table("data", list(rd.data.columns), chunk_rows=max(1, len(rd.data)))
-    for row in rd.data.to_numpy():
-        w.append(row)
-    w.close()
+    run.write_table("data", rd.data)
     run.finish("completed", None)
     return run.path

@@ -168,9 +168,7 @@ class RunDir:
         return json.loads((self.path / "manifest.json").read_text())
 
     def write_manifest(self, manifest: dict) -> None:
-        tmp = self.path / ".manifest.json.tmp"
-        tmp.write_text(json.dumps(manifest, indent=2, default=_json_default))
-        os.replace(tmp, self.path / "manifest.json")
+        atomic_write_text(self.path / "manifest.json", json.dumps(manifest, indent=2, default=json_default))
 
     def update_manifest(self, **fields) -> None:
         m = self.manifest()
@@ -185,6 +183,11 @@ class RunDir:
     def table(self, name: str, columns: list[str], chunk_rows: int = 2500) -> TableWriter:
         return TableWriter(self.path, name, columns, chunk_rows)
 
+    def write_table(self, name: str, df: pd.DataFrame) -> None:
+        """A whole table at once (imported or analysed data): ``<name>.parquet`` and ``<name>.csv``."""
+        df.to_parquet(self.path / f"{name}.parquet", index=False)
+        write_csv(df, self.path / f"{name}.csv")
+
     def event(self, t_s: float, kind: str, joint: int | None = None, detail: str = "") -> None:
         self._events.append({"t_s": float(t_s), "kind": kind, "joint": joint, "detail": detail})
 
@@ -195,18 +198,25 @@ class RunDir:
 
     def write_json(self, name: str, obj) -> Path:
         p = self.path / name
-        p.write_text(json.dumps(obj, indent=2, default=_json_default))
+        p.write_text(json.dumps(obj, indent=2, default=json_default))
         return p
 
 
-def _json_default(o):
+def json_default(o):
+    """``json.dumps(..., default=json_default)``: numpy scalars and arrays as numbers, anything else as text."""
     if isinstance(o, np.ndarray):
         return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
+    if isinstance(o, (np.floating, np.integer, np.bool_)):
         return o.item()
-    if isinstance(o, Path):
-        return str(o)
-    raise TypeError(f"not JSON serialisable: {type(o)}")
+    return str(o)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """Write a file so that readers see the old or the new content, never a half-written one."""
+    path = Path(path)
+    tmp = path.with_name(f".{path.name}.tmp")
+    tmp.write_text(text)
+    os.replace(tmp, path)
 
 
 # ---------------------------------------------------------------------- reading runs back

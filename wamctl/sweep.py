@@ -73,7 +73,7 @@ from pydantic import Field, ValidationError, model_validator
 from wamctl.errors import BackendError, SpecError, WamctlError
 from wamctl.report.document import Document
 from wamctl.specs import Strict, load_model_file, load_yaml, parse_spec
-from wamctl.store import git_revision, new_stamped_dir, package_versions, utc_now
+from wamctl.store import atomic_write_text, git_revision, json_default, new_stamped_dir, package_versions, utc_now
 
 log = logging.getLogger(__name__)
 
@@ -532,22 +532,8 @@ class SweepIndex:
     def write(self) -> None:
         doc = {"format": INDEX_FORMAT, "parameters": self.parameters, "counts": self.counts(),
                "points": list(self.rows.values())}
-        _atomic_write(self.dir / "index.json", json.dumps(doc, indent=1, default=_json_default))
-        _atomic_write(self.dir / "index.csv", self.frame().to_csv(index=False))
-
-
-def _atomic_write(path: Path, text: str) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
-    os.replace(tmp, path)
-
-
-def _json_default(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
+        atomic_write_text(self.dir / "index.json", json.dumps(doc, indent=1, default=json_default))
+        atomic_write_text(self.dir / "index.csv", self.frame().to_csv(index=False))
 
 
 def read_index(sweep_dir: str | Path) -> pd.DataFrame:
@@ -630,7 +616,7 @@ def create_sweep_dir(sweep: Sweep, out_dir: str | Path) -> Path:
                 "n_points": len(sweep.points), "parameters": sweep.parameters, "status": "created",
                 "start_utc": utc_now(), "end_utc": None, "sessions": [], "host": socket.gethostname(),
                 "versions": {**package_versions(), **_dask_versions()}, "git_revision": git_revision()}
-    _atomic_write(path / "sweep.json", json.dumps(manifest, indent=2, default=_json_default))
+    atomic_write_text(path / "sweep.json", json.dumps(manifest, indent=2, default=json_default))
     return path
 
 
@@ -660,7 +646,7 @@ def _update_manifest(sweep_dir: Path, **fields) -> dict:
     p = sweep_dir / "sweep.json"
     m = json.loads(p.read_text())
     m.update(fields)
-    _atomic_write(p, json.dumps(m, indent=2, default=_json_default))
+    atomic_write_text(p, json.dumps(m, indent=2, default=json_default))
     return m
 
 

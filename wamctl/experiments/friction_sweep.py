@@ -29,7 +29,7 @@ from wamctl.control.trajectory import ReferenceBuilder
 from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_backend, make_controller
 from wamctl.model import params as P
 from wamctl.specs import Common, Joint, RotationSpec, Strict, check_positions
-from wamctl.store import RunDir
+from wamctl.store import RunDir, json_default
 
 log = logging.getLogger(__name__)
 
@@ -338,15 +338,7 @@ def write_identification(path: Path, result) -> None:
     path = Path(path)
     result.model.save(path / MODEL_FILE, extra=result.file_extra())
     result.map.to_csv(path / MAP_FILE, index=False)
-    (path / IDENT_FILE).write_text(json.dumps(result.to_dict(), indent=2, default=_json))
-
-
-def _json(o):
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    return str(o)
+    (path / IDENT_FILE).write_text(json.dumps(result.to_dict(), indent=2, default=json_default))
 
 
 def validation_specs(spec: FrictionSweepSpec, run_path: Path | None) -> dict[str, RotationSpec]:
@@ -412,10 +404,7 @@ def analyse_recorded(source: Path, out: Path | None = None, runs_dir: Path = Pat
         run = RunDir.create(runs_dir, spec["name"], spec, None, "friction_sweep",
                             {"backend": {"name": "sim" if rd.truth is not None else src_backend},
                              "analysed_from": str(source.resolve())})
-        w = run.table("data", list(rd.data.columns), chunk_rows=max(1, len(rd.data)))
-        for row in rd.data.to_numpy():
-            w.append(row)
-        w.close()
+        run.write_table("data", rd.data)
         run.finish("completed", None)
         target = run.path
     else:

@@ -15,6 +15,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from wamctl.store import json_default
+
 
 @dataclass
 class Document:
@@ -97,19 +99,11 @@ class Document:
             elif fmt == "html":
                 p.write_text(self.to_html())
             elif fmt == "json":
-                p.write_text(json.dumps(self.to_json(), indent=2, default=_jsonable))
+                p.write_text(json.dumps(self.to_json(), indent=2, default=json_default))
             else:
                 raise ValueError(f"unknown report format {fmt!r} (md, html, json)")
             written.append(p)
         return written
-
-
-def _jsonable(o):
-    if isinstance(o, (np.floating, np.integer)):
-        return o.item()
-    if isinstance(o, np.ndarray):
-        return o.tolist()
-    return str(o)
 
 
 def _format(df: pd.DataFrame, digits: int) -> pd.DataFrame:
