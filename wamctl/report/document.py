@@ -67,7 +67,8 @@ class Document:
                 body.append(f"<p>{html.escape(str(obj))}</p>")
             elif kind == "table":
                 name, df, caption, digits = obj
-                body.append(_format(df, digits).to_html(border=0, classes="t", na_rep="", escape=True))
+                body.append(_format(df, digits).to_html(border=0, classes="t", na_rep="", escape=True,
+                                                         index=not isinstance(df.index, pd.RangeIndex)))
                 if caption:
                     body.append(f"<p class='cap'>{html.escape(caption)}</p>")
             elif kind == "fig":
@@ -111,6 +112,8 @@ def _format(df: pd.DataFrame, digits: int) -> pd.DataFrame:
         if isinstance(v, (float, np.floating)):
             if math.isnan(v):
                 return ""
+            if v == round(v) and abs(v) < 1e9:
+                return str(int(v))             # counts, degrees of freedom, whole percentages
             if v != 0 and (abs(v) < 10 ** (-digits + 1) or abs(v) >= 1e6):
                 return f"{v:.{digits - 1}e}"
             return f"{v:.{digits}f}"
