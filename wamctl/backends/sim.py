@@ -27,22 +27,34 @@ from wamctl.model.friction import implicit_friction_1
 from wamctl.model.plant import Plant, SensorChain
 
 
+# Rows of the packed plant parameters the physics kernel reads (one array: numba's dispatch cost grows with the
+# number of arguments, and this kernel runs twice per tick): FrictionModel.as_array() rows 0-7, then these.
+ROW_SCALE, ROW_RIPPLE_A, ROW_RIPPLE_K, ROW_RIPPLE_PHASE = 8, 9, 10, 11
+
+
 @njit(cache=True)
-def _physics_step(q, qd, tau, nle, minv, h, prm, scale, ripple_a, ripple_k, ripple_phase, qd_free, f, sweeps):
+def _physics_step(q, qd, tau, nle, minv, h, pp, work, sweeps):
     """One semi-implicit step in place: velocity without friction, coupled implicit friction, position.
 
     ``qdd = B^-1 (tau + ripple(q) - nle(q, qd))``, with ``B^-1`` evaluated at the start of the control period
     (pinocchio fills its upper triangle only). Friction couples the joints through ``B^-1`` (a friction
     torque on one joint accelerates the others), so the per-joint stick/slip rule is solved jointly by
-    projected Gauss-Seidel sweeps warm-started from the previous step's torques ``f``: joint i sees
+    projected Gauss-Seidel sweeps warm-started from the previous step's torques ``f = work[1]``: joint i sees
     ``qd_free_i - h sum_{j != i} (B^-1)_ij f_j`` and takes its own implicit friction for that.
+    ``pp`` packs the friction parameters (rows 0-7), the drift scale and the position ripple (rows 8-11).
     """
     n = q.shape[0]
+    qd_free = work[0]
+    f = work[1]
+    u = work[2]
+    for j in range(n):
+        u[j] = tau[j] - nle[j]
+        if pp[ROW_RIPPLE_A, j] != 0.0:
+            u[j] += pp[ROW_RIPPLE_A, j] * np.sin(pp[ROW_RIPPLE_K, j] * q[j] + pp[ROW_RIPPLE_PHASE, j])
     for i in range(n):
         acc = 0.0
         for j in range(n):
-            u = tau[j] - nle[j] + ripple_a[j] * np.sin(ripple_k[j] * q[j] + ripple_phase)
-            acc += (minv[i, j] if i <= j else minv[j, i]) * u
+            acc += (minv[i, j] if i <= j else minv[j, i]) * u[j]
         qd_free[i] = qd[i] + h * acc
     for _ in range(sweeps):
         for i in range(n):
@@ -50,7 +62,7 @@ def _physics_step(q, qd, tau, nle, minv, h, prm, scale, ripple_a, ripple_k, ripp
             for j in range(n):
                 if j != i:
                     w -= h * (minv[i, j] if i <= j else minv[j, i]) * f[j]
-            f[i] = implicit_friction_1(w, qd[i], minv[i, i], h, i, prm, scale[i])
+            f[i] = implicit_friction_1(w, qd[i], minv[i, i], h, i, pp, pp[ROW_SCALE, i])
     for i in range(n):
         acc = 0.0
         for j in range(n):
@@ -83,14 +95,13 @@ class SimBackend(ArmBackend):
         self.h_s = self.control_period_s / self.substeps
         self.rng = rng
         self.q0 = np.asarray(q0_rad, float).copy()
-        self._prm = plant.friction.as_array()
+        self._pp = np.vstack([plant.friction.as_array(), np.ones(P.N_JOINTS), plant.ripple_amplitude_Nm,
+                              plant.ripple_wavenumber_rad, np.full(P.N_JOINTS, plant.ripple_phase_rad)])
         self._t = 0.0
         self._q = self.q0.copy()
         self._qd = np.zeros(P.N_JOINTS)
         self._tau = np.zeros(P.N_JOINTS)
-        self._qd_free = np.zeros(P.N_JOINTS)
-        self._f = np.zeros(P.N_JOINTS)
-        self._ones = np.ones(P.N_JOINTS)
+        self._work = np.zeros((3, P.N_JOINTS))  # velocity without friction, friction torque, net torque
         self.sensors = SensorChain(plant, rng, self.q0, self.h_s)
         self._q_meas = self.sensors.measure(self._q)
 
@@ -110,7 +121,7 @@ class SimBackend(ArmBackend):
     @property
     def friction_torque_Nm(self) -> np.ndarray:
         """Friction torque absorbed over the last physics step (7,)."""
-        return self._f.copy()
+        return self._work[1].copy()
 
     @property
     def time_s(self) -> float:
@@ -139,12 +150,11 @@ class SimBackend(ArmBackend):
         plant, model, data = self.plant, self._model, self._data
         q, qd = self._q, self._qd
         minv = pin.computeMinverse(model, data, q)  # upper triangle only; the kernel reads it so
-        scale = plant.friction_scale(self._t) if plant.has_drift else self._ones
+        if plant.has_drift:
+            self._pp[ROW_SCALE] = plant.friction_scale(self._t)
         for _ in range(self.substeps):
             nle = pin.nonLinearEffects(model, data, q, qd)
-            _physics_step(q, qd, self._tau, nle, minv, self.h_s, self._prm, scale, plant.ripple_amplitude_Nm,
-                          plant.ripple_wavenumber_rad, plant.ripple_phase_rad, self._qd_free, self._f,
-                          self.FRICTION_SWEEPS)
+            _physics_step(q, qd, self._tau, nle, minv, self.h_s, self._pp, self._work, self.FRICTION_SWEEPS)
             self.sensors.record_physics_step(q)
         self._t += self.control_period_s
         self._q_meas = self.sensors.measure(q)
