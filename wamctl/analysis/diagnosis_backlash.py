@@ -92,13 +92,12 @@ def find_onsets(t_s: np.ndarray, q_raw: np.ndarray, qd_s: np.ndarray, v_stick: f
         seg = q_raw[lo:hi]
         mid_i = lo + int(np.argmin(np.abs(seg - np.median(q_raw[p1:s0 + 1]))))
         q_stall = q_raw[mid_i]
-        off = np.abs(q_raw - q_stall) > tol
-        a = mid_i
-        while a > p0 and not off[a - 1]:
-            a -= 1
-        b = mid_i
-        while b < s1 and not off[b]:
-            b += 1
+        off = np.abs(q_raw[p0:s1] - q_stall) > tol          # within this pair of stretches only
+        m = mid_i - p0
+        before = np.flatnonzero(off[:m])
+        a = p0 + (before[-1] + 1 if len(before) else 0)
+        after = np.flatnonzero(off[m:])
+        b = p0 + m + after[0] if len(after) else s1
         if b >= min(s1, n) or b - a < 2:
             continue
         if np.sign(q_raw[b] - q_stall) != d_new:
@@ -206,7 +205,7 @@ def onset_test(travel: np.ndarray, X0: np.ndarray, X1: np.ndarray, fold: np.ndar
         return e
 
     e0, e1 = cv(X0), cv(X1, keep=True)
-    t = nested_test(e0, e1, X1.shape[1] - X0.shape[1], X1.shape[1], min_effect)
+    t = nested_test(e0, e1, X1.shape[1] - X0.shape[1], X1.shape[1], min_effect, independent=True)
     t["coef"] = np.linalg.lstsq(X1, travel, rcond=None)[0]
     t["coef_fold"] = coef_fold
     t["e0"], t["e1"] = e0, e1

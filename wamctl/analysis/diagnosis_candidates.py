@@ -30,7 +30,7 @@ from wamctl.model import params as P
 
 EFFECT_NAMES = ("stribeck", "position_ripple", "payload", "delay", "friction_drift", "backlash")
 
-STRIBECK_VS_GRID_RAD_S = np.geomspace(0.004, 0.4, 21)
+STRIBECK_VS_GRID_RAD_S = np.geomspace(0.004, 0.4, 13)
 RIPPLE_PERIOD_MIN_RAD = 0.01
 RIPPLE_PERIOD_MAX_RAD = 2.0
 DELAY_GRID_S = np.arange(2, 41) * 0.5e-3                # 1 to 20 ms
@@ -79,10 +79,11 @@ def stribeck_columns(qd: np.ndarray, vs: float) -> np.ndarray:
     return np.column_stack([(qd > 0) * e, -1.0 * (qd < 0) * e])
 
 
-def ripple_columns(q: np.ndarray, qd: np.ndarray, period: float, window: int, dt_s: float) -> np.ndarray:
+def ripple_columns(q: np.ndarray, qd: np.ndarray, period: float, window: int, gauss: float,
+                   dt_s: float) -> np.ndarray:
     """sin/cos of 2 pi q / period (m, 2), attenuated as the smoothing filter attenuates them at the current
     speed (used to compare candidate periods; the kept columns are smoothed exactly)."""
-    gain = savgol_gain(window, np.abs(qd) * dt_s / period)
+    gain = savgol_gain(window, np.abs(qd) * dt_s / period, gauss)
     ph = 2 * np.pi * q / period
     return np.column_stack([gain * np.sin(ph), gain * np.cos(ph)])
 

@@ -7,13 +7,16 @@ Conventions
   (zero-order hold, as the simulator and libbarrett do). The torque acting *around* ``t[k]`` is therefore
   ``(tau[k-1] + tau[k]) / 2``; using it removes the half-sample lag between the logged torque and the
   positions, so that a delay found later is a real one.
-* Differentiation: a Savitzky-Golay filter (cubic, centred window of about ``window_s``) gives ``q``, ``qd``
-  and ``qdd`` with no phase lag; the same filter (derivative 0) is applied to the torque, so that the inertial
-  term ``B qdd`` and the torque are smoothed alike and the residual is not made of filter mismatch.
+* Differentiation: a short Gaussian pre-filter (sigma ``gauss_s``, 8 ms: it removes the high-frequency
+  jitter that encoder quantisation causes through the controller, which a Savitzky-Golay filter's sidelobes
+  let through) followed by a Savitzky-Golay filter (cubic, centred window of about ``window_s``) gives ``q``,
+  ``qd`` and ``qdd`` with no phase lag; the same two filters (derivative 0) are applied to the torque and to
+  every feature built from the state, so that the inertial term ``B qdd`` and the torque are smoothed alike and
+  the residual is not made of filter mismatch.
 * The residual ``y = tau_s - rnea(q_s, qd_s, qdd_s)`` is what friction and any missing effect must explain.
 * Masks: where a joint sticks (smoothed speed below a few times the velocity noise) the friction torque is
-  static and unknown, so those samples are excluded, and one filter window on either side of them (half a
-  window because the smoothed speed leaks into the stuck stretch, half because the torque window reaches it).
+  static and unknown, so those samples are excluded, and twice the filter's reach on either side of them
+  (once because the smoothed speed leaks into the stuck stretch, once because the torque filter reaches it).
 """
 
 from __future__ import annotations
@@ -23,7 +26,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy.ndimage import binary_dilation
+from scipy.ndimage import binary_dilation, gaussian_filter1d
 from scipy.signal import savgol_coeffs, savgol_filter
 
 from wamctl.errors import DataFormatError
@@ -33,7 +36,8 @@ log = logging.getLogger(__name__)
 
 N7 = P.N_JOINTS
 POLYORDER = 3
-DEFAULT_WINDOW_S = 0.042       # ~21 samples at 500 Hz: cuts quantisation noise, keeps ~10 Hz content
+DEFAULT_WINDOW_S = 0.030       # 15 samples at 500 Hz
+DEFAULT_GAUSS_S = 0.008         # 4 samples at 500 Hz: together about 10 Hz of bandwidth, low sidelobes
 MIN_RATE_HZ = 50.0             # below this, accelerations cannot be estimated over a window this short
 MIN_MOVING_SAMPLES = 200       # a joint needs this many sliding samples to be diagnosed
 MIN_TRAVEL_RAD = 0.02
@@ -48,6 +52,7 @@ class Signals:
     t_s : (n,) uniform time, s (starting where the data start).
     dt_s : sample period, s.
     window : Savitzky-Golay window length, samples (odd).
+    gauss : Gaussian pre-filter sigma, samples.
     q_rad, qd_rad_s, qdd_rad_s2 : (n, 7) smoothed position and its derivatives.
     tau_Nm : (n, 7) logged torque, half-sample aligned and smoothed like ``q``.
     q_raw_rad, q_ref_rad, tau_raw_Nm : (n, 7) the data as logged (on the uniform grid).
@@ -61,6 +66,7 @@ class Signals:
     t_s: np.ndarray
     dt_s: float
     window: int
+    gauss: float
     q_rad: np.ndarray
     qd_rad_s: np.ndarray
     qdd_rad_s2: np.ndarray
@@ -78,6 +84,29 @@ class Signals:
     @property
     def n(self) -> int:
         return len(self.t_s)
+
+    @property
+    def reach(self) -> int:
+        """Samples on either side that the smoothing reaches (Savitzky-Golay half window + 3 sigma)."""
+        return self.window // 2 + int(np.ceil(3 * self.gauss))
+
+    def smooth(self, X: np.ndarray, deriv: int = 0) -> np.ndarray:
+        """The analysis filter (Gaussian pre-filter, then Savitzky-Golay) along axis 0, or its derivative."""
+        return smooth(X, self.window, self.gauss, deriv, self.dt_s)
+
+    def smooth_at(self, X: np.ndarray, idx: np.ndarray) -> np.ndarray:
+        """The analysis filter of ``X`` (n, p) evaluated at the samples ``idx`` only (m, p): the same
+        convolution as :meth:`smooth` away from the ends (which the masks leave out), at a fraction of the
+        cost when ``m`` is much smaller than ``n``."""
+        r = self.window // 2 + int(np.ceil(4 * self.gauss)) + 1     # the Gaussian is truncated at 4 sigma
+        imp = np.zeros(4 * r + 1)
+        imp[2 * r] = 1.0
+        k = smooth(imp, self.window, self.gauss)[r:3 * r + 1]          # symmetric kernel, 2 r + 1 taps
+        pos = np.clip(np.asarray(idx)[:, None] + np.arange(-r, r + 1)[None, :], 0, len(X) - 1)
+        X = np.asarray(X, float)
+        if X.ndim == 1:
+            return X[pos] @ k
+        return np.einsum("mkp,k->mp", X[pos], k)
 
     @property
     def duration_s(self) -> float:
@@ -116,13 +145,27 @@ def _gain_table(window: int) -> tuple[np.ndarray, np.ndarray]:
     return f, np.cos(2 * np.pi * np.outer(f, k)) @ c
 
 
-def savgol_gain(window: int, f_cycles_per_sample: np.ndarray) -> np.ndarray:
+def savgol_gain(window: int, f_cycles_per_sample: np.ndarray, gauss: float = 0.0) -> np.ndarray:
     """Amplitude response of the smoothing filter (real, zero phase) at normalised frequencies (cycles/sample);
-    frequencies above Nyquist are folded back (aliasing)."""
+    frequencies above Nyquist are folded back (aliasing). ``gauss``: the Gaussian pre-filter's sigma."""
     f = np.abs(np.asarray(f_cycles_per_sample, float)) % 1.0
     f = np.where(f > 0.5, 1.0 - f, f)
     ft, gt = _gain_table(window)
-    return np.interp(f, ft, gt)
+    return np.interp(f, ft, gt) * np.exp(-0.5 * (2 * np.pi * f * gauss) ** 2)
+
+
+def smooth(X: np.ndarray, window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
+    """Gaussian pre-filter (sigma ``gauss`` samples, edges held) then Savitzky-Golay (cubic) along axis 0."""
+    Y = gaussian_filter1d(np.asarray(X, float), gauss, axis=0, mode="nearest") if gauss > 0 else X
+    return savgol_filter(Y, window, POLYORDER, deriv=deriv, delta=dt_s, axis=0)
+
+
+def derivative_noise_gain(window: int, gauss: float, dt_s: float) -> float:
+    """Standard deviation of the filtered velocity per unit of white position noise."""
+    n = 4 * window + 8 * int(np.ceil(gauss)) + 1
+    imp = np.zeros(n)
+    imp[n // 2] = 1.0
+    return float(np.sqrt(np.sum(smooth(imp, window, gauss, 1, dt_s) ** 2)))
 
 
 def position_noise_rad(q_raw: np.ndarray) -> np.ndarray:
@@ -142,16 +185,15 @@ def position_noise_rad(q_raw: np.ndarray) -> np.ndarray:
     return sig_q
 
 
-def velocity_noise_rad_s(q_raw: np.ndarray, dt_s: float, window: int) -> np.ndarray:
+def velocity_noise_rad_s(q_raw: np.ndarray, dt_s: float, window: int, gauss: float = 0.0) -> np.ndarray:
     """(7,) standard deviation of the smoothed velocity caused by position noise/quantisation: the position
     noise (:func:`position_noise_rad`) through the derivative filter's noise gain."""
-    c1 = savgol_coeffs(window, POLYORDER, deriv=1, delta=dt_s)
-    return position_noise_rad(q_raw) * np.sqrt(np.sum(c1 ** 2))
+    return position_noise_rad(q_raw) * derivative_noise_gain(window, gauss, dt_s)
 
 
 def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, tau_Nm: np.ndarray,
                     rate_hz: float, joints_hint: list[int] | None = None,
-                    window_s: float = DEFAULT_WINDOW_S) -> Signals:
+                    window_s: float = DEFAULT_WINDOW_S, gauss_s: float = DEFAULT_GAUSS_S) -> Signals:
     """Align, smooth and mask a run's samples.
 
     Parameters
@@ -184,23 +226,25 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
                                                  rate_hz=rate_hz)
     dt = 1.0 / rate_hz
     w = window_samples(rate_hz, window_s)
+    gs = gauss_s * rate_hz
     if len(t) < 4 * w:
         raise DataFormatError(f"only {len(t)} samples; the diagnosis needs at least {4 * w} "
                               f"({4 * w * dt:.2f} s at {rate_hz:g} Hz)")
     tau_c = tau.copy()
     tau_c[1:] = 0.5 * (tau[1:] + tau[:-1])          # torque acting around t[k] (zero-order hold)
-    qs = savgol_filter(q, w, POLYORDER, axis=0)
-    qd = savgol_filter(q, w, POLYORDER, deriv=1, delta=dt, axis=0)
-    qdd = savgol_filter(q, w, POLYORDER, deriv=2, delta=dt, axis=0)
-    taus = savgol_filter(tau_c, w, POLYORDER, axis=0)
+    qs = smooth(q, w, gs)
+    qd = smooth(q, w, gs, 1, dt)
+    qdd = smooth(q, w, gs, 2, dt)
+    taus = smooth(tau_c, w, gs)
 
     q_noise = position_noise_rad(q)
-    v_noise = q_noise * np.sqrt(np.sum(savgol_coeffs(w, POLYORDER, deriv=1, delta=dt) ** 2))
+    v_noise = q_noise * derivative_noise_gain(w, gs, dt)
     # stuck: slower than 4 sigma of the velocity noise, and never faster than a floor of 1 mrad/s
     v_stick = np.maximum(4.0 * v_noise, 1e-3)
     stuck = np.abs(qd) < v_stick[None, :]
-    moving = ~binary_dilation(stuck, structure=np.ones((2 * w + 1, 1), bool))
-    edge = w  # the filter's edge samples are extrapolations
+    reach = w // 2 + int(np.ceil(3 * gs))
+    moving = ~binary_dilation(stuck, structure=np.ones((4 * reach + 1, 1), bool))
+    edge = 2 * reach  # the filter's edge samples are extrapolations
     moving[:edge] = False
     moving[-edge:] = False
 
@@ -216,5 +260,5 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
                               f"{MIN_TRAVEL_RAD} rad and {MIN_MOVING_SAMPLES} samples are needed")
             continue
         joints.append(j)
-    return Signals(t, dt, w, qs, qd, qdd, taus, q, q_ref, tau, moving, joints, skipped, v_stick, resampled,
+    return Signals(t, dt, w, gs, qs, qd, qdd, taus, q, q_ref, tau, moving, joints, skipped, v_stick, resampled,
                    q_noise)

@@ -80,8 +80,6 @@ def plant_dict(diag, which: str = "after", thetas: dict | None = None) -> dict:
         if j in diag.joints_:
             tb, ta = (thetas or {}).get(j, (None, None))
             fr = diag.friction_after(j, ta) if which == "after" else diag.friction_before(j, tb)
-            if declared.friction is not None:     # the fit is a correction on the file's levels
-                fr = {k: d[k] + v for k, v in fr.items()}
             d = {k: max(0.0, float(v)) for k, v in fr.items()}
         joints[j + 1] = d
     effects = dict(declared.effects or {})

@@ -45,6 +45,21 @@ def lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
     return theta / scale
 
 
+def lstsq_bounded(X: np.ndarray, y: np.ndarray, lower: np.ndarray | None = None) -> np.ndarray:
+    """Least squares with lower bounds on some coefficients (``-inf`` where free): the unconstrained solution
+    when it respects them, else a bounded-variable solve (scipy's BVLS)."""
+    theta = lstsq(X, y)
+    if lower is None or np.all(theta >= lower - 1e-12):
+        return theta
+    from scipy.optimize import lsq_linear
+
+    scale = np.sqrt((X ** 2).sum(axis=0))
+    scale[scale == 0] = 1.0
+    res = lsq_linear(X / scale, y, bounds=(np.asarray(lower) * scale, np.full(X.shape[1], np.inf)),
+                     method="bvls", lsmr_tol="auto")
+    return res.x / scale
+
+
 def projection_gain(U: np.ndarray, r: np.ndarray, Z: np.ndarray) -> float:
     """Drop of the sum of squares of ``r`` (residual of a fit on basis ``U``) when columns ``Z`` are added."""
     Zr = Z - U @ (U.T @ Z)
@@ -102,7 +117,7 @@ def effective_tau(e: np.ndarray, groups: np.ndarray | None = None, min_group: in
 
 
 def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int, min_effect: float = MIN_EFFECT,
-                groups: np.ndarray | None = None) -> dict:
+                groups: np.ndarray | None = None, independent: bool = False) -> dict:
     """Nested-model F-test and BIC change between held-out residuals of two models.
 
     The null hypothesis is that the effect explains at most ``min_effect`` of the residual variance (a
@@ -117,6 +132,8 @@ def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int, min_effec
     p_extra : parameters the effect adds (its columns plus one per shape parameter chosen on a grid).
     k1 : parameters of the larger model.
     groups : fold of each sample (the autocorrelation time is taken per fold, see :func:`effective_tau`).
+    independent : the samples are separate events (onsets seconds apart): no autocorrelation correction
+        (estimating one from a handful of events would only add noise).
 
     Returns
     -------
@@ -130,12 +147,14 @@ def nested_test(e0: np.ndarray, e1: np.ndarray, p_extra: int, k1: int, min_effec
     n = len(e0)
     ssr0 = float(e0 @ e0)
     ssr1 = float(e1 @ e1)
-    tau = effective_tau(e1, None if groups is None else np.asarray(groups)[ok])
+    tau = 1.0 if independent else effective_tau(e1, None if groups is None else np.asarray(groups)[ok])
     n_eff = max(n / tau, k1 + 2.0)
     ratio = ssr1 / ssr0 if ssr0 > 0 else 1.0
     df2 = max(n_eff - k1, 1.0)
     if ssr1 >= ssr0 or ssr0 == 0:
         F, p = 0.0, 1.0
+    elif ssr1 <= 1e-300:              # the larger model is exact on held-out data
+        F, p = float("inf"), 0.0
     else:
         F = ((ssr0 - ssr1) / p_extra) / (ssr1 / df2)
         if min_effect > 0:

@@ -149,7 +149,8 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     doc.text(f"Data: {result.get('data') or spec.get('data')}. Declared model: {result.get('declared_model')}.")
     m = result.get("method") or {}
     if m:
-        doc.text(f"{m.get('samples')} samples at {m.get('sample_rate_hz', 0):.0f} Hz; Savitzky-Golay window "
+        doc.text(f"{m.get('samples')} samples at {m.get('sample_rate_hz', 0):.0f} Hz; derivatives by a Gaussian "
+                 f"pre-filter (sigma {m.get('gauss_sigma_samples', 0):.1f} samples) and a Savitzky-Golay window of "
                  f"{m.get('savgol_window_samples')} samples; {m.get('blocks')} time blocks in {m.get('folds')} "
                  f"folds for held-out figures; an effect is kept when its held-out nested F-test gives "
                  f"p < {_g(m.get('test_threshold_p'))} (alpha {m.get('alpha_per_run')} per run over every test) "
