@@ -9,10 +9,10 @@ Method
    them, are left out: there the friction torque is static and unknown.
 2. **Declared model.** Per joint, classic friction per direction (Coulomb + viscous) is linear in its four
    parameters; it is fitted by least squares (unless a model file gives it).
-3. **Held-out data.** The run is cut into ``n_blocks`` contiguous time blocks, dealt into ``n_folds`` folds
-   (block ``b`` -> fold ``b % n_folds``). Every number called held-out comes from a model fitted on the other
-   folds; every shape parameter of a candidate (Stribeck velocity, ripple period, delay, drift time
-   constant) is chosen on the training folds only.
+3. **Held-out data.** Each joint's sliding samples (in time order) are cut into ``n_blocks`` contiguous
+   blocks of equal size, dealt into ``n_folds`` folds (block ``b`` -> fold ``b % n_folds``). Every number
+   called held-out comes from a model fitted on the other folds; every shape parameter of a candidate
+   (Stribeck velocity, ripple period, delay, drift time constant) is chosen on the training folds only.
 4. **Candidates.** One signature per effect name (:mod:`wamctl.analysis.diagnosis_candidates`). Each is
    tested as a nested model against the current model on the held-out residuals: an F-test whose sample
    count is deflated by the residual's integrated autocorrelation time, against the null hypothesis that the
@@ -45,14 +45,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
-from scipy.signal import savgol_filter
 
 from wamctl.analysis.diagnosis_backlash import (MIN_ONSETS, MIN_REVERSALS, breakaway_ratio, find_onsets,
                                                 hidden_travel, onset_test, resolution_rad)
 from wamctl.analysis.diagnosis_candidates import (
     D7_M, DELAY_GRID_S, DRIFT_T_GRID_FRACTION, EFFECT_NAMES, RIPPLE_PERIOD_MAX_RAD, RIPPLE_PERIOD_MIN_RAD,
     STRIBECK_VS_GRID_RAD_S, JointData, friction_columns, ripple_columns, stribeck_columns)
-from wamctl.analysis.diagnosis_signals import POLYORDER, prepare_signals, savgol_gain
+from wamctl.analysis.diagnosis_signals import prepare_signals, savgol_gain
 from wamctl.analysis.diagnosis_stats import (MIN_EFFECT, lstsq, lstsq_bounded, nested_test, orth_basis,
                                              projection_gain, whiteness_p)
 from wamctl.model import params as P
@@ -107,6 +106,7 @@ class JointResult:
     e_base: np.ndarray | None = None                          # held-out residual of the fitted declared model
     stall_before: np.ndarray | None = None                    # torque residual at stalls (set-valued friction)
     stall_after: np.ndarray | None = None
+    stall_t: np.ndarray | None = None                         # their times, s
     e_after: np.ndarray | None = None
     torque_rms_before_Nm: float = float("nan")
     torque_rms_after_Nm: float = float("nan")
@@ -128,13 +128,6 @@ def _single_threaded_blas():
         return
     with threadpool_limits(limits=1, user_api="blas"):
         yield
-
-
-def fold_of(t_s: np.ndarray, n_blocks: int, n_folds: int) -> np.ndarray:
-    """Fold number of each sample: contiguous time blocks dealt round-robin into folds."""
-    t0, t1 = float(t_s[0]), float(t_s[-1])
-    block = np.minimum(((t_s - t0) / max(t1 - t0, 1e-12) * n_blocks).astype(int), n_blocks - 1)
-    return block % n_folds
 
 
 class ModelDiagnosis:
@@ -308,19 +301,21 @@ class ModelDiagnosis:
             tau_full = np.column_stack([np.interp(sig.t_s - delay_given, sig.t_s, tau_full[:, j])
                                         for j in range(N7)])
         self.tau_model_ = tau_full
-        folds = fold_of(sig.t_s, self.n_blocks, self.n_folds)
-        self.folds_ = folds
         self.jd_ = {}
         t0 = sig.t_s[0]
         for j in sig.joints:
             idx = np.flatnonzero(keep & sig.moving[:, j])
             u = pos[idx]
+            # the joint's own sliding samples, in time order, cut into contiguous blocks of equal size: a joint
+            # that moves in one part of the run only (one joint at a time) still has every fold populated
+            block = np.minimum((np.arange(len(idx)) * self.n_blocks) // max(len(idx), 1), self.n_blocks - 1)
+            jfold = block % self.n_folds
             y = tau_full[idx, j] - rnea[u, j] - self.known_[idx, j]
-            extra = {"t_rel": sig.t_s[idx] - t0,
+            extra = {"t_rel": sig.t_s[idx] - t0, "block": block,
                      "dgdq_full": np.interp(sig.t_s, sig.t_s[coarse], dgdq_c[:, j])}
             if want_payload:
                 extra["payload"] = reg[u, j, :]
-            self.jd_[j] = JointData(j, idx, sig.t_s[idx], q[idx, j], qd[idx, j], qdd[idx, j], y, folds[idx], extra)
+            self.jd_[j] = JointData(j, idx, sig.t_s[idx], q[idx, j], qd[idx, j], qdd[idx, j], y, jfold, extra)
 
     def _declared_torque(self) -> tuple[np.ndarray, np.ndarray]:
         """(n, 7) torque of the declared model beyond the rigid body when a model file gives it (friction,
@@ -887,7 +882,8 @@ class ModelDiagnosis:
         stri = self.effect_params(j, "stribeck") if "stribeck" in kept else None
         fs_ratio = None
         if stri:
-            fs_ratio = (stri["Fs_pos_Nm"] / max(stri["Fc_pos_Nm"], 1e-9), stri["Fs_neg_Nm"] / max(stri["Fc_neg_Nm"], 1e-9))
+            fs_ratio = (stri["Fs_pos_Nm"] / max(stri["Fc_pos_Nm"], 1e-9),
+                        stri["Fs_neg_Nm"] / max(stri["Fc_neg_Nm"], 1e-9))
         drift = self.effect_params(j, "friction_drift") if "friction_drift" in kept else None
         ripple = self.effect_params(j, "position_ripple") if "position_ripple" in kept else None
         dyn = self.dynamics_
@@ -951,9 +947,12 @@ class ModelDiagnosis:
                             "start": o.start, "end": o.end, "sign": o.sign_new, "q": q_raw[ii] - q_raw[o.start],
                             "reversal": o.reversal, "t_s": o.t_s})
         t_on = np.asarray(t_on)
-        t1 = sig.t_s[-1]
-        folds = (np.minimum(((t_on - t0) / max(t1 - t0, 1e-9) * self.n_blocks).astype(int), self.n_blocks - 1)
-                 % self.n_folds) if len(t_on) else np.zeros(0, int)
+        # onsets are dealt into the folds of the joint's blocks they fall in
+        jd = self.jd_[j]
+        blk = jd.extra["block"]
+        starts = jd.t_s[np.r_[0, np.flatnonzero(np.diff(blk)) + 1]]
+        folds = ((np.clip(np.searchsorted(starts, t_on, side="right") - 1, 0, None) + blk[0]) % self.n_folds
+                 if len(t_on) else np.zeros(0, int))
         return {"travel_rad": np.asarray(travel), "reversal": np.asarray(rev, bool), "t_s": t_on,
                 "fold": folds, "breakaway_ratio": np.asarray(ratio), "sign": np.asarray(sign),
                 "resolution_rad": quantum, "tol_rad": tol, "windows": windows}
@@ -975,6 +974,7 @@ class ModelDiagnosis:
         fold_coef = ons.get("fold_coef", {})
         fb = self.friction_before(j)
         out = []
+        res.stall_t = np.concatenate([sig.t_s[w["start"]:w["end"]] for w in ons["windows"]])
         for w, f_on in zip(ons["windows"], ons["fold"]):
             stall = w["end"] - w["start"]
             if after:
@@ -1149,6 +1149,7 @@ class ModelDiagnosis:
     def _plausible(self, name: str, jd: JointData, terms: list[dict], theta: np.ndarray) -> tuple[bool, str]:
         c = self._split(terms, theta)
         coef = c[name]
+
         if name == "stribeck":
             pos, neg = (jd.qd_rad_s > 0).sum(), (jd.qd_rad_s < 0).sum()
             w = np.array([pos, neg], float)

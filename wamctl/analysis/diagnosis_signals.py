@@ -256,8 +256,12 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
         commanded = j in hint or np.ptp(q_ref[:, j]) > MIN_TRAVEL_RAD
         if travel < MIN_TRAVEL_RAD or n_mov < MIN_MOVING_SAMPLES:
             if commanded:
-                skipped[j] = (f"moved {travel:.4f} rad with {n_mov} sliding samples; at least "
-                              f"{MIN_TRAVEL_RAD} rad and {MIN_MOVING_SAMPLES} samples are needed")
+                why = (f"moved {travel:.4f} rad with {n_mov} sliding samples; at least {MIN_TRAVEL_RAD} rad and "
+                       f"{MIN_MOVING_SAMPLES} samples are needed")
+                if travel >= MIN_TRAVEL_RAD:
+                    why += (f" (it stuck again within {4 * reach * dt * 1e3:.0f} ms every time it moved: "
+                            "stick-slip throughout, whose friction at rest the torque residual cannot use)")
+                skipped[j] = why
             continue
         joints.append(j)
     return Signals(t, dt, w, gs, qs, qd, qdd, taus, q, q_ref, tau, moving, joints, skipped, v_stick, resampled,

@@ -9,7 +9,8 @@
   feed-forward torque recovered from the log), and returns the positions it would have measured.
 * :func:`position_check` scores both models on held-out data: the time blocks are split in two (even and
   odd); the models are refitted on one half (shape parameters kept), the whole run (up to
-  ``max_samples``) is simulated, and the other half is scored, then the other way round.
+  ``max_samples``) is simulated, and the other half is scored, then the other way round (for runs longer
+  than 20000 samples, only the odd half is scored, from models fitted on the even half).
 
 Documented approximations: a model file holds one parameter set per effect (one ripple period, one drift
 time constant, one dead band, one Stribeck ratio and velocity) even when the diagnosis found an effect at
@@ -34,7 +35,7 @@ from wamctl.specs import MODEL_FILE_FORMAT, PlantSpec
 log = logging.getLogger(__name__)
 
 N7 = P.N_JOINTS
-MAX_SIM_SAMPLES = 15000          # per simulation: the position check of a long run scores its first part
+MAX_SIM_SAMPLES = 60000          # per simulation: the position check of a long run scores its first part
 
 
 def encoder_counts(q_raw: np.ndarray, joints: list[int]) -> int:
@@ -203,9 +204,15 @@ def position_check(diag, data, max_samples: int = MAX_SIM_SAMPLES) -> dict:
     n = min(sig.n, max_samples)
     t = sig.t_s[:n]
     q_ref, q_meas = sig.q_ref_rad[:n], sig.q_raw_rad[:n]
-    block = np.minimum(((sig.t_s - sig.t_s[0]) / max(sig.duration_s, 1e-9) * diag.n_blocks).astype(int),
-                       diag.n_blocks - 1)
-    half = block % 2
+    # halves per joint: every other block of the joint's own sliding samples (see ModelDiagnosis: a joint that
+    # moves in one part of the run only still has both halves); run samples take the half of their block
+    half_fit, half_t = {}, {}
+    for j, jd in diag.jd_.items():
+        blk = jd.extra["block"]
+        half_fit[j] = blk % 2
+        starts = jd.t_s[np.r_[0, np.flatnonzero(np.diff(blk)) + 1]]
+        half_t[j] = (np.clip(np.searchsorted(starts, sig.t_s[:n], side="right") - 1, 0, None)
+                     + blk[0]) % 2
     mp = diag.meta_.payload      # what the controller's gravity compensation knew
     ctl_payload = Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None
     dyn = WamDynamics(ctl_payload)
@@ -213,15 +220,17 @@ def position_check(diag, data, max_samples: int = MAX_SIM_SAMPLES) -> dict:
                               dyn.gravity if diag.meta_.gravity_compensation else None)
     traces = {"before": np.full((n, N7), np.nan), "after": np.full((n, N7), np.nan)}
     same = not diag.effects_found_
-    for h in (0, 1):
-        thetas = diag.refit(lambda jd, h=h: half[jd.idx] != h)       # fit on the other half
+    # up to 20000 samples, both halves are scored (four simulations); above, one half (two simulations)
+    for h in ((0, 1) if n <= 20000 else (1,)):
+        thetas = diag.refit(lambda jd, h=h: half_fit[jd.j] != h)       # fit on the other half
         for which in ("before", "after"):
             if which == "after" and same:
                 continue
             plant = plant_dict(diag, which, thetas)
             q_sim = simulate_positions(plant, diag.meta_, t, q_ref, q_meas[0], ff, ctl_payload)
-            sel = half[:n] == h
-            traces[which][sel] = q_sim[sel]
+            for j in range(N7):
+                sel = half_t[j] == h if j in half_t else np.ones(n, bool)
+                traces[which][sel, j] = q_sim[sel, j]
     if same:
         traces["after"] = traces["before"].copy()
     rms_b, rms_a = {}, {}

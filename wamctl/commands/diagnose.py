@@ -6,7 +6,7 @@ the optional model file and writes the run directory (kind ``diagnosis``)::
     spec.yaml, manifest.json    what was diagnosed, with which options
     diagnosis.json              the result, format wamctl-diagnosis/1 (docs/diagnosis-report.md)
     model.yaml                  the augmented model, format wamctl-model/1 (usable as ``plant: model.yaml``)
-    residuals.parquet           held-out torque residuals before/after, per joint (long table)
+    residuals.parquet           held-out torque residuals before/after, per joint, at sliding and stall samples
     positions.parquet           measured and re-simulated positions before/after (held-out traces)
     report.md/.html/.json, *.png
 """
@@ -89,8 +89,12 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
         rows = []
         for j, res in diag.joints_.items():
             jd = diag.jd_[j]
-            rows.append(pd.DataFrame({"joint": j + 1, "t_s": jd.t_s, "residual_before_Nm": res.e_before,
-                                      "residual_after_Nm": res.e_after}))
+            rows.append(pd.DataFrame({"joint": j + 1, "t_s": jd.t_s, "at": "sliding",
+                                      "residual_before_Nm": res.e_before, "residual_after_Nm": res.e_after}))
+            if res.stall_before is not None and len(res.stall_before):
+                rows.append(pd.DataFrame({"joint": j + 1, "t_s": res.stall_t, "at": "stall",
+                                          "residual_before_Nm": res.stall_before,
+                                          "residual_after_Nm": res.stall_after}))
         pd.concat(rows, ignore_index=True).to_parquet(run.path / "residuals.parquet", index=False)
         pc = diag.positions_
         if pc is not None:

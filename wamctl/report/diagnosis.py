@@ -50,7 +50,7 @@ def effects_table(result: dict) -> pd.DataFrame:
     for j, d in result.get("joints", {}).items():
         for e in d["effects"]:
             rows.append({"joint": int(j), "effect": e["name"], "params": _fmt_params(e["params"]),
-                         "p_value": e["evidence"]["p_value"], "delta_bic": e["evidence"]["delta_bic"],
+                         "p_value": _p(e["evidence"]["p_value"]), "delta_bic": e["evidence"]["delta_bic"],
                          "test": e["evidence"]["test"]})
     return pd.DataFrame(rows)
 
@@ -59,7 +59,7 @@ def candidates_table(result: dict) -> pd.DataFrame:
     rows = []
     for j, d in result.get("joints", {}).items():
         for c in d["candidates"]:
-            rows.append({"joint": int(j), "candidate": c["name"], "p_value": c["p_value"],
+            rows.append({"joint": int(j), "candidate": c["name"], "p_value": _p(c["p_value"]),
                          "delta_bic": c["delta_bic"], "kept": "yes" if c["kept"] else "no",
                          "reason": c.get("reason", "")})
     return pd.DataFrame(rows)
@@ -75,8 +75,17 @@ def _figures(run_path: Path, out_dir: Path, result: dict, doc: Document) -> None
         fig, axes = joint_grid(len(joints), "Held-out torque residual, declared model vs with the effects found")
         for ax, j in zip(axes, joints):
             r = res[res["joint"] == j]
-            ax.plot(r["t_s"], r["residual_before_Nm"], ".", ms=1.5, alpha=0.5, label="declared")
-            ax.plot(r["t_s"], r["residual_after_Nm"], ".", ms=1.5, alpha=0.5, label="with effects")
+            slide = r[r["at"] == "sliding"] if "at" in r else r
+            stall = r[r["at"] == "stall"] if "at" in r else r.iloc[:0]
+            ax.plot(slide["t_s"], slide["residual_before_Nm"], ".", ms=1.5, alpha=0.5, color="tab:blue",
+                    label="declared")
+            ax.plot(slide["t_s"], slide["residual_after_Nm"], ".", ms=1.5, alpha=0.5, color="tab:orange",
+                    label="with effects")
+            if len(stall):
+                ax.plot(stall["t_s"], stall["residual_before_Nm"], "x", ms=2.5, alpha=0.6, color="tab:blue",
+                        label="declared, at stalls")
+                ax.plot(stall["t_s"], stall["residual_after_Nm"], "x", ms=2.5, alpha=0.6, color="tab:orange",
+                        label="with effects, at stalls")
             d = result["joints"][str(j)]
             ax.set_title(f"joint {j}: RMS {d['torque_rms_before_Nm']:.3g} -> {d['torque_rms_after_Nm']:.3g} N m")
             ax.set_ylabel("residual (N m)")
@@ -84,7 +93,9 @@ def _figures(run_path: Path, out_dir: Path, result: dict, doc: Document) -> None
             ax.grid(alpha=0.3)
         axes[0].legend(markerscale=6)
         doc.figure(save(fig, out_dir / "diagnosis_residuals.png"),
-                   "held-out torque residual (tau - model) per joint, before and after adding the effects")
+                   "held-out torque residual (tau - model) per joint, before and after adding the effects; dots: "
+                   "sliding samples, crosses: samples where the joint stood still before moving (the torque "
+                   "beyond what the model's friction holds a joint at rest with)")
     # evidence: -log10 p of every candidate, with the threshold
     thr = (result.get("method") or {}).get("test_threshold_p")
     fig, axes = joint_grid(len(joints), "Evidence per candidate effect (held-out nested F-test)")
@@ -133,6 +144,11 @@ def _figures(run_path: Path, out_dir: Path, result: dict, doc: Document) -> None
         axes[0].legend()
         doc.figure(save(fig, out_dir / "diagnosis_traces.png"),
                    "measured positions and the closed-loop re-simulation of both models")
+
+
+def _p(x) -> str:
+    """A p-value as text (tables print floats with fixed decimals, which would show 0.0000)."""
+    return "n/a" if x is None else f"{x:.2g}"
 
 
 def _g(x) -> str:
