@@ -184,6 +184,49 @@ def test_declared_friction_file_is_used(tmp_path):
         assert diag.friction_before(j)["fc_pos_Nm"] == pytest.approx(P.TABLE_4_1_FC_POS_NM[j], abs=0.15)
 
 
+@pytest.mark.slow
+def test_clean_stalls_leave_no_torque_residual(generated):
+    """A clean run: at the stalls the declared model and the measurement leave rest together (within the
+    encoder's resolution), so the stall residual is a small part of the torque RMS; it is not made of one-sample
+    disagreements on when the joint moved, each worth the whole torque beyond the Coulomb level."""
+    for seed in CLEAN_SEEDS:
+        _, diag = generated[f"clean{seed}"]
+        for res in diag.joints_.values():
+            st = res.stall_before
+            if st is None or not len(st):
+                continue
+            e = res.e_before[np.isfinite(res.e_before)]
+            assert np.sqrt(np.mean(st ** 2)) <= 0.5 * np.sqrt(np.mean(e ** 2)) + 1e-3
+
+
+@pytest.mark.slow
+def test_declared_delay_applies_at_the_stalls_too(generated):
+    """A model file that declares the run's delay: nothing is left to name, and the declared model's residual is
+    the one the diagnosis reached by finding the delay itself (the stalls shifted like the sliding samples)."""
+    from wamctl.analysis.diagnosis import DeclaredModel
+
+    g, diag = generated["delay"]
+    found = np.median([diag.effect_params(j, "delay")["delay_s"] for j, r in diag.joints_.items()
+                       if any(t["name"] == "delay" for t in r.kept)])
+    decl = DeclaredModel(effects={"delay": {"delay_s": float(found)}})
+    again = ModelDiagnosis(declared=decl, simulate=False).fit(load_run_data(g.path))
+    assert "delay" not in again.effects_found_
+    b = np.sqrt(sum(r.torque_rms_before_Nm ** 2 for r in again.joints_.values()))
+    a = np.sqrt(sum(r.torque_rms_after_Nm ** 2 for r in diag.joints_.values()))
+    assert b <= 1.25 * a
+
+
+@pytest.mark.slow
+def test_stribeck_breakaway_levels_per_direction(generated):
+    """Stribeck: the breakaway level of each direction, measured at the onsets, within 15 % of the truth."""
+    g, diag = generated["stribeck"]
+    p = diag.effect_params(g.joint - 1, "stribeck")
+    rho = g.effect_spec["breakaway_ratio"]
+    j = g.joint - 1
+    assert p["Fs_pos_Nm"] == pytest.approx(rho * P.TABLE_4_1_FC_POS_NM[j], rel=0.15)
+    assert p["Fs_neg_Nm"] == pytest.approx(rho * P.TABLE_4_1_FC_NEG_NM[j], rel=0.15)
+
+
 # ------------------------------------------------------------------------------------- statistics
 def test_savgol_gain_is_one_at_dc_and_small_at_nyquist():
     assert savgol_gain(21, np.array([0.0]))[0] == pytest.approx(1.0)

@@ -901,12 +901,13 @@ class ModelDiagnosis:
         travel, rev, t_on, ratio, sign, windows = [], [], [], [], [], []
         tau_c = tau[:, j].copy()
         tau_c[1:] = 0.5 * (tau[1:, j] + tau[:-1, j])       # zero-order hold, as for the sliding residual
-        delay = self.effect_params(j, "delay")["delay_s"] if "delay" in kept else 0.0
-        delay += float((self.declared_.effects.get("delay") or {}).get("delay_s", 0.0))
+        delay_decl = float((self.declared_.effects.get("delay") or {}).get("delay_s", 0.0))
+        delay = delay_decl + (self.effect_params(j, "delay")["delay_s"] if "delay" in kept else 0.0)
+        tau_c_decl = tau_c
+        if delay_decl > 0:
+            tau_c_decl = np.interp(sig.t_s - delay_decl, sig.t_s, tau_c)
         if delay > 0:   # positions measured d late: the torque that moved the link to q_meas(t) acted at t - d
             tau_c = np.interp(sig.t_s - delay, sig.t_s, tau_c)
-        tau_c_decl = tau[:, j].copy()
-        tau_c_decl[1:] = 0.5 * (tau[1:, j] + tau[:-1, j])
         for o in ons:
             ii = np.arange(o.start, min(o.end + extend, sig.n))
             b_jj = float(self.dynamics_.mass_matrix(sig.q_rad[o.end])[j, j])
@@ -980,12 +981,15 @@ class ModelDiagnosis:
             if after:
                 u = w["u"][:stall]
                 f = w["friction"]
-                ratio = 1.0
+                ratio = (1.0, 1.0)
                 if "stribeck" in kept:
                     r = fold_coef.get("stribeck", {}).get(int(f_on))
                     p = self.effect_params(j, "stribeck")
-                    ratio = float(np.exp(r)) if r is not None else \
-                        0.5 * (p["Fs_pos_Nm"] / max(p["Fc_pos_Nm"], 1e-9) + p["Fs_neg_Nm"] / max(p["Fc_neg_Nm"], 1e-9))
+                    ratio = (p["Fs_pos_Nm"] / max(p["Fc_pos_Nm"], 1e-9), p["Fs_neg_Nm"] / max(p["Fc_neg_Nm"], 1e-9))
+                    if r is not None:
+                        ratio = (float(np.exp(r)),) * 2
+                    ratio = tuple(self._breakaway_ratio_held_out(ons, f_on, sgn, rr)
+                                  for sgn, rr in ((1.0, ratio[0]), (-1.0, ratio[1])))
                 band = 0.0
                 if "backlash" in kept and w["reversal"]:
                     wf = fold_coef.get("backlash", {}).get(int(f_on))
@@ -993,17 +997,35 @@ class ModelDiagnosis:
             else:
                 u = w["u_declared"]
                 f = {k: max(v, 0.0) for k, v in fb.items()}
-                ratio, band = 1.0, 0.0
-            fsp, fsn = ratio * f["fc_pos_Nm"], ratio * f["fc_neg_Nm"]
+                ratio, band = (1.0, 1.0), 0.0
+            fsp, fsn = ratio[0] * f["fc_pos_Nm"], ratio[1] * f["fc_neg_Nm"]
             x = hidden_travel(u, sig.dt_s, w["inertia"], f["fc_pos_Nm"], f["fc_neg_Nm"], f["viscous_pos_Nm_s_rad"],
                               f["viscous_neg_Nm_s_rad"], fsp, fsn)
-            # travel toward the new direction may use the dead band; back along the old one may not
-            along = w["sign"] * x
+            # the model's travel against the measured one, both counted from the sample before the model moved by
+            # half the tolerance (the window opens while the joint may still settle by a count or two); travel
+            # toward the new direction may use the dead band, back along the old one may not
+            away = np.flatnonzero(np.abs(x) > 0.5 * ons["tol_rad"])
+            k0 = max(away[0] - 1, 0) if len(away) else 0
+            gap = (x - x[k0]) - (w["q"][:stall] - w["q"][k0])
+            gap[:k0] = 0.0
+            along = w["sign"] * gap
             allowed = ons["tol_rad"] + np.where(along > 0, band, 0.0)
-            wrong = np.abs(x) > allowed
+            wrong = np.abs(gap) > allowed
             level = np.where(u > 0, fsp, fsn)
             out.append(np.where(wrong, np.sign(u) * np.maximum(np.abs(u) - level, 0.0), 0.0))
         return np.concatenate(out) if out else np.zeros(0)
+
+    @staticmethod
+    def _breakaway_ratio_held_out(ons: dict, fold: int, sign: float, default: float) -> float:
+        """Breakaway ratio of direction ``sign`` measured at the onsets of the other folds (``default`` when
+        fewer than two)."""
+        use = ons.get("use_breakaway")
+        if use is None:
+            return default
+        m = use & (ons["sign"] == sign) & (ons["fold"] != fold)
+        if m.sum() < 2:
+            return default
+        return float(np.clip(np.exp(np.mean(np.log(ons["breakaway_ratio"][m]))), 1.0, MAX_BREAKAWAY_RATIO))
 
     def _slip_vs(self, j: int, ons: dict, ratio: float) -> float | None:
         """Stribeck velocity that best reproduces the measured slips after each same-direction breakaway
@@ -1085,6 +1107,20 @@ class ModelDiagnosis:
         for name, r in sorted(found, key=lambda x: x[1]["ssr_ratio"]):
             self._add_onset_effect(j, name, r, ons)
             ons["fold_coef"][name] = r.get("coef_fold", {})
+        t = next((t for t in res.kept if t["name"] == "stribeck"), None)
+        if t is not None:
+            # the breakaway level of each direction on its own: a joint that sticks and slips one way only has
+            # few sliding samples there, and a ratio shared by both directions would inherit their Coulomb fit
+            use = np.isfinite(ons["breakaway_ratio"]) & (~rev if any(n == "backlash" for n, _ in found) else True)
+            ons["use_breakaway"] = use
+            rho = {}
+            for sgn, key in ((1.0, "pos"), (-1.0, "neg")):
+                m = use & (ons["sign"] == sgn)
+                if m.sum() >= 2:
+                    rho[key] = float(np.clip(np.exp(np.mean(np.log(ons["breakaway_ratio"][m]))), 1.0,
+                                             MAX_BREAKAWAY_RATIO))
+            if rho:
+                t["onset_ratio_dir"] = rho
         # the torque residual at the stalls (set-valued friction at rest) joins the sliding residual
         res.stall_before = self._stall_residual(j, ons, after=False)
         res.stall_after = self._stall_residual(j, ons, after=True)
@@ -1198,8 +1234,9 @@ class ModelDiagnosis:
             out = {"Fs_pos_Nm": float(fr[0] + coef[0]), "Fs_neg_Nm": float(fr[1] + coef[1]),
                    "Fc_pos_Nm": float(fr[0]), "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(h)}
             if t.get("onset_ratio"):      # found at breakaways: the level the joint withstood
-                out["Fs_pos_Nm"] = t["onset_ratio"] * out["Fc_pos_Nm"]
-                out["Fs_neg_Nm"] = t["onset_ratio"] * out["Fc_neg_Nm"]
+                rho = t.get("onset_ratio_dir", {})
+                out["Fs_pos_Nm"] = rho.get("pos", t["onset_ratio"]) * out["Fc_pos_Nm"]
+                out["Fs_neg_Nm"] = rho.get("neg", t["onset_ratio"]) * out["Fc_neg_Nm"]
                 if t.get("onset_vs"):
                     out["vs_rad_s"] = t["onset_vs"]
                 out["Fs_from"] = "breakaways"
