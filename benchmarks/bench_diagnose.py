@@ -171,11 +171,12 @@ def markdown(conf: pd.DataFrame, rates: dict, per: pd.DataFrame, df: pd.DataFram
                   f"(on a shared 2-core machine).", ""]
     lines += ["## Known limits", "",
               "- Delay: on this arm a delay longer than about 10 ms destabilises libbarrett's gains, so the "
-              "generator draws 2-8 ms; a 2-4 ms delay is only two or three times the residual's noise floor "
-              "(encoder quantisation fed back by the controller), so the held-out torque RMS often drops by "
-              "less than a factor three although the delay is named and estimated within about 0.5 ms. "
-              "Delays of one sample period or less are not named (they cannot be told from the logging "
-              "convention).",
+              "generator draws 2-8 ms. The model with the delay found leaves the same residual as a model file "
+              "declaring the true delay (tests/test_diagnose.py), i.e. the noise floor of the residual (encoder "
+              "quantisation through the second derivative); a 3-5 ms delay is only two or three times that "
+              "floor, so its held-out torque RMS can drop by less than a factor three although the delay is "
+              "named and estimated within about 0.5 ms. Delays of one sample period or less are not named (they "
+              "cannot be told from the logging convention).",
               "- Stribeck on a joint that sticks and slips: found at the breakaways, but a closed-loop "
               "re-simulation of stick-slip is chaotic, so its position RMS does not always drop; a joint that "
               "sticks again within about 80 ms every time it moves leaves no sliding samples and is skipped.",

