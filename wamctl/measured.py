@@ -20,6 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from wamctl.errors import DataFormatError
 from wamctl.model import params as P
+from wamctl.specs import load_yaml
 from wamctl.store import RunDir, open_run, read_table, write_csv
 
 log = logging.getLogger(__name__)
@@ -109,11 +110,7 @@ def read_meta(path: Path) -> MeasuredMeta:
     mpath = path / "meta.yaml"
     if not mpath.is_file():
         raise DataFormatError(f"{path}: meta.yaml is missing")
-    try:
-        raw = yaml.safe_load(mpath.read_text())
-    except yaml.YAMLError as exc:
-        mark = getattr(exc, "problem_mark", None)
-        raise DataFormatError(f"{mpath}: YAML syntax error{f' at line {mark.line + 1}' if mark else ''}") from None
+    raw = load_yaml(mpath, DataFormatError)
     if not isinstance(raw, dict):
         raise DataFormatError(f"{mpath}: expected a mapping")
     try:

@@ -15,7 +15,7 @@ import numpy as np
 import yaml
 from pydantic import BaseModel, ConfigDict, Field, TypeAdapter, ValidationError, field_validator, model_validator
 
-from wamctl.errors import SpecError
+from wamctl.errors import SpecError, WamctlError
 from wamctl.model import params as P
 
 Joint = Annotated[int, Field(ge=1, le=P.N_JOINTS, description="joint number 1..7")]
@@ -290,17 +290,19 @@ def parse_spec(data: Any, source: str = "spec") -> Common:
         raise SpecError(format_validation_error(exc, source)) from None
 
 
-def load_yaml(path: str | Path) -> Any:
+def load_yaml(path: str | Path, error: type[WamctlError] = SpecError, missing: str = "no such file") -> Any:
+    """The YAML document in ``path``; ``error`` (a spec's or a data file's) naming the line and column of a
+    syntax error, or ``missing`` when there is no such file."""
     path = Path(path)
     if not path.is_file():
-        raise SpecError(f"{path}: no such file")
+        raise error(f"{path}: {missing}")
     try:
         return yaml.safe_load(path.read_text())
     except yaml.YAMLError as exc:
         mark = getattr(exc, "problem_mark", None)
         where = f"line {mark.line + 1}, column {mark.column + 1}: " if mark else ""
         problem = getattr(exc, "problem", None) or str(exc)
-        raise SpecError(f"{path}: YAML syntax error at {where}{problem}") from None
+        raise error(f"{path}: YAML syntax error at {where}{problem}") from None
 
 
 MODEL_FILE_FORMAT = "wamctl-model/1"

@@ -34,6 +34,7 @@ from numba import njit
 
 from wamctl.errors import DataFormatError
 from wamctl.model import params as P
+from wamctl.specs import load_yaml
 
 FRICTION_FILE_FORMAT = "wamctl-friction/1"
 
@@ -157,13 +158,7 @@ class FrictionModel:
 
     @classmethod
     def load(cls, path: Path) -> "FrictionModel":
-        path = Path(path)
-        if not path.is_file():
-            raise DataFormatError(f"{path}: friction model file not found")
-        try:
-            data = yaml.safe_load(path.read_text())
-        except yaml.YAMLError as exc:
-            raise DataFormatError(f"{path}: YAML error: {exc}") from None
+        data = load_yaml(path, DataFormatError, "friction model file not found")
         # a model file written by `diagnose` nests the friction under `friction`
         if isinstance(data, dict) and "friction" in data and "joints" not in data:
             data = data["friction"]
