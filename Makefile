@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup demo test bench clean
+.PHONY: setup demo test lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,9 +18,14 @@ setup: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/wamctl run configs/rotation.yaml
 
-## test: set up and run the whole test suite
-test: $(STAMP)
+## test: set up, check the code (ruff, the import layers) and run the whole test suite
+test: lint
 	$(BIN)/python -m pytest -q
+
+## lint: ruff and the layer contract of docs/architecture.md (import-linter)
+lint: $(STAMP)
+	$(BIN)/ruff check wamctl tests benchmarks
+	$(BIN)/lint-imports
 
 ## bench: speed figures (simulator, friction sweep, diagnosis, CAN loop, gaze chain, peer simulator)
 bench: $(STAMP)

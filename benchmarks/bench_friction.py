@@ -18,13 +18,14 @@ from pathlib import Path
 import numpy as np
 
 from wamctl.analysis.friction_id import identify
+from wamctl.backends import make_backend
 from wamctl.experiments import friction_sweep as fs
-from wamctl.experiments.common import closed_loop_stage, make_backend, make_controller
-from wamctl.measured import load_run_data
+from wamctl.experiments.common import closed_loop_stage, make_controller
+from wamctl.experiments.runner import run_spec
 from wamctl.model import params as P
 from wamctl.model.friction import FrictionModel
 from wamctl.report.friction import friction_document
-from wamctl.experiments.runner import run_spec
+from wamctl.runs.measured import load_run_data
 from wamctl.specs import parse_spec
 
 
@@ -87,7 +88,7 @@ def main() -> None:
     print(f"    of which writing data.csv       {t_csv:8.2f} s wall (the run store's consolidated CSV copy)")
     print(f"  worst error vs truth (%): Fc+ {err['fc_pos_Nm']:.2f}, Fc- {err['fc_neg_Nm']:.2f}, "
           f"sigma2+ {err['viscous_pos_Nm_s_rad']:.2f}, sigma2- {err['viscous_neg_Nm_s_rad']:.2f}")
-    print(f"  chosen models {dict((j, ji.chosen) for j, ji in ident.joints.items())}")
+    print(f"  chosen models { {j: ji.chosen for j, ji in ident.joints.items()} }")
     print(f"  run directory {outcome.path}")
 
 

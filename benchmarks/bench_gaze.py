@@ -21,12 +21,12 @@ from wamctl.hmi.strategy import make_controller
 FRAME_PERIOD_S = 1.0 / 30.0
 
 CONFIGS = {
-    "four / none / single": dict(strategy="four", profile="single"),
-    "four / MA 300 ms / single": dict(strategy="four", profile="single", point_filter="ma", window_s=0.3),
-    "four / MA 500 ms / dual": dict(strategy="four", profile="dual", point_filter="ma", window_s=0.5),
-    "four / WMA 300 ms / cubic": dict(strategy="four", profile="cubic", point_filter="wma", window_s=0.3),
-    "vector / Kalman Q=0.001 / dual": dict(strategy="vector", profile="dual", kalman_q=0.001),
-    "vector / Kalman Q=0.0001 / cubic": dict(strategy="vector", profile="cubic", kalman_q=0.0001),
+    "four / none / single": {"strategy": "four", "profile": "single"},
+    "four / MA 300 ms / single": {"strategy": "four", "profile": "single", "point_filter": "ma", "window_s": 0.3},
+    "four / MA 500 ms / dual": {"strategy": "four", "profile": "dual", "point_filter": "ma", "window_s": 0.5},
+    "four / WMA 300 ms / cubic": {"strategy": "four", "profile": "cubic", "point_filter": "wma", "window_s": 0.3},
+    "vector / Kalman Q=0.001 / dual": {"strategy": "vector", "profile": "dual", "kalman_q": 0.001},
+    "vector / Kalman Q=0.0001 / cubic": {"strategy": "vector", "profile": "cubic", "kalman_q": 0.0001},
 }
 
 

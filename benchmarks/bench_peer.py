@@ -196,7 +196,7 @@ def main() -> None:
     ap.add_argument("--tolerance", type=float, default=TOLERANCE_RAD,
                     help="largest accepted frictionless joint position difference, rad")
     args = ap.parse_args()
-    ref = ReferenceBuilder(Q0, 1 / P.CONTROL_RATE_HZ).move({j: 0.5 for j in range(7)}, 0.083).hold(0.3).build()
+    ref = ReferenceBuilder(Q0, 1 / P.CONTROL_RATE_HZ).move(dict.fromkeys(range(7), 0.5), 0.083).hold(0.3).build()
     arm_time = len(ref) / P.CONTROL_RATE_HZ
     n_phys = len(ref) * args.substeps
     h = 1 / P.CONTROL_RATE_HZ / args.substeps

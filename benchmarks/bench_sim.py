@@ -54,7 +54,7 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=5)
     ap.add_argument("--substeps", type=int, default=2)
     args = ap.parse_args()
-    ref = ReferenceBuilder(Q0, 1 / P.CONTROL_RATE_HZ).move({j: 0.5 for j in range(7)}, 0.083).hold(0.3).build()
+    ref = ReferenceBuilder(Q0, 1 / P.CONTROL_RATE_HZ).move(dict.fromkeys(range(7), 0.5), 0.083).hold(0.3).build()
     arm_time = len(ref) / P.CONTROL_RATE_HZ
     n_phys = len(ref) * args.substeps
     closed_loop(ref, args.substeps)  # warm-up: numba caches, pinocchio

@@ -39,13 +39,13 @@ def _root(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log progr
 
 
 def _register() -> None:
-    from wamctl.commands import data, report, run  # noqa: F401  (each module adds its commands to `app`)
-    for name in ("friction", "diagnose", "ift", "hmi", "bus", "sweep"):
-        try:
-            __import__(f"wamctl.commands.{name}")
-        except ModuleNotFoundError as exc:
-            if exc.name != f"wamctl.commands.{name}":
-                raise
+    """Every command module adds its commands to ``app`` (in the order of ``--help``)."""
+    import importlib
+
+    from wamctl.commands import COMMAND_MODULES
+
+    for name in COMMAND_MODULES:
+        importlib.import_module(f"wamctl.commands.{name}").register(app)
 
 
 def main() -> None:

@@ -1,6 +1,6 @@
 """Friction identification (thesis chapter 4.2): constant-velocity stages -> friction-velocity map -> models.
 
-Pipeline (no I/O; the caller loads a :class:`~wamctl.measured.RunData`)
+Pipeline (no I/O; the caller loads a :class:`~wamctl.runs.measured.RunData`)
 ----------------------------------------------------------------------
 1. **Moves** of each joint: where its reference moves (``q_ref``, a hint: it gives the windows and the
    commanded speed), or, without a reference, where the measured position travels (:func:`detect_moves`).
@@ -547,7 +547,7 @@ class ClassicFriction(_LsqFriction):
     def _jac(self, p, v):
         return self._design(v)
 
-    def fit(self, data) -> "ClassicFriction":
+    def fit(self, data) -> ClassicFriction:
         """Fit on a map (DataFrame with ``velocity_rad_s``, ``friction_Nm`` [, ``sigma_Nm``, ``accepted``]) or
         a ``(v, F[, sigma])`` tuple of (n,) arrays; returns self."""
         v, f, s = _as_vf(data)
@@ -636,7 +636,7 @@ class StribeckFriction(_LsqFriction):
         r = a @ x - f / s
         return x, float(r @ r)
 
-    def fit(self, data) -> "StribeckFriction":
+    def fit(self, data) -> StribeckFriction:
         """As :meth:`ClassicFriction.fit`. Starts from the best point of a (vs, delta) grid where the rest of
         the parameters are solved linearly, then refines all of them together."""
         v, f, s = _as_vf(data)
@@ -940,7 +940,7 @@ def identify_from_map(fmap: pd.DataFrame, models=MODEL_NAMES, folds: int = 5, cr
 
 
 def identify(run, options: dict | None = None, map_options: MapOptions | None = None) -> FrictionIdentification:
-    """Identify friction from a recorded sweep (:class:`~wamctl.measured.RunData`): map, fits, selection.
+    """Identify friction from a recorded sweep (:class:`~wamctl.runs.measured.RunData`): map, fits, selection.
 
     ``options``: ``loss``, ``criterion``, ``folds``, ``models`` (as the spec's ``identification`` section).
     The declared rigid-body model includes the payload the metadata declare.
@@ -950,7 +950,7 @@ def identify(run, options: dict | None = None, map_options: MapOptions | None = 
     o = {"loss": "linear", "criterion": "bic", "folds": 5, "models": list(MODEL_NAMES), "weighting": "se"}
     o.update(options or {})
     meta = run.meta
-    joints = [j for j in meta.experiment.joints] or list(range(1, P.N_JOINTS + 1))
+    joints = list(meta.experiment.joints) or list(range(1, P.N_JOINTS + 1))
     pl = meta.payload
     dyn = WamDynamics(Payload(pl.mass_kg, tuple(pl.com_m)) if pl and pl.mass_kg > 0 else None)
     q_ref = run.col("q_ref")

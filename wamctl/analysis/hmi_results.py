@@ -63,9 +63,10 @@ from __future__ import annotations
 import csv
 import logging
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -288,7 +289,7 @@ def read_trials_csv(path: str | Path) -> pd.DataFrame:
     return frame
 
 
-def read_summary_csv(path: str | Path) -> "HmiResults":
+def read_summary_csv(path: str | Path) -> HmiResults:
     """Read and validate a per-unit summary CSV (one row per unit and condition).
 
     Parameters
@@ -355,7 +356,7 @@ def read_summary_csv(path: str | Path) -> "HmiResults":
                       source=source)
 
 
-def summarise_trials(trials: pd.DataFrame, *, unit: str = "subject", source: str = "") -> "HmiResults":
+def summarise_trials(trials: pd.DataFrame, *, unit: str = "subject", source: str = "") -> HmiResults:
     """Per-unit summaries of raw trials.
 
     Parameters
@@ -387,7 +388,7 @@ def summarise_trials(trials: pd.DataFrame, *, unit: str = "subject", source: str
     return HmiResults(data=data, unit_kind=unit, measures=MEASURES, source=source)
 
 
-def read_hmi_csv(path: str | Path, *, unit: str | None = None) -> "HmiResults":
+def read_hmi_csv(path: str | Path, *, unit: str | None = None) -> HmiResults:
     """Read HMI results, raw trials or per-unit summaries (recognised by the ``attempt`` and ``hit`` columns).
 
     Parameters
@@ -588,7 +589,7 @@ class HmiResults:
         wide = self.wide(measure).loc[list(cc.units)]
         return {c: wide[c].to_numpy(float) for c in self.conditions}
 
-    def analyse(self, measures: Sequence[str] | None = None, *, repeated: bool | None = None) -> "HmiAnalysis":
+    def analyse(self, measures: Sequence[str] | None = None, *, repeated: bool | None = None) -> HmiAnalysis:
         """One-way ANOVA (and repeated-measures ANOVA with pairwise tests) on the complete-case units.
 
         Parameters

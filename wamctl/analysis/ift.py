@@ -47,7 +47,6 @@ import numpy as np
 
 log = logging.getLogger(__name__)
 
-PARAM_NAMES = ("kp", "kd", "ki")
 N_PARAMS = 3
 
 

@@ -74,7 +74,7 @@ class ArmBackend(ABC):
         self._v_filt = np.zeros(P.N_JOINTS)
 
     # ---------------------------------------------------------------- lifecycle
-    def __enter__(self) -> "ArmBackend":
+    def __enter__(self) -> ArmBackend:
         self.open()
         return self
 

@@ -10,22 +10,24 @@ terms are evaluated at every step, the inverse inertia ``B^-1`` once per control
 applied implicitly at velocity level
 (:func:`wamctl.model.friction.implicit_friction_1`: exact stick, implicit viscous damping), solved jointly
 for all joints because friction couples them through ``B(q)^-1`` (computed once per control period;
-projected Gauss-Seidel, see ``_physics_step``), and finally ``q += h qd``. The implicit friction keeps the stiff wrist joints (viscous/inertia ratios of thousands per
-second) stable at ``h = 1 ms`` without chattering at zero velocity.
+projected Gauss-Seidel, see ``_physics_step``), and finally ``q += h qd``. The implicit friction keeps the
+stiff wrist joints (viscous/inertia ratios of thousands per second) stable at ``h = 1 ms`` without chattering
+at zero velocity.
 """
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
-import pinocchio as pin
 from numba import njit
 
 from wamctl.backends.base import ArmBackend, SafetyLimits
 from wamctl.model import params as P
 from wamctl.model.dynamics import WamDynamics
+from wamctl.model.effects import ripple_torque_Nm
 from wamctl.model.friction import implicit_friction_1
 from wamctl.model.plant import Plant, SensorChain
-
 
 # Rows of the packed plant parameters the physics kernel reads (one array: numba's dispatch cost grows with the
 # number of arguments, and this kernel runs twice per tick): FrictionModel.as_array() rows 0-7, then these.
@@ -50,7 +52,7 @@ def _physics_step(q, qd, tau, nle, minv, h, pp, work, sweeps):
     for j in range(n):
         u[j] = tau[j] - nle[j]
         if pp[ROW_RIPPLE_A, j] != 0.0:
-            u[j] += pp[ROW_RIPPLE_A, j] * np.sin(pp[ROW_RIPPLE_K, j] * q[j] + pp[ROW_RIPPLE_PHASE, j])
+            u[j] += ripple_torque_Nm(q[j], pp[ROW_RIPPLE_A, j], pp[ROW_RIPPLE_K, j], pp[ROW_RIPPLE_PHASE, j])
     for i in range(n):
         acc = 0.0
         for j in range(n):
@@ -90,7 +92,6 @@ class SimBackend(ArmBackend):
         super().__init__(limits)
         self.plant = plant
         self.dynamics = WamDynamics(plant.payload)
-        self._model, self._data = self.dynamics.model, self.dynamics.data
         self.substeps = int(substeps)
         self.h_s = self.control_period_s / self.substeps
         self.rng = rng
@@ -104,6 +105,11 @@ class SimBackend(ArmBackend):
         self._work = np.zeros((3, P.N_JOINTS))  # velocity without friction, friction torque, net torque
         self.sensors = SensorChain(plant, rng, self.q0, self.h_s)
         self._q_meas = self.sensors.measure(self._q)
+
+    @classmethod
+    def from_spec(cls, spec, base_dir: Path | None, q0_rad, rng: np.random.Generator) -> SimBackend:
+        """The simulated arm a spec describes: its ``plant`` at rest at ``q0_rad`` (``backend.physics_substeps``)."""
+        return cls(Plant(spec.plant, base_dir), q0_rad, rng, spec.backend.physics_substeps)
 
     # state of the truth, for tests and for logging simulated runs
     @property
@@ -147,13 +153,13 @@ class SimBackend(ArmBackend):
             self._tau += self.rng.normal(0.0, self.plant.sensors.torque_noise_Nm, P.N_JOINTS)
 
     def _wait_next_cycle(self) -> None:
-        plant, model, data = self.plant, self._model, self._data
+        plant, dyn = self.plant, self.dynamics
         q, qd = self._q, self._qd
-        minv = pin.computeMinverse(model, data, q)  # upper triangle only; the kernel reads it so
+        minv = dyn.mass_matrix_inverse_upper_view(q)  # upper triangle only; the kernel reads it so
         if plant.has_drift:
             self._pp[ROW_SCALE] = plant.friction_scale(self._t)
         for _ in range(self.substeps):
-            nle = pin.nonLinearEffects(model, data, q, qd)
+            nle = dyn.nonlinear_effects_view(q, qd)
             _physics_step(q, qd, self._tau, nle, minv, self.h_s, self._pp, self._work, self.FRICTION_SWEEPS)
             self.sensors.record_physics_step(q)
         self._t += self.control_period_s

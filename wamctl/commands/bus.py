@@ -7,11 +7,9 @@ from typing import Annotated
 import typer
 from rich.table import Table
 
-from wamctl.cli import app
 from wamctl.commands.common import console, emit_json, err_console
 
 
-@app.command("bus-check")
 def bus_check_cmd(
     interface: Annotated[str, typer.Option("--interface", help="python-can interface: socketcan, pcan, virtual, "
                                            "...")] = "socketcan",
@@ -31,7 +29,7 @@ def bus_check_cmd(
 ):
     """List the pucks found on the bus (firmware VERS, CTS, IPNM, PIDX, state) and measure the bus load
     (frames/s and % of the bit rate over a short window). Exits 1 if a WAM puck is missing or unusable."""
-    from wamctl.backends.can import bus_check
+    from wamctl.backends.can.backend import bus_check
     from wamctl.model import params as P
 
     result = bus_check(interface, channel, bitrate, simulate_pucks=simulate_pucks, window_s=window,
@@ -74,3 +72,7 @@ def _print(r: dict) -> None:
         err_console.print(f"[bold red]problem:[/] {problem}", highlight=False)
     if not r["problems"]:
         console.print("[green]ok[/] WAM pucks 1-7 found, awake, supported firmware, PIDX consistent")
+
+
+def register(app: typer.Typer) -> None:
+    app.command("bus-check")(bus_check_cmd)

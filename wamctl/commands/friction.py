@@ -3,30 +3,28 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
-from wamctl.cli import app
 from wamctl.commands.common import console, emit_json
 
 
-@app.command("friction-id")
 def friction_id(
-    spec: Annotated[Optional[Path], typer.Argument(help="A friction_sweep spec (YAML).", show_default=False)] = None,
-    data: Annotated[Optional[Path], typer.Option("--data", help="Analyse a recorded sweep instead: a measured-run "
+    spec: Annotated[Path | None, typer.Argument(help="A friction_sweep spec (YAML).", show_default=False)] = None,
+    data: Annotated[Path | None, typer.Option("--data", help="Analyse a recorded sweep instead: a measured-run "
                                                  "directory (meta.yaml + data) or a run directory.",
                                                  show_default=False)] = None,
-    out: Annotated[Optional[Path], typer.Option("--out", help="With a spec: parent of the run directory. With "
+    out: Annotated[Path | None, typer.Option("--out", help="With a spec: parent of the run directory. With "
                                                 "--data: write the model and report here (default: a new run "
                                                 "directory under runs/).", show_default=False)] = None,
-    compare: Annotated[Optional[list[Path]], typer.Option("--compare", help="Compare two rotation runs, pd_g "
+    compare: Annotated[list[Path] | None, typer.Option("--compare", help="Compare two rotation runs, pd_g "
                                                           "then pd_g_ff (give the option twice); writes into --out.",
                                                           show_default=False)] = None,
-    loss: Annotated[Optional[str], typer.Option("--loss", help="With --data: least-squares loss, linear (default), "
+    loss: Annotated[str | None, typer.Option("--loss", help="With --data: least-squares loss, linear (default), "
                                                 "soft_l1, huber or cauchy (robust to outlying segments).",
                                                 show_default=False)] = None,
-    criterion: Annotated[Optional[str], typer.Option("--criterion", help="With --data: bic (default) or aic for "
+    criterion: Annotated[str | None, typer.Option("--criterion", help="With --data: bic (default) or aic for "
                                                      "the held-out model selection.", show_default=False)] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the sweep plan and check every setpoint "
                                           "against the limits; move nothing.")] = False,
@@ -64,7 +62,7 @@ def friction_id(
 
 
 def _from_spec(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as_json: bool) -> None:
-    from wamctl.commands.run import run_and_report
+    from wamctl.commands.common import run_and_report
     from wamctl.experiments.friction_sweep import MODEL_FILE
 
     run_and_report(spec_path, out, dry_run, quiet, as_json, expect_kind="friction_sweep",
@@ -72,7 +70,7 @@ def _from_spec(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as
 
 
 def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options: dict) -> None:
-    from wamctl.commands.run import print_document_tables
+    from wamctl.commands.common import print_document_tables
     from wamctl.experiments.friction_sweep import MODEL_FILE, analyse_recorded
 
     target, ident, doc = analyse_recorded(data, out, options=options)
@@ -86,7 +84,7 @@ def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options
 
 
 def _compare(runs: list[Path], out: Path | None, quiet: bool, as_json: bool) -> None:
-    from wamctl.commands.run import print_document_tables
+    from wamctl.commands.common import print_document_tables
     from wamctl.errors import SpecError
     from wamctl.report.friction import comparison_document
 
@@ -103,3 +101,7 @@ def _compare(runs: list[Path], out: Path | None, quiet: bool, as_json: bool) -> 
         print_document_tables(doc)
     for p in written:
         console.print(f"wrote {p}", highlight=False)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("friction-id")(friction_id)

@@ -3,13 +3,11 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
-from wamctl.cli import app
-from wamctl.commands.common import console, progress_bar
-from wamctl.commands.run import JsonOpt, OutOpt, QuietOpt, run_and_report, show_outcome
+from wamctl.commands.common import JsonOpt, OutOpt, QuietOpt, console, progress_bar, run_and_report, show_outcome
 
 
 def _console_prompt(message: str) -> None:
@@ -17,13 +15,12 @@ def _console_prompt(message: str) -> None:
     console.input(f"[bold]{message}[/] ")
 
 
-@app.command("hmi-session")
 def hmi_session(
-        spec: Annotated[Optional[Path], typer.Argument(
+        spec: Annotated[Path | None, typer.Argument(
             help="hmi_block spec (YAML). Optional with --resume (the run's own spec is used).",
             show_default=False)] = None,
         out: OutOpt = None,
-        resume: Annotated[Optional[Path], typer.Option(
+        resume: Annotated[Path | None, typer.Option(
             "--resume", help="Continue the block in this run directory at its next trial.",
             show_default=False)] = None,
         dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan (start pose, spots, trials) and "
@@ -60,3 +57,7 @@ def hmi_session(
     with progress_bar(f"hmi_block {resume.name} (resumed)", enabled=not (quiet or json)) as progress:
         outcome = hmi_block.resume(resume, s, progress)
     show_outcome(outcome, quiet, json)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("hmi-session")(hmi_session)

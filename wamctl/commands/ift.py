@@ -3,18 +3,15 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
-from wamctl.cli import app
-from wamctl.commands.common import progress_bar
-from wamctl.commands.run import JsonOpt, OutOpt, QuietOpt, SpecArg, run_and_report, show_outcome
+from wamctl.commands.common import JsonOpt, OutOpt, QuietOpt, SpecArg, progress_bar, run_and_report, show_outcome
 
 
-@app.command("tune-ift")
 def tune_ift(spec: SpecArg, out: OutOpt = None,
-             resume: Annotated[Optional[Path], typer.Option(
+             resume: Annotated[Path | None, typer.Option(
                  "--resume", help="Continue the tuning in this run directory from its last completed iteration "
                                   "(same spec; only ift.plant.runs may grow).", show_default=False)] = None,
              dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan and check the limits; move "
@@ -45,3 +42,7 @@ def tune_ift(spec: SpecArg, out: OutOpt = None,
     with progress_bar(f"ift {s.name} (resumed)", enabled=not (quiet or json)) as progress:
         outcome = ift.resume(resume, s, spec.resolve().parent, progress)
     show_outcome(outcome, quiet, json)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("tune-ift")(tune_ift)

@@ -3,21 +3,19 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 
-from wamctl.cli import app
 from wamctl.commands.common import console, emit_json
 
 
-@app.command()
-def report(run_dirs: Annotated[Optional[list[Path]], typer.Argument(help="One or more run directories.",
+def report(run_dirs: Annotated[list[Path] | None, typer.Argument(help="One or more run directories.",
                                                                     show_default=False)] = None,
-           hmi_results: Annotated[Optional[list[Path]], typer.Option(
+           hmi_results: Annotated[list[Path] | None, typer.Option(
                "--hmi-results", help="An HMI results CSV (raw trials: subject,condition,location,attempt,hit,time_s; "
                "or per-unit summaries); repeatable. Reported with ANOVA tables beside the runs.")] = None,
-           out: Annotated[Optional[Path], typer.Option("--out", help="Write the report(s) here instead of "
+           out: Annotated[Path | None, typer.Option("--out", help="Write the report(s) here instead of "
                                                        "into each run directory.")] = None,
            format: Annotated[str, typer.Option("--format", help="Comma-separated: md, html, json.")] = "md,html,json",
            quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No tables on the terminal.")] = False,
@@ -29,7 +27,7 @@ def report(run_dirs: Annotated[Optional[list[Path]], typer.Argument(help="One or
     (--hmi-results) get per-unit tables (mean, SD, SEM), the one-way ANOVA table, and for per-subject data the
     repeated-measures ANOVA with Mauchly's test, Greenhouse-Geisser correction and Holm-corrected pairs.
     """
-    from wamctl.commands.run import print_document_tables
+    from wamctl.commands.common import print_document_tables
     from wamctl.errors import WamctlError
     from wamctl.report.combined import report_runs
 
@@ -54,3 +52,7 @@ def report(run_dirs: Annotated[Optional[list[Path]], typer.Argument(help="One or
             print_document_tables(d)
     for p in written:
         console.print(f"wrote {p}", highlight=False)
+
+
+def register(app: typer.Typer) -> None:
+    app.command()(report)

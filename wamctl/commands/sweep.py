@@ -4,29 +4,27 @@ from __future__ import annotations
 
 import logging
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import Annotated
 
 import typer
 from rich.table import Table
 
-from wamctl.cli import app
 from wamctl.commands.common import console, emit_json, err_console, progress_bar
 
 
-@app.command()
 def sweep(
-    spec: Annotated[Optional[Path], typer.Argument(
+    spec: Annotated[Path | None, typer.Argument(
         help="Spec (YAML) of any kind with a `vary:` section (grid / zip / points over dotted paths). "
              "Optional with --resume (the sweep directory keeps its spec).", show_default=False)] = None,
-    out: Annotated[Optional[Path], typer.Option(
+    out: Annotated[Path | None, typer.Option(
         "--out", help="Parent directory of the sweep directory (default: the spec's out_dir, normally runs/).")]
     = None,
-    scheduler: Annotated[Optional[str], typer.Option(
+    scheduler: Annotated[str | None, typer.Option(
         "--scheduler", help="Address of a running Dask scheduler (tcp://host:8786); default: a local cluster. "
                             "The sweep directory must be on a file system the workers share.")] = None,
-    workers: Annotated[Optional[int], typer.Option(
+    workers: Annotated[int | None, typer.Option(
         "--workers", min=1, help="Worker processes of the local cluster (default: one per core).")] = None,
-    resume: Annotated[Optional[Path], typer.Option(
+    resume: Annotated[Path | None, typer.Option(
         "--resume", help="Finish an interrupted sweep directory: its completed points are skipped.")] = None,
     dry_run: Annotated[bool, typer.Option(
         "--dry-run", help="Validate every point and list them; run nothing.")] = False,
@@ -42,7 +40,7 @@ def sweep(
     failed, 2 for a bad spec, 130 when interrupted.
     """
     from wamctl.errors import SpecError
-    from wamctl.sweep import _import_distributed, load_sweep, open_sweep_dir, run_sweep
+    from wamctl.experiments.sweep import _import_distributed, load_sweep, open_sweep_dir, run_sweep
 
     if spec is None and resume is None:
         raise SpecError("give a spec with a `vary:` section, or --resume SWEEP_DIR")
@@ -56,7 +54,7 @@ def sweep(
     else:
         sw = load_sweep(spec)
     if dry_run:
-        from wamctl.sweep import check_plans
+        from wamctl.experiments.sweep import check_plans
         _dry_run(sw, check_plans(sw), json)
         return
     if not logging.getLogger().isEnabledFor(logging.INFO):  # without --verbose: only dask's errors
@@ -112,3 +110,7 @@ def _dry_run(sw, checks: list[str], as_json: bool) -> None:
         console.print(f"... {len(sw.points) - 50} more points")
     console.print(f"[green]ok[/] every point planned; first point: {'; '.join(checks)}", highlight=False)
     console.print(f"{sw.source}: {len(sw.points)} valid points; dry run: nothing run")
+
+
+def register(app: typer.Typer) -> None:
+    app.command()(sweep)

@@ -26,13 +26,38 @@ from wamctl.model.friction import FrictionModel
 
 @njit(cache=True)
 def _pid_kernel(q_ref, q, kp, kd, ki, dt, state_e_prev, state_i, first, extra, out):
-    """libbarrett's discrete PID per joint plus ``extra`` torque (gravity + feed-forward), into ``out``."""
+    """libbarrett's discrete PID per joint plus ``extra`` torque (gravity + feed-forward), into ``out``.
+
+    The one copy of the law: ``e = q_ref - q``; the integral accumulates ``ki dt e_prev``; the derivative is
+    ``(e - e_prev) / dt`` with ``e_prev = e`` on the first tick."""
     for j in range(q.shape[0]):
         e = q_ref[j] - q[j]
         e_prev = e if first else state_e_prev[j]
         state_i[j] += ki[j] * dt * e_prev
         out[j] = kp[j] * e + state_i[j] + kd[j] * (e - e_prev) / dt + extra[j]
         state_e_prev[j] = e
+
+
+@njit(cache=True)
+def _pid_series_kernel(q_ref, q, kp, kd, ki, dt, out):
+    e_prev = np.zeros(q.shape[1])
+    i_state = np.zeros(q.shape[1])
+    extra = np.zeros(q.shape[1])
+    for k in range(q.shape[0]):
+        _pid_kernel(q_ref[k], q[k], kp, kd, ki, dt, e_prev, i_state, k == 0, extra, out[k])
+
+
+def pid_torque_series_Nm(q_ref: np.ndarray, q: np.ndarray, kp, kd, ki, dt_s: float) -> np.ndarray:
+    """The PID torque (no gravity, no feed-forward) the controller commanded along a logged run, (n, 7).
+
+    What a log's torque minus this is the rest of the command (gravity, feed-forward): used to recover the
+    feed-forward of a ``pd_g_ff`` run, and by anything that inverts the controller."""
+    q_ref = np.ascontiguousarray(q_ref, dtype=float)
+    q = np.ascontiguousarray(q, dtype=float)
+    out = np.empty_like(q)
+    _pid_series_kernel(q_ref, q, np.asarray(kp, float), np.asarray(kd, float), np.asarray(ki, float), float(dt_s),
+                       out)
+    return out
 
 
 class JointController:

@@ -77,14 +77,14 @@ class ReferenceBuilder:
         self._q = np.asarray(q0_rad, float).copy()
         self._parts: list[tuple[np.ndarray, np.ndarray, np.ndarray, str]] = []
 
-    def hold(self, duration_s: float, label: str = "hold") -> "ReferenceBuilder":
+    def hold(self, duration_s: float, label: str = "hold") -> ReferenceBuilder:
         n = int(round(duration_s / self.dt_s))
         if n > 0:
             self._parts.append((np.tile(self._q, (n, 1)), np.zeros((n, 7)), np.zeros((n, 7)), label))
         return self
 
     def move(self, deltas_rad: dict[int, float], velocity_rad_s: float, tc_s: float = 1.0,
-             label: str = "move") -> "ReferenceBuilder":
+             label: str = "move") -> ReferenceBuilder:
         """LSPB move of several joints (0-based index -> displacement) that start and end together.
 
         Every joint uses the same t_f, set by the largest displacement at ``velocity_rad_s``.

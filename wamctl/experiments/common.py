@@ -22,9 +22,9 @@ from wamctl.errors import SpecError
 from wamctl.experiments.engine import LoopRecorder, run_loop
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
-from wamctl.model.plant import Plant, resolve_friction
+from wamctl.model.plant import resolve_friction
+from wamctl.runs.store import RunDir
 from wamctl.specs import Common, check_positions
-from wamctl.store import RunDir
 
 log = logging.getLogger(__name__)
 
@@ -87,20 +87,6 @@ def make_controller(spec: Common, feedforward_Nm: np.ndarray | None = None) -> J
     kp, kd, ki = spec.controller.gains()
     gravity = declared_dynamics(spec).gravity_view if spec.controller.gravity_compensation else None
     return JointController(kp, kd, ki, 1.0 / P.CONTROL_RATE_HZ, gravity=gravity, feedforward_Nm=feedforward_Nm)
-
-
-def make_backend(spec: Common, base_dir: Path | None = None, q0_rad=None, seed: int | None = None) -> ArmBackend:
-    """The backend the spec names, at rest at ``q0_rad`` (default ``spec.q0_rad``)."""
-    q0 = np.asarray(spec.q0_rad if q0_rad is None else q0_rad, float)
-    rng = np.random.default_rng(spec.seed if seed is None else seed)
-    b = spec.backend
-    if b.kind == "sim":
-        from wamctl.backends.sim import SimBackend
-        return SimBackend(Plant(spec.plant, base_dir), q0, rng, b.physics_substeps)
-    if b.kind == "can":
-        from wamctl.backends.can import CanBackend  # imported only when used
-        return CanBackend.from_spec(spec, base_dir, q0, rng)
-    raise SpecError(f"backend.kind: unknown backend {b.kind!r}")
 
 
 def closed_loop_stage(backend: ArmBackend, controller: JointController, reference: Reference,

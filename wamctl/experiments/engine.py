@@ -19,7 +19,7 @@ from wamctl.backends.base import ArmBackend
 from wamctl.control.controllers import JointController
 from wamctl.control.trajectory import Reference
 from wamctl.model import params as P
-from wamctl.store import TableWriter
+from wamctl.runs.store import TableWriter
 
 log = logging.getLogger(__name__)
 J = range(1, P.N_JOINTS + 1)

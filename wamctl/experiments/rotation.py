@@ -5,12 +5,12 @@ from __future__ import annotations
 
 from pathlib import Path
 
-
+from wamctl.backends import make_backend
 from wamctl.control.trajectory import ReferenceBuilder
-from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_backend, make_controller
+from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_controller
 from wamctl.model import params as P
-from wamctl.specs import RotationSpec
-from wamctl.store import RunDir
+from wamctl.runs.store import RunDir
+from wamctl.specs.rotation import RotationSpec
 
 
 def plan(spec: RotationSpec, base_dir: Path | None = None) -> Plan:
@@ -42,8 +42,3 @@ def execute(spec: RotationSpec, plan: Plan, run: RunDir, progress=None, base_dir
     with make_backend(spec, base_dir) as backend:
         run.update_manifest(backend=backend.describe())
         closed_loop_stage(backend, make_controller(spec, plan.feedforward_Nm), plan.reference, run, progress)
-
-
-def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None):
-    from wamctl.report.rotation import rotation_report
-    return rotation_report(run_path, manifest, spec, out_dir)

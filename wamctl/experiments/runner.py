@@ -6,7 +6,6 @@ is flushed and the run is marked ``interrupted``. A safety fault marks it ``fail
 
 from __future__ import annotations
 
-import importlib
 import logging
 import signal
 from contextlib import contextmanager
@@ -14,24 +13,16 @@ from dataclasses import dataclass
 from pathlib import Path
 
 from wamctl.errors import SafetyLimitError, WamctlError
+from wamctl.report import write_report
+from wamctl.runs.store import RunDir
 from wamctl.specs import Common
-from wamctl.store import RunDir, open_run
+from wamctl.specs.registry import KINDS, resolve
 
 log = logging.getLogger(__name__)
 
-# kind -> module implementing plan / execute / report (imported lazily)
-EXPERIMENTS = {
-    "rotation": "wamctl.experiments.rotation",
-    "friction_sweep": "wamctl.experiments.friction_sweep",
-    "ift": "wamctl.experiments.ift",
-    "hmi_block": "wamctl.experiments.hmi_block",
-}
-# run kinds that have a report but are not run from a spec
-REPORTERS = dict(EXPERIMENTS, diagnosis="wamctl.report.diagnosis", measured="wamctl.report.measured")
-
-
 def experiment_module(kind: str):
-    return importlib.import_module(EXPERIMENTS[kind])
+    """The module running ``kind`` (``plan``, ``execute``, optionally ``resume``), from the registry."""
+    return resolve(KINDS[kind].experiment)
 
 
 class RunInterrupted(WamctlError):
@@ -112,17 +103,3 @@ def run_spec(spec: Common, base_dir: Path | None = None, out_dir: str | Path | N
     if make_report:
         write_report(run.path)
     return outcome
-
-
-def write_report(run_path: Path, out_dir: Path | None = None, formats=("md", "html", "json")):
-    """Build and write the report of one run directory; returns the Document."""
-    manifest, spec = open_run(run_path)
-    kind = manifest.get("kind")
-    if kind not in REPORTERS:
-        raise WamctlError(f"{run_path}: no report for run kind {kind!r}")
-    mod = importlib.import_module(REPORTERS[kind])
-    if out_dir is not None:
-        Path(out_dir).mkdir(parents=True, exist_ok=True)
-    doc = mod.report(Path(run_path), manifest, spec, out_dir)
-    doc.write(Path(out_dir or run_path), "report", formats)
-    return doc

@@ -43,7 +43,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-
 from numba import njit
 
 from wamctl.control.trajectory import ReferenceBuilder

@@ -112,6 +112,15 @@ class WamDynamics:
         m = pin.computeMinverse(self.model, self.data, q)
         return np.triu(m) + np.triu(m, 1).T
 
+    def mass_matrix_inverse_upper_view(self, q: np.ndarray) -> np.ndarray:
+        """B(q)^-1 with only its upper triangle filled, a view into the workspace valid until the next call (the
+        physics kernel's hot path reads the upper triangle)."""
+        return pin.computeMinverse(self.model, self.data, q)
+
+    def nonlinear_effects_view(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """C(q, qd) qd + g(q) as a view into the workspace, valid until the next call (hot path)."""
+        return pin.nonLinearEffects(self.model, self.data, q, qd)
+
     def inverse_dynamics(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """tau = B(q) qdd + C(q, qd) qd + g(q), N m (no friction)."""
         return pin.rnea(self.model, self.data, q, qd, qdd).copy()

@@ -33,8 +33,8 @@ import yaml
 from numba import njit
 
 from wamctl.errors import DataFormatError
+from wamctl.io import load_yaml
 from wamctl.model import params as P
-from wamctl.specs import load_yaml
 
 FRICTION_FILE_FORMAT = "wamctl-friction/1"
 
@@ -64,12 +64,12 @@ class FrictionModel:
 
     # --- constructors -------------------------------------------------------------------------
     @classmethod
-    def zero(cls) -> "FrictionModel":
+    def zero(cls) -> FrictionModel:
         z = np.zeros(P.N_JOINTS)
         return cls(z, z, z, z)
 
     @classmethod
-    def table_4_1(cls) -> "FrictionModel":
+    def table_4_1(cls) -> FrictionModel:
         """Thesis Table 4.1, with the absolute value of the viscous figures (some are printed negative)."""
         return cls(P.TABLE_4_1_FC_POS_NM, P.TABLE_4_1_FC_NEG_NM,
                    np.abs(P.TABLE_4_1_VISCOUS_POS), np.abs(P.TABLE_4_1_VISCOUS_NEG))
@@ -80,7 +80,7 @@ class FrictionModel:
         """(7,) bool: joints with a Stribeck term."""
         return np.isfinite(self.fs_pos_Nm) & np.isfinite(self.vs_rad_s) & (np.nan_to_num(self.vs_rad_s) > 0)
 
-    def scaled(self, factor: np.ndarray | float) -> "FrictionModel":
+    def scaled(self, factor: np.ndarray | float) -> FrictionModel:
         """Every level and coefficient multiplied by ``factor`` (scalar or (7,)), e.g. friction drift."""
         f = np.broadcast_to(np.asarray(factor, float), (P.N_JOINTS,))
         return replace(self, fc_pos_Nm=self.fc_pos_Nm * f, fc_neg_Nm=self.fc_neg_Nm * f,
@@ -88,7 +88,7 @@ class FrictionModel:
                        viscous_neg_Nm_s_rad=self.viscous_neg_Nm_s_rad * f,
                        fs_pos_Nm=self.fs_pos_Nm * f, fs_neg_Nm=self.fs_neg_Nm * f)
 
-    def with_stribeck(self, fs_pos_Nm, fs_neg_Nm, vs_rad_s, delta=2.0) -> "FrictionModel":
+    def with_stribeck(self, fs_pos_Nm, fs_neg_Nm, vs_rad_s, delta=2.0) -> FrictionModel:
         return replace(self, fs_pos_Nm=np.asarray(fs_pos_Nm, float), fs_neg_Nm=np.asarray(fs_neg_Nm, float),
                        vs_rad_s=np.asarray(vs_rad_s, float),
                        stribeck_delta=np.broadcast_to(np.asarray(delta, float), (P.N_JOINTS,)).copy())
@@ -120,7 +120,7 @@ class FrictionModel:
         return {"format": FRICTION_FILE_FORMAT, "joints": joints}
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "friction model") -> "FrictionModel":
+    def from_dict(cls, data: dict, source: str = "friction model") -> FrictionModel:
         """Read the ``joints`` mapping (1-based joint numbers); joints not listed have zero friction."""
         if not isinstance(data, dict) or not isinstance(data.get("joints"), dict):
             raise DataFormatError(f"{source}: expected a mapping with a 'joints' key")
@@ -157,12 +157,30 @@ class FrictionModel:
         Path(path).write_text(yaml.safe_dump(d, sort_keys=False))
 
     @classmethod
-    def load(cls, path: Path) -> "FrictionModel":
+    def load(cls, path: Path) -> FrictionModel:
         data = load_yaml(path, DataFormatError, "friction model file not found")
         # a model file written by `diagnose` nests the friction under `friction`
         if isinstance(data, dict) and "friction" in data and "joints" not in data:
             data = data["friction"]
         return cls.from_dict(data, str(path))
+
+
+def classic_friction_columns(qd: np.ndarray) -> np.ndarray:
+    """Regressor of the classic per-direction model (thesis eq. 4.1), (n, 4): ``F = X @ [fc_pos, fc_neg, b_pos,
+    b_neg]`` with the levels as magnitudes. The one copy: the identification and the diagnosis both fit it."""
+    qd = np.asarray(qd, float)
+    pos = (qd > 0).astype(float)
+    neg = (qd < 0).astype(float)
+    return np.column_stack([pos, -neg, qd * pos, qd * neg])
+
+
+@njit(cache=True)
+def stribeck_decay(v, vs_rad_s, delta):
+    """``exp(-|v / vs|^delta)``: the share of the breakaway excess ``fs - fc`` left at speed ``v`` (thesis eq. 2.8).
+
+    Scalars or arrays (broadcast). The one copy of the Stribeck shape: the simulator's friction, the
+    identification's fits and the diagnosis' regressors all call it."""
+    return np.exp(-np.abs(v / vs_rad_s) ** delta)
 
 
 @njit(cache=True)
@@ -173,7 +191,7 @@ def _level(v, j, positive, prm):
     if vs > 0.0:  # NaN compares False: no Stribeck term
         fs = prm[4, j] if positive else prm[5, j]
         if fs == fs:
-            return fc + (fs - fc) * np.exp(-np.abs(v / vs) ** prm[7, j])
+            return fc + (fs - fc) * stribeck_decay(v, vs, prm[7, j])
     return fc
 
 

@@ -1,4 +1,5 @@
-"""The simulated arm's truth: rigid body + friction + effects + sensors, built from a :class:`PlantSpec`.
+"""The simulated arm's truth: rigid body + friction + effects + sensors, built from a plant spec
+(:class:`wamctl.specs.PlantSpec`).
 
 Effects (each switchable in ``plant.effects``; see :mod:`wamctl.specs` for the parameters):
 
@@ -31,18 +32,21 @@ from numba import njit
 from wamctl.errors import SpecError
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload
+from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
 from wamctl.model.friction import FrictionModel
-from wamctl.specs import FrictionInline, PlantSpec
 
 
 def resolve_friction(value, base_dir: Path | None = None) -> FrictionModel:
-    """A friction model from a spec value: ``table_4_1``, ``none``, a file path, or an inline mapping."""
+    """A friction model from a spec value: ``table_4_1``, ``none``, a file path, or an inline ``joints:`` table
+    (a mapping, or the spec's validated model of one)."""
     if value is None or value == "none":
         return FrictionModel.zero()
     if value == "table_4_1":
         return FrictionModel.table_4_1()
-    if isinstance(value, FrictionInline):
-        return FrictionModel.from_dict(value.model_dump(), "plant.friction")
+    if hasattr(value, "model_dump"):
+        value = value.model_dump()
+    if isinstance(value, dict):
+        return FrictionModel.from_dict(value, "plant.friction")
     path = Path(value)
     if not path.is_absolute() and base_dir is not None and not path.exists():
         path = base_dir / path
@@ -60,7 +64,8 @@ def joint_mask(joints) -> np.ndarray:
 class Plant:
     """Runtime description of the simulated arm (no state)."""
 
-    def __init__(self, spec: PlantSpec, base_dir: Path | None = None):
+    def __init__(self, spec, base_dir: Path | None = None):
+        """``spec``: a plant description (:class:`wamctl.specs.PlantSpec`: friction, effects, sensors)."""
         self.spec = spec
         fx = spec.effects
         friction = resolve_friction(spec.friction, base_dir)
@@ -95,11 +100,11 @@ class Plant:
 
     def ripple_torque_Nm(self, q: np.ndarray) -> np.ndarray:
         """Position ripple torque applied to the joints (7,) or (n, 7)."""
-        return self.ripple_amplitude_Nm * np.sin(self.ripple_wavenumber_rad * q + self.ripple_phase_rad)
+        return ripple_torque_Nm(q, self.ripple_amplitude_Nm, self.ripple_wavenumber_rad, self.ripple_phase_rad)
 
     def friction_scale(self, t_s: float) -> np.ndarray:
         """(7,) friction multiplier at time t (1 without drift)."""
-        return 1.0 + self.drift_fraction * (1.0 - np.exp(-t_s / self.drift_time_constant_s))
+        return friction_drift_scale(t_s, self.drift_fraction, self.drift_time_constant_s)
 
 
 @njit(cache=True)

@@ -6,9 +6,9 @@ from pathlib import Path
 
 import pandas as pd
 
-from wamctl.experiments.runner import write_report
+from wamctl.report import write_report
 from wamctl.report.document import Document
-from wamctl.store import open_run
+from wamctl.runs.store import open_run
 
 
 def report_runs(run_dirs: list[Path], out: Path | None, formats=("md", "html", "json")):
@@ -28,7 +28,7 @@ def report_runs(run_dirs: list[Path], out: Path | None, formats=("md", "html", "
 
 def combined_document(run_dirs, docs, out_dir: Path) -> Document:
     rows = []
-    for rd, doc in zip(run_dirs, docs):
+    for rd, _doc in zip(run_dirs, docs):
         m, _ = open_run(rd)
         rows.append({"run": Path(rd).name, "kind": m.get("kind"), "status": m.get("status"),
                      "report": str(Path(rd) / "report.html")})

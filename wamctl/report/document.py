@@ -15,7 +15,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from wamctl.store import json_default
+from wamctl.runs.store import json_default
 
 
 @dataclass
@@ -24,19 +24,19 @@ class Document:
     blocks: list[tuple[str, object]] = field(default_factory=list)
     data: dict = field(default_factory=dict)
 
-    def heading(self, text: str) -> "Document":
+    def heading(self, text: str) -> Document:
         self.blocks.append(("h2", text))
         return self
 
-    def text(self, text: str) -> "Document":
+    def text(self, text: str) -> Document:
         self.blocks.append(("p", text))
         return self
 
-    def table(self, name: str, df: pd.DataFrame, caption: str = "", digits: int = 4) -> "Document":
+    def table(self, name: str, df: pd.DataFrame, caption: str = "", digits: int = 4) -> Document:
         self.blocks.append(("table", (name, df, caption, digits)))
         return self
 
-    def figure(self, path: Path, caption: str = "") -> "Document":
+    def figure(self, path: Path, caption: str = "") -> Document:
         self.blocks.append(("fig", (Path(path).name, caption)))
         return self
 

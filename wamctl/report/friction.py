@@ -189,7 +189,7 @@ def add_comparison(doc: Document, pd_data: pd.DataFrame, ff_data: pd.DataFrame, 
 # ------------------------------------------------------------------------------------------------ documents
 def friction_document(rd, ident: FrictionIdentification, out_dir: Path, title: str,
                       header: str = "", validation: tuple[pd.DataFrame, pd.DataFrame] | None = None) -> Document:
-    """The identification report of one recorded sweep (``rd``: :class:`~wamctl.measured.RunData`)."""
+    """The identification report of one recorded sweep (``rd``: :class:`~wamctl.runs.measured.RunData`)."""
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = Document(title)
@@ -257,10 +257,10 @@ def json_map(m: pd.DataFrame) -> list[dict]:
     return json_records(m)
 
 
-def friction_report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
+def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
     """Report of a friction_sweep run directory (simulated, or an imported measured sweep)."""
-    from wamctl.measured import load_run_data
-    from wamctl.store import read_table
+    from wamctl.runs.measured import load_run_data
+    from wamctl.runs.store import read_table
 
     run_path = Path(run_path)
     rd = load_run_data(run_path)
@@ -295,7 +295,7 @@ def friction_report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | 
 def comparison_document(pd_run: Path, ff_run: Path, out_dir: Path) -> Document:
     """pd_g vs pd_g_ff from two rotation run directories (or measured rotation runs)."""
     from wamctl.errors import DataFormatError
-    from wamctl.measured import load_run_data
+    from wamctl.runs.measured import load_run_data
 
     a, b = load_run_data(pd_run), load_run_data(ff_run)
     for rd, want in ((a, "pd_g"), (b, "pd_g_ff")):

@@ -15,15 +15,15 @@ from __future__ import annotations
 
 import logging
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Sequence
 
 import pandas as pd
 
 from wamctl.analysis.hmi_results import TRIAL_COLUMNS, HmiResults, summarise_trials
 from wamctl.errors import DataFormatError
 from wamctl.report.document import Document
-from wamctl.store import open_run
+from wamctl.runs.store import open_run
 
 logger = logging.getLogger(__name__)
 
@@ -117,7 +117,7 @@ def subject_table(trials: pd.DataFrame) -> pd.DataFrame:
 
 def _trajectory_figure(run_path: Path, trials: pd.DataFrame, spec: dict, out_dir: Path) -> Path | None:
     from wamctl.report.figures import plt, save
-    from wamctl.store import read_table
+    from wamctl.runs.store import read_table
 
     try:
         traj = read_table(run_path, "trajectory")
@@ -181,7 +181,8 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
                        "mean_hit_time_s": float(hit_times.mean()) if len(hit_times) else None,
                        "timeouts": int((trials["outcome"] == "timeout").sum())}
     doc.text(f"{hits} hits in {n} trials ({100.0 * hits / n:.1f} %); mean execution time "
-             f"{times.mean():.2f} s over the grasps ({len(times)}), {hit_times.mean() if len(hit_times) else math.nan:.2f} s "
+             f"{times.mean():.2f} s over the grasps ({len(times)}), "
+             f"{hit_times.mean() if len(hit_times) else math.nan:.2f} s "
              f"over the hits; {int((trials['outcome'] == 'timeout').sum())} time-out(s). Hit: the hand closed with "
              f"its grasp centre within {1e3 * float(h.get('hit_radius_m', 0.03)):.0f} mm of the object before "
              f"{float(h.get('timeout_s', 60)):g} s; execution time: from the trial start to the hand closed.")

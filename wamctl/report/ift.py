@@ -13,7 +13,7 @@ from wamctl.analysis.rotation import rotation_metrics
 from wamctl.model import params as P
 from wamctl.report.document import Document
 from wamctl.report.figures import joint_grid, save
-from wamctl.store import read_events
+from wamctl.runs.store import read_events
 
 # Thesis Table 5.1: J(rho) per joint; columns initial PID, iterations 1 (BFGS) and 2-5 (Newton-Gauss); blank
 # cells are NaN. Copied from the thesis (chapter 5, Table 5.1); its J is in the thesis' own units.
@@ -157,7 +157,7 @@ def _errors_figure(run_path: Path, it: pd.DataFrame, path: Path) -> Path | None:
     for ax, j in zip(axes, joints):
         acc = it[(it["joint"] == j) & it["status"].isin(["initial", "accepted"])].sort_values("iteration")
         its = list(acc["iteration"])
-        pick = sorted(set([its[0], its[len(its) // 2], its[-1]])) if its else []
+        pick = sorted({its[0], its[len(its) // 2], its[-1]}) if its else []
         for k in pick:
             if k not in cache:
                 p = Path(run_path) / f"iter-{int(k):03d}-exp1.parquet"

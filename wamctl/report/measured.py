@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from wamctl.measured import load_run_data
 from wamctl.report.document import Document
 from wamctl.report.figures import joint_grid, save
+from wamctl.runs.measured import load_run_data
 
 
 def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:

@@ -12,7 +12,7 @@ from wamctl.analysis.rotation import find_rotations, rotation_metrics
 from wamctl.model import params as P
 from wamctl.report.document import Document
 from wamctl.report.figures import joint_grid, save
-from wamctl.store import read_table
+from wamctl.runs.store import read_table
 
 
 def thesis_column(spec: dict) -> tuple[str, np.ndarray] | None:
@@ -32,7 +32,7 @@ def rotation_table(data: pd.DataFrame, spec: dict) -> pd.DataFrame:
     return m
 
 
-def rotation_report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
+def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
     out_dir = Path(out_dir or run_path)
     data = read_table(run_path)
     table = rotation_table(data, spec)

@@ -1,0 +1,209 @@
+"""Closing the loop of the model diagnosis: the model as a plant, and the closed-loop position check (no I/O).
+
+* :func:`plant_dict` turns the declared or the augmented model of a fitted :class:`ModelDiagnosis` into a
+  ``plant`` mapping in the :class:`wamctl.specs.PlantSpec` shape (``friction: {joints: ...}``, ``effects``,
+  ``sensors``): :func:`model_file` wraps it as a model file (``format: wamctl-model/1``) that
+  ``wamctl run`` accepts as ``plant: FILE``.
+* :func:`position_check` scores both models on held-out data: the time blocks are split in two (even and
+  odd); the models are refitted on one half (shape parameters kept), the whole run (up to
+  ``max_samples``) is simulated, and the other half is scored, then the other way round (for runs longer
+  than 20000 samples, only the odd half is scored, from models fitted on the even half). The closed loop
+  itself (the run's reference and controller on a simulated arm built from a plant mapping) is a callable
+  the caller hands in.
+
+Documented approximations: a model file holds one parameter set per effect (one ripple period, one drift
+time constant, one dead band, one Stribeck ratio and velocity) even when the diagnosis found an effect at
+several joints with different parameters (the strongest joint's set is written); joints that did not move
+keep the declared friction (Table 4.1, or the given model file's).
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+
+from wamctl.control.controllers import pid_torque_series_Nm
+from wamctl.io import MODEL_FILE_FORMAT
+from wamctl.model import params as P
+from wamctl.model.dynamics import Payload, WamDynamics
+from wamctl.model.friction import FrictionModel
+from wamctl.specs import PlantSpec
+
+log = logging.getLogger(__name__)
+
+N7 = P.N_JOINTS
+MAX_SIM_SAMPLES = 60000          # per simulation: the position check of a long run scores its first part
+
+
+def encoder_counts(q_raw: np.ndarray, joints: list[int]) -> int:
+    """Encoder resolution the data look quantised with (4096 or 40960 counts per motor turn), or 0.
+
+    A joint's smallest measured step is compared with the joint-space size of one motor count through
+    ``J2MP`` (the smallest coupling entry of its row of ``J2MP^-1``)."""
+    inv = np.abs(np.linalg.inv(P.J2MP))
+    votes = {4096: 0, 40960: 0}
+    for j in joints:
+        steps = np.abs(np.diff(q_raw[:, j]))
+        nz = steps[steps > 1e-12]
+        if len(nz) < 20:
+            continue
+        obs = np.percentile(nz, 10)
+        row = inv[j][inv[j] > 1e-12]
+        for cpr in votes:
+            if abs(obs / (2 * np.pi / cpr * row.min()) - 1) < 0.3:
+                votes[cpr] += 1
+    best = max(votes, key=votes.get)
+    return best if votes[best] >= max(1, len(joints) // 2) else 0
+
+
+def _clip(x, lo, hi):
+    return float(min(max(x, lo), hi))
+
+
+def plant_dict(diag, which: str = "after", thetas: dict | None = None) -> dict:
+    """The declared (``which="before"``) or augmented (``"after"``) model as a ``plant`` mapping.
+
+    Parameters
+    ----------
+    diag : a fitted :class:`wamctl.analysis.diagnosis.ModelDiagnosis`.
+    thetas : coefficients from :meth:`ModelDiagnosis.refit` (default: fitted on all data).
+    """
+    declared = diag.declared_
+    base = declared.friction if declared.friction is not None else FrictionModel.table_4_1()
+    joints = {}
+    for j in range(N7):
+        d = {"fc_pos_Nm": float(base.fc_pos_Nm[j]), "fc_neg_Nm": float(base.fc_neg_Nm[j]),
+             "viscous_pos_Nm_s_rad": float(base.viscous_pos_Nm_s_rad[j]),
+             "viscous_neg_Nm_s_rad": float(base.viscous_neg_Nm_s_rad[j])}
+        if j in diag.joints_:
+            tb, ta = (thetas or {}).get(j, (None, None))
+            fr = diag.friction_after(j, ta) if which == "after" else diag.friction_before(j, tb)
+            d = {k: max(0.0, float(v)) for k, v in fr.items()}
+        joints[j + 1] = d
+    effects = dict(declared.effects or {})
+    if which == "after":
+        effects.update(_effects_after(diag, thetas, joints))
+    sensors = dict(declared.sensors or {})
+    sensors.setdefault("encoder_counts_per_rev", encoder_counts(diag.signals_.q_raw_rad, diag.signals_.joints))
+    out = {"friction": {"joints": joints}, "effects": effects, "sensors": sensors}
+    PlantSpec.model_validate(out)   # a programming error if this fails: the shape is ours
+    return out
+
+
+def _effects_after(diag, thetas, joints_friction) -> dict:
+    found: dict[str, list[tuple[float, int, dict]]] = {}
+    for j, res in diag.joints_.items():
+        ta = (thetas or {}).get(j, (None, None))[1]
+        for t in res.kept:
+            params = diag.effect_params(j, t["name"], ta)
+            found.setdefault(t["name"], []).append((t.get("gain", 0.0), j, params))
+    out = {}
+    for name, items in found.items():
+        items.sort(key=lambda x: -x[0])
+        gain, j, p = items[0]
+        js = sorted(i[1] + 1 for i in items)
+        if name == "stribeck":
+            ratios, vss = [], []
+            for _, jj, pp in items:
+                fr = joints_friction[jj + 1]
+                for fs, fc in ((pp["Fs_pos_Nm"], fr["fc_pos_Nm"]), (pp["Fs_neg_Nm"], fr["fc_neg_Nm"])):
+                    if fc > 1e-9:
+                        ratios.append(fs / fc)
+                vss.append(pp["vs_rad_s"])
+                fr.update(fs_pos_Nm=max(pp["Fs_pos_Nm"], 0.0), fs_neg_Nm=max(pp["Fs_neg_Nm"], 0.0),
+                          vs_rad_s=_clip(pp["vs_rad_s"], 1e-4, 5.0), stribeck_delta=2.0)
+            out["stribeck"] = {"joints": js, "breakaway_ratio": _clip(np.median(ratios) if ratios else 1.5,
+                                                                       1.0001, 10.0),
+                               "vs_rad_s": _clip(float(np.median(vss)), 1e-4, 5.0), "delta": 2.0}
+        elif name == "position_ripple":
+            out["position_ripple"] = {"joints": [j + 1], "amplitude_Nm": _clip(p["amplitude_Nm"], 1e-6, 20.0),
+                                      "period_rad": _clip(p["period_rad"], 0.005, 6.3),
+                                      "phase_rad": float(p["phase_rad"])}
+        elif name == "payload":
+            pl = thetas.get("payload") if thetas and thetas.get("payload") else diag.payload_ or p
+            if pl and pl["mass_kg"] > 0:
+                out["payload"] = {"mass_kg": _clip(pl["mass_kg"], 1e-6, 5.0),
+                                  "com_m": [float(x) for x in pl["com_m"]]}
+        elif name == "delay":
+            out["delay"] = {"delay_s": _clip(float(np.median([i[2]["delay_s"] for i in items])), 1e-6, 0.1)}
+        elif name == "friction_drift":
+            out["friction_drift"] = {"joints": [j + 1], "fraction": _clip(p["fraction"], -0.9, 3.0),
+                                     "time_constant_s": max(float(p["time_constant_s"]), 1e-3)}
+        elif name == "backlash":
+            out["backlash"] = {"joints": [j + 1], "width_rad": _clip(p["width_rad"], 1e-7, 0.1)}
+    return out
+
+
+def model_file(diag, data_path: str = "") -> dict:
+    """The augmented model as a model file (``format: wamctl-model/1``) with the diagnosis summary."""
+    plant = plant_dict(diag, "after")
+    return {"format": MODEL_FILE_FORMAT, **plant,
+            "diagnosis": {"data": data_path, "effects_found": list(diag.effects_found_),
+                          "declared_model": diag.to_dict(data_path)["declared_model"]}}
+
+
+def feedforward_from_log(meta, t_s, q_ref, q, tau, gravity) -> np.ndarray | None:
+    """Feed-forward torque of a ``pd_g_ff`` run recovered from the log: what the controller added to its PD
+    and gravity terms (libbarrett's discrete law, see :mod:`wamctl.control.controllers`)."""
+    if meta.controller.kind != "pd_g_ff":
+        return None
+    dt = float(np.median(np.diff(t_s)))
+    pd = pid_torque_series_Nm(q_ref, q, meta.controller.kp, meta.controller.kd, np.zeros(N7), dt)
+    g = np.array([gravity(qi) for qi in q]) if gravity is not None else 0.0
+    return tau - pd - g
+
+
+def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SAMPLES) -> dict:
+    """Held-out closed-loop position error of the declared and the augmented model.
+
+    ``simulate_positions(plant, meta, t_s, q_ref, q0, feedforward, payload) -> (n, 7)`` runs the closed loop of
+    a plant mapping (see :func:`wamctl.experiments.diagnose.simulate_positions`); the analysis never builds a
+    simulator itself.
+
+    Returns
+    -------
+    dict with ``t_s`` (m,), ``q_meas``, ``q_before``, ``q_after`` (m, 7) held-out traces (each sample simulated
+    by the model not fitted on its block), ``scored`` (m,) bool, and ``rms_before`` / ``rms_after``
+    {0-based joint: rad}.
+    """
+    sig = diag.signals_
+    n = min(sig.n, max_samples)
+    t = sig.t_s[:n]
+    q_ref, q_meas = sig.q_ref_rad[:n], sig.q_raw_rad[:n]
+    # halves per joint: every other block of the joint's own sliding samples (see ModelDiagnosis: a joint that
+    # moves in one part of the run only still has both halves); run samples take the half of their block
+    half_fit, half_t = {}, {}
+    for j, jd in diag.jd_.items():
+        blk = jd.extra["block"]
+        half_fit[j] = blk % 2
+        starts = jd.t_s[np.r_[0, np.flatnonzero(np.diff(blk)) + 1]]
+        half_t[j] = (np.clip(np.searchsorted(starts, sig.t_s[:n], side="right") - 1, 0, None)
+                     + blk[0]) % 2
+    mp = diag.meta_.payload      # what the controller's gravity compensation knew
+    ctl_payload = Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None
+    dyn = WamDynamics(ctl_payload)
+    ff = feedforward_from_log(diag.meta_, t, q_ref, q_meas, sig.tau_raw_Nm[:n],
+                              dyn.gravity if diag.meta_.gravity_compensation else None)
+    traces = {"before": np.full((n, N7), np.nan), "after": np.full((n, N7), np.nan)}
+    same = not diag.effects_found_
+    # up to 20000 samples, both halves are scored (four simulations); above, one half (two simulations)
+    for h in ((0, 1) if n <= 20000 else (1,)):
+        thetas = diag.refit(lambda jd, h=h: half_fit[jd.j] != h)       # fit on the other half
+        for which in ("before", "after"):
+            if which == "after" and same:
+                continue
+            plant = plant_dict(diag, which, thetas)
+            q_sim = simulate_positions(plant, diag.meta_, t, q_ref, q_meas[0], ff, ctl_payload)
+            for j in range(N7):
+                sel = half_t[j] == h if j in half_t else np.ones(n, bool)
+                traces[which][sel, j] = q_sim[sel, j]
+    if same:
+        traces["after"] = traces["before"].copy()
+    rms_b, rms_a = {}, {}
+    for j in diag.joints_:
+        for which, store in (("before", rms_b), ("after", rms_a)):
+            err = traces[which][:, j] - q_meas[:, j]
+            store[j] = float(np.sqrt(np.nanmean(err ** 2))) if np.isfinite(err).any() else float("nan")
+    return {"t_s": t, "q_meas": q_meas, "q_before": traces["before"], "q_after": traces["after"],
+            "rms_before": rms_b, "rms_after": rms_a, "samples": n}

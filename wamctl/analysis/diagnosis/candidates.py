@@ -1,0 +1,85 @@
+"""Candidate effect signatures of the model diagnosis: one per effect name of the diagnosis vocabulary.
+
+Every candidate turns the prepared signals of one joint into a change of the declared model that is linear in
+its parameters once a few shape parameters (a grid) are fixed, so that "declared model + effect" nests the
+declared model. Shape parameters are chosen on training data only (see :mod:`wamctl.analysis.diagnosis.estimator`).
+Signs follow the residual ``y = tau - rnea(q, qd, qdd)``: what friction and the missing effects must supply.
+Columns are built at the full rate and smoothed like the torque.
+
+=================  =================================================================  ==============  =====
+name               change of the model                                                grid            cols
+=================  =================================================================  ==============  =====
+stribeck           [qd>0] e^-(qd/vs)^2, -[qd<0] e^-(qd/vs)^2                          vs 4-400 mrad/s  2
+position_ripple    sin, cos of 2 pi q / P                                             P 0.01-2 rad     2
+payload            link-7 columns of the joint torque regressor (m, m c, inertia)     none             10
+delay              the whole model evaluated at the positions d later                 d 1-20 ms        0
+friction_drift     Coulomb and viscous torque of the declared fit x exp(-t / T)       T 0.05-4 x run   2
+backlash           (at onsets, :mod:`wamctl.analysis.diagnosis.backlash`) and the      none             1
+                   gravity stiffness x direction (the link sits w/2 off the encoder)
+=================  =================================================================  ==============  =====
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.signals import savgol_gain
+from wamctl.model import params as P
+from wamctl.model.friction import stribeck_decay
+
+EFFECT_NAMES = ("stribeck", "position_ripple", "payload", "delay", "friction_drift", "backlash")
+
+STRIBECK_VS_GRID_RAD_S = np.geomspace(0.004, 0.4, 13)
+RIPPLE_PERIOD_MIN_RAD = 0.01
+RIPPLE_PERIOD_MAX_RAD = 2.0
+DELAY_GRID_S = np.arange(2, 41) * 0.5e-3                # 1 to 20 ms
+DRIFT_T_GRID_FRACTION = np.geomspace(0.05, 4.0, 12)    # time constants as fractions of the run length
+D7_M = float(P.DH_D_M[6])
+
+
+@dataclass
+class JointData:
+    """The samples of one joint that the torque residual uses (decimated, sliding only).
+
+    Attributes
+    ----------
+    j : 0-based joint.
+    idx : (m,) indices into the full-rate signals.
+    t_s, q_rad, qd_rad_s, qdd_rad_s2, y_Nm : (m,) the joint's samples; ``y`` = tau - rnea.
+    fold : (m,) fold number of each sample (contiguous time blocks).
+    extra : per-run precomputed arrays keyed by name (payload regressor rows, shifted torques, ...).
+    """
+
+    j: int
+    idx: np.ndarray
+    t_s: np.ndarray
+    q_rad: np.ndarray
+    qd_rad_s: np.ndarray
+    qdd_rad_s2: np.ndarray
+    y_Nm: np.ndarray
+    fold: np.ndarray
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return len(self.idx)
+
+
+
+
+def stribeck_columns(qd: np.ndarray, vs: float) -> np.ndarray:
+    """Stribeck regressor (m, 2): breakaway excess per direction, decaying with speed as exp(-(qd/vs)^2)."""
+    e = stribeck_decay(np.asarray(qd, float), vs, 2.0)
+    return np.column_stack([(qd > 0) * e, -1.0 * (qd < 0) * e])
+
+
+def ripple_columns(q: np.ndarray, qd: np.ndarray, period: float, window: int, gauss: float,
+                   dt_s: float) -> np.ndarray:
+    """sin/cos of 2 pi q / period (m, 2), attenuated as the smoothing filter attenuates them at the current
+    speed (used to compare candidate periods; the kept columns are smoothed exactly)."""
+    gain = savgol_gain(window, np.abs(qd) * dt_s / period, gauss)
+    ph = 2 * np.pi * q / period
+    return np.column_stack([gain * np.sin(ph), gain * np.cos(ph)])
+

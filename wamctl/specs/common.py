@@ -1,0 +1,196 @@
+"""The parts of a spec every kind shares: ``backend``, ``plant`` (the simulated arm's truth: friction, effects,
+sensors), ``controller``, ``seed``, ``q0_rad``, ``out_dir``. Joints are 1-based in specs (as on the
+arm's labels) and 0-based in arrays. Every model forbids unknown keys, so a typo is an error naming the field.
+"""
+
+from __future__ import annotations
+
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+
+from wamctl.model import params as P
+
+Joint = Annotated[int, Field(ge=1, le=P.N_JOINTS, description="joint number 1..7")]
+Vec7 = Annotated[list[float], Field(min_length=P.N_JOINTS, max_length=P.N_JOINTS)]
+
+
+class Strict(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=False)
+
+
+# ----------------------------------------------------------------------------------------------- backend
+class SimBackendSpec(Strict):
+    kind: Literal["sim"] = "sim"
+    physics_substeps: int = Field(2, ge=1, le=50, description="physics steps per 2 ms control period")
+
+
+class SimulatedFault(Strict):
+    """A link fault injected when the control loop reaches ``at_cycle`` (simulated pucks only): tests and demos
+    of the CAN link watchdog. ``drop_replies``: replies lost with ``probability``; ``silent_puck``: ``puck``
+    neither answers nor obeys; ``garbage_replies``: replies replaced by malformed frames with ``probability``;
+    ``garbage_frames``: ``count`` malformed frames sent at once; ``stop_answering``: no puck answers;
+    ``bus_error``: the host's next ``count`` transmissions fail with ``can.CanError``."""
+    kind: Literal["drop_replies", "silent_puck", "garbage_replies", "garbage_frames", "stop_answering",
+                  "bus_error"]
+    at_cycle: int = Field(250, ge=0, description="control cycle (0 = first) at which the fault starts")
+    puck: Joint = Field(7, description="silent_puck: the puck (1..7)")
+    probability: float = Field(1.0, gt=0.0, le=1.0)
+    count: int = Field(1, ge=1, le=1000)
+
+
+class CanBackendSpec(Strict):
+    kind: Literal["can"]
+    interface: str = Field("socketcan", description="python-can interface: socketcan, pcan, virtual, ...")
+    channel: str = "can0"
+    bitrate: int = 1_000_000
+    simulate_pucks: bool = Field(False, description="answer as the simulated arm's pucks (virtual bus demos)")
+    watchdog_cycles: int = Field(3, ge=1, le=50, description="missing position replies tolerated")
+    # added with the CAN backend (issue 9)
+    reply_timeout_s: float = Field(0.0015, gt=0.0, le=1.0,
+                                   description="wait for the 7 position replies; later ones count as missing")
+    start_tolerance_rad: float = Field(0.05, gt=0.0, le=0.5,
+                                       description="largest |q - q0_rad| accepted at start-up, per joint")
+    physics_substeps: int = Field(2, ge=1, le=50, description="simulate_pucks: physics steps per control period")
+    simulated_fault: SimulatedFault | None = Field(None, description="simulate_pucks: inject a link fault")
+
+    @model_validator(mode="after")
+    def _fault_needs_simulation(self):
+        if self.simulated_fault is not None and not self.simulate_pucks:
+            raise ValueError("simulated_fault needs simulate_pucks: true")
+        if self.simulate_pucks and self.interface != "virtual":
+            raise ValueError(f"simulate_pucks needs interface: virtual (python-can's in-process bus), not "
+                             f"{self.interface!r}: simulated pucks must never answer on a bus with a real arm")
+        return self
+
+
+BackendSpec = Annotated[SimBackendSpec | CanBackendSpec, Field(discriminator="kind")]
+
+
+# ----------------------------------------------------------------------------------------------- plant
+class FrictionInline(Strict):
+    joints: dict[Joint, dict[str, float]]
+
+
+class StribeckEffect(Strict):
+    """Friction rising to a breakaway level ``breakaway_ratio * Fc`` at rest, decaying with speed (eq. 2.8)."""
+    joints: list[Joint]
+    breakaway_ratio: float = Field(1.6, gt=1.0, le=10.0)
+    vs_rad_s: float = Field(0.05, gt=0.0, le=5.0)
+    delta: float = Field(2.0, gt=0.0, le=5.0)
+
+
+class RippleEffect(Strict):
+    """Torque periodic in the joint angle: ``tau = amplitude sin(2 pi q / period + phase)`` (cogging, cables)."""
+    joints: list[Joint]
+    amplitude_Nm: float = Field(0.5, gt=0.0, le=20.0)
+    period_rad: float = Field(0.2, ge=0.005, le=6.3)
+    phase_rad: float = 0.0
+
+
+class PayloadEffect(Strict):
+    """A point mass at the wrist, in the link-7 frame."""
+    mass_kg: float = Field(gt=0.0, le=5.0)
+    com_m: Annotated[list[float], Field(min_length=3, max_length=3)] = [0.0, 0.0, 0.05]
+
+
+class DelayEffect(Strict):
+    """Measured positions lag the motion by a fixed time."""
+    delay_s: float = Field(gt=0.0, le=0.1)
+
+
+class FrictionDriftEffect(Strict):
+    """Friction scaled by ``1 + fraction (1 - exp(-t / time_constant))`` (warming up: negative fraction)."""
+    joints: list[Joint]
+    fraction: float = Field(-0.4, ge=-0.9, le=3.0)
+    time_constant_s: float = Field(20.0, gt=0.0)
+
+
+class BacklashEffect(Strict):
+    """A dead band of ``width_rad`` between motor (encoder) and link, traversed at direction reversals."""
+    joints: list[Joint]
+    width_rad: float = Field(0.002, gt=0.0, le=0.1)
+
+
+class Effects(Strict):
+    stribeck: StribeckEffect | None = None
+    position_ripple: RippleEffect | None = None
+    payload: PayloadEffect | None = None
+    delay: DelayEffect | None = None
+    friction_drift: FrictionDriftEffect | None = None
+    backlash: BacklashEffect | None = None
+
+    def names(self) -> list[str]:
+        return [k for k in type(self).model_fields if getattr(self, k) is not None]
+
+
+class SensorSpec(Strict):
+    encoder_counts_per_rev: int = Field(P.ENCODER_COUNTS_PER_REV, ge=0,
+                                        description="motor encoder resolution; 0 = ideal sensor")
+    position_noise_rad: float = Field(0.0, ge=0.0, le=0.01)
+    torque_noise_Nm: float = Field(0.0, ge=0.0, le=1.0, description="actuation noise added to the torque")
+
+
+class PlantSpec(Strict):
+    """The simulated arm: its friction (``table_4_1``, ``none``, a friction model file, or inline), the effects
+    a real arm has and a declared model may lack, and its sensors."""
+    friction: Literal["table_4_1", "none"] | FrictionInline | str = "table_4_1"
+    effects: Effects = Effects()
+    sensors: SensorSpec = SensorSpec()
+
+
+# ----------------------------------------------------------------------------------------------- controller
+class ControllerSpec(Strict):
+    kind: Literal["pd_g", "pid", "pd_g_ff"] = "pd_g"
+    kp: Vec7 | None = Field(None, description="default: libbarrett's")
+    kd: Vec7 | None = None
+    ki: Vec7 | None = Field(None, description="pid only; default libbarrett's")
+    gravity_compensation: bool = True
+    friction_ff: str | None = Field(None, description="pd_g_ff: 'table_4_1' or a friction_model.yaml path")
+    ff_inertia: bool = Field(True, description="pd_g_ff: include the m * qdd_r term of eq. 4.3")
+    declared_payload: PayloadEffect | None = Field(None, description="payload known to gravity compensation")
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.kind == "pd_g_ff" and not self.friction_ff:
+            raise ValueError("friction_ff is required for kind pd_g_ff (a friction_model.yaml or 'table_4_1')")
+        if self.kind != "pid" and self.ki is not None and any(self.ki):
+            raise ValueError(f"ki is only used by kind pid, not {self.kind}")
+        return self
+
+    def gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        kp = np.array(self.kp if self.kp is not None else P.KP, float)
+        kd = np.array(self.kd if self.kd is not None else P.KD, float)
+        if self.kind == "pid":
+            ki = np.array(self.ki if self.ki is not None else P.KI, float)
+        else:
+            ki = np.zeros(P.N_JOINTS)
+        return kp, kd, ki
+
+
+class Common(Strict):
+    name: str = Field("run", pattern=r"^[A-Za-z0-9_.-]+$")
+    description: str = ""
+    seed: int = 0
+    backend: BackendSpec = SimBackendSpec()
+    plant: PlantSpec = PlantSpec()
+    controller: ControllerSpec = ControllerSpec()
+    q0_rad: Vec7 = Field(default_factory=lambda: [0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0])
+    out_dir: str = "runs"
+
+    @field_validator("q0_rad")
+    @classmethod
+    def _q0_in_limits(cls, v):
+        check_positions(np.array(v), "q0_rad")
+        return v
+
+
+def check_positions(q: np.ndarray, where: str) -> None:
+    """Raise ValueError naming the joint if any position in ``q`` ((7,) or (n, 7)) is outside the joint limits."""
+    q = np.atleast_2d(q)
+    bad = (q < P.Q_MIN_RAD) | (q > P.Q_MAX_RAD)
+    if bad.any():
+        row, j = map(int, np.argwhere(bad)[0])
+        raise ValueError(f"{where}: joint {j + 1} would reach {q[row, j]:.4f} rad, outside its limits "
+                         f"[{P.Q_MIN_RAD[j]}, {P.Q_MAX_RAD[j]}] rad")

@@ -1,0 +1,80 @@
+"""Reading a spec: YAML -> the kind's pydantic model (a discriminated union on ``kind``), errors naming the field.
+
+``plant: FILE`` in a spec names a model file (``format: wamctl-model/1``, as ``wamctl diagnose`` writes it).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Annotated, Any, Union
+
+from pydantic import Field, TypeAdapter, ValidationError
+
+from wamctl.errors import SpecError
+from wamctl.io import MODEL_FILE_FORMAT, load_yaml  # noqa: F401
+from wamctl.specs.common import Common, PlantSpec
+from wamctl.specs.registry import KINDS, SPEC_KINDS, resolve
+
+
+def spec_models() -> dict[str, type[Common]]:
+    """The spec model of every kind run from a spec."""
+    return {kind: resolve(KINDS[kind].spec) for kind in SPEC_KINDS}
+
+
+@lru_cache(maxsize=1)
+def _adapter() -> TypeAdapter:
+    models = tuple(spec_models().values())
+    return TypeAdapter(Annotated[Union[models], Field(discriminator="kind")])  # noqa: UP007 (a tuple of types)
+
+
+def format_validation_error(exc: ValidationError, source: str) -> str:
+    """One line per problem: ``source: field.path: message``."""
+    lines = []
+    for err in exc.errors():
+        loc = [str(x) for x in err["loc"]]
+        if loc and loc[0] in SPEC_KINDS:
+            loc = loc[1:]  # the union's tag, not a field
+        msg = err["msg"].removeprefix("Value error, ")
+        if err["type"] == "extra_forbidden":
+            msg = "unknown key"
+        lines.append(f"{source}: {'.'.join(loc)}: {msg}" if loc else f"{source}: {msg}")
+    return "\n".join(lines)
+
+
+def parse_spec(data: Any, source: str = "spec") -> Common:
+    """Validate a mapping into a spec model, raising :class:`SpecError` naming the field."""
+    if not isinstance(data, dict):
+        raise SpecError(f"{source}: expected a mapping at the top level")
+    if "vary" in data:
+        raise SpecError(f"{source}: vary: this spec varies parameters; run it with `wamctl sweep {source}`")
+    if data.get("kind") not in SPEC_KINDS:
+        raise SpecError(f"{source}: kind: {'missing' if 'kind' not in data else repr(data['kind']) + ' unknown'}; "
+                        f"known kinds: {', '.join(sorted(SPEC_KINDS))}")
+    try:
+        return _adapter().validate_python(data)
+    except ValidationError as exc:
+        raise SpecError(format_validation_error(exc, source)) from None
+
+
+
+def load_model_file(path: str | Path) -> dict:
+    """A model file (``format: wamctl-model/1``): a plant description (``friction``, ``effects``, ``sensors``)
+    as written by ``wamctl diagnose``; usable wherever a spec takes ``plant:``."""
+    data = load_yaml(path)
+    if not isinstance(data, dict):
+        raise SpecError(f"{path}: a model file is a mapping with friction/effects/sensors")
+    data = {k: v for k, v in data.items() if k in PlantSpec.model_fields}
+    return data
+
+
+def load_spec(path: str | Path) -> Common:
+    """Read and validate a spec file. ``plant: FILE`` loads a model file (relative to the spec's folder)."""
+    path = Path(path)
+    data = load_yaml(path)
+    if isinstance(data, dict) and isinstance(data.get("plant"), str):
+        model = Path(data["plant"])
+        if not model.is_absolute() and not model.exists():
+            model = path.parent / model
+        data = dict(data, plant=load_model_file(model))
+    return parse_spec(data, str(path))
