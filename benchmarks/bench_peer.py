@@ -39,7 +39,6 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from bench_sim import Q0, bare_loop, closed_loop  # noqa: E402  (the simulator's own benchmark)
 
-from wamctl.backends.base import ArmBackend  # noqa: E402
 from wamctl.backends.sim import SimBackend  # noqa: E402
 from wamctl.control.controllers import JointController  # noqa: E402
 from wamctl.control.trajectory import ReferenceBuilder  # noqa: E402
@@ -47,15 +46,16 @@ from wamctl.experiments.engine import LoopRecorder, run_loop  # noqa: E402
 from wamctl.model import params as P  # noqa: E402
 from wamctl.model.dynamics import WamDynamics  # noqa: E402
 from wamctl.model.mjcf import full_mass_matrix, load_mujoco_model, mujoco_friction  # noqa: E402
-from wamctl.model.plant import Plant, SensorChain  # noqa: E402
+from wamctl.model.plant import Plant  # noqa: E402
 from wamctl.specs import PlantSpec, SensorSpec  # noqa: E402
 
 TOLERANCE_RAD = 1e-6
 IDEAL = PlantSpec(friction="none", sensors=SensorSpec(encoder_counts_per_rev=0))
 
 
-class MujocoBackend(ArmBackend):
-    """The simulated arm with MuJoCo as its physics: same protocol, safety and sensor chain as SimBackend.
+class MujocoBackend(SimBackend):
+    """The simulated arm with MuJoCo as its physics: SimBackend's protocol, safety, sensor chain and truth
+    views, with :meth:`_advance_physics` replaced.
 
     Torque is applied as ``qfrc_applied`` and held for ``substeps`` ``mj_step`` calls per control period.
     The plant's friction (mean of both directions, no Stribeck) goes into the MJCF model; other plant
@@ -65,8 +65,8 @@ class MujocoBackend(ArmBackend):
     name = "mujoco"
 
     def __init__(self, plant: Plant, q0_rad, rng: np.random.Generator, substeps: int = 2):
-        super().__init__()
-        h = self.control_period_s / substeps
+        super().__init__(plant, q0_rad, rng, substeps)
+        h = self.h_s
         zero = not (np.any(plant.friction.fc_pos_Nm) or np.any(plant.friction.fc_neg_Nm)
                     or np.any(plant.friction.viscous_pos_Nm_s_rad) or np.any(plant.friction.viscous_neg_Nm_s_rad))
         self.model = load_mujoco_model(friction=None if zero else plant.friction, timestep_s=h,
@@ -74,37 +74,15 @@ class MujocoBackend(ArmBackend):
         self.data = mujoco.MjData(self.model)
         self.data.qpos[:] = q0_rad
         mujoco.mj_forward(self.model, self.data)
-        self.substeps = int(substeps)
-        self._t = 0.0
-        self.sensors = SensorChain(plant, rng, np.asarray(q0_rad, float), h)
-        self._q_meas = self.sensors.measure(self.data.qpos)
 
-    def truth(self):
-        return self.data.qpos, self.data.qvel
-
-    @property
-    def time_s(self) -> float:
-        return self._t
-
-    def _open(self) -> None:
-        pass
-
-    def _close(self) -> None:
-        pass
-
-    def _read_positions(self) -> np.ndarray:
-        return self._q_meas
-
-    def _send_torques(self, tau_Nm: np.ndarray) -> None:
-        self.data.qfrc_applied[:] = tau_Nm
-
-    def _wait_next_cycle(self) -> None:
+    def _advance_physics(self) -> None:
         m, d = self.model, self.data
+        d.qfrc_applied[:] = self._tau
         for _ in range(self.substeps):
             mujoco.mj_step(m, d)
             self.sensors.record_physics_step(d.qpos)
-        self._t += self.control_period_s
-        self._q_meas = self.sensors.measure(d.qpos)
+        self._q[:] = d.qpos      # SimBackend's truth views, updated in place
+        self._qd[:] = d.qvel
 
 
 def controller() -> JointController:

@@ -153,6 +153,14 @@ class SimBackend(ArmBackend):
             self._tau += self.rng.normal(0.0, self.plant.sensors.torque_noise_Nm, P.N_JOINTS)
 
     def _wait_next_cycle(self) -> None:
+        self._advance_physics()
+        self._t += self.control_period_s
+        self._q_meas = self.sensors.measure(self._q)
+
+    def _advance_physics(self) -> None:
+        """One control period of physics under the held torque ``_tau``: ``substeps`` steps that update the
+        true state ``_q``, ``_qd`` in place, each fed to the sensor chain. The one place a subclass with other
+        physics (benchmarks/bench_peer.py's MuJoCo peer) overrides."""
         plant, dyn = self.plant, self.dynamics
         q, qd = self._q, self._qd
         minv = dyn.mass_matrix_inverse_upper_view(q)  # upper triangle only; the kernel reads it so
@@ -162,5 +170,3 @@ class SimBackend(ArmBackend):
             nle = dyn.nonlinear_effects_view(q, qd)
             _physics_step(q, qd, self._tau, nle, minv, self.h_s, self._pp, self._work, self.FRICTION_SWEEPS)
             self.sensors.record_physics_step(q)
-        self._t += self.control_period_s
-        self._q_meas = self.sensors.measure(q)
