@@ -1,6 +1,7 @@
 """Gaze human-machine interface (thesis chapter 6, issue 7): from the gaze tracker to hand commands.
 
-* :mod:`wamctl.hmi.gaze`: samples, the serial line format, and the sources (serial, replay, virtual subject);
+* :mod:`wamctl.hmi.gaze`: samples, their classification, the image geometry, the protocol of a gaze source (the
+  sources themselves are devices: :mod:`wamctl.backends.gaze`);
 * :mod:`wamctl.hmi.signal`: causal per-sample processing (blinks, corrupt samples, MA/WMA, Kalman on the angle);
 * :mod:`wamctl.hmi.strategy`: four-directional and vector control, velocity profiles, the controller.
 
@@ -8,20 +9,7 @@ Data flow, one way: source -> :class:`GazeController` (filters, strategy, blink 
 :class:`HandCommand` for the arm. Pixels say ``px``, times ``_s``, speeds ``_m_s``, angles are radians.
 """
 
-from wamctl.hmi.gaze import (
-    BlinkTruth,
-    GazeFlag,
-    GazeLineDecoder,
-    GazeSample,
-    GazeSource,
-    ReplayGazeSource,
-    SerialGazeSource,
-    VirtualSubject,
-    format_line,
-    parse_line,
-    read_gaze_csv,
-    write_gaze_csv,
-)
+from wamctl.hmi.gaze import GazeFlag, GazeSample, GazeSource
 from wamctl.hmi.signal import (
     BlinkEvent,
     BlinkRemover,
@@ -45,15 +33,14 @@ from wamctl.hmi.strategy import (
     cubic_profile,
     drive,
     dual_profile,
-    make_controller,
+    make_gaze_controller,
     single_profile,
 )
 
 __all__ = [
-    "BlinkEvent", "BlinkRemover", "BlinkTruth", "CorruptSampleRemover", "EventKind", "FourDirectionalStrategy",
-    "GazeController", "GazeEvent", "GazeFlag", "GazeLineDecoder", "GazeSample", "GazeSource", "HandCommand",
-    "Hold", "KalmanAngleFilter", "Motion", "MovingAverageFilter", "ReplayGazeSource", "SampleRateEstimator",
-    "SerialGazeSource", "VectorStrategy", "VelocityProfile", "VirtualSubject", "VoluntaryBlinkDetector",
-    "WeightedMovingAverageFilter", "cubic_profile", "drive", "dual_profile", "format_line", "make_controller",
-    "parse_line", "read_gaze_csv", "single_profile", "write_gaze_csv",
+    "BlinkEvent", "BlinkRemover", "CorruptSampleRemover", "EventKind", "FourDirectionalStrategy", "GazeController",
+    "GazeEvent", "GazeFlag", "GazeSample", "GazeSource", "HandCommand", "Hold", "KalmanAngleFilter", "Motion",
+    "MovingAverageFilter", "SampleRateEstimator", "VectorStrategy", "VelocityProfile", "VoluntaryBlinkDetector",
+    "WeightedMovingAverageFilter", "cubic_profile", "drive", "dual_profile", "make_gaze_controller",
+    "single_profile",
 ]

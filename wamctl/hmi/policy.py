@@ -1,10 +1,10 @@
 """Where a virtual subject looks to steer the hand onto a target: the closed loop of a simulated trial.
 
-The subject sees the hand and the object through the scene camera (:class:`~wamctl.hmi.arm.SceneCamera`) and
+The subject sees the hand and the object through the scene camera (:class:`~wamctl.hmi.scene.SceneCamera`) and
 knows the control it is using: looking away from the image centre moves the hand that way (command frame: image
 right / image up), at a speed set by how far it looks (the profile's regions). :class:`ReachPolicy` is the
-``target_px(t_s)`` callable of a :class:`~wamctl.hmi.gaze.VirtualSubject`; the subject's eye then gets there with
-its own reaction times, saccades, drift, intrusions, glances and blinks.
+``target_px(t_s)`` callable of a :class:`~wamctl.backends.gaze.virtual.VirtualSubject`; the subject's eye then gets
+there with its own reaction times, saccades, drift, intrusions, glances and blinks.
 
 The policy, per gaze sample (all choices are ours; the thesis describes the task, not the subjects' strategy):
 
@@ -43,8 +43,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from wamctl.hmi.arm import CommandMapping, SceneCamera
 from wamctl.hmi.gaze import CENTER_X_PX, CENTER_Y_PX
+from wamctl.hmi.scene import CommandMapping, SceneCamera
 from wamctl.hmi.strategy import STOP_X_RATIO, STOP_Y_RATIO, VelocityProfile
 
 logger = logging.getLogger(__name__)
