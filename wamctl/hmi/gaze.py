@@ -122,6 +122,11 @@ def gaze_vector_px(x_px: float, y_px: float) -> tuple[float, float]:
     return x_px - CENTER_X_PX, CENTER_Y_PX - y_px
 
 
+def image_point_px(x_px: float, y_px: float) -> tuple[float, float]:
+    """Inverse of :func:`gaze_vector_px`: a point of the command frame (x right, y up) in image pixels."""
+    return CENTER_X_PX + x_px, CENTER_Y_PX - y_px
+
+
 def gaze_ratios(x_px: float, y_px: float) -> tuple[float, float]:
     """``(x_ratio, y_ratio)`` of thesis 6.3: the centred point over the half-width 384 and half-height 288."""
     x, y = gaze_vector_px(x_px, y_px)

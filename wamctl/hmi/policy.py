@@ -43,7 +43,7 @@ from collections.abc import Callable
 
 import numpy as np
 
-from wamctl.hmi.gaze import CENTER_X_PX, CENTER_Y_PX
+from wamctl.hmi.gaze import CENTER_X_PX, CENTER_Y_PX, image_point_px
 from wamctl.hmi.scene import CommandMapping, SceneCamera
 from wamctl.hmi.strategy import STOP_X_RATIO, STOP_Y_RATIO, VelocityProfile
 
@@ -178,9 +178,9 @@ class ReachPolicy:
         if axis == 0:
             r = band_middle_px(self.profile.x_bounds_px, level, STOP_X_RATIO * CENTER_X_PX,
                                CENTER_X_PX - EDGE_MARGIN_PX)
-            return CENTER_X_PX + sign * r, CENTER_Y_PX
+            return image_point_px(sign * r, 0.0)
         r = band_middle_px(self.profile.y_bounds_px, level, STOP_Y_RATIO * CENTER_Y_PX, CENTER_Y_PX - EDGE_MARGIN_PX)
-        return CENTER_X_PX, CENTER_Y_PX - sign * r  # command y up = image rows up
+        return image_point_px(0.0, sign * r)
 
     def _ray_point(self, ex_px: float, ey_px: float, level: int) -> tuple[float, float]:
         angle = math.atan2(ey_px, ex_px)
@@ -188,7 +188,7 @@ class ReachPolicy:
         outer = min(CENTER_X_PX / abs(c) if abs(c) > 1e-9 else math.inf,
                     CENTER_Y_PX / abs(s) if abs(s) > 1e-9 else math.inf) - EDGE_MARGIN_PX
         r = band_middle_px(self.profile.radii_px, level, self.profile.radii_px[0], outer)
-        return CENTER_X_PX + r * c, CENTER_Y_PX - r * s
+        return image_point_px(r * c, r * s)
 
     def __call__(self, t_s: float) -> tuple[float, float]:
         seen, speed = self._perceive(t_s)
