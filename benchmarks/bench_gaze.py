@@ -15,8 +15,9 @@ import time
 
 import numpy as np
 
-from wamctl.hmi.gaze import GazeLineDecoder, LineFramer, VirtualSubject, format_line
-from wamctl.hmi.strategy import make_controller
+from wamctl.backends.gaze.line_format import GazeLineDecoder, LineFramer, format_line
+from wamctl.backends.gaze.virtual import VirtualSubject
+from wamctl.hmi.strategy import make_gaze_controller
 
 FRAME_PERIOD_S = 1.0 / 30.0
 
@@ -45,7 +46,7 @@ def stream_lines(seconds: float, seed: int) -> list[bytes]:
 
 def time_chain(lines: list[bytes], config: dict) -> np.ndarray:
     """Seconds spent on each line, framing to command."""
-    framer, decoder, controller = LineFramer(), GazeLineDecoder(), make_controller(**config)
+    framer, decoder, controller = LineFramer(), GazeLineDecoder(), make_gaze_controller(**config)
     clock = time.perf_counter_ns
     out = np.empty(len(lines))
     for i, line in enumerate(lines):

@@ -16,7 +16,7 @@ import pytest
 import yaml
 from scipy import linalg, stats
 
-from wamctl.analysis import anova
+from wamctl.analysis.anova import cells, oneway, posthoc, repeated
 
 FIXTURES = Path(__file__).parents[1] / "fixtures" / "hmi"
 PRINTED = yaml.safe_load((FIXTURES / "thesis_printed.yaml").read_text())
@@ -48,8 +48,8 @@ def groups_of(frame: pd.DataFrame, measure: str) -> dict[str, np.ndarray]:
     return {c: frame.loc[frame["condition"] == c, measure].to_numpy(float) for c in levels}
 
 
-def complete(frame: pd.DataFrame) -> anova.CompleteCases:
-    return anova.complete_cases(frame, unit=unit_of(frame), condition="condition",
+def complete(frame: pd.DataFrame) -> cells.CompleteCases:
+    return cells.complete_cases(frame, unit=unit_of(frame), condition="condition",
                                 values=["hit_rate", "mean_time_s"])
 
 
@@ -64,7 +64,7 @@ TABLE_CASES = [(t, m) for t in ("table_6_5", "table_6_6", "table_6_9", "table_6_
 def test_one_way_reproduces_printed_table(table: str, measure: str) -> None:
     printed = PRINTED["anova"][table]
     cc = complete(load_long(printed["fixture"]))
-    result = anova.one_way_anova(groups_of(cc.data, measure), dv=measure)
+    result = oneway.one_way_anova(groups_of(cc.data, measure), dv=measure)
     exp = printed[measure]
     for line, row in (("between", result.between), ("within", result.within), ("total", result.total)):
         assert row.df == exp[line]["df"], f"{table} {measure} {line} df"
@@ -81,10 +81,10 @@ def test_table_6_11_needs_the_complete_subjects() -> None:
     """All nine subjects (subject 9 only in E1, E4) give F(5, 44), not the printed F(5, 42) = 2.86."""
     frame = load_long("thesis_t6_10_subjects.csv")
     available = {c: v[np.isfinite(v)] for c, v in groups_of(frame, "hit_rate").items()}
-    all_nine = anova.one_way_anova(available, dv="hit_rate")
+    all_nine = oneway.one_way_anova(available, dv="hit_rate")
     assert all_nine.df == (5, 44)
     assert round(all_nine.f, 2) != 2.86
-    eight = anova.one_way_anova(groups_of(complete(frame).data, "hit_rate"), dv="hit_rate")
+    eight = oneway.one_way_anova(groups_of(complete(frame).data, "hit_rate"), dv="hit_rate")
     assert eight.df == (5, 42)
     assert eight.apa() == "F(5, 42) = 2.86, p = 0.0262"
 
@@ -92,7 +92,7 @@ def test_table_6_11_needs_the_complete_subjects() -> None:
 def test_one_way_matches_scipy_and_partition() -> None:
     frame = load_long("thesis_t6_2_t6_3_filters.csv")
     g = groups_of(frame, "mean_time_s")
-    result = anova.one_way_anova(g)
+    result = oneway.one_way_anova(g)
     ref = stats.f_oneway(*g.values())
     assert result.f == pytest.approx(ref.statistic, rel=1e-12)
     assert result.p == pytest.approx(ref.pvalue, rel=1e-12)
@@ -103,7 +103,7 @@ def test_one_way_matches_scipy_and_partition() -> None:
 
 def test_one_way_small_hand_example() -> None:
     # groups {1,2,3} and {4,5,6}: SSB = 2 * 3 * 1.5^2 = 13.5, SSW = 2 + 2 = 4, F = 13.5 / (4 / 4)
-    result = anova.one_way_anova({"a": [1, 2, 3], "b": [4, 5, 6]})
+    result = oneway.one_way_anova({"a": [1, 2, 3], "b": [4, 5, 6]})
     assert result.between.ss == pytest.approx(13.5)
     assert result.within.ss == pytest.approx(4.0)
     assert result.df == (1, 4)
@@ -113,13 +113,13 @@ def test_one_way_small_hand_example() -> None:
 
 def test_one_way_rejects_nan_and_bad_shapes() -> None:
     with pytest.raises(ValueError, match="complete_cases"):
-        anova.one_way_anova({"a": [1.0, np.nan], "b": [1.0, 2.0]})
+        oneway.one_way_anova({"a": [1.0, np.nan], "b": [1.0, 2.0]})
     with pytest.raises(ValueError, match="at least 2 groups"):
-        anova.one_way_anova({"a": [1.0, 2.0]})
+        oneway.one_way_anova({"a": [1.0, 2.0]})
     with pytest.raises(ValueError, match="no observations"):
-        anova.one_way_anova({"a": [1.0, 2.0], "b": []})
+        oneway.one_way_anova({"a": [1.0, 2.0], "b": []})
     with pytest.raises(ValueError, match="more observations"):
-        anova.one_way_anova({"a": [1.0], "b": [2.0]})
+        oneway.one_way_anova({"a": [1.0], "b": [2.0]})
 
 
 # -------------------------------------------------------------------------------------------- one-way, summary
@@ -128,11 +128,11 @@ def test_one_way_rejects_nan_and_bad_shapes() -> None:
 @pytest.mark.parametrize("table,measure", TABLE_CASES)
 def test_summary_form_equals_raw_form(table: str, measure: str) -> None:
     cc = complete(load_long(PRINTED["anova"][table]["fixture"]))
-    raw = anova.one_way_anova(groups_of(cc.data, measure), dv=measure)
+    raw = oneway.one_way_anova(groups_of(cc.data, measure), dv=measure)
     summary = raw.group_stats()
-    from_sd = anova.one_way_anova_from_summary(summary, dv=measure)
+    from_sd = oneway.one_way_anova_from_summary(summary, dv=measure)
     sem = summary.assign(sem=summary["sd"] / np.sqrt(summary["n"])).drop(columns="sd")
-    from_sem = anova.one_way_anova_from_summary(sem, dv=measure)
+    from_sem = oneway.one_way_anova_from_summary(sem, dv=measure)
     for res in (from_sd, from_sem):
         assert res.input_form == "summary"
         assert res.df == raw.df
@@ -147,7 +147,7 @@ def test_summary_form_from_printed_rows_is_only_approximate() -> None:
     rows = PRINTED["summary_rows"]["table_6_4_hits"]
     summary = pd.DataFrame({"n": 8, "mean": [float(v) / 100 for v in rows["average"]],
                             "sd": [float(v) / 100 for v in rows["sem_row"]]}, index=rows["conditions"])
-    res = anova.one_way_anova_from_summary(summary, dv="hit_rate")
+    res = oneway.one_way_anova_from_summary(summary, dv="hit_rate")
     exp = PRINTED["anova"]["table_6_6"]["hit_rate"]
     assert res.df == (2, 21)
     assert_printed(res.f, exp["between"]["f"], "F")  # 2.279 -> 2.28
@@ -157,11 +157,11 @@ def test_summary_form_from_printed_rows_is_only_approximate() -> None:
 
 def test_summary_form_validation() -> None:
     with pytest.raises(ValueError, match="'sd' or a 'sem'"):
-        anova.one_way_anova_from_summary(pd.DataFrame({"n": [3, 3], "mean": [1.0, 2.0]}, index=["a", "b"]))
+        oneway.one_way_anova_from_summary(pd.DataFrame({"n": [3, 3], "mean": [1.0, 2.0]}, index=["a", "b"]))
     with pytest.raises(ValueError, match="positive integers"):
-        anova.one_way_anova_from_summary(pd.DataFrame({"n": [0, 3], "mean": [1.0, 2.0], "sd": [1.0, 1.0]}))
+        oneway.one_way_anova_from_summary(pd.DataFrame({"n": [0, 3], "mean": [1.0, 2.0], "sd": [1.0, 1.0]}))
     with pytest.raises(ValueError, match="missing column"):
-        anova.one_way_anova_from_summary(pd.DataFrame({"mean": [1.0, 2.0], "sd": [1.0, 1.0]}))
+        oneway.one_way_anova_from_summary(pd.DataFrame({"mean": [1.0, 2.0], "sd": [1.0, 1.0]}))
 
 
 # ------------------------------------------------------------------------------------------------ missing cells
@@ -187,13 +187,13 @@ def test_complete_cases_absent_rows_and_single_missing_value() -> None:
         "hit_rate": [0.5, 0.6, 0.7, 0.8, 0.9],
         "mean_time_s": [10.0, 11.0, 12.0, 13.0, np.nan],
     })
-    cc = anova.complete_cases(frame, unit="subject", condition="condition", values=["hit_rate", "mean_time_s"])
+    cc = cells.complete_cases(frame, unit="subject", condition="condition", values=["hit_rate", "mean_time_s"])
     assert cc.units == ("a",)
     assert list(cc.exclusions) == [("b", "missing y: no data"), ("c", "missing y: no mean_time_s")]
-    only_hits = anova.complete_cases(frame, unit="subject", condition="condition", values=["hit_rate"])
+    only_hits = cells.complete_cases(frame, unit="subject", condition="condition", values=["hit_rate"])
     assert only_hits.units == ("a", "c")
     with pytest.raises(ValueError, match="duplicate"):
-        anova.complete_cases(pd.concat([frame, frame.iloc[:1]]), unit="subject", condition="condition",
+        cells.complete_cases(pd.concat([frame, frame.iloc[:1]]), unit="subject", condition="condition",
                              values=["hit_rate"])
 
 
@@ -224,7 +224,7 @@ def table_6_10_complete() -> pd.DataFrame:
 
 
 def test_rm_anova_hits_issue_8(table_6_10_complete: pd.DataFrame) -> None:
-    res = anova.rm_anova(table_6_10_complete, dv="hit_rate", within="condition", subject="subject")
+    res = repeated.rm_anova(table_6_10_complete, dv="hit_rate", within="condition", subject="subject")
     assert res.df == RM_HITS_DF
     assert_printed(res.f, RM_HITS_F, "RM F")
     assert_printed(res.p, RM_HITS_P, "RM p")
@@ -254,7 +254,7 @@ def test_rm_anova_hits_issue_8(table_6_10_complete: pd.DataFrame) -> None:
 
 
 def test_rm_anova_time_sphericity_violated(table_6_10_complete: pd.DataFrame) -> None:
-    res = anova.rm_anova(table_6_10_complete, dv="mean_time_s", within="condition", subject="subject")
+    res = repeated.rm_anova(table_6_10_complete, dv="mean_time_s", within="condition", subject="subject")
     ref = mauchly_reference(table_6_10_complete.pivot(index="subject", columns="condition",
                                                       values="mean_time_s").to_numpy(float))
     assert res.df == (5, 35)
@@ -271,7 +271,7 @@ def test_rm_anova_cross_check_statsmodels(table_6_10_complete: pd.DataFrame, dv:
     from statsmodels.stats.anova import AnovaRM
 
     ref = AnovaRM(table_6_10_complete, dv, "subject", within=["condition"]).fit().anova_table
-    res = anova.rm_anova(table_6_10_complete, dv=dv, within="condition", subject="subject")
+    res = repeated.rm_anova(table_6_10_complete, dv=dv, within="condition", subject="subject")
     assert res.f == pytest.approx(ref.loc["condition", "F Value"], rel=1e-9)
     assert res.p == pytest.approx(ref.loc["condition", "Pr > F"], rel=1e-9)
     assert res.df == (int(ref.loc["condition", "Num DF"]), int(ref.loc["condition", "Den DF"]))
@@ -280,7 +280,7 @@ def test_rm_anova_cross_check_statsmodels(table_6_10_complete: pd.DataFrame, dv:
 def test_rm_anova_needs_complete_data() -> None:
     frame = load_long("thesis_t6_10_subjects.csv")
     with pytest.raises(ValueError, match=r"incomplete units: 9 \(missing E2"):
-        anova.rm_anova(frame, dv="hit_rate", within="condition", subject="subject")
+        repeated.rm_anova(frame, dv="hit_rate", within="condition", subject="subject")
 
 
 def test_rm_anova_two_conditions_equals_paired_t() -> None:
@@ -288,7 +288,7 @@ def test_rm_anova_two_conditions_equals_paired_t() -> None:
     a, b = rng.normal(size=6), rng.normal(size=6) + 0.8
     frame = pd.DataFrame({"s": np.tile(np.arange(6).astype(str), 2), "c": ["a"] * 6 + ["b"] * 6,
                           "y": np.concatenate([a, b])})
-    res = anova.rm_anova(frame, dv="y", within="c", subject="s")
+    res = repeated.rm_anova(frame, dv="y", within="c", subject="s")
     t = stats.ttest_rel(a, b)
     assert res.f == pytest.approx(t.statistic ** 2, rel=1e-9)
     assert res.p == pytest.approx(t.pvalue, rel=1e-9)
@@ -296,7 +296,7 @@ def test_rm_anova_two_conditions_equals_paired_t() -> None:
 
 
 def test_rm_anova_to_dict_and_pandas(table_6_10_complete: pd.DataFrame) -> None:
-    res = anova.rm_anova(table_6_10_complete, dv="hit_rate", within="condition", subject="subject")
+    res = repeated.rm_anova(table_6_10_complete, dv="hit_rate", within="condition", subject="subject")
     d = json.loads(json.dumps(res.to_dict(), allow_nan=False))
     assert d["F"] == pytest.approx(res.f) and d["df_error"] == 35
     assert d["sphericity"]["eps_gg"] == pytest.approx(res.sphericity.eps_gg)
@@ -309,7 +309,7 @@ def test_rm_anova_to_dict_and_pandas(table_6_10_complete: pd.DataFrame) -> None:
 
 def test_one_way_to_dict_and_pandas() -> None:
     cc = complete(load_long("thesis_t6_10_subjects.csv"))
-    res = anova.one_way_anova(groups_of(cc.data, "hit_rate"), dv="hit_rate")
+    res = oneway.one_way_anova(groups_of(cc.data, "hit_rate"), dv="hit_rate")
     d = json.loads(json.dumps(res.to_dict(), allow_nan=False))
     assert d["table"][0] == {"source": "Between Groups", "ss": pytest.approx(0.373641666), "df": 5,
                              "ms": pytest.approx(0.074728333), "F": pytest.approx(res.f), "p": pytest.approx(res.p)}
@@ -327,7 +327,7 @@ def test_one_way_to_dict_and_pandas() -> None:
 def test_pairwise_holm_table_6_10(table_6_10_complete: pd.DataFrame) -> None:
     from statsmodels.stats.multitest import multipletests
 
-    res = anova.pairwise_paired_t(table_6_10_complete, dv="hit_rate", within="condition", subject="subject")
+    res = posthoc.pairwise_paired_t(table_6_10_complete, dv="hit_rate", within="condition", subject="subject")
     wide = table_6_10_complete.pivot(index="subject", columns="condition", values="hit_rate")
     assert len(res.comparisons) == 15
     assert [(c.a, c.b) for c in res.comparisons[:3]] == [("E1", "E2"), ("E1", "E3"), ("E1", "E4")]
@@ -353,7 +353,7 @@ def test_pairwise_keeps_input_order_and_sign() -> None:
     levels = ["z", "b", "a"]  # not alphabetical
     y = {c: rng.normal(size=5) + i for i, c in enumerate(levels)}
     frame = pd.DataFrame([(str(s), c, y[c][s]) for c in levels for s in range(5)], columns=["s", "c", "y"])
-    res = anova.pairwise_paired_t(frame, dv="y", within="c", subject="s")
+    res = posthoc.pairwise_paired_t(frame, dv="y", within="c", subject="s")
     assert [(c.a, c.b) for c in res.comparisons] == [("z", "b"), ("z", "a"), ("b", "a")]
     for c in res.comparisons:
         assert c.t == pytest.approx(stats.ttest_rel(y[c.a], y[c.b]).statistic, rel=1e-9)

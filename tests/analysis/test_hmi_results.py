@@ -15,7 +15,8 @@ import numpy as np
 import pytest
 import yaml
 
-from wamctl.analysis.hmi_results import HmiResults, read_hmi_csv, read_summary_csv, read_trials_csv, summarise_trials
+from wamctl.analysis.hmi_csv import read_hmi_csv, read_summary_csv, read_trials_csv
+from wamctl.analysis.hmi_results import HmiResults, summarise_trials
 from wamctl.errors import DataFormatError
 from wamctl.report.hmi_figures import bar_stats, save_bar_chart
 

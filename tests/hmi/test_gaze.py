@@ -13,22 +13,12 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
+from wamctl.backends.gaze.line_format import GazeLineDecoder, LineFramer, format_line, parse_line
+from wamctl.backends.gaze.replay import ReplayGazeSource, read_gaze_csv, write_gaze_csv
+from wamctl.backends.gaze.serial import SerialGazeSource
+from wamctl.backends.gaze.virtual import VirtualSubject
 from wamctl.errors import BackendError, DataFormatError
-from wamctl.hmi.gaze import (
-    GazeFlag,
-    GazeLineDecoder,
-    GazeSample,
-    GazeSource,
-    LineFramer,
-    ReplayGazeSource,
-    SerialGazeSource,
-    VirtualSubject,
-    format_line,
-    gaze_angle_rad,
-    parse_line,
-    read_gaze_csv,
-    write_gaze_csv,
-)
+from wamctl.hmi.gaze import GazeFlag, GazeSample, GazeSource, gaze_angle_rad
 from wamctl.hmi.signal import (
     BlinkRemover,
     CorruptSampleRemover,
@@ -51,9 +41,9 @@ from wamctl.hmi.strategy import (
     drive,
     dual_profile,
     four_direction,
-    make_controller,
     single_profile,
 )
+from wamctl.hmi.strategy import make_gaze_controller as make_controller
 
 BLINK = (-2000.0, -2000.0)
 

@@ -1,109 +1,41 @@
-"""Import, tabulate and analyse gaze-HMI reach-and-grasp results (thesis chapter 6, Tables 6.2-6.11).
+"""Tabulate and analyse gaze-HMI reach-and-grasp results (thesis chapter 6, Tables 6.2-6.11).
+
+Reading and validating result files is :mod:`wamctl.analysis.hmi_csv`; this module holds the results once read
+(:class:`HmiResults`), the per-unit summaries of raw trials (:func:`summarise_trials`) and the analysis a report
+renders (:class:`HmiAnalysis`).
 
 Conventions
 -----------
 * A *unit* is a subject (per-subject results, Table 6.10) or an object location (per-location results of one
   subject, Tables 6.2-6.4, 6.8). A *condition* is what was compared (filter, velocity profile, control strategy).
+* Raw trials have one row per attempt, with the columns :data:`TRIAL_COLUMNS`.
 * Hit rates are stored as proportions ``hit_rate`` in [0, 1] (the thesis ANOVA tables use proportions) and as
   percentages ``hit_pct`` for the thesis-style tables. Times are in seconds (``time_s``, ``mean_time_s``).
-* Conditions and units keep their order of first appearance in the file.
+* Conditions and units keep their order of first appearance.
 * Missing cells (a unit without a value for a condition) are kept as NaN; :meth:`HmiResults.analyse` uses the
   complete-case units and reports every excluded unit with the reason.
-* Errors in a file raise :class:`wamctl.errors.DataFormatError` whose message names the file, the 1-based data row
-  (the header is not counted, nor are blank lines and ``#`` comment lines), the line number, and the column.
-
-File formats (CSV, UTF-8, comma-separated, one header line, full-line ``#`` comments allowed)
--------------------------------------------------------------------------------------------------
-Raw trials, one row per attempt::
-
-    subject,condition,location,attempt,hit,time_s
-    S1,E1,P1,1,1,23.4
-
-=========  ======================================================================
-column     meaning
-=========  ======================================================================
-subject    subject id (text)
-condition  condition label (text), e.g. ``E1`` or ``MA300``
-location   target location label (text), e.g. ``P1``
-attempt    attempt number, integer >= 1; unique per (subject, condition, location)
-hit        1/0 (also true/false, yes/no)
-time_s     execution time of the attempt in seconds, > 0; may be empty (not recorded)
-note       optional free text, ignored
-=========  ======================================================================
-
-Per-unit summaries, one row per (unit, condition)::
-
-    subject,condition,hit_pct,mean_time_s
-    1,E1,37,27.3
-
-===========  ====================================================================
-column       meaning
-===========  ====================================================================
-subject or   the unit: exactly one of the two columns
-location
-condition    condition label
-hits         number of hits (integer >= 0), together with ``attempts``
-attempts     number of attempts (integer >= 1, >= hits)
-hit_pct      hit percentage 0-100, instead of ``hits``/``attempts`` (not both)
-mean_time_s  mean execution time in seconds, > 0
-note         optional free text, ignored
-===========  ====================================================================
-
-At least one measure (``hits``/``attempts``, ``hit_pct`` or ``mean_time_s``) must be present. An empty numeric
-cell, ``-``, ``NA``, ``N/A`` or ``nan`` is a missing value (the thesis prints ``-``); a missing cell can also be
-written by leaving the row out. Text cells (unit, condition) must not be empty.
-Unknown columns are an error (so that a misspelt column is not silently ignored).
-
-Times of misses count: when trials are summarised, ``mean_time_s`` is the mean over all attempts with a recorded
-``time_s``.
+* Times of misses count: when trials are summarised, ``mean_time_s`` is the mean over all attempts with a recorded
+  ``time_s``.
 """
 
 from __future__ import annotations
 
-import csv
-import logging
-import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pandas as pd
 
-from wamctl.analysis.anova import (
-    CompleteCases,
-    OneWayAnova,
-    PairwiseTests,
-    RMAnova,
-    complete_cases,
-    jsonable,
-    one_way_anova,
-    pairwise_paired_t,
-    rm_anova,
-)
+from wamctl.analysis.anova.cells import CompleteCases, complete_cases
+from wamctl.analysis.anova.oneway import OneWayAnova, one_way_anova
+from wamctl.analysis.anova.posthoc import PairwiseTests, pairwise_paired_t
+from wamctl.analysis.anova.repeated import RMAnova, rm_anova
+from wamctl.analysis.anova.tables import jsonable
 from wamctl.errors import DataFormatError
 
-logger = logging.getLogger(__name__)
-
-__all__ = [
-    "TRIAL_COLUMNS",
-    "SUMMARY_COLUMNS",
-    "MEASURES",
-    "HmiResults",
-    "HmiAnalysis",
-    "read_hmi_csv",
-    "read_trials_csv",
-    "read_summary_csv",
-    "summarise_trials",
-]
-
 TRIAL_COLUMNS: tuple[str, ...] = ("subject", "condition", "location", "attempt", "hit", "time_s")
-"""Required columns of a raw-trials CSV."""
-
-SUMMARY_COLUMNS: tuple[str, ...] = ("subject", "location", "condition", "hits", "attempts", "hit_pct",
-                                    "mean_time_s")
-"""Columns a per-unit summary CSV may have (plus ``note``)."""
+"""Columns of raw trials, one row per attempt (also the required columns of a raw-trials CSV)."""
 
 MEASURES: tuple[str, ...] = ("hit_rate", "hit_pct", "mean_time_s")
 """Per-unit measures: hit proportion, hit percentage, mean execution time in seconds."""
@@ -111,249 +43,7 @@ MEASURES: tuple[str, ...] = ("hit_rate", "hit_pct", "mean_time_s")
 ANOVA_MEASURES: tuple[str, ...] = ("hit_rate", "mean_time_s")
 """Measures analysed by default (the thesis ANOVA tables use proportions and seconds)."""
 
-_MISSING = {"", "-", "na", "n/a", "nan"}  # numeric cells; a text cell is missing only if empty
-_TRUE = {"1", "true", "yes", "y"}
-_FALSE = {"0", "false", "no", "n"}
 _STATS_ROWS = ("Mean", "SD", "SEM", "n")
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# CSV reading and cell validation
-# ----------------------------------------------------------------------------------------------------------------
-
-
-@dataclass(frozen=True)
-class _Row:
-    number: int  # 1-based data row
-    line: int  # 1-based line in the file
-    cells: dict[str, str]
-
-
-def _where(source: str, row: _Row, column: str | None = None) -> str:
-    col = f", column {column!r}" if column else ""
-    return f"{source}: data row {row.number} (line {row.line}){col}"
-
-
-def _read_csv(path: Path) -> tuple[list[str], list[_Row]]:
-    """Read header and data rows, skipping blank lines and full-line ``#`` comments."""
-    source = str(path)
-    try:
-        text = path.read_text(encoding="utf-8-sig")
-    except FileNotFoundError:
-        raise DataFormatError(f"{source}: no such file") from None
-    except UnicodeDecodeError as exc:
-        raise DataFormatError(f"{source}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
-    lines = text.splitlines()
-    header: list[str] | None = None
-    header_line = 0
-    rows: list[_Row] = []
-    for line_no, fields in _csv_records(lines):
-        if not fields or all(not f.strip() for f in fields) or fields[0].lstrip().startswith("#"):
-            continue
-        cells = [f.strip() for f in fields]
-        if header is None:
-            header, header_line = cells, line_no
-            if any(not h for h in header):
-                raise DataFormatError(f"{source}: line {line_no}: empty column name in header")
-            dup = sorted({h for h in header if header.count(h) > 1})
-            if dup:
-                raise DataFormatError(f"{source}: line {line_no}: duplicate column(s) {dup} in header")
-            continue
-        row = _Row(len(rows) + 1, line_no, {})
-        if len(cells) != len(header):
-            raise DataFormatError(f"{_where(source, row)}: expected {len(header)} fields as in the header "
-                                  f"(line {header_line}), got {len(cells)}")
-        rows.append(_Row(row.number, line_no, dict(zip(header, cells))))
-    if header is None:
-        raise DataFormatError(f"{source}: no header line (file is empty or only comments)")
-    if not rows:
-        raise DataFormatError(f"{source}: header but no data rows")
-    return header, rows
-
-
-def _csv_records(lines: list[str]) -> list[tuple[int, list[str]]]:
-    """Parse lines with :mod:`csv`, returning (first line number, fields) per record."""
-    out = []
-    reader = csv.reader(lines)
-    start = 1
-    for fields in reader:
-        out.append((start, fields))
-        start = reader.line_num + 1
-    return out
-
-
-def _is_missing(value: str) -> bool:
-    return value.strip().lower() in _MISSING
-
-
-def _text(source: str, row: _Row, column: str) -> str:
-    value = row.cells[column]
-    if not value:
-        raise DataFormatError(f"{_where(source, row, column)}: value required, cell is empty")
-    return value
-
-
-def _float(source: str, row: _Row, column: str, *, minimum: float | None = None, exclusive: bool = False,
-           maximum: float | None = None, required: bool = False) -> float:
-    value = row.cells[column]
-    if _is_missing(value):
-        if required:
-            raise DataFormatError(f"{_where(source, row, column)}: value required, cell is empty")
-        return math.nan
-    try:
-        x = float(value)
-    except ValueError:
-        raise DataFormatError(f"{_where(source, row, column)}: expected a number, got {value!r}") from None
-    if not math.isfinite(x):
-        raise DataFormatError(f"{_where(source, row, column)}: expected a finite number, got {value!r}")
-    if minimum is not None and (x < minimum or (exclusive and x == minimum)):
-        relation = ">" if exclusive else ">="
-        raise DataFormatError(f"{_where(source, row, column)}: expected {relation} {minimum:g}, got {value!r}")
-    if maximum is not None and x > maximum:
-        raise DataFormatError(f"{_where(source, row, column)}: expected <= {maximum:g}, got {value!r}")
-    return x
-
-
-def _int(source: str, row: _Row, column: str, *, minimum: int, required: bool = False) -> float:
-    x = _float(source, row, column, minimum=minimum, required=required)
-    if math.isfinite(x) and x != round(x):
-        raise DataFormatError(f"{_where(source, row, column)}: expected an integer, got {row.cells[column]!r}")
-    return x
-
-
-def _check_columns(source: str, header: Sequence[str], allowed: Sequence[str], required: Sequence[str]) -> None:
-    missing = [c for c in required if c not in header]
-    if missing:
-        raise DataFormatError(f"{source}: missing column(s) {missing}; header is {list(header)}")
-    unknown = [c for c in header if c not in allowed and c != "note"]
-    if unknown:
-        raise DataFormatError(f"{source}: unknown column(s) {unknown}; allowed: {list(allowed) + ['note']}")
-
-
-def _check_unique(source: str, rows: Sequence[_Row], keys: Sequence[tuple[str, ...]], names: Sequence[str]) -> None:
-    first: dict[tuple[str, ...], _Row] = {}
-    for row, key in zip(rows, keys):
-        if key in first:
-            what = ", ".join(f"{n}={v!r}" for n, v in zip(names, key))
-            raise DataFormatError(f"{_where(source, row)}: duplicate of data row {first[key].number} ({what})")
-        first[key] = row
-
-
-def read_trials_csv(path: str | Path) -> pd.DataFrame:
-    """Read and validate a raw-trials CSV.
-
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        CSV with columns ``subject, condition, location, attempt, hit, time_s`` (and optional ``note``).
-
-    Returns
-    -------
-    pandas.DataFrame
-        Columns ``subject, condition, location`` (str), ``attempt`` (int), ``hit`` (int 0/1), ``time_s`` (float,
-        NaN if not recorded), ``data_row`` (1-based).
-
-    Raises
-    ------
-    DataFormatError
-        Missing/unknown column, bad cell (the message names data row, line and column), duplicate attempt.
-    """
-    path = Path(path)
-    source = str(path)
-    header, rows = _read_csv(path)
-    _check_columns(source, header, TRIAL_COLUMNS, TRIAL_COLUMNS)
-    records = []
-    for row in rows:
-        hit_text = _text(source, row, "hit").lower()
-        if hit_text in _TRUE:
-            hit = 1
-        elif hit_text in _FALSE:
-            hit = 0
-        else:
-            raise DataFormatError(f"{_where(source, row, 'hit')}: expected 1/0 (true/false, yes/no), "
-                                  f"got {row.cells['hit']!r}")
-        records.append({
-            "subject": _text(source, row, "subject"),
-            "condition": _text(source, row, "condition"),
-            "location": _text(source, row, "location"),
-            "attempt": int(_int(source, row, "attempt", minimum=1, required=True)),
-            "hit": hit,
-            "time_s": _float(source, row, "time_s", minimum=0.0, exclusive=True),
-            "data_row": row.number,
-        })
-    keys = [(r["subject"], r["condition"], r["location"], str(r["attempt"])) for r in records]
-    _check_unique(source, rows, keys, ("subject", "condition", "location", "attempt"))
-    frame = pd.DataFrame.from_records(records)
-    logger.debug("%s: %d trials, %d subjects, %d conditions", source, len(frame), frame["subject"].nunique(),
-                 frame["condition"].nunique())
-    return frame
-
-
-def read_summary_csv(path: str | Path) -> HmiResults:
-    """Read and validate a per-unit summary CSV (one row per unit and condition).
-
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        CSV with ``subject`` or ``location``, ``condition`` and measures (see the module docstring).
-
-    Returns
-    -------
-    HmiResults
-
-    Raises
-    ------
-    DataFormatError
-        Unit column absent or both present, unknown column, ``hit_pct`` together with ``hits``/``attempts``, no
-        measure, bad cell (naming data row, line and column), duplicate (unit, condition).
-    """
-    path = Path(path)
-    source = str(path)
-    header, rows = _read_csv(path)
-    units = [c for c in ("subject", "location") if c in header]
-    if len(units) != 1:
-        raise DataFormatError(f"{source}: a summary needs exactly one unit column, 'subject' or 'location'; "
-                              f"header is {header}")
-    unit_kind = units[0]
-    _check_columns(source, header, SUMMARY_COLUMNS, (unit_kind, "condition"))
-    has_counts = "hits" in header or "attempts" in header
-    if has_counts and not ("hits" in header and "attempts" in header):
-        raise DataFormatError(f"{source}: columns 'hits' and 'attempts' go together; header is {header}")
-    if has_counts and "hit_pct" in header:
-        raise DataFormatError(f"{source}: give either 'hits'+'attempts' or 'hit_pct', not both")
-    if not (has_counts or "hit_pct" in header or "mean_time_s" in header):
-        raise DataFormatError(f"{source}: no measure column; need 'hits'+'attempts', 'hit_pct' or 'mean_time_s'")
-    records = []
-    for row in rows:
-        hits = attempts = pct = math.nan
-        if has_counts:
-            hits = _int(source, row, "hits", minimum=0)
-            attempts = _int(source, row, "attempts", minimum=1)
-            if math.isnan(hits) != math.isnan(attempts):
-                col = "attempts" if math.isnan(attempts) else "hits"
-                raise DataFormatError(f"{_where(source, row, col)}: value required when "
-                                      f"{'hits' if col == 'attempts' else 'attempts'} is given")
-            if hits > attempts:
-                raise DataFormatError(f"{_where(source, row, 'hits')}: {hits:g} hits > {attempts:g} attempts")
-            rate = hits / attempts
-        elif "hit_pct" in header:
-            pct = _float(source, row, "hit_pct", minimum=0.0, maximum=100.0)
-            rate = pct / 100.0
-        else:
-            rate = math.nan
-        time_s = _float(source, row, "mean_time_s", minimum=0.0, exclusive=True) if "mean_time_s" in header \
-            else math.nan
-        records.append({unit_kind: _text(source, row, unit_kind), "condition": _text(source, row, "condition"),
-                        "hits": hits, "attempts": attempts, "hit_rate": rate,
-                        "hit_pct": rate * 100.0 if not math.isnan(rate) else pct, "mean_time_s": time_s})
-    _check_unique(source, rows, [(r[unit_kind], r["condition"]) for r in records], (unit_kind, "condition"))
-    measures = []
-    if has_counts or "hit_pct" in header:
-        measures += ["hit_rate", "hit_pct"]
-    if "mean_time_s" in header:
-        measures.append("mean_time_s")
-    return HmiResults(data=pd.DataFrame.from_records(records), unit_kind=unit_kind, measures=tuple(measures),
-                      source=source)
 
 
 def summarise_trials(trials: pd.DataFrame, *, unit: str = "subject", source: str = "") -> HmiResults:
@@ -362,7 +52,7 @@ def summarise_trials(trials: pd.DataFrame, *, unit: str = "subject", source: str
     Parameters
     ----------
     trials : pandas.DataFrame
-        As returned by :func:`read_trials_csv`.
+        As returned by :func:`~wamctl.analysis.hmi_csv.read_trials_csv`.
     unit : {"subject", "location"}
         ``"subject"``: one value per subject and condition, pooled over locations (Table 6.10 layout).
         ``"location"``: one value per location and condition, pooled over subjects (Tables 6.2-6.4 layout; the
@@ -386,44 +76,6 @@ def summarise_trials(trials: pd.DataFrame, *, unit: str = "subject", source: str
     data["hit_pct"] = 100.0 * data["hit_rate"]
     data = data[[unit, "condition", "hits", "attempts", "hit_rate", "hit_pct", "mean_time_s"]]
     return HmiResults(data=data, unit_kind=unit, measures=MEASURES, source=source)
-
-
-def read_hmi_csv(path: str | Path, *, unit: str | None = None) -> HmiResults:
-    """Read HMI results, raw trials or per-unit summaries (recognised by the ``attempt`` and ``hit`` columns).
-
-    Parameters
-    ----------
-    path : str or pathlib.Path
-        CSV file in one of the formats of the module docstring.
-    unit : {"subject", "location"}, optional
-        For raw trials only: the unit to summarise by. Default: ``"subject"`` if the file has more than one
-        subject, else ``"location"``.
-
-    Returns
-    -------
-    HmiResults
-
-    Raises
-    ------
-    DataFormatError
-        See :func:`read_trials_csv` and :func:`read_summary_csv`.
-    """
-    path = Path(path)
-    header, _ = _read_csv(path)
-    if "attempt" in header and "hit" in header:
-        trials = read_trials_csv(path)
-        if unit is None:
-            unit = "subject" if trials["subject"].nunique() > 1 else "location"
-        logger.info("%s: %d raw trials, summarised per %s", path, len(trials), unit)
-        return summarise_trials(trials, unit=unit, source=str(path))
-    if unit is not None:
-        logger.warning("%s: per-unit summary file; unit=%r ignored", path, unit)
-    return read_summary_csv(path)
-
-
-# ----------------------------------------------------------------------------------------------------------------
-# results, tables and analysis
-# ----------------------------------------------------------------------------------------------------------------
 
 
 def _frame_to_json(frame: pd.DataFrame) -> dict[str, Any]:
@@ -541,7 +193,7 @@ class HmiResults:
         -------
         pandas.DataFrame
             Index: conditions; columns ``n, mean, sd, sem, median, q1, q3, min, max``. With ``n``, ``mean`` and
-            ``sd`` it is also the input of :func:`~wamctl.analysis.anova.one_way_anova_from_summary`.
+            ``sd`` it is also the input of :func:`~wamctl.analysis.anova.oneway.one_way_anova_from_summary`.
         """
         wide = self.wide(measure)
         if complete:
@@ -649,8 +301,9 @@ class HmiAnalysis:
     complete : CompleteCases
         Units kept and ``(unit, reason)`` exclusions.
     one_way, rm, pairwise : dict
-        Per measure: :class:`~wamctl.analysis.anova.OneWayAnova`, :class:`~wamctl.analysis.anova.RMAnova` and
-        :class:`~wamctl.analysis.anova.PairwiseTests` (the last two empty unless repeated measures were run).
+        Per measure: :class:`~wamctl.analysis.anova.oneway.OneWayAnova`,
+        :class:`~wamctl.analysis.anova.repeated.RMAnova` and :class:`~wamctl.analysis.anova.posthoc.PairwiseTests`
+        (the last two empty unless repeated measures were run).
     tables : dict of str to pandas.DataFrame
         Thesis-style tables (:meth:`HmiResults.table`) of ``hit_pct`` and ``mean_time_s``, available cases.
     """
@@ -689,4 +342,3 @@ class HmiAnalysis:
             "rm_anova": {m: a.to_dict() for m, a in self.rm.items()},
             "pairwise": {m: a.to_dict() for m, a in self.pairwise.items()},
         })
-

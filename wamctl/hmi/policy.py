@@ -1,10 +1,10 @@
 """Where a virtual subject looks to steer the hand onto a target: the closed loop of a simulated trial.
 
-The subject sees the hand and the object through the scene camera (:class:`~wamctl.hmi.arm.SceneCamera`) and
+The subject sees the hand and the object through the scene camera (:class:`~wamctl.hmi.scene.SceneCamera`) and
 knows the control it is using: looking away from the image centre moves the hand that way (command frame: image
 right / image up), at a speed set by how far it looks (the profile's regions). :class:`ReachPolicy` is the
-``target_px(t_s)`` callable of a :class:`~wamctl.hmi.gaze.VirtualSubject`; the subject's eye then gets there with
-its own reaction times, saccades, drift, intrusions, glances and blinks.
+``target_px(t_s)`` callable of a :class:`~wamctl.backends.gaze.virtual.VirtualSubject`; the subject's eye then gets
+there with its own reaction times, saccades, drift, intrusions, glances and blinks.
 
 The policy, per gaze sample (all choices are ours; the thesis describes the task, not the subjects' strategy):
 
@@ -43,8 +43,8 @@ from collections.abc import Callable
 
 import numpy as np
 
-from wamctl.hmi.arm import CommandMapping, SceneCamera
-from wamctl.hmi.gaze import CENTER_X_PX, CENTER_Y_PX
+from wamctl.hmi.gaze import CENTER_X_PX, CENTER_Y_PX, image_point_px
+from wamctl.hmi.scene import CommandMapping, SceneCamera
 from wamctl.hmi.strategy import STOP_X_RATIO, STOP_Y_RATIO, VelocityProfile
 
 logger = logging.getLogger(__name__)
@@ -178,9 +178,9 @@ class ReachPolicy:
         if axis == 0:
             r = band_middle_px(self.profile.x_bounds_px, level, STOP_X_RATIO * CENTER_X_PX,
                                CENTER_X_PX - EDGE_MARGIN_PX)
-            return CENTER_X_PX + sign * r, CENTER_Y_PX
+            return image_point_px(sign * r, 0.0)
         r = band_middle_px(self.profile.y_bounds_px, level, STOP_Y_RATIO * CENTER_Y_PX, CENTER_Y_PX - EDGE_MARGIN_PX)
-        return CENTER_X_PX, CENTER_Y_PX - sign * r  # command y up = image rows up
+        return image_point_px(0.0, sign * r)
 
     def _ray_point(self, ex_px: float, ey_px: float, level: int) -> tuple[float, float]:
         angle = math.atan2(ey_px, ex_px)
@@ -188,7 +188,7 @@ class ReachPolicy:
         outer = min(CENTER_X_PX / abs(c) if abs(c) > 1e-9 else math.inf,
                     CENTER_Y_PX / abs(s) if abs(s) > 1e-9 else math.inf) - EDGE_MARGIN_PX
         r = band_middle_px(self.profile.radii_px, level, self.profile.radii_px[0], outer)
-        return CENTER_X_PX + r * c, CENTER_Y_PX - r * s
+        return image_point_px(r * c, r * s)
 
     def __call__(self, t_s: float) -> tuple[float, float]:
         seen, speed = self._perceive(t_s)

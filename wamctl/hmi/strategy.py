@@ -537,7 +537,7 @@ class GazeController:
         return tuple(out)
 
 
-def make_controller(*, strategy: str = "four", profile: str = "single", speed_m_s: float | None = None,
+def make_gaze_controller(*, strategy: str = "four", profile: str = "single", speed_m_s: float | None = None,
                     point_filter: str | None = None, window_s: float = 0.3, kalman_q: float | None = KALMAN_Q[0],
                     rate_hz: float = NOMINAL_RATE_HZ, stall_timeout_s: float = STALL_TIMEOUT_S) -> GazeController:
     """A controller from names, as a trial block would configure it.

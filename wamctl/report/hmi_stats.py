@@ -64,7 +64,7 @@ def add_hmi_analysis(doc: Document, results: HmiResults, out_dir: Path | None, s
 
 def hmi_results_report(path: Path, out_dir: Path) -> Document:
     """A report of one HMI results file (raw trials or per-unit summaries)."""
-    from wamctl.analysis.hmi_results import read_hmi_csv
+    from wamctl.analysis.hmi_csv import read_hmi_csv
     results = read_hmi_csv(path)
     doc = Document(f"HMI results: {Path(path).name}")
     doc.text(f"{len(results.units)} {results.unit_kind}s x {len(results.conditions)} conditions "

@@ -9,8 +9,10 @@ from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
 
-from wamctl.hmi import arm as A
 from wamctl.hmi.gaze import NOMINAL_RATE_HZ
+from wamctl.hmi.gripper import HAND_CLOSE_S, HAND_OPEN_S
+from wamctl.hmi.kinematics import TOOL_OFFSET_M
+from wamctl.hmi.scene import GRASP_HEIGHT_M, SCENE_FOCAL_PX, TABLE_Z_M
 from wamctl.hmi.strategy import DEFAULT_CUBIC_VMAX_M_S, DEFAULT_DUAL_V1_M_S, DEFAULT_SINGLE_SPEED_M_S, STALL_TIMEOUT_S
 from wamctl.specs.common import Common, Strict, Vec7
 
@@ -116,7 +118,7 @@ class CameraSpec(Strict):
 
     eye_m: Annotated[list[float], Field(min_length=3, max_length=3)] = list(DEFAULT_EYE_M)
     look_at_m: Annotated[list[float], Field(min_length=2, max_length=2)] | None = None
-    focal_px: float = Field(A.SCENE_FOCAL_PX, gt=50.0, le=5000.0)
+    focal_px: float = Field(SCENE_FOCAL_PX, gt=50.0, le=5000.0)
 
 
 Point2 = Annotated[list[float], Field(min_length=2, max_length=2)]
@@ -139,9 +141,9 @@ class HmiTask(Strict):
     timeout_s: float = Field(60.0, gt=0.0, le=900.0)
     hit_radius_m: float = Field(0.03, gt=0.0, le=0.2)
     start_m: Point2 = list(DEFAULT_START_M)
-    table_z_m: float = Field(A.TABLE_Z_M, ge=-1.0, le=0.5, description="table top in frame 0")
-    grasp_height_m: float = Field(A.GRASP_HEIGHT_M, ge=0.0, le=0.4, description="grasp centre above the table")
-    tool_offset_m: float = Field(A.TOOL_OFFSET_M, ge=0.0, le=0.4, description="grasp centre from the flange")
+    table_z_m: float = Field(TABLE_Z_M, ge=-1.0, le=0.5, description="table top in frame 0")
+    grasp_height_m: float = Field(GRASP_HEIGHT_M, ge=0.0, le=0.4, description="grasp centre above the table")
+    tool_offset_m: float = Field(TOOL_OFFSET_M, ge=0.0, le=0.4, description="grasp centre from the flange")
     workspace: WorkspaceSpec = WorkspaceSpec()
     camera: CameraSpec = CameraSpec()
     start_q_rad: Vec7 | None = Field(None, description="seed of the start pose IK (default elbow up)")
@@ -150,8 +152,8 @@ class HmiTask(Strict):
     ik_rate_hz: float = Field(100.0, description="IK rate; divides 500 Hz")
     accel_m_s2: float = Field(1.0, gt=0.0, le=10.0, description="acceleration limit of the hand reference")
     joint_speed_rad_s: float = Field(0.5, gt=0.0, le=1.5, description="LSPB moves to start and home")
-    gripper_close_s: float = Field(A.HAND_CLOSE_S, gt=0.0, le=10.0)
-    gripper_open_s: float = Field(A.HAND_OPEN_S, gt=0.0, le=10.0)
+    gripper_close_s: float = Field(HAND_CLOSE_S, gt=0.0, le=10.0)
+    gripper_open_s: float = Field(HAND_OPEN_S, gt=0.0, le=10.0)
     start: Literal["auto", "prompt"] | None = Field(None, description="supervisor start of each trial; default "
                                                                        "prompt for a serial tracker, else auto")
     record_trajectory: bool = True
