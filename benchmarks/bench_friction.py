@@ -17,7 +17,7 @@ from pathlib import Path
 
 import numpy as np
 
-from wamctl.analysis.friction_id import identify
+from wamctl.analysis.friction_id.identify import identify
 from wamctl.backends import make_backend
 from wamctl.experiments import friction_sweep as fs
 from wamctl.experiments.common import closed_loop_stage, make_controller

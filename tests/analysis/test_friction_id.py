@@ -16,7 +16,12 @@ import pytest
 import yaml
 from conftest import Q0
 
-from wamctl.analysis import friction_id as fi
+from wamctl.analysis.friction_id.identify import identify
+from wamctl.analysis.friction_id.models import ClassicFriction, StribeckFriction
+from wamctl.analysis.friction_id.segments import constant_velocity_stage, detect_moves, moves_from_reference
+from wamctl.analysis.friction_id.selection import select_model
+from wamctl.analysis.friction_id.signals import fit_line, position_noise_rad, quantisation_step_rad
+from wamctl.analysis.friction_id.velocity_map import friction_map, friction_samples
 from wamctl.analysis.rotation import rotation_metrics
 from wamctl.backends import make_backend
 from wamctl.control.trajectory import ReferenceBuilder
@@ -173,14 +178,14 @@ def test_segment_detection_on_synthetic_quantised_noisy_data(use_reference):
     step = 2 * np.pi / 4096 / 42.0          # one encoder count of joint 1 (J2MP 42)
     speeds = [0.005, 0.02, 0.1, 0.4]
     t, q, tau, qr, windows, friction = synthetic_joint(speeds, rng, step, 1e-5)
-    sig = fi.position_noise_rad(q)
+    sig = position_noise_rad(q)
     assert 0.5 * step / np.sqrt(12) < sig < 3 * (step / np.sqrt(12) + 1e-5)
-    moves = fi.moves_from_reference(t, qr) if use_reference else fi.detect_moves(t, q, sig)
+    moves = moves_from_reference(t, qr) if use_reference else detect_moves(t, q, sig)
     assert len(moves) == len(windows) == 2 * len(speeds)
     found = []
     for m, (w0, w1, v) in zip(moves, windows):
         assert m.direction == np.sign(v)
-        st = fi.constant_velocity_stage(t, q, m.i0, m.i1, sig, fi.quantisation_step_rad(q))
+        st = constant_velocity_stage(t, q, m.i0, m.i1, sig, quantisation_step_rad(q))
         assert st.ok, st.reason
         t0, t1 = t[st.s0], t[st.s1 - 1]
         # within the cruise: the stuck start and the blends are left out (a slow blend's last tens of ms
@@ -189,7 +194,7 @@ def test_segment_detection_on_synthetic_quantised_noisy_data(use_reference):
         if abs(v) >= 0.1:
             assert t0 >= w0 + 0.05, (t0, w0)
         assert (t1 - t0) > 0.5 * (w1 - w0)
-        found.append(fi._line(t[st.s0:st.s1], q[st.s0:st.s1])[1])
+        found.append(fit_line(t[st.s0:st.s1], q[st.s0:st.s1])[1])
         np.testing.assert_allclose(found[-1], v, rtol=0.01)
     # the map: velocity and friction of each stage (a single joint: inverse dynamics replaced by m qdd)
 
@@ -204,7 +209,7 @@ def test_segment_detection_on_synthetic_quantised_noisy_data(use_reference):
     if use_reference:
         ref7 = np.zeros((len(t), 7))
         ref7[:, 0] = qr
-    m = fi.friction_map(t, q7, tau7, ref7, [1], OneJoint())
+    m = friction_map(t, q7, tau7, ref7, [1], OneJoint())
     assert m["accepted"].all(), m["reason"].tolist()
     err = m["friction_Nm"] - friction(m["velocity_rad_s"].to_numpy())
     assert (np.abs(err) < np.maximum(4 * m["friction_se_Nm"], 0.01)).all(), err.tolist()
@@ -215,9 +220,9 @@ def test_stage_rejected_without_constant_velocity():
     # an exponential approach to the cruise velocity (time constant 0.3 s) never holds a constant speed
     t = np.arange(0, 1.2, DT)
     q = 0.8 * (t - 0.3 * (1 - np.exp(-t / 0.3)))
-    st = fi.constant_velocity_stage(t, q, 0, len(t), 1e-6)
+    st = constant_velocity_stage(t, q, 0, len(t), 1e-6)
     assert not st.ok and ("not constant" in st.reason or "shorter" in st.reason)
-    st = fi.constant_velocity_stage(t, np.zeros(len(t)), 0, len(t), 1e-6)
+    st = constant_velocity_stage(t, np.zeros(len(t)), 0, len(t), 1e-6)
     assert st.reason == "the joint did not move"
 
 
@@ -237,7 +242,7 @@ def test_classic_fit_uncertainty_and_robust_loss():
     coverage = []
     for _ in range(40):
         m = synthetic_map(TRUE, 1, speeds, 0.01, rng)
-        c = fi.ClassicFriction().fit(m)
+        c = ClassicFriction().fit(m)
         coverage.append(abs(c.fc_pos_ - TRUE.fc_pos_Nm[0]) <= 2 * c.fc_pos_std_)
         assert c.fc_pos_ == pytest.approx(TRUE.fc_pos_Nm[0], abs=0.03)
         assert c.sigma2_neg_ == pytest.approx(TRUE.viscous_neg_Nm_s_rad[0], abs=0.05)
@@ -245,12 +250,12 @@ def test_classic_fit_uncertainty_and_robust_loss():
     # one outlying segment (a transient averaged in): the robust loss keeps the parameters
     m = synthetic_map(TRUE, 1, speeds, 0.005, rng)
     m.loc[12, "friction_Nm"] += 0.8
-    plain = fi.ClassicFriction(loss="linear").fit(m)
-    robust = fi.ClassicFriction(loss="soft_l1").fit(m)
+    plain = ClassicFriction(loss="linear").fit(m)
+    robust = ClassicFriction(loss="soft_l1").fit(m)
     assert abs(plain.sigma2_pos_ - TRUE.viscous_pos_Nm_s_rad[0]) > 0.1
     assert robust.sigma2_pos_ == pytest.approx(TRUE.viscous_pos_Nm_s_rad[0], abs=0.03)
     assert robust.fc_pos_ == pytest.approx(TRUE.fc_pos_Nm[0], abs=0.02)
-    sym = fi.ClassicFriction(symmetric=True).fit(m)
+    sym = ClassicFriction(symmetric=True).fit(m)
     assert sym.fc_pos_ == sym.fc_neg_ and sym.n_params == 2
 
 
@@ -260,14 +265,14 @@ def test_selection_prefers_the_model_that_generated_the_data():
     stribeck = TRUE.with_stribeck(TRUE.fc_pos_Nm * 1.5, TRUE.fc_neg_Nm * 1.5, np.full(7, 0.05), 2.0)
     sym = FrictionModel(np.full(7, 2.0), np.full(7, 2.0), np.full(7, 1.0), np.full(7, 1.0))
     for model, want in ((TRUE, "classic"), (stribeck, "stribeck"), (sym, "classic_symmetric")):
-        table, chosen, fitted = fi.select_model(synthetic_map(model, 3, speeds, 0.004, rng))
+        table, chosen, fitted = select_model(synthetic_map(model, 3, speeds, 0.004, rng))
         assert chosen == want, table
         assert set(table.index) == {"classic", "classic_symmetric", "stribeck"}
         assert np.isfinite(table.loc[want, "bic_cv"])
     est = fitted["classic_symmetric"]
     assert est.fc_pos_ == pytest.approx(2.0, abs=0.01)
     # Stribeck parameters from clean data
-    s = fi.StribeckFriction().fit(synthetic_map(stribeck, 3, speeds, 0.002, rng))
+    s = StribeckFriction().fit(synthetic_map(stribeck, 3, speeds, 0.002, rng))
     assert s.fs_pos_ == pytest.approx(stribeck.fs_pos_Nm[2], rel=0.02)
     assert s.fs_neg_ == pytest.approx(stribeck.fs_neg_Nm[2], rel=0.02)
     assert s.vs_ == pytest.approx(0.05, rel=0.2)
@@ -328,7 +333,7 @@ def test_stribeck_plant_selects_stribeck_and_recovers_breakaway():
                              "effects": {"stribeck": {"joints": [1, 7], "breakaway_ratio": 1.5, "vs_rad_s": 0.2}}},
                       sweep={"joints": [1, 7], "travel_rad": {1: 0.8, 7: 1.5}})
     rd = simulate(spec)
-    ident = fi.identify(rd)
+    ident = identify(rd)
     for j in (1, 7):
         ji = ident.joints[j]
         assert ji.chosen == "stribeck", ji.selection
@@ -462,5 +467,5 @@ def test_declared_model_inverse_dynamics_is_what_friction_is_measured_against():
     qd = np.gradient(q, DT, axis=0)
     qdd = np.gradient(qd, DT, axis=0)
     tau = np.array([dyn.inverse_dynamics(a, b, c) for a, b, c in zip(q, qd, qdd)])
-    f = fi.friction_samples(t, q, tau, np.arange(100, 400), dyn)
+    f = friction_samples(t, q, tau, np.arange(100, 400), dyn)
     assert np.abs(f).max() < 2e-3

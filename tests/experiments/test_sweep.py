@@ -18,17 +18,11 @@ import yaml
 from conftest import Q0
 
 from wamctl.errors import SpecError
-from wamctl.experiments.sweep import (
-    SweepSection,
-    apply_values,
-    expand_section,
-    load_sweep,
-    open_sweep_dir,
-    read_index,
-    run_sweep,
-    sweep_from_mapping,
-)
+from wamctl.experiments.sweep.index import open_sweep_dir
+from wamctl.experiments.sweep.run import run_sweep
 from wamctl.model import params as P
+from wamctl.report.sweep import read_index
+from wamctl.specs.sweep import VarySection, apply_values, expand_section, load_sweep, sweep_from_mapping
 
 distributed = pytest.importorskip("distributed")
 
@@ -73,7 +67,7 @@ def client():
 
 # ------------------------------------------------------------------------------------ the sweep section
 def test_expansion_order_ids_and_value_forms():
-    sec = SweepSection.model_validate({
+    sec = VarySection.model_validate({
         "points": [{"plant.friction": "table_4_1"}, {"plant.friction": "none"}],
         "zip": {"rotation.amplitude_rad": [0.1, 0.2], "rotation.velocity_rad_s": {"linspace": [0.1, 0.3, 2]}},
         "grid": {"seed": {"range": [5, 11, 3]}, "plant.effects.stribeck.breakaway_ratio": [1.2, 2.0]}})

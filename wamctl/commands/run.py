@@ -37,7 +37,8 @@ def validate(spec: SpecArg,
 
     raw = load_yaml(spec)
     if isinstance(raw, dict) and "vary" in raw:  # a sweep spec: every point (wamctl.experiments.sweep, issue 10)
-        from wamctl.experiments.sweep import check_plans, load_sweep
+        from wamctl.experiments.sweep.run import check_plans
+        from wamctl.specs.sweep import load_sweep
         sw = load_sweep(spec)
         checks = check_plans(sw)
         if json:

@@ -40,7 +40,10 @@ def sweep(
     failed, 2 for a bad spec, 130 when interrupted.
     """
     from wamctl.errors import SpecError
-    from wamctl.experiments.sweep import _import_distributed, load_sweep, open_sweep_dir, run_sweep
+    from wamctl.experiments.sweep.cluster import import_distributed
+    from wamctl.experiments.sweep.index import open_sweep_dir
+    from wamctl.experiments.sweep.run import run_sweep
+    from wamctl.specs.sweep import load_sweep
 
     if spec is None and resume is None:
         raise SpecError("give a spec with a `vary:` section, or --resume SWEEP_DIR")
@@ -54,11 +57,11 @@ def sweep(
     else:
         sw = load_sweep(spec)
     if dry_run:
-        from wamctl.experiments.sweep import check_plans
+        from wamctl.experiments.sweep.run import check_plans
         _dry_run(sw, check_plans(sw), json)
         return
     if not logging.getLogger().isEnabledFor(logging.INFO):  # without --verbose: only dask's errors
-        _import_distributed()  # it configures its loggers on import
+        import_distributed()  # it configures its loggers on import
         logging.getLogger("distributed").setLevel(logging.ERROR)
     show = not (quiet or json)
     failures: list[dict] = []

@@ -81,7 +81,7 @@ def plan(spec: FrictionSweepSpec, base_dir: Path | None = None) -> Plan:
 # ------------------------------------------------------------------------------------------------ execute
 def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, base_dir: Path | None = None) -> None:
     """Run the sweep, identify, write ``friction_model.yaml`` (and the map), then the optional validation."""
-    from wamctl.analysis.friction_id import identify
+    from wamctl.analysis.friction_id.identify import identify
     from wamctl.runs.measured import load_run_data
 
     ref = plan.reference
@@ -160,7 +160,7 @@ def analyse_recorded(source: Path, out: Path | None = None, runs_dir: Path = Pat
     -------
     (directory written, FrictionIdentification, Document)
     """
-    from wamctl.analysis.friction_id import identify
+    from wamctl.analysis.friction_id.identify import identify
     from wamctl.report.friction import friction_document
     from wamctl.runs.measured import load_run_data
     from wamctl.runs.store import open_run

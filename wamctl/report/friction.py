@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from wamctl.analysis.friction_id import MODEL_NAMES, FrictionIdentification, identify, identify_from_map
+from wamctl.analysis.friction_id.identify import FrictionIdentification, identify, identify_from_map
+from wamctl.analysis.friction_id.models import MODEL_NAMES
 from wamctl.model import params as P
 from wamctl.model.friction import FrictionModel
 from wamctl.report.document import Document
@@ -253,7 +254,7 @@ def friction_document(rd, ident: FrictionIdentification, out_dir: Path, title: s
 
 
 def json_map(m: pd.DataFrame) -> list[dict]:
-    from wamctl.analysis.friction_id import json_records
+    from wamctl.analysis.friction_id.identify import json_records
     return json_records(m)
 
 

@@ -1,0 +1,159 @@
+"""The friction-velocity map: one row per move of each joint, with the mean velocity and friction torque of its
+constant-velocity stage, their spread and confidence intervals, or why the move was left out."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+import pandas as pd
+from scipy import stats
+
+from wamctl.analysis.friction_id.segments import (
+    Move,
+    Stage,
+    constant_velocity_stage,
+    detect_moves,
+    moves_from_reference,
+)
+from wamctl.analysis.friction_id.signals import (
+    batch_mean_se,
+    fit_line,
+    position_noise_rad,
+    quantisation_step_rad,
+    savgol_derivative,
+)
+
+MAP_COLUMNS = ["joint", "move", "direction", "v_cmd_rad_s", "t_start_s", "t_end_s", "n_samples",
+               "velocity_rad_s", "velocity_std_rad_s", "velocity_ci95_rad_s", "friction_Nm", "friction_std_Nm",
+               "friction_se_Nm", "friction_ci95_Nm", "stick_fraction", "accepted", "reason"]
+
+
+@dataclass
+class MapOptions:
+    """Settings of segment detection (defaults suit 500 Hz WAM data)."""
+
+    use_reference: bool = True      # take move windows (and commanded speeds) from q_ref when present
+    min_stage_s: float = 0.2
+    guard_s: float = 0.02
+    consistency: float = 0.05
+    band_sigmas: float = 4.0
+    # Savitzky-Golay window of qd, qdd for the inverse dynamics; short, because a longer one smooths away the
+    # decaying oscillation after a blend and biases the inertial correction of short, fast stages
+    derivative_window_s: float = 0.04
+    stick_fraction_max: float = 0.1   # reject stages where the joint stands still more than this
+    velocity_tolerance: float = 0.03  # with a commanded speed: reject stages off it by more (not steady)
+
+
+def friction_samples(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, rows: np.ndarray, dynamics,
+                     window_s: float = 0.04) -> np.ndarray:
+    """Friction torque at the samples ``rows``: ``tau - inverse_dynamics(q, qd, qdd)``, all joints.
+
+    Parameters
+    ----------
+    t_s : (n,); q, tau : (n, 7) measured position and logged (applied) torque.
+    rows : (m,) sample indices. dynamics : a :class:`~wamctl.model.dynamics.WamDynamics` (the declared model).
+
+    Returns
+    -------
+    (m, 7) friction torque, N m (the torque the motor supplied beyond the rigid body's needs).
+    """
+    dt = float(np.median(np.diff(t_s)))
+    qd = savgol_derivative(q, dt, window_s, 2, 1)
+    qdd = savgol_derivative(q, dt, window_s, 2, 2)
+    out = np.empty((len(rows), q.shape[1]))
+    for k, i in enumerate(rows):
+        out[k] = tau[i] - dynamics.inverse_dynamics(q[i], qd[i], qdd[i])
+    return out
+
+
+def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndarray | None, joints,
+                 dynamics, options: MapOptions | None = None) -> pd.DataFrame:
+    """The friction-velocity map: one row per move of each joint (columns :data:`MAP_COLUMNS`).
+
+    Parameters
+    ----------
+    t_s : (n,) time; q, tau : (n, 7) measured positions and logged torques; q_ref : (n, 7) reference or None.
+    joints : 1-based joint numbers to analyse. dynamics : the declared rigid-body model.
+    """
+    o = options or MapOptions()
+    t_s = np.asarray(t_s, float)
+    dt = float(np.median(np.diff(t_s)))
+    rows = []
+    stage_rows: list[np.ndarray] = []
+    for j in joints:
+        x = q[:, j - 1]
+        sig = position_noise_rad(x)
+        step = quantisation_step_rad(x)
+        if q_ref is not None and o.use_reference:
+            moves = moves_from_reference(t_s, q_ref[:, j - 1])
+        else:
+            moves = detect_moves(t_s, x, sig)
+        v_fine = savgol_derivative(x, dt, 0.05, 1)
+        for k, m in enumerate(moves):
+            st = constant_velocity_stage(t_s, x, m.i0, m.i1, sig, step, o.min_stage_s, o.guard_s,
+                                         o.consistency, o.band_sigmas)
+            row = {"joint": j, "move": k, "direction": m.direction, "v_cmd_rad_s": m.v_cmd_rad_s,
+                   "t_start_s": float(t_s[st.s0]) if st.s0 < len(t_s) else float("nan"),
+                   "t_end_s": float(t_s[st.s1 - 1]) if st.s1 > st.s0 else float("nan"),
+                   "n_samples": st.s1 - st.s0, "accepted": st.ok, "reason": st.reason}
+            if st.ok:
+                row.update(_stage_velocity(t_s, x, v_fine, m, st, o))
+                stage_rows.append(np.arange(st.s0, st.s1))
+            rows.append(row)
+    df = pd.DataFrame(rows, columns=MAP_COLUMNS)
+    if not len(df):
+        return df
+    if stage_rows:
+        _add_stage_friction(df, t_s, q, tau, np.concatenate(stage_rows), dynamics, o.derivative_window_s)
+    df["accepted"] = df["accepted"].astype(bool)
+    return df
+
+
+def _stage_velocity(t_s: np.ndarray, x: np.ndarray, v_fine: np.ndarray, m: Move, st: Stage,
+                    o: MapOptions) -> dict:
+    """The velocity columns of one stage of joint position ``x``, and its rejection when it was not in steady
+    motion (against the commanded direction, off the commanded speed, or stick-slip)."""
+    sl = slice(st.s0, st.s1)
+    _, v, _ = fit_line(t_s[sl], x[sl])
+    # velocity spread and the CI of the mean velocity from block slopes
+    nb = min(10, (st.s1 - st.s0) // 25)
+    if nb >= 3:
+        blocks = np.array_split(np.arange(st.s0, st.s1), nb)
+        bv = np.array([fit_line(t_s[b], x[b])[1] for b in blocks])
+        v_ci = float(stats.t.ppf(0.975, nb - 1) * bv.std(ddof=1) / math.sqrt(nb))
+    else:
+        v_ci = float("nan")
+    vf = v_fine[sl]
+    still = float(np.mean(np.abs(vf) < 0.1 * abs(v)))
+    row = dict(velocity_rad_s=v, velocity_std_rad_s=float(np.std(vf)), velocity_ci95_rad_s=v_ci,
+               stick_fraction=still)
+    if np.sign(v) != m.direction:
+        row.update(accepted=False, reason="moved against the commanded direction")
+    elif np.isfinite(m.v_cmd_rad_s) and abs(v / m.v_cmd_rad_s - 1) > o.velocity_tolerance:
+        off = abs(v / m.v_cmd_rad_s - 1)
+        row.update(accepted=False, reason=f"mean velocity {v:.4g} rad/s is {off:.0%} off the commanded "
+                                          f"{m.v_cmd_rad_s:.4g}: not in steady state")
+    elif still > o.stick_fraction_max:
+        row.update(accepted=False, reason=f"stands still {still:.0%} of the stage (stick-slip)")
+    return row
+
+
+def _add_stage_friction(df: pd.DataFrame, t_s: np.ndarray, q: np.ndarray, tau: np.ndarray,
+                        all_rows: np.ndarray, dynamics, window_s: float) -> None:
+    """Fill the friction columns of ``df`` in place: the friction torque of every stage, in one pass of inverse
+    dynamics over ``all_rows`` (the stages' samples, concatenated in the order of the map's rows)."""
+    if not len(all_rows):
+        return
+    f = friction_samples(t_s, q, tau, all_rows, dynamics, window_s)
+    pos = 0
+    for idx in df.index[df["n_samples"] > 0]:
+        if pd.isna(df.at[idx, "velocity_rad_s"]):
+            continue
+        n = int(df.at[idx, "n_samples"])
+        fj = f[pos:pos + n, int(df.at[idx, "joint"]) - 1]
+        pos += n
+        df.at[idx, "friction_Nm"] = float(fj.mean())
+        df.at[idx, "friction_std_Nm"] = float(fj.std(ddof=1))
+        df.at[idx, "friction_se_Nm"], df.at[idx, "friction_ci95_Nm"] = batch_mean_se(fj)

@@ -1,0 +1,98 @@
+"""The Dask cluster of a sweep: a local cluster of single-threaded worker processes, or a running scheduler by
+address. :mod:`distributed` is imported only here, and only when a sweep runs."""
+
+from __future__ import annotations
+
+import logging
+import os
+
+from wamctl.errors import BackendError
+
+log = logging.getLogger(__name__)
+
+
+def default_n_workers() -> int:
+    """Cores this process may use (CPU affinity), at least 1."""
+    try:
+        return max(1, len(os.sched_getaffinity(0)))
+    except AttributeError:
+        return max(1, os.cpu_count() or 1)
+
+
+def import_distributed():
+    """The :mod:`distributed` package, or a :class:`BackendError` saying how to install it."""
+    try:
+        import distributed
+    except ImportError:
+        raise BackendError("wamctl sweep needs dask.distributed: pip install 'dask[distributed]'") from None
+    return distributed
+
+
+def dask_versions() -> dict:
+    """Installed versions of dask and distributed (None when missing), for the sweep manifest."""
+    from importlib import metadata
+    out = {}
+    for n in ("dask", "distributed"):
+        try:
+            out[n] = metadata.version(n)
+        except metadata.PackageNotFoundError:
+            out[n] = None
+    return out
+
+
+def start_local_cluster(n_workers: int | None = None):
+    """A ``LocalCluster`` of ``n_workers`` single-threaded worker processes (default: one per core) and
+    its client. Returns ``(cluster, client)``.
+
+    The workers ignore SIGINT (a plugin, so restarted workers do too): Ctrl-C in a terminal reaches the
+    whole process group, and only the client should act on it (write the index, then close the cluster).
+    """
+    distributed = import_distributed()
+    n = n_workers or default_n_workers()
+    cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                       dashboard_address=":0", silence_logs=logging.ERROR)
+    client = distributed.Client(cluster)
+    client.register_plugin(_ignore_sigint_plugin(), name="wamctl-ignore-sigint")
+    return cluster, client
+
+
+def _ignore_sigint_plugin():
+    from distributed.diagnostics.plugin import WorkerPlugin
+
+    class IgnoreSigint(WorkerPlugin):
+        def setup(self, worker):
+            import signal
+            import threading
+            if threading.current_thread() is threading.main_thread():
+                signal.signal(signal.SIGINT, signal.SIG_IGN)
+
+    return IgnoreSigint()
+
+
+def connect(scheduler: str | None, n_workers: int | None):
+    """A client of the scheduler at ``scheduler``, or of a new local cluster of ``n_workers`` processes.
+    Returns ``(client, cluster)``, ``cluster`` None for a scheduler by address.
+
+    Raises
+    ------
+    BackendError when the scheduler cannot be reached (or dask.distributed is not installed).
+    """
+    distributed = import_distributed()
+    try:
+        if scheduler:
+            return distributed.Client(scheduler, timeout="20s"), None
+        cluster, client = start_local_cluster(n_workers)
+        return client, cluster
+    except (OSError, TimeoutError) as exc:
+        raise BackendError(f"cannot reach the Dask scheduler {scheduler or '(local)'}: {exc}") from None
+
+
+def close_quietly(client, cluster) -> None:
+    """Close a client and then its cluster (either may be None), logging what fails."""
+    for obj in (client, cluster):
+        if obj is None:
+            continue
+        try:
+            obj.close(timeout=10) if obj is client else obj.close(timeout=20)
+        except Exception:  # noqa: BLE001 - shutting down after Ctrl-C or a lost cluster
+            log.debug("closing %s failed", obj, exc_info=True)

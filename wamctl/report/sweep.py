@@ -1,0 +1,76 @@
+"""The combined report of a sweep directory (points, key figures, their means per swept value), and the reader
+of its index.
+
+The index (``index.csv``) is written by :mod:`wamctl.experiments.sweep`; its fixed columns
+(:data:`INDEX_COLUMNS`) and the point statuses (:data:`STATUSES`) are defined here, where the report reads
+them, so that the report never imports the experiments.
+"""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import pandas as pd
+
+from wamctl.errors import DataFormatError
+from wamctl.report.document import Document
+
+STATUSES = ("completed", "failed", "interrupted", "pending")
+INDEX_COLUMNS = ["point", "status", "attempts", "run_dir", "error", "worker", "start_unix_s", "end_unix_s",
+                 "duration_s"]
+
+
+def read_index(sweep_dir: str | Path) -> pd.DataFrame:
+    """The index of a sweep directory as a table (one row per point)."""
+    p = Path(sweep_dir) / "index.csv"
+    if not p.is_file():
+        raise DataFormatError(f"{sweep_dir}: not a sweep directory (no index.csv)")
+    return pd.read_csv(p)
+
+
+def sweep_report(sweep_dir: str | Path) -> Document:
+    """The combined report of a sweep directory: the index, the key figures of every point, and their means
+    per value of each swept parameter (parameters with 2..20 distinct values)."""
+    d = Path(sweep_dir)
+    m = json.loads((d / "sweep.json").read_text())
+    idx = read_index(d)
+    params = [p for p in m.get("parameters", []) if p in idx.columns]
+    counts = idx["status"].value_counts().to_dict()
+    doc = Document(f"Sweep {m.get('name')}: {len(idx)} points of {m.get('kind')}")
+    doc.text(f"Spec {m.get('source')}; swept: {', '.join(params) or 'nothing'}. Status: "
+             + ", ".join(f"{counts.get(s, 0)} {s}" for s in STATUSES if counts.get(s, 0)) + ".")
+    for i, s in enumerate(m.get("sessions", [])):
+        if s.get("wall_s") is None:
+            continue
+        eff = s.get("efficiency")
+        doc.text(f"Session {i + 1} ({s.get('start_utc')}): {s.get('ran', 0)} points run, {s.get('skipped', 0)} "
+                 f"skipped as completed, {s.get('wall_s', 0):.1f} s on {s.get('n_workers')} workers "
+                 f"({s.get('scheduler')}); at most {s.get('max_concurrent')} points at once"
+                 + (f", workers busy {100 * eff:.0f} % of the time" if eff is not None else "")
+                 + (" - interrupted" if s.get("interrupted") else "") + ".")
+    base = ["point"] + params + ["status", "attempts", "duration_s", "run_dir", "error"]
+    doc.heading("Points")
+    doc.table("points", idx[[c for c in base if c in idx.columns]].set_index("point"),
+              "run_dir is relative to the sweep directory; each run has its own report there.", digits=3)
+    figs = [c for c in idx.columns if c not in set(INDEX_COLUMNS) | set(params) | {"pid"}]
+    figs = [c for c in figs if pd.api.types.is_numeric_dtype(idx[c])]
+    ok = idx[idx["status"] == "completed"]
+    doc.data["counts"] = {str(k): int(v) for k, v in counts.items()}
+    if figs and len(ok):
+        doc.heading("Key figures per point")
+        doc.table("key_figures", ok[["point"] + params + figs].set_index("point"),
+                  "numbers from each run's report (e.g. rpe_pct.j: RPE of joint j, %)")
+        for p in params:
+            nvals = ok[p].nunique()
+            if 2 <= nvals <= 20:
+                g = ok.groupby(p)[figs].mean()
+                g.insert(0, "n_points", ok.groupby(p).size())
+                doc.heading(f"Mean key figures by {p}")
+                doc.table(f"by_{p}", g, f"means over the completed points with each value of {p}")
+                doc.data.setdefault("by_parameter", {})[p] = json.loads(g.to_json(orient="index"))
+    return doc
+
+
+def write_sweep_report(sweep_dir: str | Path, formats=("md", "html", "json")) -> list[Path]:
+    return sweep_report(sweep_dir).write(Path(sweep_dir), "report", formats)
