@@ -2,7 +2,8 @@
 
 What lives here: the shared safety base (:mod:`.base`: limits, watchdog, zero torque on exit), the simulated
 WAM (:mod:`.sim`), the real arm over CAN (:mod:`.can`: the backend, the puck protocol, simulated pucks, bus
-tools), the gaze tracker's sources (:mod:`.gaze`: serial, replay, the virtual subject), and the registry below: ``backend.kind`` of a spec -> ``"module:Class"``, imported only when used.
+tools), the gaze tracker's sources (:mod:`.gaze`: serial, replay, the virtual subject), and the registry below:
+``backend.kind`` of a spec -> ``"module:Class"``, imported only when used.
 
 May import: specs (typed backend specs), control, hmi, model, runs, io, errors. Never analysis, experiments,
 report or the CLI.
