@@ -26,6 +26,9 @@ from wamctl.analysis.hmi_results import TRIAL_COLUMNS
 from wamctl.backends import make_backend
 from wamctl.experiments import hmi_block
 from wamctl.experiments.common import make_controller
+from wamctl.experiments.hmi_block.planning import make_camera, trial_seed
+from wamctl.experiments.hmi_block.supervisor import stdin_prompt
+from wamctl.experiments.hmi_block.tables import MOTION_CODES, TRAJECTORY_COLUMNS, TRIAL_TABLE_COLUMNS
 from wamctl.hmi import arm as A
 from wamctl.hmi.gaze import GazeFlag, GazeSample, format_line, write_gaze_csv
 from wamctl.hmi.strategy import EventKind, HandCommand, Hold, Motion
@@ -80,7 +83,7 @@ def hand_xy(arm):
 
 # ------------------------------------------------------------------------------------------------ kinematics
 def test_camera_mapping_matches_the_seat_and_the_image():
-    cam = hmi_block.make_camera(parse_spec({"kind": "hmi_block"}).hmi)
+    cam = make_camera(parse_spec({"kind": "hmi_block"}).hmi)
     m = cam.mapping()
     # The subject sits at the arm's left (+y) looking along -y: image right is -x, image up is -y.
     assert np.allclose(m.right_xy, (-1.0, 0.0), atol=1e-12) and np.allclose(m.forward_xy, (0.0, -1.0), atol=1e-12)
@@ -256,7 +259,7 @@ def test_virtual_block_end_to_end_through_the_cli(tmp_path):
     assert out["status"] == "completed"
     run = Path(out["run_dir"])
     trials = pd.read_csv(run / "trials.csv")
-    assert list(trials.columns) == hmi_block.TRIAL_TABLE_COLUMNS
+    assert list(trials.columns) == TRIAL_TABLE_COLUMNS
     assert set(TRIAL_COLUMNS) <= set(trials.columns)
     assert trials["location"].tolist() == ["P4", "P7"] and trials["attempt"].tolist() == [1, 1]
     assert (trials["condition"] == "four-ma300-dual").all() and (trials["subject"] == "S1").all()
@@ -271,7 +274,7 @@ def test_virtual_block_end_to_end_through_the_cli(tmp_path):
         kinds = set(events.loc[events["trial"] == n, "kind"])
         assert {"trial_start", "voluntary_blink", "gripper_close", "gripper_closed", "grasp", "command"} <= kinds
     traj = read_table(run, "trajectory")
-    assert list(traj.columns) == hmi_block.TRAJECTORY_COLUMNS
+    assert list(traj.columns) == TRAJECTORY_COLUMNS
     assert set(traj["trial"]) == {1.0, 2.0}
     dt = np.diff(traj.loc[traj["trial"] == 1, "gaze_t_s"])
     assert 0.025 < np.median(dt) < 0.04  # one row per 30 Hz sample
@@ -301,7 +304,7 @@ def test_resume_continues_at_the_next_trial(tmp_path):
     assert trials["trial"].tolist() == [1, 2, 3]
     assert trials["location"].tolist() == ["P4", "P1", "P8"]
     pd.testing.assert_frame_equal(trials.iloc[:1], first)
-    assert trials.loc[1, "subject_seed"] == hmi_block.trial_seed(5, "four-ma300-dual", 2)
+    assert trials.loc[1, "subject_seed"] == trial_seed(5, "four-ma300-dual", 2)
     m = json.loads((run / "manifest.json").read_text())
     assert m["status"] == "completed" and len(m["resumed"]) == 1 and m["hmi"]["trials_done"] == 3
     traj = read_table(run, "trajectory")
@@ -369,7 +372,7 @@ def test_serial_block_gives_the_same_commands_as_the_replay(tmp_path):
     assert len(both) >= 0.95 * len(a) and len(a) > 100
     for c in cols[1:]:
         assert (both[f"{c}_r"] == both[f"{c}_s"]).all(), c
-    assert {hmi_block.MOTION_CODES.index("stop"), hmi_block.MOTION_CODES.index("left")} <= set(a["motion"])
+    assert {MOTION_CODES.index("stop"), MOTION_CODES.index("left")} <= set(a["motion"])
     assert json.loads((out_s.path / "manifest.json").read_text())["hmi"]["source"] == "serial"
 
 
@@ -437,7 +440,7 @@ def test_supervisor_prompt_starts_each_trial(tmp_path):
     try:
         out = run_spec(spec, tmp_path, tmp_path / "runs", make_report=False)
     finally:
-        hmi_block.set_supervisor_prompt(hmi_block._stdin_prompt)
+        hmi_block.set_supervisor_prompt(stdin_prompt)
     assert out.status == "completed"
     assert len(asked) == 1 and "P4" in asked[0][1]
     events = pd.read_csv(out.path / "hmi_events.csv")

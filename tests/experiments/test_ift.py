@@ -14,14 +14,19 @@ from scipy.signal import lfilter
 
 from wamctl.analysis import ift as A
 from wamctl.control.controllers import JointController
+from wamctl.control.trajectory import Reference
 from wamctl.errors import SpecError
 from wamctl.experiments import ift as E
+from wamctl.experiments.ift import experiments as ift_experiments
+from wamctl.experiments.ift.state import STATE_FILE, IterationTables
+from wamctl.experiments.ift.tuner import IftTuner
 from wamctl.experiments.runner import RunInterrupted, run_spec
 from wamctl.model import params as P
 from wamctl.report import write_report
 from wamctl.report.ift import comparison_table, gains_table, read_iterations, table_5_1
 from wamctl.runs.store import RunDir, read_events
 from wamctl.specs import parse_spec
+from wamctl.specs.ift import gain_bounds
 
 pytestmark = pytest.mark.timeout(400)
 DT = 1.0 / P.CONTROL_RATE_HZ
@@ -114,11 +119,11 @@ def test_ift_gradient_matches_finite_differences_of_J_on_the_model(tmp_path):
     spec = parse_spec(ift_spec(joints=[1, 4, 6, 7]) | {"plant": {"friction": "table_4_1",
                                                                   "sensors": {"encoder_counts_per_rev": 0}}})
     run = RunDir.create(tmp_path, "grad", {}, 0, "ift")
-    tuner = E.IftTuner(spec, run)
+    tuner = IftTuner(spec, run)
     results = {}
     for joint in (1, 4, 6, 7):
         rho = tuner.g0[joint - 1].copy()
-        tables = E._Tables()
+        tables = IterationTables()
         r, y1, qref, _ = tuner.first_experiment(0, joint, rho, tuner.g0, tables)
         est = tuner.estimate(0, joint, rho, tuner.g0, r, y1, qref, tables)
 
@@ -170,7 +175,7 @@ def test_tuning_lowers_J_monotonically_and_at_least_halves_it(tuned):
         assert J[-1] <= 0.5 * J[0], (joint, J)
     gt = gains_table(it)
     assert (gt["ki_tuned"] > 100 * gt["ki_initial"]).all()   # the integral action grew from Ki = Kd / 10
-    lo, hi = E.gain_bounds(parse_spec(yaml.safe_load((tuned / "spec.yaml").read_text())))
+    lo, hi = gain_bounds(parse_spec(yaml.safe_load((tuned / "spec.yaml").read_text())))
     for j, r in gt.iterrows():
         g = np.array([r.kp_tuned, r.kd_tuned, r.ki_tuned])
         assert np.all(g >= lo[j - 1] - 1e-9) and np.all(g <= hi[j - 1] + 1e-9)
@@ -210,12 +215,12 @@ def test_ift_report_tables_and_figures(tuned, tmp_path):
 def count_plant(monkeypatch):
     """Record the gains of the tuned joint in every experiment that reaches the plant (the backend)."""
     seen = []
-    orig = E.IftTuner._run_backend
+    orig = IftTuner._run_backend
 
     def wrapped(self, joint, gains, ref, seed, ff=None):
         seen.append((joint, np.asarray(gains[joint - 1], float).copy()))
         return orig(self, joint, gains, ref, seed, ff)
-    monkeypatch.setattr(E.IftTuner, "_run_backend", wrapped)
+    monkeypatch.setattr(IftTuner, "_run_backend", wrapped)
     return seen
 
 
@@ -236,7 +241,7 @@ def test_unstable_proposal_is_caught_on_the_model_and_never_reaches_the_plant(ru
     assert len(detail) == 1 and any(w in detail[0] for w in ("unstable", "torque limit", "diverging")), detail
     assert len(count_plant) == 1                             # the initial experiment only
     assert np.allclose(count_plant[0][1], [900.0, 10.0, 1.0])
-    state = json.loads((outcome.path / E.STATE_FILE).read_text())
+    state = json.loads((outcome.path / STATE_FILE).read_text())
     assert state["plant_experiments"] == 1
     assert state["joints"]["1"]["done"] and state["joints"]["1"]["rho"] == [900.0, 10.0, 1.0]   # the fallback
 
@@ -273,7 +278,7 @@ RESUME_SPEC = ift_spec(joints=[5, 7], max_iterations=3)
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
     out = run_spec(parse_spec(RESUME_SPEC), None, tmp_path_factory.mktemp("ref"), make_report=False)
-    return json.loads((out.path / E.STATE_FILE).read_text())
+    return json.loads((out.path / STATE_FILE).read_text())
 
 
 @pytest.mark.parametrize("where", ["between_iterations", "mid_experiment"])
@@ -283,39 +288,39 @@ def test_resume_continues_from_the_last_completed_iteration(tmp_path, monkeypatc
     from wamctl.cli import _register, app
     spec = parse_spec(RESUME_SPEC)
     calls = []
-    monkeypatch.setattr(E.IftTuner, "_after_iteration", lambda self, k: calls.append(k))
+    monkeypatch.setattr(IftTuner, "_after_iteration", lambda self, k: calls.append(k))
     if where == "between_iterations":          # Ctrl-C right after iteration 1 was saved
         def stop(self, k):
             calls.append(k)
             if k == 1:
                 raise KeyboardInterrupt("SIGTERM")
-        monkeypatch.setattr(E.IftTuner, "_after_iteration", stop)
+        monkeypatch.setattr(IftTuner, "_after_iteration", stop)
     else:                                       # SIGTERM 2 s into joint 7's first experiment of iteration 2
-        real_loop = E.run_loop
+        real_loop = ift_experiments.run_loop
         plant_calls = []
 
         def loop(backend, controller, reference, recorder, progress=None):
             if backend.plant.payload is not None:     # the plant (the model has no payload)
                 plant_calls.append(1)
                 if len(plant_calls) == 6:             # iteration 0: 2, iteration 1: 2, iteration 2: joint 5, 7
-                    cut = E.Reference(reference.t_s[:1000], reference.q_rad[:1000], reference.qd_rad_s[:1000],
-                                      reference.qdd_rad_s2[:1000], [])
+                    cut = Reference(reference.t_s[:1000], reference.q_rad[:1000], reference.qd_rad_s[:1000],
+                                    reference.qdd_rad_s2[:1000], [])
                     real_loop(backend, controller, cut, recorder)
                     raise KeyboardInterrupt("SIGTERM")
             return real_loop(backend, controller, reference, recorder, progress)
-        monkeypatch.setattr(E, "run_loop", loop)
+        monkeypatch.setattr(ift_experiments, "run_loop", loop)
     with pytest.raises(RunInterrupted):
         run_spec(spec, None, tmp_path / "runs", make_report=False)
     path = only_run(tmp_path / "runs")
     assert json.loads((path / "manifest.json").read_text())["status"] == "interrupted"
-    st = json.loads((path / E.STATE_FILE).read_text())
+    st = json.loads((path / STATE_FILE).read_text())
     assert st["last_completed_iteration"] == 1 and calls == [0, 1]
     plant_before = st["plant_experiments"]
     if where == "mid_experiment":               # the interrupted iteration's samples reached its table
         part = pd.read_parquet(path / "iter-002-exp1.parquet")
         assert (part["joint"] == 7).sum() == 1000 and (part["joint"] == 5).sum() > 4000
     monkeypatch.undo()
-    monkeypatch.setattr(E.IftTuner, "_after_iteration", lambda self, k: calls.append(k))
+    monkeypatch.setattr(IftTuner, "_after_iteration", lambda self, k: calls.append(k))
     spec_file = tmp_path / "ift.yaml"
     spec_file.write_text(yaml.safe_dump(RESUME_SPEC))
     _register()
@@ -324,7 +329,7 @@ def test_resume_continues_from_the_last_completed_iteration(tmp_path, monkeypatc
     out = json.loads(res.stdout)
     assert out["status"] == "completed" and out["run_dir"] == str(path)
     assert calls == [0, 1, 2, 3]                             # continued with iteration 2, not from scratch
-    st = json.loads((path / E.STATE_FILE).read_text())
+    st = json.loads((path / STATE_FILE).read_text())
     assert st["last_completed_iteration"] == 3 and st["phase"] == "done"
     assert st["plant_experiments"] == uninterrupted["plant_experiments"] > plant_before
     for j in ("5", "7"):                                     # the same tuning as without the interruption
@@ -351,9 +356,9 @@ def test_direct_second_experiment_underestimates_the_gradient_under_friction(tmp
         d = yaml.safe_load(yaml.safe_dump(base))
         d["ift"]["second_experiment"] = form
         spec = parse_spec(d)
-        tuner = E.IftTuner(spec, RunDir.create(tmp_path, form, {}, 0, "ift"))
+        tuner = IftTuner(spec, RunDir.create(tmp_path, form, {}, 0, "ift"))
         rho = tuner.g0[0].copy()
-        t = E._Tables()
+        t = IterationTables()
         r, y1, qref, _ = tuner.first_experiment(0, 1, rho, tuner.g0, t)
         grads[form] = tuner.estimate(0, 1, rho, tuner.g0, r, y1, qref, t).gradient * rho
     assert grads["direct"][0] < 0 and grads["incremental"][0] < 0
