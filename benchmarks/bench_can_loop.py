@@ -23,7 +23,7 @@ import numpy as np
 
 from wamctl.backends import make_backend
 from wamctl.control.trajectory import Reference
-from wamctl.experiments.common import make_controller
+from wamctl.experiments.common import make_joint_controller
 from wamctl.experiments.engine import LoopRecorder, run_loop
 from wamctl.model import params as P
 from wamctl.specs import parse_spec
@@ -63,7 +63,7 @@ def main() -> None:
                     "reply_timeout_s": args.reply_timeout},
         "plant": {"friction": "table_4_1"}, "controller": {"kind": "pd_g"}})
     ref = sway_reference(args.duration)
-    controller = make_controller(spec)
+    controller = make_joint_controller(spec)
     rec = LoopRecorder(len(ref), with_truth=False)
     backend = make_backend(spec)
     t_wall = time.perf_counter()

@@ -20,7 +20,7 @@ import numpy as np
 from wamctl.analysis.friction_id.identify import identify
 from wamctl.backends import make_backend
 from wamctl.experiments import friction_sweep as fs
-from wamctl.experiments.common import closed_loop_stage, make_controller
+from wamctl.experiments.common import closed_loop_stage, make_joint_controller
 from wamctl.experiments.runner import run_spec
 from wamctl.model import params as P
 from wamctl.model.friction import FrictionModel
@@ -54,7 +54,7 @@ def main() -> None:
     # 1. the simulation alone, in memory
     t0 = time.perf_counter()
     with make_backend(spec) as backend:
-        rows = closed_loop_stage(backend, make_controller(spec), plan.reference, None)
+        rows = closed_loop_stage(backend, make_joint_controller(spec), plan.reference, None)
     t_sim = time.perf_counter() - t0
     # 2. the whole pipeline as `wamctl friction-id SPEC` runs it: sweep recorded to a run directory,
     #    identification, friction_model.yaml, report

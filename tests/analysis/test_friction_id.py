@@ -27,7 +27,7 @@ from wamctl.backends import make_backend
 from wamctl.control.trajectory import ReferenceBuilder
 from wamctl.errors import DataFormatError, SpecError
 from wamctl.experiments import friction_sweep as fs
-from wamctl.experiments.common import closed_loop_stage, make_controller
+from wamctl.experiments.common import closed_loop_stage, make_joint_controller
 from wamctl.experiments.engine import data_columns
 from wamctl.experiments.runner import run_spec
 from wamctl.model import params as P
@@ -59,7 +59,7 @@ def simulate(spec_dict: dict) -> RunData:
     mod = fs if spec.kind == "friction_sweep" else __import__("wamctl.experiments.rotation", fromlist=["plan"])
     plan = mod.plan(spec)
     with make_backend(spec) as backend:
-        rows = closed_loop_stage(backend, make_controller(spec, plan.feedforward_Nm), plan.reference, None)
+        rows = closed_loop_stage(backend, make_joint_controller(spec, plan.feedforward_Nm), plan.reference, None)
     data = pd.DataFrame(rows, columns=data_columns(True))
     meta = meta_from_run({"kind": spec.kind, "name": spec.name}, spec.model_dump(mode="json"), data)
     return RunData(meta, data, Path("memory"), spec.model_dump(mode="json")["plant"])

@@ -24,15 +24,26 @@ import yaml
 
 from wamctl.analysis.hmi_results import TRIAL_COLUMNS
 from wamctl.backends import make_backend
+from wamctl.backends.gaze.line_format import format_line
+from wamctl.backends.gaze.replay import write_gaze_csv
 from wamctl.experiments import hmi_block
-from wamctl.experiments.common import make_controller
+from wamctl.experiments.common import make_joint_controller
 from wamctl.experiments.hmi_block.planning import make_camera, trial_seed
 from wamctl.experiments.hmi_block.supervisor import stdin_prompt
 from wamctl.experiments.hmi_block.tables import MOTION_CODES, TRAJECTORY_COLUMNS, TRIAL_TABLE_COLUMNS
-from wamctl.hmi import arm as A
-from wamctl.hmi.gaze import GazeFlag, GazeSample, format_line, write_gaze_csv
-from wamctl.hmi.strategy import EventKind, HandCommand, Hold, Motion
-from wamctl.hmi.strategy import make_controller as make_gaze_controller
+from wamctl.hmi.arm import HandArm
+from wamctl.hmi.gaze import GazeFlag, GazeSample
+from wamctl.hmi.kinematics import (
+    IK_SEED_Q_RAD,
+    PALM_DOWN_YAW_RAD,
+    HandKinematics,
+    dls_step,
+    limit_weights,
+    orientation_error,
+    palm_down_rotation,
+    tilt_rad,
+)
+from wamctl.hmi.strategy import EventKind, HandCommand, Hold, Motion, make_gaze_controller
 from wamctl.model import params as P
 from wamctl.runs.store import read_table
 from wamctl.specs import parse_spec
@@ -56,7 +67,7 @@ def setup():
 def arm_session(spec, plan, *, home=None):
     """A started HandArm on the simulated arm, at the start pose, in teleoperation."""
     with make_backend(spec, q0_rad=plan.q_start) as backend:
-        arm = A.HandArm(backend, make_controller(spec), A.HandKinematics(tool_offset_m=spec.hmi.tool_offset_m),
+        arm = HandArm(backend, make_joint_controller(spec), HandKinematics(tool_offset_m=spec.hmi.tool_offset_m),
                         workspace=plan.workspace, mapping=plan.mapping, z_tool_m=spec.hmi.z_tool_m, R_ref=plan.R_ref,
                         q_rest=plan.q_start, home_q_rad=plan.q_home if home is None else home, teleop=True)
         arm.start()
@@ -96,16 +107,16 @@ def test_camera_mapping_matches_the_seat_and_the_image():
 
 
 def test_ik_step_is_weighted_damped_least_squares():
-    kin = A.HandKinematics()
+    kin = HandKinematics()
     rng = np.random.default_rng(4)
-    R_ref = A.palm_down_rotation(A.PALM_DOWN_YAW_RAD)
+    R_ref = palm_down_rotation(PALM_DOWN_YAW_RAD)
     for _ in range(5):
         q = rng.uniform(P.Q_MIN_RAD + 0.1, P.Q_MAX_RAD - 0.1)
         target = kin.tool_pose(q)[0] + rng.normal(0.0, 0.01, 3)
         J, p, R = kin.tool_jacobian(q)
-        e = np.concatenate([target - p, A.orientation_error(R, R_ref)])
-        w = A.limit_weights(q)
-        expected = np.clip(q + A.dls_step(J, e, kin.damping, w), P.Q_MIN_RAD + 0.05, P.Q_MAX_RAD - 0.05)
+        e = np.concatenate([target - p, orientation_error(R, R_ref)])
+        w = limit_weights(q)
+        expected = np.clip(q + dls_step(J, e, kin.damping, w), P.Q_MIN_RAD + 0.05, P.Q_MAX_RAD - 0.05)
         q_next, err = kin.step(q, target, R_ref, dt_s=100.0)  # no speed cap, no null space
         assert np.allclose(err, e, atol=1e-12)
         assert np.allclose(q_next, expected, atol=1e-10)
@@ -115,20 +126,20 @@ def test_ik_step_is_weighted_damped_least_squares():
         if inside and np.all((expected > P.Q_MIN_RAD + 0.05) & (expected < P.Q_MAX_RAD - 0.05)):
             assert np.linalg.norm(J @ (q_null - expected)) < 0.05 * np.linalg.norm(q_null - expected) + 1e-9
     # the speed cap: no joint moves more than qd_max * dt in one step
-    q = A.IK_SEED_Q_RAD.copy()
+    q = IK_SEED_Q_RAD.copy()
     q_next, _ = kin.step(q, kin.tool_pose(q)[0] + [0.2, 0.0, 0.0], R_ref, dt_s=0.01)
     assert np.max(np.abs(q_next - q)) <= kin.qd_max_rad_s * 0.01 + 1e-12
 
 
 def test_ik_holds_palm_down_and_reaches_the_spots(setup):
     spec, plan = setup
-    kin = A.HandKinematics(tool_offset_m=spec.hmi.tool_offset_m)
+    kin = HandKinematics(tool_offset_m=spec.hmi.tool_offset_m)
     z = spec.hmi.z_tool_m
     assert len(plan.q_targets) == 8
     for loc, q in plan.q_targets.items():
         p, R = kin.tool_pose(q)
         assert np.linalg.norm(p - (*spec.hmi.targets_m[loc], z)) < 1e-4, loc
-        assert A.tilt_rad(R) < 1e-3 and np.linalg.norm(A.orientation_error(R, plan.R_ref)) < 1e-3, loc
+        assert tilt_rad(R) < 1e-3 and np.linalg.norm(orientation_error(R, plan.R_ref)) < 1e-3, loc
         assert np.all(q > P.Q_MIN_RAD) and np.all(q < P.Q_MAX_RAD)
     # closed loop on the simulated arm: a proportional vector command to two far spots, then stop
     with arm_session(spec, plan) as arm:
@@ -136,7 +147,7 @@ def test_ik_holds_palm_down_and_reaches_the_spots(setup):
 
         def probe(a):
             p, R = a.hand_pose()
-            worst["tilt"] = max(worst["tilt"], A.tilt_rad(R))
+            worst["tilt"] = max(worst["tilt"], tilt_rad(R))
             worst["dz"] = max(worst["dz"], abs(p[2] - z))
 
         for loc in ("P3", "P5"):

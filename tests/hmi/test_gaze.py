@@ -41,9 +41,9 @@ from wamctl.hmi.strategy import (
     drive,
     dual_profile,
     four_direction,
+    make_gaze_controller,
     single_profile,
 )
-from wamctl.hmi.strategy import make_gaze_controller as make_controller
 
 BLINK = (-2000.0, -2000.0)
 
@@ -196,7 +196,7 @@ def test_serial_reader_survives_garbage_through_loop():
     assert sum(s.is_blink for s in samples) == n_blink
     assert samples[-1].flags == GazeFlag.CORRUPT  # the unterminated tail "12345,67"
     assert sum(bool(s.flags & GazeFlag.OUT_OF_RANGE) for s in samples) >= 50
-    controller = make_controller(strategy="vector", profile="cubic")
+    controller = make_gaze_controller(strategy="vector", profile="cubic")
     commands = [controller.update(s) for s in samples]
     assert any(c.is_moving for c in commands)
     assert all(c.hold in (Hold.BLINK, Hold.SESSION_ENDED) for s, c in zip(samples, commands) if s.is_blink)
@@ -242,7 +242,7 @@ def test_serial_session_gives_same_commands_as_replay(transport, tmp_path):
     data = b"".join(lines)
 
     with ReplayGazeSource.from_csv(csv_path) as replay:
-        expected = [c for _, c in drive(replay, make_controller(strategy="vector", profile="dual"))]
+        expected = [c for _, c in drive(replay, make_gaze_controller(strategy="vector", profile="dual"))]
 
     go = threading.Event()
     if transport == "socket":
@@ -263,7 +263,7 @@ def test_serial_session_gives_same_commands_as_replay(transport, tmp_path):
     try:
         with source:
             go.set()
-            got = [(s, c) for s, c in drive(source, make_controller(strategy="vector", profile="dual"))]
+            got = [(s, c) for s, c in drive(source, make_gaze_controller(strategy="vector", profile="dual"))]
     finally:
         thread.join(5.0)
         if transport == "pty":
@@ -377,7 +377,7 @@ def test_voluntary_blinks_detected_and_short_blinks_never_grasp(skill, fatigue):
                                  skill=skill, fatigue_per_min=fatigue, duration_s=120.0, blink_rate_hz=0.4)
         for k in range(34):
             subject.request_voluntary_blink(at_s=2.0 + 3.5 * k)
-        controller = make_controller(strategy="four", profile="dual", point_filter="ma")
+        controller = make_gaze_controller(strategy="four", profile="dual", point_filter="ma")
         detector = VoluntaryBlinkDetector()
         commands, events = [], []
         for s in subject:
@@ -439,7 +439,7 @@ def test_three_voluntary_blinks_in_a_row_end_the_session():
     on = (700.0, 288.0)
     points = [on] * 20 + [BLINK] * 25 + [on] * 60  # a grasp, then later
     points += ([BLINK] * 25 + [on] * 15) * 3 + [on] * 30  # three in a row
-    controller = make_controller(strategy="four", profile="single")
+    controller = make_gaze_controller(strategy="four", profile="single")
     commands = [controller.update(s) for s in synthetic(points)]
     kinds = [e.kind for c in commands for e in c.events if e.kind is not EventKind.VOLUNTARY_BLINK]
     assert kinds == [EventKind.GRIPPER_CLOSE, EventKind.GRIPPER_OPEN, EventKind.GRIPPER_CLOSE, EventKind.GO_HOME]
@@ -452,7 +452,7 @@ def test_three_voluntary_blinks_in_a_row_end_the_session():
 
 
 def test_hand_holds_during_blinks():
-    controller = make_controller(strategy="four", profile="single")
+    controller = make_gaze_controller(strategy="four", profile="single")
     commands = [controller.update(s) for s in synthetic([(700.0, 288.0)] * 5 + [BLINK] * 5 + [(700.0, 288.0)])]
     assert [c.hold for c in commands[5:10]] == [Hold.BLINK] * 5
     assert not any(c.is_moving for c in commands[5:10]) and commands[-1].is_moving
@@ -463,7 +463,7 @@ def test_hand_holds_during_blinks():
 
 
 def test_stall_watchdog_holds_after_200_ms():
-    controller = make_controller(strategy="four", profile="single")
+    controller = make_gaze_controller(strategy="four", profile="single")
     assert controller.poll(0.0).hold is Hold.NO_GAZE  # nothing yet
     last = [controller.update(s) for s in synthetic([(700.0, 288.0)] * 3)][-1]
     t_s = last.t_s
@@ -477,7 +477,7 @@ def test_stall_watchdog_holds_after_200_ms():
 
 
 def test_corrupt_only_stream_stalls_on_the_callers_clock():
-    controller = make_controller(strategy="four", profile="single", stall_timeout_s=0.2)
+    controller = make_gaze_controller(strategy="four", profile="single", stall_timeout_s=0.2)
     controller.update(GazeSample(0.0, 700.0, 288.0), now_s=10.0)
     bad = parse_line(b"\xff\xff")
     assert controller.update(bad, now_s=10.1).is_moving  # the previous command stands a while
@@ -491,7 +491,7 @@ def test_corrupt_only_stream_stalls_on_the_callers_clock():
 
 def test_drive_with_clock_polls_a_silent_port():
     with SerialGazeSource("loop://", timeout_s=0.02, eof_idle_s=0.3) as src:
-        out = list(drive(src, make_controller(strategy="four", profile="single"), clock=time.monotonic,
+        out = list(drive(src, make_gaze_controller(strategy="four", profile="single"), clock=time.monotonic,
                          read_timeout_s=0.05))
     assert out and all(s is None and c.hold is Hold.NO_GAZE for s, c in out)
     assert sum(len(c.events) for _, c in out) == 1
@@ -688,4 +688,4 @@ def test_controller_filters_and_restarts_after_a_gap():
 def test_make_controller_rejects_unknown_names():
     for kwargs in ({"strategy": "diagonal"}, {"profile": "quartic"}, {"point_filter": "median"}):
         with pytest.raises(ValueError):
-            make_controller(**kwargs)
+            make_gaze_controller(**kwargs)

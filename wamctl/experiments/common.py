@@ -83,7 +83,7 @@ def feedforward_for(spec: Common, reference: Reference, base_dir: Path | None) -
     return friction_feedforward_Nm(reference.qd_rad_s, reference.qdd_rad_s2, friction, inertia)
 
 
-def make_controller(spec: Common, feedforward_Nm: np.ndarray | None = None) -> JointController:
+def make_joint_controller(spec: Common, feedforward_Nm: np.ndarray | None = None) -> JointController:
     kp, kd, ki = spec.controller.gains()
     gravity = declared_dynamics(spec).gravity_view if spec.controller.gravity_compensation else None
     return JointController(kp, kd, ki, 1.0 / P.CONTROL_RATE_HZ, gravity=gravity, feedforward_Nm=feedforward_Nm)

@@ -22,7 +22,7 @@ from pathlib import Path
 
 from wamctl.backends import make_backend
 from wamctl.control.trajectory import ReferenceBuilder
-from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_controller
+from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_joint_controller
 from wamctl.model import params as P
 from wamctl.runs.store import RunDir, json_default
 from wamctl.specs.friction_sweep import DEFAULT_VELOCITIES_RAD_S, FrictionSweepSpec  # noqa: F401
@@ -104,7 +104,7 @@ def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, bas
 
     with make_backend(spec, base_dir) as backend:
         run.update_manifest(backend=backend.describe())
-        closed_loop_stage(backend, make_controller(spec, plan.feedforward_Nm), ref, run,
+        closed_loop_stage(backend, make_joint_controller(spec, plan.feedforward_Nm), ref, run,
                           sub_progress(0, "friction sweep"))
     result = identify(load_run_data(run.path), spec.identification.model_dump())
     write_identification(run.path, result)
@@ -112,7 +112,7 @@ def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, bas
     for kind, rspec in val_specs.items():
         rp = _rotation_plan(rspec, base_dir)
         with make_backend(rspec, base_dir, seed=spec.seed + 1) as backend:
-            closed_loop_stage(backend, make_controller(rspec, rp.feedforward_Nm), rp.reference, run,
+            closed_loop_stage(backend, make_joint_controller(rspec, rp.feedforward_Nm), rp.reference, run,
                               sub_progress(offset, f"rotation test {kind}"), table=VALIDATION_TABLES[kind])
         offset += len(rp.reference)
 

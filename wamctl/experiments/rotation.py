@@ -7,7 +7,7 @@ from pathlib import Path
 
 from wamctl.backends import make_backend
 from wamctl.control.trajectory import ReferenceBuilder
-from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_controller
+from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_joint_controller
 from wamctl.model import params as P
 from wamctl.runs.store import RunDir
 from wamctl.specs.rotation import RotationSpec
@@ -41,4 +41,4 @@ def execute(spec: RotationSpec, plan: Plan, run: RunDir, progress=None, base_dir
         run.event(plan.reference.t_s[i], "segment", None, label)
     with make_backend(spec, base_dir) as backend:
         run.update_manifest(backend=backend.describe())
-        closed_loop_stage(backend, make_controller(spec, plan.feedforward_Nm), plan.reference, run, progress)
+        closed_loop_stage(backend, make_joint_controller(spec, plan.feedforward_Nm), plan.reference, run, progress)

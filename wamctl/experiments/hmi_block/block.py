@@ -12,8 +12,9 @@ from pathlib import Path
 import numpy as np
 
 from wamctl.backends import make_backend
+from wamctl.backends.gaze.virtual import VirtualSubject
 from wamctl.errors import BackendError
-from wamctl.experiments.common import make_controller as make_joint_controller
+from wamctl.experiments.common import make_joint_controller
 from wamctl.experiments.hmi_block.feeds import STREAM_START_TIMEOUT_S, open_feed
 from wamctl.experiments.hmi_block.planning import HmiPlan, Trial, trial_seed
 from wamctl.experiments.hmi_block.supervisor import Supervisor
@@ -27,11 +28,12 @@ from wamctl.experiments.hmi_block.tables import (
     write_tables,
     write_trajectory_part,
 )
-from wamctl.hmi import arm as A
-from wamctl.hmi.gaze import CENTER_X_PX, CENTER_Y_PX, GazeSample, VirtualSubject
+from wamctl.hmi.arm import HandArm
+from wamctl.hmi.gaze import CENTER_X_PX, CENTER_Y_PX, GazeSample
+from wamctl.hmi.gripper import BarrettHandSim
+from wamctl.hmi.kinematics import HandKinematics, tilt_rad
 from wamctl.hmi.policy import ReachPolicy
-from wamctl.hmi.strategy import Hold
-from wamctl.hmi.strategy import make_controller as make_gaze_controller
+from wamctl.hmi.strategy import Hold, make_gaze_controller
 from wamctl.model import params as P
 from wamctl.runs.store import RunDir
 from wamctl.specs.hmi_block import HmiBlockSpec
@@ -124,7 +126,7 @@ class HmiBlock:
             self._trial.number, arm.t_s, arm.t_s - self._t0_s, s.t_s, s.x_px, s.y_px,
             int(s.flags), MOTION_CODES.index(cmd.motion.value), cmd.level, cmd.vx_m_s, cmd.vy_m_s,
             HOLD_CODES.index(cmd.hold.value), ARM_HOLD_CODES.index(hold) if hold in ARM_HOLD_CODES else -1,
-            p[0], p[1], p[2], math.degrees(A.tilt_rad(R)), arm.p_ref[0], arm.p_ref[1], arm.gripper.closure,
+            p[0], p[1], p[2], math.degrees(tilt_rad(R)), arm.p_ref[0], arm.p_ref[1], arm.gripper.closure,
             *arm.q_meas])
 
     def _step(self) -> None:
@@ -228,14 +230,14 @@ class HmiBlock:
             point_filter=f.kind if f.kind in ("ma", "wma") else None, window_s=f.window_s,
             kalman_q=f.q if f.kind == "kalman" else None, stall_timeout_s=h.watchdog_s)
 
-    def _make_arm(self, backend, ff, friction_ff) -> A.HandArm:
+    def _make_arm(self, backend, ff, friction_ff) -> HandArm:
         h, plan = self.h, self.plan
-        return A.HandArm(
-            backend, make_joint_controller(self.spec, ff), A.HandKinematics(tool_offset_m=h.tool_offset_m),
+        return HandArm(
+            backend, make_joint_controller(self.spec, ff), HandKinematics(tool_offset_m=h.tool_offset_m),
             workspace=plan.workspace, mapping=plan.mapping, z_tool_m=h.z_tool_m, R_ref=plan.R_ref,
             q_rest=plan.q_start, home_q_rad=plan.q_home, ik_rate_hz=h.ik_rate_hz, watchdog_s=h.watchdog_s,
             accel_m_s2=h.accel_m_s2, joint_speed_rad_s=h.joint_speed_rad_s,
-            gripper=A.BarrettHandSim(close_time_s=h.gripper_close_s, open_time_s=h.gripper_open_s),
+            gripper=BarrettHandSim(close_time_s=h.gripper_close_s, open_time_s=h.gripper_open_s),
             friction_ff=friction_ff, ff_buffer=ff)
 
     def _wait_for_stream(self) -> None:

@@ -10,7 +10,8 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from wamctl.hmi.gaze import GazeSample, VirtualSubject
+from wamctl.backends.gaze.virtual import VirtualSubject
+from wamctl.hmi.gaze import GazeSample
 from wamctl.specs.hmi_block import HmiTask
 
 log = logging.getLogger(__name__)
@@ -168,10 +169,10 @@ def open_feed(h: HmiTask, base_dir: Path | None) -> VirtualFeed | StreamFeed:
     if src.kind == "virtual":
         return VirtualFeed()
     if src.kind == "replay":
-        from wamctl.hmi.gaze import ReplayGazeSource
+        from wamctl.backends.gaze.replay import ReplayGazeSource
         path = Path(src.path)
         if not path.is_absolute() and base_dir is not None and not path.exists():
             path = base_dir / path
         return StreamFeed(ReplayGazeSource.from_csv(path), live=False)
-    from wamctl.hmi.gaze import SerialGazeSource
+    from wamctl.backends.gaze.serial import SerialGazeSource
     return StreamFeed(SerialGazeSource(src.url, baudrate=src.baudrate, eof_idle_s=src.eof_idle_s), live=True)

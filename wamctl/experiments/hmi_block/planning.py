@@ -13,7 +13,8 @@ import numpy as np
 from wamctl.control.trajectory import Reference
 from wamctl.errors import SpecError
 from wamctl.experiments.common import Plan
-from wamctl.hmi import arm as A
+from wamctl.hmi.kinematics import PALM_DOWN_YAW_RAD, HandKinematics, palm_down_rotation
+from wamctl.hmi.scene import CommandMapping, SceneCamera, Workspace
 from wamctl.hmi.strategy import PROFILES
 from wamctl.model import params as P
 from wamctl.specs import check_positions
@@ -40,9 +41,9 @@ class HmiPlan(Plan):
     q_home: np.ndarray = field(default_factory=lambda: np.zeros(P.N_JOINTS))
     q_targets: dict[str, np.ndarray] = field(default_factory=dict)
     R_ref: np.ndarray = field(default_factory=lambda: np.eye(3))
-    camera: A.SceneCamera | None = None
-    mapping: A.CommandMapping | None = None
-    workspace: A.Workspace | None = None
+    camera: SceneCamera | None = None
+    mapping: CommandMapping | None = None
+    workspace: Workspace | None = None
     trials: list[Trial] = field(default_factory=list)
     condition: str = ""
 
@@ -72,14 +73,14 @@ def trial_seed(subject_seed: int, condition: str, number: int) -> int:
     return int(np.random.SeedSequence([subject_seed, zlib.crc32(condition.encode()), number]).generate_state(1)[0])
 
 
-def make_camera(task: HmiTask) -> A.SceneCamera:
+def make_camera(task: HmiTask) -> SceneCamera:
     eye = task.camera.eye_m
     look = task.camera.look_at_m or task.start_m
-    return A.SceneCamera((eye[0], eye[1], task.table_z_m + eye[2]), (look[0], look[1], task.z_tool_m),
+    return SceneCamera((eye[0], eye[1], task.table_z_m + eye[2]), (look[0], look[1], task.z_tool_m),
                          task.camera.focal_px)
 
 
-def _check_gravity(spec: HmiBlockSpec, kin: A.HandKinematics, R_ref: np.ndarray, q_start: np.ndarray,
+def _check_gravity(spec: HmiBlockSpec, kin: HandKinematics, R_ref: np.ndarray, q_start: np.ndarray,
                    q_targets: dict[str, np.ndarray]) -> None:
     """SpecError when the arm could not hold the hand at a spot or a workspace corner (joint torque limits)."""
     from wamctl.model.dynamics import Payload, WamDynamics
@@ -104,7 +105,7 @@ def _check_gravity(spec: HmiBlockSpec, kin: A.HandKinematics, R_ref: np.ndarray,
                             f"bring it closer to the arm or raise hmi.table_z_m")
 
 
-def _solve_start(h: HmiTask, kin: A.HandKinematics, R_ref: np.ndarray) -> np.ndarray:
+def _solve_start(h: HmiTask, kin: HandKinematics, R_ref: np.ndarray) -> np.ndarray:
     """The start pose: palm down over the start cross at the grasp height; SpecError if out of reach."""
     z = h.z_tool_m
     q_start, ep, eo = kin.solve((h.start_m[0], h.start_m[1], z), R_ref, h.start_q_rad)
@@ -114,8 +115,8 @@ def _solve_start(h: HmiTask, kin: A.HandKinematics, R_ref: np.ndarray) -> np.nda
     return q_start
 
 
-def _solve_spots(h: HmiTask, kin: A.HandKinematics, R_ref: np.ndarray, q_start: np.ndarray,
-                 camera: A.SceneCamera) -> dict[str, np.ndarray]:
+def _solve_spots(h: HmiTask, kin: HandKinematics, R_ref: np.ndarray, q_start: np.ndarray,
+                 camera: SceneCamera) -> dict[str, np.ndarray]:
     """Each spot's pose, palm down at the grasp height; SpecError if one cannot be reached or is outside the
     subject's view."""
     z = h.z_tool_m
@@ -136,8 +137,8 @@ def _solve_spots(h: HmiTask, kin: A.HandKinematics, R_ref: np.ndarray, q_start: 
 def plan(spec: HmiBlockSpec, base_dir: Path | None = None) -> HmiPlan:
     """Solve the start pose and every spot palm down (reachability), check the view; list the trials."""
     h = spec.hmi
-    kin = A.HandKinematics(tool_offset_m=h.tool_offset_m)
-    R_ref = A.palm_down_rotation(A.PALM_DOWN_YAW_RAD)
+    kin = HandKinematics(tool_offset_m=h.tool_offset_m)
+    R_ref = palm_down_rotation(PALM_DOWN_YAW_RAD)
     q_start = _solve_start(h, kin, R_ref)
     camera = make_camera(h)
     q_targets = _solve_spots(h, kin, R_ref, q_start, camera)
@@ -156,11 +157,11 @@ def plan(spec: HmiBlockSpec, base_dir: Path | None = None) -> HmiPlan:
     mapping = camera.mapping()
     return HmiPlan(ref, _summary(h, trials, mapping, q_start), None, q_start=q_start, q_home=q_home,
                    q_targets=q_targets, R_ref=R_ref, camera=camera, mapping=mapping,
-                   workspace=A.Workspace(tuple(h.workspace.x_m), tuple(h.workspace.y_m)), trials=trials,
+                   workspace=Workspace(tuple(h.workspace.x_m), tuple(h.workspace.y_m)), trials=trials,
                    condition=h.condition_label())
 
 
-def _summary(h: HmiTask, trials: list[Trial], mapping: A.CommandMapping, q_start: np.ndarray) -> list[str]:
+def _summary(h: HmiTask, trials: list[Trial], mapping: CommandMapping, q_start: np.ndarray) -> list[str]:
     locs = h.locations or list(h.targets_m)
     z = h.z_tool_m
     f = h.resolved_filter()
