@@ -76,10 +76,13 @@ def feedforward_for(spec: Common, reference: Reference, base_dir: Path | None) -
     c = spec.controller
     if c.kind != "pd_g_ff":
         return None
-    friction = resolve_friction(c.friction_ff, base_dir)
-    inertia = None
-    if c.ff_inertia:
-        inertia = np.diag(declared_dynamics(spec).mass_matrix(np.asarray(spec.q0_rad)))
+    return declared_feedforward_Nm(spec, reference, resolve_friction(c.friction_ff, base_dir), c.ff_inertia)
+
+
+def declared_feedforward_Nm(spec: Common, reference: Reference, friction, with_inertia: bool) -> np.ndarray:
+    """Eq. 4.3 over ``reference`` with ``friction`` (a FrictionModel) and, ``with_inertia``, the ``m qdd_r`` term
+    of the declared rigid body's diagonal inertia at ``q0``."""
+    inertia = np.diag(declared_dynamics(spec).mass_matrix(np.asarray(spec.q0_rad))) if with_inertia else None
     return friction_feedforward_Nm(reference.qd_rad_s, reference.qdd_rad_s2, friction, inertia)
 
 

@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 from wamctl.errors import SpecError
+from wamctl.io import resolve_path
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload
 from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
@@ -47,9 +48,7 @@ def resolve_friction(value, base_dir: Path | None = None) -> FrictionModel:
         value = value.model_dump()
     if isinstance(value, dict):
         return FrictionModel.from_dict(value, "plant.friction")
-    path = Path(value)
-    if not path.is_absolute() and base_dir is not None and not path.exists():
-        path = base_dir / path
+    path = resolve_path(value, base_dir)
     if not path.is_file():
         raise SpecError(f"friction model file not found: {value}")
     return FrictionModel.load(path)

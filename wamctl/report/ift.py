@@ -15,6 +15,20 @@ from wamctl.report.document import Document
 from wamctl.report.figures import joint_grid, save
 from wamctl.runs.store import read_events
 
+# The IFT run directory's tables (written by wamctl.experiments.ift, read here)
+ITERATIONS_TABLE = "iterations"         # .parquet and .csv: one row per joint and iteration
+
+
+def iteration_file(k: int, part: str) -> str:
+    """``iter-NNN-{exp1,exp2,check}.parquet``: the experiments of iteration ``k``."""
+    return f"iter-{int(k):03d}-{part}.parquet"
+
+
+def comparison_file(strategy: str) -> str:
+    """``compare-{pd_g,pd_g_ff,pid}.parquet``: the task under one strategy of the comparison (section 5.4)."""
+    return f"compare-{strategy}.parquet"
+
+
 # Thesis Table 5.1: J(rho) per joint; columns initial PID, iterations 1 (BFGS) and 2-5 (Newton-Gauss); blank
 # cells are NaN. Copied from the thesis (chapter 5, Table 5.1); its J is in the thesis' own units.
 THESIS_TABLE_5_1 = pd.DataFrame(
@@ -35,10 +49,10 @@ STRATEGY_LABELS = {"pd_g": "PD + gravity", "pd_g_ff": "PD + gravity + ff frictio
 
 
 def read_iterations(run_path: Path) -> pd.DataFrame:
-    p = Path(run_path) / "iterations.parquet"
+    p = Path(run_path) / f"{ITERATIONS_TABLE}.parquet"
     if p.is_file():
         return pd.read_parquet(p)
-    p = Path(run_path) / "iterations.csv"
+    p = Path(run_path) / f"{ITERATIONS_TABLE}.csv"
     return pd.read_csv(p) if p.is_file() else pd.DataFrame()
 
 
@@ -90,7 +104,7 @@ def comparison_table(run_path: Path) -> pd.DataFrame:
     """RPE (%) of the final position per joint under each strategy (ours and the thesis')."""
     out = {}
     for s in THESIS_RPE:
-        p = Path(run_path) / f"compare-{s}.parquet"
+        p = Path(run_path) / comparison_file(s)
         if not p.is_file():
             continue
         df = pd.read_parquet(p)
@@ -160,7 +174,7 @@ def _errors_figure(run_path: Path, it: pd.DataFrame, path: Path) -> Path | None:
         pick = sorted({its[0], its[len(its) // 2], its[-1]}) if its else []
         for k in pick:
             if k not in cache:
-                p = Path(run_path) / f"iter-{int(k):03d}-exp1.parquet"
+                p = Path(run_path) / iteration_file(k, "exp1")
                 cache[k] = pd.read_parquet(p) if p.is_file() else pd.DataFrame()
             d = cache[k]
             if d.empty:
@@ -184,8 +198,8 @@ def _errors_figure(run_path: Path, it: pd.DataFrame, path: Path) -> Path | None:
 def _comparison_figure(run_path: Path, path: Path) -> Path | None:
     """Fig. 5.3: per joint (rows) the error under each strategy (columns), same y scale per row."""
     import matplotlib.pyplot as plt
-    data = {s: pd.read_parquet(Path(run_path) / f"compare-{s}.parquet") for s in THESIS_RPE
-            if (Path(run_path) / f"compare-{s}.parquet").is_file()}
+    data = {s: pd.read_parquet(Path(run_path) / comparison_file(s)) for s in THESIS_RPE
+            if (Path(run_path) / comparison_file(s)).is_file()}
     if not data:
         return None
     joints = sorted(next(iter(data.values()))["joint"].unique())

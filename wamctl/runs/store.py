@@ -211,12 +211,18 @@ def json_default(o):
     return str(o)
 
 
-def atomic_write_text(path: Path, text: str) -> None:
-    """Write a file so that readers see the old or the new content, never a half-written one."""
+def atomic_write(path: Path, write) -> None:
+    """Write a file so that readers see the old or the new content, never a half-written one: ``write(tmp)``
+    writes a temporary file beside ``path``, which then replaces it."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
-    tmp.write_text(text)
+    write(tmp)
     os.replace(tmp, path)
+
+
+def atomic_write_text(path: Path, text: str) -> None:
+    """:func:`atomic_write` of a text."""
+    atomic_write(path, lambda tmp: tmp.write_text(text))
 
 
 # ---------------------------------------------------------------------- reading runs back

@@ -12,7 +12,7 @@ from typing import Annotated, Any, Union
 from pydantic import Field, TypeAdapter, ValidationError
 
 from wamctl.errors import SpecError
-from wamctl.io import MODEL_FILE_FORMAT, load_yaml  # noqa: F401
+from wamctl.io import load_yaml, resolve_path
 from wamctl.specs.common import Common, PlantSpec
 from wamctl.specs.registry import KINDS, SPEC_KINDS, resolve
 
@@ -73,8 +73,5 @@ def load_spec(path: str | Path) -> Common:
     path = Path(path)
     data = load_yaml(path)
     if isinstance(data, dict) and isinstance(data.get("plant"), str):
-        model = Path(data["plant"])
-        if not model.is_absolute() and not model.exists():
-            model = path.parent / model
-        data = dict(data, plant=load_model_file(model))
+        data = dict(data, plant=load_model_file(resolve_path(data["plant"], path.parent)))
     return parse_spec(data, str(path))

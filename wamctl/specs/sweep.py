@@ -44,7 +44,7 @@ import numpy as np
 from pydantic import Field, ValidationError, model_validator
 
 from wamctl.errors import SpecError
-from wamctl.io import load_yaml
+from wamctl.io import load_yaml, resolve_path
 from wamctl.specs.common import Strict
 from wamctl.specs.load import load_model_file, parse_spec
 
@@ -272,7 +272,7 @@ def sweep_from_mapping(raw: Any, source: str = "spec", base_dir: Path | None = N
     body = {k: v for k, v in raw.items() if k != SECTION}
     section = _parse_section(raw[SECTION], source)
     if isinstance(body.get("plant"), str):
-        body["plant"] = load_model_file(_resolve(body["plant"], base_dir))
+        body["plant"] = load_model_file(resolve_path(body["plant"], base_dir))
     values = expand_section(section)
     ids = point_ids(len(values))
     points, problems, first = [], [], None
@@ -281,7 +281,7 @@ def sweep_from_mapping(raw: Any, source: str = "spec", base_dir: Path | None = N
         try:
             data = apply_values(body, vals, where)
             if isinstance(data.get("plant"), str):
-                data["plant"] = load_model_file(_resolve(data["plant"], base_dir))
+                data["plant"] = load_model_file(resolve_path(data["plant"], base_dir))
             spec = parse_spec(data, where)
         except SpecError as exc:
             problems.append(str(exc))
@@ -306,13 +306,6 @@ def _parse_section(raw_section: Any, source: str) -> VarySection:
             msg = "unknown key" if err["type"] == "extra_forbidden" else err["msg"].removeprefix("Value error, ")
             lines.append(f"{source}: {SECTION}{'.' + loc if loc else ''}: {msg}")
         raise SpecError("\n".join(lines)) from None
-
-
-def _resolve(path: str, base_dir: Path | None) -> Path:
-    p = Path(path)
-    if not p.is_absolute() and not p.exists() and base_dir is not None:
-        p = Path(base_dir) / p
-    return p
 
 
 def load_sweep(path: str | Path) -> Sweep:

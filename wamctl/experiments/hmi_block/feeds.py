@@ -12,6 +12,7 @@ from pathlib import Path
 
 from wamctl.backends.gaze.virtual import VirtualSubject
 from wamctl.hmi.gaze import GazeSample
+from wamctl.io import resolve_path
 from wamctl.specs.hmi_block import HmiTask
 
 log = logging.getLogger(__name__)
@@ -170,9 +171,6 @@ def open_feed(h: HmiTask, base_dir: Path | None) -> VirtualFeed | StreamFeed:
         return VirtualFeed()
     if src.kind == "replay":
         from wamctl.backends.gaze.replay import ReplayGazeSource
-        path = Path(src.path)
-        if not path.is_absolute() and base_dir is not None and not path.exists():
-            path = base_dir / path
-        return StreamFeed(ReplayGazeSource.from_csv(path), live=False)
+        return StreamFeed(ReplayGazeSource.from_csv(resolve_path(src.path, base_dir)), live=False)
     from wamctl.backends.gaze.serial import SerialGazeSource
     return StreamFeed(SerialGazeSource(src.url, baudrate=src.baudrate, eof_idle_s=src.eof_idle_s), live=True)

@@ -3,8 +3,6 @@ categorical columns, and reading and writing them (each file appears whole or no
 
 from __future__ import annotations
 
-import os
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -13,6 +11,7 @@ import pandas as pd
 from wamctl.errors import DataFormatError
 from wamctl.hmi.strategy import Hold, Motion
 from wamctl.model import params as P
+from wamctl.runs.store import atomic_write
 
 MOTION_CODES: tuple[str, ...] = tuple(m.value for m in Motion)
 HOLD_CODES: tuple[str, ...] = tuple(h.value for h in Hold)
@@ -30,12 +29,6 @@ TRAJECTORY_COLUMNS = (["trial", "t_s", "t_trial_s", "gaze_t_s", "gaze_x_px", "ga
                        "level", "vx_cmd_m_s", "vy_cmd_m_s", "hold", "arm_hold", "hand_x_m", "hand_y_m", "hand_z_m",
                        "tilt_deg", "ref_x_m", "ref_y_m", "gripper"]
                       + [f"q_{j}_rad" for j in range(1, P.N_JOINTS + 1)])
-
-
-def _write_atomic(path: Path, write: Callable[[Path], None]) -> None:
-    tmp = path.with_name(f".{path.name}.tmp")
-    write(tmp)
-    os.replace(tmp, path)
 
 
 def read_done(run_path: Path) -> tuple[list[dict], list[dict]]:
@@ -59,10 +52,10 @@ def read_done(run_path: Path) -> tuple[list[dict], list[dict]]:
 def write_tables(run_path: Path, trial_rows: list[dict], event_rows: list[dict]) -> None:
     """``trials.csv/.parquet`` (in trial order) and ``hmi_events.csv``."""
     trials = pd.DataFrame(trial_rows, columns=TRIAL_TABLE_COLUMNS).sort_values("trial")
-    _write_atomic(run_path / f"{TRIALS_TABLE}.csv", lambda p: trials.to_csv(p, index=False))
-    _write_atomic(run_path / f"{TRIALS_TABLE}.parquet", lambda p: trials.to_parquet(p, index=False))
+    atomic_write(run_path / f"{TRIALS_TABLE}.csv", lambda p: trials.to_csv(p, index=False))
+    atomic_write(run_path / f"{TRIALS_TABLE}.parquet", lambda p: trials.to_parquet(p, index=False))
     events = pd.DataFrame(event_rows, columns=EVENT_COLUMNS)
-    _write_atomic(run_path / EVENTS_FILE, lambda p: events.to_csv(p, index=False))
+    atomic_write(run_path / EVENTS_FILE, lambda p: events.to_csv(p, index=False))
 
 
 def write_trajectory_part(run_path: Path, number: int, rows: list[list[float]]) -> None:
@@ -70,7 +63,7 @@ def write_trajectory_part(run_path: Path, number: int, rows: list[list[float]]) 
     d = run_path / TRAJECTORY_TABLE
     d.mkdir(exist_ok=True)
     df = pd.DataFrame(np.array(rows, float).reshape(-1, len(TRAJECTORY_COLUMNS)), columns=TRAJECTORY_COLUMNS)
-    _write_atomic(d / f"part-{number:05d}.parquet", lambda p: df.to_parquet(p, index=False))
+    atomic_write(d / f"part-{number:05d}.parquet", lambda p: df.to_parquet(p, index=False))
 
 
 def consolidate_trajectory(run_path: Path) -> None:

@@ -10,6 +10,7 @@ from wamctl.experiments.ift.experiments import IftExperiments
 from wamctl.experiments.ift.planning import comparison_feedforward_Nm, task_reference
 from wamctl.experiments.ift.state import write_parquet
 from wamctl.model.plant import resolve_friction
+from wamctl.report.ift import comparison_file
 
 STRATEGIES = ("pd_g", "pd_g_ff", "pid")
 
@@ -35,5 +36,5 @@ def compare_strategies(lab: IftExperiments, tuned: np.ndarray) -> None:
             parts.append(df)
             if reason is not None:
                 lab.run.event(lab.plant_time_s, "comparison_failed", joint, f"{strategy}: {reason}")
-        write_parquet(lab.run.path / f"compare-{strategy}.parquet", pd.concat(parts, ignore_index=True))
+        write_parquet(lab.run.path / comparison_file(strategy), pd.concat(parts, ignore_index=True))
         lab.run.event(lab.plant_time_s, "comparison", None, f"{strategy} done")

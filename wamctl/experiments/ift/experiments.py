@@ -17,8 +17,9 @@ from wamctl.control.trajectory import Reference
 from wamctl.errors import DataFormatError, SafetyLimitError, WamctlError
 from wamctl.experiments.common import declared_dynamics
 from wamctl.experiments.engine import LoopRecorder, data_columns, run_loop
-from wamctl.experiments.ift.planning import DT_S, model_plant_spec, resolve_path, returns_to_start, task_reference
+from wamctl.experiments.ift.planning import DT_S, model_plant_spec, returns_to_start, task_reference
 from wamctl.experiments.ift.state import IterationTables
+from wamctl.io import resolve_path
 from wamctl.model import params as P
 from wamctl.model.plant import Plant
 from wamctl.runs.store import RunDir

@@ -7,10 +7,10 @@ from pathlib import Path
 import numpy as np
 from pydantic import ValidationError
 
-from wamctl.control.controllers import friction_feedforward_Nm
 from wamctl.control.trajectory import Reference, ReferenceBuilder
 from wamctl.errors import SpecError
-from wamctl.experiments.common import Plan, declared_dynamics
+from wamctl.experiments.common import Plan, declared_feedforward_Nm
+from wamctl.io import resolve_path
 from wamctl.model import params as P
 from wamctl.model.friction import FrictionModel
 from wamctl.model.plant import Plant, resolve_friction
@@ -41,14 +41,6 @@ def returns_to_start(spec: IftSpec) -> bool:
     return (spec.backend.kind != "sim") if r is None else bool(r)
 
 
-def resolve_path(p: str, base_dir: Path | None) -> Path:
-    """``p`` as given if it exists or is absolute, else relative to the spec's folder ``base_dir``."""
-    path = Path(p)
-    if not path.is_absolute() and base_dir is not None and not path.exists():
-        path = base_dir / path
-    return path
-
-
 def model_plant_spec(spec: IftSpec, base_dir: Path | None) -> tuple[PlantSpec, Path | None]:
     """The model of the second experiment and of the safeguards, and the folder its friction path is relative to.
 
@@ -76,9 +68,7 @@ def model_plant_spec(spec: IftSpec, base_dir: Path | None) -> tuple[PlantSpec, P
 def comparison_feedforward_Nm(spec: IftSpec, reference: Reference, friction: FrictionModel) -> np.ndarray:
     """Eq. 4.3 over ``reference`` with the identified friction: the feed-forward of the ``pd_g_ff`` strategy of
     the comparison (with the ``m qdd_r`` term of the declared rigid body at q0 when ``comparison.ff_inertia``)."""
-    inertia = np.diag(declared_dynamics(spec).mass_matrix(np.asarray(spec.q0_rad))) \
-        if spec.ift.comparison.ff_inertia else None
-    return friction_feedforward_Nm(reference.qd_rad_s, reference.qdd_rad_s2, friction, inertia)
+    return declared_feedforward_Nm(spec, reference, friction, spec.ift.comparison.ff_inertia)
 
 
 def plan(spec: IftSpec, base_dir: Path | None = None) -> Plan:

@@ -3,12 +3,14 @@
 
 from __future__ import annotations
 
-import os
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
+
+from wamctl.report.ift import iteration_file
+from wamctl.runs.store import atomic_write
 
 STATE_FILE = "ift_state.json"
 STATE_FORMAT = "wamctl-ift-state/1"
@@ -67,14 +69,12 @@ class IterationTables:
         """``iter-NNN-{exp1,exp2,check}.parquet`` of iteration ``k``, each only if it has rows."""
         for name, parts in (("exp1", self.exp1), ("exp2", self.exp2), ("check", self.check)):
             if parts:
-                write_parquet(run_path / f"iter-{k:03d}-{name}.parquet", pd.concat(parts, ignore_index=True))
+                write_parquet(run_path / iteration_file(k, name), pd.concat(parts, ignore_index=True))
 
 
 def write_parquet(path: Path, df: pd.DataFrame) -> None:
     """Write a table so that readers see the old or the new file, never a half-written one."""
-    tmp = path.with_name("." + path.name + ".tmp")
-    df.to_parquet(tmp, index=False)
-    os.replace(tmp, path)
+    atomic_write(path, lambda tmp: df.to_parquet(tmp, index=False))
 
 
 def iteration_row(k, joint, method, gamma, rho, J, J_model, status, stage, note) -> dict:

@@ -23,6 +23,7 @@ from wamctl.experiments.ift.state import (
     iterations_frame,
     write_parquet,
 )
+from wamctl.report.ift import ITERATIONS_TABLE
 from wamctl.runs.store import RunDir, atomic_write_text, utc_now
 from wamctl.specs.ift import IftSpec, gain_bounds
 
@@ -48,8 +49,8 @@ class IftTuner(IftExperiments):
     def save_state(self) -> None:
         atomic_write_text(self.run.path / STATE_FILE, json.dumps(self.state_dict(), indent=2))
         df = iterations_frame(self.rows)
-        write_parquet(self.run.path / "iterations.parquet", df)
-        df.to_csv(self.run.path / "iterations.csv", index=False)
+        write_parquet(self.run.path / f"{ITERATIONS_TABLE}.parquet", df)
+        df.to_csv(self.run.path / f"{ITERATIONS_TABLE}.csv", index=False)
         self.run.flush_events()
         self.run.update_manifest(ift={"last_completed_iteration": self.iteration, "phase": self.phase,
                                       "plant_experiments": self.plant_experiments,
@@ -68,7 +69,7 @@ class IftTuner(IftExperiments):
         self.model_experiments = int(d["model_experiments"])
         self.plant_time_s = float(d["plant_time_s"])
         self.joints = {int(k): JointState.from_dict(v) for k, v in d["joints"].items()}
-        it = self.run.path / "iterations.parquet"
+        it = self.run.path / f"{ITERATIONS_TABLE}.parquet"
         if it.is_file():
             df = pd.read_parquet(it)
             df = df[df["iteration"] <= self.iteration]
