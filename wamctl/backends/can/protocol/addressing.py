@@ -42,6 +42,7 @@ __all__ = [
     "encode_bus_id",
 ]
 
+
 class PuckFrameError(BackendError):
     """A frame received from the bus does not follow the puck protocol (wrong id, length or header)."""
 

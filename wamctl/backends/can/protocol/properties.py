@@ -74,7 +74,7 @@ class Prop(enum.IntEnum):
 
 
 # CTS assumed until each puck's is read: the model's encoder resolution (4096 on older arms, 40960 with
-# magnetic encoders).
+# magnetic encoders); IPNM's default is with the torques (torques.IPNM_DEFAULT).
 CTS_DEFAULT = P.ENCODER_COUNTS_PER_REV
 
 # Property ids above are valid from this motor-puck firmware version on (property_list.cpp PL_Motor).
