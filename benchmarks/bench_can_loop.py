@@ -88,7 +88,7 @@ def main() -> None:
     print(f"link       {link['missed_reply_cycles']} cycles with a missing/late reply "
           f"(timeout {args.reply_timeout * 1e3:.1f} ms), {link['late_replies']} late replies, "
           f"{link['frames_sent']} frames sent, {link['frames_received']} received")
-    from wamctl.backends.can.backend import loop_bus_load_pct
+    from wamctl.backends.can.bus_tools import loop_bus_load_pct
     print(f"bus load   {loop_bus_load_pct(1_000_000):.1f} % of 1 Mbit/s "
           f"({loop_bus_load_pct(1_000_000, stuffing=True):.1f} % with worst-case bit stuffing)")
     print(f"machine    load average {' / '.join(f'{x:.2f}' for x in os.getloadavg())} (1/5/15 min) on "

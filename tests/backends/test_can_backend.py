@@ -20,11 +20,17 @@ from conftest import Q0, rotation_spec
 from typer.testing import CliRunner
 
 from wamctl.analysis.rotation import rotation_metrics
-from wamctl.backends.can import protocol as pp
-from wamctl.backends.can.backend import CanBackend, LoopTiming, frame_bits, loop_bus_load_pct
+from wamctl.backends.can.backend import CanBackend
+from wamctl.backends.can.bus_tools import frame_bits, loop_bus_load_pct
+from wamctl.backends.can.protocol.addressing import GROUP_WAM, TORQUE_GROUPS
+from wamctl.backends.can.protocol.positions import make_position_request
+from wamctl.backends.can.protocol.properties import CTS_DEFAULT, Mode, Prop, Status, make_set_property
+from wamctl.backends.can.protocol.torques import PACKED_TORQUE_HEADER, unpack_torques
 from wamctl.backends.can.puck_sim import PuckSimulator, StaticPlant
+from wamctl.backends.can.timing import LoopTiming
 from wamctl.errors import BackendError, SafetyLimitError, SpecError
 from wamctl.experiments.runner import run_spec
+from wamctl.model.transmission import J2MP, M2JP
 from wamctl.runs.store import open_run, read_events, read_table
 from wamctl.specs import load_spec, parse_spec
 
@@ -35,7 +41,7 @@ SHORT_ROTATION = {"joints": [2, 4], "mode": "all_together", "amplitude_rad": 0.2
                   "tc_s": 0.3, "settle_s": 0.2, "hold_s": 0.5}
 FAULT_AT_CYCLE = 150
 MAX_CYCLES_TO_ZERO_TORQUE = 3  # issue 9: zero torque within three control cycles
-TORQUE_GROUP_IDS = tuple(pp.TORQUE_GROUPS)  # 0x401, 0x402
+TORQUE_GROUP_IDS = tuple(TORQUE_GROUPS)  # 0x401, 0x402
 
 
 @pytest.fixture
@@ -64,27 +70,27 @@ def wire_cycles(frames: list[can.Message]):
     and ``idles`` ((cycle, frame index) of every MODE=IDLE set to the whole WAM). Cycle 0 is the cycle
     whose torque command came with the first MODE=TORQUE set.
     """
-    torque_on = bytes(pp.make_set_property(pp.GROUP_WAM, pp.Prop.MODE, pp.Mode.TORQUE).data)
-    idle = bytes(pp.make_set_property(pp.GROUP_WAM, pp.Prop.MODE, pp.Mode.IDLE).data)
-    request = bytes(pp.make_position_request().data)
+    torque_on = bytes(make_set_property(GROUP_WAM, Prop.MODE, Mode.TORQUE).data)
+    idle = bytes(make_set_property(GROUP_WAM, Prop.MODE, Mode.IDLE).data)
+    request = bytes(make_position_request().data)
     cycle, started = -1, False
     requests, torques, idles = [], [], []
     for i, m in enumerate(frames):
         data = bytes(m.data)
-        if m.arbitration_id == pp.GROUP_WAM and data == torque_on and not started:
+        if m.arbitration_id == GROUP_WAM and data == torque_on and not started:
             started = True
             cycle = 0  # the TORQUE set and the first torque frames belong to cycle 0 (after its request)
             continue
         if not started:
-            if m.arbitration_id == pp.GROUP_WAM and data == request:
+            if m.arbitration_id == GROUP_WAM and data == request:
                 requests[:] = [i]  # the latest request before TORQUE mode is cycle 0's
             continue
-        if m.arbitration_id == pp.GROUP_WAM and data == request:
+        if m.arbitration_id == GROUP_WAM and data == request:
             cycle += 1
             requests.append(i)
-        elif m.arbitration_id in TORQUE_GROUP_IDS and data[:1] == bytes([pp.PACKED_TORQUE_HEADER]):
-            torques.append((cycle, pp.unpack_torques(data), i))
-        elif m.arbitration_id == pp.GROUP_WAM and data == idle:
+        elif m.arbitration_id in TORQUE_GROUP_IDS and data[:1] == bytes([PACKED_TORQUE_HEADER]):
+            torques.append((cycle, unpack_torques(data), i))
+        elif m.arbitration_id == GROUP_WAM and data == idle:
             idles.append((cycle, i))
     return requests, torques, idles
 
@@ -193,7 +199,7 @@ def test_link_fault_ends_in_zero_torque_and_failed_run(runs_dir, channel, fault)
     for puck in range(1, 8):
         if puck == silent:
             continue
-        assert sim["modes"][str(puck)] == int(pp.Mode.IDLE), puck
+        assert sim["modes"][str(puck)] == int(Mode.IDLE), puck
         assert sim["puck_torque_units"][puck - 1] == 0, puck
     coupled = {4: {4}}.get(silent, set())  # joint 4 is driven by puck 4 alone
     since = sim["arm"]["zero_torque_since_cycle"]
@@ -202,7 +208,7 @@ def test_link_fault_ends_in_zero_torque_and_failed_run(runs_dir, channel, fault)
             assert since[j - 1] is not None and since[j - 1] <= FAULT_AT_CYCLE + MAX_CYCLES_TO_ZERO_TORQUE, j
     if silent is not None:
         # a puck off the bus cannot be commanded: it holds its last torque (the arm's safety module's job)
-        assert sim["modes"][str(silent)] == int(pp.Mode.TORQUE)
+        assert sim["modes"][str(silent)] == int(Mode.TORQUE)
         assert silent not in w["idle_confirmed_pucks"]
 
 
@@ -234,7 +240,7 @@ def test_backend_conversions_through_the_pucks(channel):
     with PuckSimulator(plant, channel=channel, cts=40960, ipnm=[2700, 2700, 2700, 2700, 3000, 3000, 4000]) as sim:
         with _backend(channel, reply_timeout_s=0.05) as b:
             q = b.read_positions()
-            half_count_rad = np.abs(pp.M2JP) @ np.full(7, 0.5 * 2 * np.pi / 40960)
+            half_count_rad = np.abs(M2JP) @ np.full(7, 0.5 * 2 * np.pi / 40960)
             np.testing.assert_array_less(np.abs(q - plant.q_rad), half_count_rad + 1e-12)
             tau = np.array([10.0, -8.0, 5.0, 3.0, -1.0, 0.5, 0.2])
             n0 = plant.n_torque_updates
@@ -244,15 +250,15 @@ def test_backend_conversions_through_the_pucks(channel):
             while plant.n_torque_updates < n0 + 2 and time.monotonic() < deadline:
                 time.sleep(0.002)
             # puck-unit rounding: half a unit per motor, through J2MP^T
-            bound = np.abs(pp.J2MP.T) @ (0.5 / np.array([2700, 2700, 2700, 2700, 3000, 3000, 4000]))
+            bound = np.abs(J2MP.T) @ (0.5 / np.array([2700, 2700, 2700, 2700, 3000, 3000, 4000]))
             np.testing.assert_array_less(np.abs(plant.tau_Nm - tau), bound + 1e-12)
-            assert set(sim.modes().values()) == {int(pp.Mode.TORQUE)}
+            assert set(sim.modes().values()) == {int(Mode.TORQUE)}
             # saturated at the WAM limits before conversion
             np.testing.assert_array_equal(b.command_torques(np.full(7, 100.0)), b.limits.tau_max_Nm)
             b.wait_next_cycle()
             assert b.cycle == 1
         # closed: zero torque, idle
-        assert set(sim.modes().values()) == {int(pp.Mode.IDLE)}
+        assert set(sim.modes().values()) == {int(Mode.IDLE)}
         assert not sim.puck_torque_units().any()
         assert b.idle_confirmed == list(range(1, 8))
 
@@ -260,8 +266,8 @@ def test_backend_conversions_through_the_pucks(channel):
 def test_backend_wakes_sleeping_pucks(channel):
     with PuckSimulator(StaticPlant(Q0), channel=channel, start_awake=False, wake_delay_s=0.05) as sim:
         with _backend(channel) as b:
-            assert {i: info.stat for i, info in b.pucks.items()} == {i: int(pp.Status.READY) for i in range(1, 8)}
-        assert sim.property_value(1, pp.Prop.STAT) == pp.Status.READY
+            assert {i: info.stat for i, info in b.pucks.items()} == {i: int(Status.READY) for i in range(1, 8)}
+        assert sim.property_value(1, Prop.STAT) == Status.READY
 
 
 @pytest.mark.parametrize("problem", ["missing_puck", "old_firmware", "not_at_q0", "bad_pidx", "no_bus"])
@@ -289,7 +295,7 @@ def test_backend_refuses_to_start(channel, problem):
         with pytest.raises(expected[0], match=expected[1]):
             b.__enter__()
         # nothing left running, and the pucks never left IDLE
-        assert set(sim.modes().values()) == {int(pp.Mode.IDLE)}
+        assert set(sim.modes().values()) == {int(Mode.IDLE)}
         assert b._bus is None
 
 
@@ -297,11 +303,11 @@ def test_pucks_refusing_torque_mode_trip_the_loop(channel):
     """A puck that does not enter TORQUE mode (the WAM not activated) stops the run within the tolerance."""
     plant = StaticPlant(Q0)
     with PuckSimulator(plant, channel=channel) as sim:
-        sim._pucks[6].props[pp.Prop.MODE] = pp.Mode.IDLE
+        sim._pucks[6].props[Prop.MODE] = Mode.IDLE
         original = sim._on_set
 
         def refuse_torque(pucks, prop, value):  # puck 6 ignores MODE=TORQUE, like an inactive arm
-            if prop == pp.Prop.MODE and value == pp.Mode.TORQUE:
+            if prop == Prop.MODE and value == Mode.TORQUE:
                 pucks = [p for p in pucks if p.puck_id != 6]
             original(pucks, prop, value)
 
@@ -379,7 +385,7 @@ def test_bus_check_lists_the_seven_pucks(cli, channel):
     assert [p["puck_id"] for p in r["pucks"]] == list(range(1, 8))
     assert all(p["kind"] == "wam motor" and p["stat_name"] == "READY" and p["firmware_ok"] for p in r["pucks"])
     assert [p["pidx"] for p in r["pucks"]] == [1, 2, 3, 4, 1, 2, 3]
-    assert {p["cts"] for p in r["pucks"]} == {pp.CTS_DEFAULT} and {p["ipnm"] for p in r["pucks"]} == {2700}
+    assert {p["cts"] for p in r["pucks"]} == {CTS_DEFAULT} and {p["ipnm"] for p in r["pucks"]} == {2700}
     assert r["problems"] == [] and r["missing_wam_pucks"] == []
     load = r["load"]
     assert load["polls"] > 0 and load["frames"] >= load["polls"]  # our requests at least
@@ -398,7 +404,7 @@ def test_bus_check_reports_a_missing_puck(cli, channel):
 
 
 def test_bus_check_on_an_empty_bus_is_an_error(channel):
-    from wamctl.backends.can.backend import bus_check
+    from wamctl.backends.can.bus_tools import bus_check
     with pytest.raises(BackendError, match="no puck answered"):
         bus_check("virtual", channel, window_s=0.05)
 
@@ -412,7 +418,7 @@ HW_CHANNEL = os.environ.get("WAMCTL_CAN_CHANNEL", "can0")
 @pytest.mark.hardware
 def test_hardware_bus_check_finds_the_wam():
     """Opt-in (pytest -m hardware): a powered WAM on WAMCTL_CAN_INTERFACE / WAMCTL_CAN_CHANNEL."""
-    from wamctl.backends.can.backend import bus_check
+    from wamctl.backends.can.bus_tools import bus_check
     r = bus_check(HW_INTERFACE, HW_CHANNEL, window_s=1.0, poll_hz=500.0)
     assert r["missing_wam_pucks"] == [] and r["problems"] == []
     assert r["load"]["complete_polls"] > 0

@@ -29,7 +29,7 @@ def bus_check_cmd(
 ):
     """List the pucks found on the bus (firmware VERS, CTS, IPNM, PIDX, state) and measure the bus load
     (frames/s and % of the bit rate over a short window). Exits 1 if a WAM puck is missing or unusable."""
-    from wamctl.backends.can.backend import bus_check
+    from wamctl.backends.can.bus_tools import bus_check
     from wamctl.model import params as P
 
     result = bus_check(interface, channel, bitrate, simulate_pucks=simulate_pucks, window_s=window,

@@ -17,8 +17,9 @@ Effects (each switchable in ``plant.effects``; see :mod:`wamctl.specs` for the p
                       reversal the measurement stands still over ``w`` of link travel.
 
 Sensors: motor encoders with ``counts`` per revolution read through the transmission (motor angle =
-J2MP @ q, rounded to counts, mapped back with J2MP^-1), optional Gaussian position noise, and optional
-actuation (torque) noise. All randomness comes from one seeded generator.
+J2MP @ q, rounded to counts, mapped back with J2MP^-1: :func:`wamctl.model.transmission.quantise_joint_rad`,
+the formula the CAN backend uses too), optional Gaussian position noise, and optional actuation (torque)
+noise. All randomness comes from one seeded generator.
 """
 
 from __future__ import annotations
@@ -27,7 +28,6 @@ from collections import deque
 from pathlib import Path
 
 import numpy as np
-from numba import njit
 
 from wamctl.errors import SpecError
 from wamctl.io import resolve_path
@@ -35,6 +35,7 @@ from wamctl.model import params as P
 from wamctl.model.dynamics import Payload
 from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
 from wamctl.model.friction import FrictionModel
+from wamctl.model.transmission import J2MP, M2JP, counts_per_rad, joint_rad_per_count, quantise_joint_rad
 
 
 def resolve_friction(value, base_dir: Path | None = None) -> FrictionModel:
@@ -106,34 +107,17 @@ class Plant:
         return friction_drift_scale(t_s, self.drift_fraction, self.drift_time_constant_s)
 
 
-@njit(cache=True)
-def _quantise(q, j2mp, j2mp_inv, count_per_rad):
-    """Joint angles as the motor encoders report them: round(J2MP q) counts, mapped back through J2MP^-1."""
-    n = q.shape[0]
-    counts = np.empty(n)
-    for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            acc += j2mp[i, j] * q[j]
-        counts[i] = np.round(acc * count_per_rad) / count_per_rad
-    out = np.empty(n)
-    for i in range(n):
-        acc = 0.0
-        for j in range(n):
-            acc += j2mp_inv[i, j] * counts[j]
-        out[i] = acc
-    return out
-
-
 class SensorChain:
     """Turns true link positions into what the encoders report: delay -> backlash -> quantisation -> noise."""
 
     def __init__(self, plant: Plant, rng: np.random.Generator, q0: np.ndarray, dt_physics_s: float):
         self.plant = plant
         self.rng = rng
-        cpr = plant.sensors.encoder_counts_per_rev
-        self._count_per_rad = cpr / (2 * np.pi) if cpr > 0 else 0.0
-        self._j2mp_inv = np.linalg.inv(P.J2MP)
+        cts = plant.sensors.encoder_counts_per_rev
+        self._cts = cts
+        # per motor, as the transmission's kernel takes them; None: ideal sensor, no quantisation
+        self._counts_per_rad = np.full(P.N_JOINTS, counts_per_rad(cts)) if cts > 0 else None
+        self._j2mp, self._m2jp = np.array(J2MP), np.array(M2JP)  # writable: numba dispatches them faster
         self._play = np.asarray(q0, float).copy()
         self._half_band = plant.backlash_width_rad / 2
         self._has_backlash = bool(self._half_band.any())
@@ -158,14 +142,14 @@ class SensorChain:
         if self._has_backlash:
             self._play = np.clip(self._play, q - self._half_band, q + self._half_band)
             q = np.where(self._half_band > 0, self._play, q)
-        if self._count_per_rad:
-            q = _quantise(q, P.J2MP, self._j2mp_inv, self._count_per_rad)
+        if self._counts_per_rad is not None:
+            q = quantise_joint_rad(q, self._j2mp, self._m2jp, self._counts_per_rad)
         if self.plant.sensors.position_noise_rad > 0:
             q = q + self.rng.normal(0.0, self.plant.sensors.position_noise_rad, P.N_JOINTS)
         return q
 
     def quantisation_step_rad(self) -> np.ndarray:
         """(7,) joint-angle size of one encoder count (the largest over the coupled joints)."""
-        if not self._count_per_rad:
+        if self._counts_per_rad is None:
             return np.zeros(P.N_JOINTS)
-        return np.abs(self._j2mp_inv).max(axis=1) / self._count_per_rad
+        return joint_rad_per_count(self._cts)

@@ -35,18 +35,50 @@ from typing import Protocol, runtime_checkable
 import can
 import numpy as np
 
-from wamctl.backends.can import protocol as pp
+from wamctl.backends.can.protocol.addressing import (
+    DEFAULT_PIDX,
+    FEEDBACK_OTHER,
+    FEEDBACK_POSITION,
+    FEEDBACK_POSITION_TARGET,
+    GROUP_FLAG,
+    GROUP_WAM,
+    GROUP_WHOLE_BUS,
+    N_JOINTS,
+    TORQUE_GROUPS,
+    WAM_PUCK_IDS,
+    BusId,
+    PuckFrameError,
+    decode_bus_id,
+    encode_bus_id,
+)
+from wamctl.backends.can.protocol.positions import POSITION_MAX_COUNTS, POSITION_MIN_COUNTS, make_position_reply
+from wamctl.backends.can.protocol.properties import (
+    CTS_DEFAULT,
+    Mode,
+    Prop,
+    Status,
+    make_property_reply,
+    parse_host_property_message,
+)
+from wamctl.backends.can.protocol.torques import (
+    IPNM_DEFAULT,
+    PACKED_TORQUE_HEADER,
+    puck_units_to_joint_torque_Nm,
+    saturate_puck_units,
+    unpack_torques,
+)
+from wamctl.model.transmission import J2MP, joint_rad_to_counts
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["PlantAdapter", "PuckSimulator", "SimStats", "StaticPlant", "SIM_FIRMWARE_VERSION"]
 
 # Firmware version the simulated pucks report: arbitrary, at or above the newest property table in
-# libbarrett (motor pucks VERS >= 145) so every id in protocol.Prop applies.
+# libbarrett (motor pucks VERS >= 145) so every id in properties.Prop applies.
 SIM_FIRMWARE_VERSION = 200
 _ROLE_MOTOR = 0  # puck.h ROLE_TATER in the low five bits, no options (optical encoder)
-_MODE_VALUES = frozenset(int(m) for m in pp.Mode)
-_MONITOR_PROPS = frozenset({pp.Prop.VERS, pp.Prop.ROLE, pp.Prop.SN, pp.Prop.ID, pp.Prop.ERROR, pp.Prop.STAT})
+_MODE_VALUES = frozenset(int(m) for m in Mode)
+_MONITOR_PROPS = frozenset({Prop.VERS, Prop.ROLE, Prop.SN, Prop.ID, Prop.ERROR, Prop.STAT})
 
 
 @runtime_checkable
@@ -75,8 +107,8 @@ class StaticPlant:
     """
 
     def __init__(self, q_rad: np.ndarray | None = None) -> None:
-        self.q_rad = np.zeros(pp.N_JOINTS) if q_rad is None else np.asarray(q_rad, dtype=float).copy()
-        self.tau_Nm = np.zeros(pp.N_JOINTS)
+        self.q_rad = np.zeros(N_JOINTS) if q_rad is None else np.asarray(q_rad, dtype=float).copy()
+        self.tau_Nm = np.zeros(N_JOINTS)
         self.n_position_reads = 0
         self.n_torque_updates = 0
         self._lock = threading.Lock()
@@ -142,14 +174,14 @@ class PuckSimulator:
     ipnm : int or sequence of int, default 2700
         IPNM per puck.
     pidx : dict of int to int, optional
-        PIDX per puck id; default :data:`~wamctl.backends.can.protocol.DEFAULT_PIDX`.
+        PIDX per puck id; default :data:`~wamctl.backends.can.protocol.addressing.DEFAULT_PIDX`.
     firmware_version : int, default :data:`SIM_FIRMWARE_VERSION`
         VERS reported by every puck.
     start_awake : bool, default True
         If False the pucks start in the monitor (STAT=0) and must be woken by a set of STAT=2.
     wake_delay_s : float, default 0.0
         Time between the STAT=2 set and the puck answering as READY.
-    j2mp : numpy.ndarray, default :data:`~wamctl.backends.can.protocol.J2MP`
+    j2mp : numpy.ndarray, default :data:`~wamctl.model.transmission.J2MP`
         Transmission used to turn joint angles into counts and puck torques into joint torques.
     seed : int, optional
         Seed of the fault-injection random generator.
@@ -170,40 +202,43 @@ class PuckSimulator:
         bus: can.BusABC | None = None,
         channel: str = "wam-test",
         interface: str = "virtual",
-        cts: int | Iterable[int] = pp.CTS_DEFAULT,
-        ipnm: int | Iterable[int] = pp.IPNM_DEFAULT,
+        cts: int | Iterable[int] = CTS_DEFAULT,
+        ipnm: int | Iterable[int] = IPNM_DEFAULT,
         pidx: dict[int, int] | None = None,
         firmware_version: int = SIM_FIRMWARE_VERSION,
         start_awake: bool = True,
         wake_delay_s: float = 0.0,
-        j2mp: np.ndarray = pp.J2MP,
+        j2mp: np.ndarray = J2MP,
         seed: int | None = None,
         poll_timeout_s: float = 0.01,
     ) -> None:
         self._plant = plant
         self._j2mp = np.asarray(j2mp, dtype=float)
-        self._cts = np.broadcast_to(np.asarray(cts, dtype=np.int64), (pp.N_JOINTS,)).copy()
-        self._ipnm = np.broadcast_to(np.asarray(ipnm, dtype=np.int64), (pp.N_JOINTS,)).copy()
+        self._cts = np.broadcast_to(np.asarray(cts, dtype=np.int64), (N_JOINTS,)).copy()
+        self._ipnm = np.broadcast_to(np.asarray(ipnm, dtype=np.int64), (N_JOINTS,)).copy()
         if np.any(self._cts <= 0) or np.any(self._ipnm <= 0):
             raise ValueError("CTS and IPNM must be positive")
-        pidx_map = dict(pp.DEFAULT_PIDX if pidx is None else pidx)
+        # load (or compile) the transmission's numba kernels now, not within the first position request's
+        # reply deadline
+        joint_rad_to_counts(np.zeros(N_JOINTS), self._cts, self._j2mp)
+        pidx_map = dict(DEFAULT_PIDX if pidx is None else pidx)
         self._wake_delay_s = float(wake_delay_s)
         now = time.monotonic()
         self._pucks: dict[int, _Puck] = {}
-        for i, puck_id in enumerate(pp.WAM_PUCK_IDS):
-            group = next(g for g, members in pp.TORQUE_GROUPS.items() if puck_id in members)
+        for i, puck_id in enumerate(WAM_PUCK_IDS):
+            group = next(g for g, members in TORQUE_GROUPS.items() if puck_id in members)
             props = {
-                pp.Prop.VERS: int(firmware_version),
-                pp.Prop.ROLE: _ROLE_MOTOR,
-                pp.Prop.SN: 1000 + puck_id,
-                pp.Prop.ID: puck_id,
-                pp.Prop.ERROR: 0,
-                pp.Prop.STAT: pp.Status.READY if start_awake else pp.Status.RESET,
-                pp.Prop.MODE: pp.Mode.IDLE,
-                pp.Prop.CTS: int(self._cts[i]),
-                pp.Prop.IPNM: int(self._ipnm[i]),
-                pp.Prop.PIDX: int(pidx_map.get(puck_id, 0)),
-                pp.Prop.T: 0,
+                Prop.VERS: int(firmware_version),
+                Prop.ROLE: _ROLE_MOTOR,
+                Prop.SN: 1000 + puck_id,
+                Prop.ID: puck_id,
+                Prop.ERROR: 0,
+                Prop.STAT: Status.READY if start_awake else Status.RESET,
+                Prop.MODE: Mode.IDLE,
+                Prop.CTS: int(self._cts[i]),
+                Prop.IPNM: int(self._ipnm[i]),
+                Prop.PIDX: int(pidx_map.get(puck_id, 0)),
+                Prop.T: 0,
             }
             self._pucks[puck_id] = _Puck(puck_id, {int(k): int(v) for k, v in props.items()}, group,
                                          now if start_awake else None)
@@ -331,9 +366,9 @@ class PuckSimulator:
         count : int, default 1
         """
         for _ in range(count):
-            puck_id = self._rng.choice(pp.WAM_PUCK_IDS)
-            group = self._rng.choice((pp.FEEDBACK_POSITION, pp.FEEDBACK_OTHER))
-            self._send(self._garble(pp.encode_bus_id(puck_id, group)), counter="garbage_sent")
+            puck_id = self._rng.choice(WAM_PUCK_IDS)
+            group = self._rng.choice((FEEDBACK_POSITION, FEEDBACK_OTHER))
+            self._send(self._garble(encode_bus_id(puck_id, group)), counter="garbage_sent")
 
     def stop_answering(self) -> None:
         """Stop sending anything (commands are still obeyed)."""
@@ -367,16 +402,16 @@ class PuckSimulator:
     def modes(self) -> dict[int, int]:
         """MODE of every puck, by puck id."""
         with self._lock:
-            return {pid: p.props[pp.Prop.MODE] for pid, p in self._pucks.items()}
+            return {pid: p.props[Prop.MODE] for pid, p in self._pucks.items()}
 
     def puck_torque_units(self) -> np.ndarray:
         """Torque commands the pucks hold, puck units, shape (7,) (zero for pucks not in TORQUE mode)."""
         with self._lock:
-            return np.array([self._pucks[p].torque_units for p in pp.WAM_PUCK_IDS], dtype=np.int64)
+            return np.array([self._pucks[p].torque_units for p in WAM_PUCK_IDS], dtype=np.int64)
 
     def joint_torques_Nm(self) -> np.ndarray:
         """Joint torques the held puck commands produce, N m, shape (7,)."""
-        return pp.puck_units_to_joint_torque_Nm(self.puck_torque_units(), self._ipnm, self._j2mp)
+        return puck_units_to_joint_torque_Nm(self.puck_torque_units(), self._ipnm, self._j2mp)
 
     # ------------------------------------------------------------------ thread
 
@@ -408,17 +443,17 @@ class PuckSimulator:
     def _awake(self, puck: _Puck) -> bool:
         if puck.wake_at is None or time.monotonic() < puck.wake_at:
             return False
-        if puck.props[pp.Prop.STAT] != pp.Status.READY:
-            puck.props[pp.Prop.STAT] = int(pp.Status.READY)
+        if puck.props[Prop.STAT] != Status.READY:
+            puck.props[Prop.STAT] = int(Status.READY)
         return True
 
-    def _addressed(self, bid: pp.BusId) -> list[_Puck]:
+    def _addressed(self, bid: BusId) -> list[_Puck]:
         if bid.is_group:
-            group = pp.GROUP_FLAG | bid.target
-            if group in (pp.GROUP_WHOLE_BUS, pp.GROUP_WAM):
-                ids: Iterable[int] = pp.WAM_PUCK_IDS
-            elif group in pp.TORQUE_GROUPS:
-                ids = pp.TORQUE_GROUPS[group]
+            group = GROUP_FLAG | bid.target
+            if group in (GROUP_WHOLE_BUS, GROUP_WAM):
+                ids: Iterable[int] = WAM_PUCK_IDS
+            elif group in TORQUE_GROUPS:
+                ids = TORQUE_GROUPS[group]
             else:
                 ids = ()  # feedback groups and groups without WAM pucks
         else:
@@ -430,26 +465,26 @@ class PuckSimulator:
         if msg.is_error_frame or msg.is_remote_frame or msg.is_extended_id:
             self._count("ignored_frames")
             return
-        bid = pp.decode_bus_id(msg.arbitration_id)
+        bid = decode_bus_id(msg.arbitration_id)
         pucks = self._addressed(bid)
         if not pucks:
             self._count("ignored_frames")
             return
         data = bytes(msg.data)
-        group = pp.GROUP_FLAG | bid.target if bid.is_group else None
-        if group in pp.TORQUE_GROUPS and data[:1] == bytes([pp.PACKED_TORQUE_HEADER]):
+        group = GROUP_FLAG | bid.target if bid.is_group else None
+        if group in TORQUE_GROUPS and data[:1] == bytes([PACKED_TORQUE_HEADER]):
             self._on_packed_torques(pucks, data)
             return
         try:
-            is_set, prop, value = pp.parse_host_property_message(data)
-        except pp.PuckFrameError as exc:
+            is_set, prop, value = parse_host_property_message(data)
+        except PuckFrameError as exc:
             logger.debug("puck simulator: ignoring %s (%s)", msg, exc)
             self._count("ignored_frames")
             return
         if is_set:
             assert value is not None
             self._on_set(pucks, prop, value)
-        elif prop == pp.Prop.P:
+        elif prop == Prop.P:
             self._on_position_request(pucks)
         else:
             self._on_get(pucks, prop)
@@ -463,11 +498,11 @@ class PuckSimulator:
             if value is None or (not awake and prop not in _MONITOR_PROPS):
                 logger.debug("puck %d: no answer to a get of property %d", puck.puck_id, prop)
                 continue
-            self._reply(pp.make_property_reply(puck.puck_id, prop, value))
+            self._reply(make_property_reply(puck.puck_id, prop, value))
 
     def _raw_counts(self) -> np.ndarray:
-        q_rad = np.asarray(self._plant.joint_positions_rad(), dtype=float).reshape(pp.N_JOINTS)
-        return pp.joint_rad_to_counts(q_rad, self._cts, self._j2mp)
+        q_rad = np.asarray(self._plant.joint_positions_rad(), dtype=float).reshape(N_JOINTS)
+        return joint_rad_to_counts(q_rad, self._cts, self._j2mp)
 
     def _on_position_request(self, pucks: list[_Puck]) -> None:
         self._count("position_requests")
@@ -478,36 +513,36 @@ class PuckSimulator:
         counts = self._raw_counts()
         for puck in awake:
             c = int(counts[puck.puck_id - 1]) + puck.offset_counts
-            if not pp.POSITION_MIN_COUNTS <= c <= pp.POSITION_MAX_COUNTS:
+            if not POSITION_MIN_COUNTS <= c <= POSITION_MAX_COUNTS:
                 logger.warning("puck %d: %d counts overflow 22 bits; the reply wraps", puck.puck_id, c)
-            self._reply(pp.make_position_reply(puck.puck_id, c, wrap=True))
+            self._reply(make_position_reply(puck.puck_id, c, wrap=True))
 
     def _on_set(self, pucks: list[_Puck], prop: int, value: int) -> None:
         self._count("property_sets")
         torque_changed = False
-        raw_counts = self._raw_counts() if prop == pp.Prop.P else None
+        raw_counts = self._raw_counts() if prop == Prop.P else None
         with self._lock:
             for puck in pucks:
-                if prop == pp.Prop.STAT:
-                    if value == pp.Status.READY and puck.wake_at is None:
+                if prop == Prop.STAT:
+                    if value == Status.READY and puck.wake_at is None:
                         puck.wake_at = time.monotonic() + self._wake_delay_s
-                    elif value == pp.Status.RESET:
+                    elif value == Status.RESET:
                         puck.wake_at = None
-                        puck.props[pp.Prop.STAT] = int(pp.Status.RESET)
+                        puck.props[Prop.STAT] = int(Status.RESET)
                     continue
                 if not self._awake(puck):
                     continue
-                if prop == pp.Prop.MODE:
+                if prop == Prop.MODE:
                     if value not in _MODE_VALUES:
                         logger.debug("puck %d: ignoring MODE=%d", puck.puck_id, value)
                         continue
                     puck.props[prop] = value
-                    if value != pp.Mode.TORQUE and puck.torque_units != 0:
+                    if value != Mode.TORQUE and puck.torque_units != 0:
                         puck.torque_units = 0
                         torque_changed = True
-                elif prop == pp.Prop.T:
+                elif prop == Prop.T:
                     torque_changed |= self._hold_torque(puck, value)
-                elif prop == pp.Prop.P:
+                elif prop == Prop.P:
                     assert raw_counts is not None
                     puck.offset_counts = value - int(raw_counts[puck.puck_id - 1])
                     puck.props[prop] = value
@@ -518,23 +553,23 @@ class PuckSimulator:
 
     def _hold_torque(self, puck: _Puck, units: int) -> bool:
         """Set a puck's held torque (lock held); return whether it changed."""
-        new = int(pp.saturate_puck_units(units)) if puck.props[pp.Prop.MODE] == pp.Mode.TORQUE else 0
-        puck.props[pp.Prop.T] = new
+        new = int(saturate_puck_units(units)) if puck.props[Prop.MODE] == Mode.TORQUE else 0
+        puck.props[Prop.T] = new
         changed = new != puck.torque_units
         puck.torque_units = new
         return changed
 
     def _on_packed_torques(self, pucks: list[_Puck], data: bytes) -> None:
         try:
-            values = pp.unpack_torques(data)
-        except pp.PuckFrameError as exc:
+            values = unpack_torques(data)
+        except PuckFrameError as exc:
             logger.debug("puck simulator: bad packed-torque frame (%s)", exc)
             self._count("ignored_frames")
             return
         self._count("torque_frames")
         with self._lock:
             for puck in pucks:
-                slot = puck.props.get(pp.Prop.PIDX, 0)
+                slot = puck.props.get(Prop.PIDX, 0)
                 if self._awake(puck) and 1 <= slot <= values.size:
                     self._hold_torque(puck, int(values[slot - 1]))
         # apply after every frame: the plant sees the torques every puck holds now
@@ -546,8 +581,8 @@ class PuckSimulator:
     # ------------------------------------------------------------------ sending
 
     def _garble(self, arbitration_id: int) -> can.Message:
-        bid = pp.decode_bus_id(arbitration_id)
-        valid = (3, 6) if bid.target == (pp.FEEDBACK_POSITION & pp.NODE_ID_MASK) else (4, 6)
+        bid = decode_bus_id(arbitration_id)
+        valid = (3, 6) if bid.target == FEEDBACK_POSITION_TARGET else (4, 6)
         length = self._rng.choice([n for n in range(9) if n not in valid])
         data = bytes(self._rng.getrandbits(8) for _ in range(length))
         return can.Message(arbitration_id=arbitration_id, data=data, is_extended_id=False)
