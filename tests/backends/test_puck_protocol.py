@@ -68,6 +68,7 @@ from wamctl.model.transmission import (
     joint_rad_to_counts,
     joint_rad_to_motor_rad,
     joint_torque_to_motor_Nm,
+    load_kernels,
     motor_rad_to_joint_rad,
     motor_torque_to_joint_Nm,
 )
@@ -81,6 +82,8 @@ JOINT_LIMITS_RAD = np.array(
 
 int22 = st.integers(POSITION_MIN_COUNTS, POSITION_MAX_COUNTS)
 int14 = st.integers(-MAX_PUCK_TORQUE, MAX_PUCK_TORQUE)
+
+load_kernels()   # numba's first-call set-up before hypothesis' per-example deadline
 
 
 def q_within_limits() -> st.SearchStrategy[np.ndarray]:

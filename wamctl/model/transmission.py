@@ -379,10 +379,11 @@ def motor_torque_to_joint_Nm(tau_m_Nm: ArrayLike, j2mp: np.ndarray = J2MP) -> np
     return as_joint_vectors(tau_m_Nm, "tau_m_Nm") @ np.asarray(j2mp, dtype=float)
 
 
-def _load_kernels() -> None:
+def load_kernels() -> None:
     """Compile the kernels, or load them from numba's cache, for the argument types the simulator, the CAN
-    backend and the simulated pucks pass: at import, not within the first caller's deadline (a puck's reply,
-    a control cycle, a test's time limit)."""
+    backend and the simulated pucks pass. Called before a deadline starts (opening the CAN backend, starting
+    the simulated pucks), not at import: the first call of any numba function costs ~0.5-1 s (numba's target
+    set-up), which commands that never convert counts (validate, report, --help) should not pay."""
     q_rad = np.zeros(_N)
     counts = joint_rad_to_counts(q_rad)
     counts_to_joint_rad(counts)
@@ -390,5 +391,3 @@ def _load_kernels() -> None:
     counts_to_motor_rad(counts)
     quantise_joint_rad(q_rad, np.array(J2MP), np.array(M2JP), np.full(_N, counts_per_rad(P.ENCODER_COUNTS_PER_REV)))
 
-
-_load_kernels()

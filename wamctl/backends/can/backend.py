@@ -95,7 +95,7 @@ from wamctl.backends.can.simulated_arm import SimulatedArm, build_simulated_arm,
 from wamctl.backends.can.timing import LoopTiming, sleep_until
 from wamctl.errors import BackendError, SafetyLimitError
 from wamctl.model import params as P
-from wamctl.model.transmission import J2MP, counts_to_joint_rad
+from wamctl.model.transmission import J2MP, counts_to_joint_rad, load_kernels
 
 logger = logging.getLogger(__name__)
 
@@ -272,6 +272,7 @@ class CanBackend(ArmBackend):
 
     # ---------------------------------------------------------------- open / close
     def _open(self) -> None:
+        load_kernels()   # the loop converts counts every cycle: compile/load before the first deadline
         try:
             if self.simulated_arm is not None:
                 from wamctl.backends.can.puck_sim import PuckSimulator

@@ -67,7 +67,7 @@ from wamctl.backends.can.protocol.torques import (
     saturate_puck_units,
     unpack_torques,
 )
-from wamctl.model.transmission import J2MP, joint_rad_to_counts
+from wamctl.model.transmission import J2MP, joint_rad_to_counts, load_kernels
 
 logger = logging.getLogger(__name__)
 
@@ -220,6 +220,7 @@ class PuckSimulator:
             raise ValueError("CTS and IPNM must be positive")
         # load (or compile) the transmission's numba kernels now, not within the first position request's
         # reply deadline
+        load_kernels()
         joint_rad_to_counts(np.zeros(N_JOINTS), self._cts, self._j2mp)
         pidx_map = dict(DEFAULT_PIDX if pidx is None else pidx)
         self._wake_delay_s = float(wake_delay_s)
