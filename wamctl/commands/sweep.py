@@ -39,23 +39,11 @@ def sweep(
     --resume DIR then runs only the points not completed. Exit code 0 when every point completed, 1 when some
     failed, 2 for a bad spec, 130 when interrupted.
     """
-    from wamctl.errors import SpecError
     from wamctl.experiments.sweep.cluster import import_distributed
-    from wamctl.experiments.sweep.index import open_sweep_dir
+    from wamctl.experiments.sweep.index import sweep_to_run
     from wamctl.experiments.sweep.run import run_sweep
-    from wamctl.specs.sweep import load_sweep
 
-    if spec is None and resume is None:
-        raise SpecError("give a spec with a `vary:` section, or --resume SWEEP_DIR")
-    if resume is not None:
-        sw, _ = open_sweep_dir(resume)
-        if spec is not None:
-            given = load_sweep(spec)
-            if [(p.point_id, p.spec) for p in given.points] != [(p.point_id, p.spec) for p in sw.points]:
-                raise SpecError(f"{spec}: not the spec of the sweep in {resume} (its points differ); resume "
-                                f"without the spec, or start a new sweep")
-    else:
-        sw = load_sweep(spec)
+    sw = sweep_to_run(spec, resume)
     if dry_run:
         from wamctl.experiments.sweep.run import check_plans
         _dry_run(sw, check_plans(sw), json)
@@ -74,6 +62,12 @@ def sweep(
     with progress_bar(f"sweep {sw.name}", enabled=show) as progress:
         result = run_sweep(sw, out, resume_dir=resume, scheduler=scheduler, n_workers=workers,
                            progress=progress, on_point=on_point)
+    _show_result(sw, result, quiet, json)
+    if not result.ok:
+        raise typer.Exit(1)
+
+
+def _show_result(sw, result, quiet: bool, json: bool) -> None:
     if json:
         emit_json({"sweep_dir": str(result.sweep_dir), "counts": result.counts, "points": len(sw.points),
                    "ran": result.ran, "skipped": result.skipped, "wall_s": result.wall_s,
@@ -93,8 +87,6 @@ def sweep(
         (console if result.ok else err_console).print(
             f"[{colour}]{'completed' if result.ok else 'some points failed'}[/]  sweep directory: "
             f"{result.sweep_dir}", highlight=False)
-    if not result.ok:
-        raise typer.Exit(1)
 
 
 def _dry_run(sw, checks: list[str], as_json: bool) -> None:

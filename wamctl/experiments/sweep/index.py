@@ -14,7 +14,7 @@ from wamctl.errors import SpecError
 from wamctl.experiments.sweep.cluster import dask_versions
 from wamctl.report.sweep import INDEX_COLUMNS, STATUSES
 from wamctl.runs.store import atomic_write_text, git_revision, json_default, new_stamped_dir, package_versions, utc_now
-from wamctl.specs.sweep import Sweep, sweep_from_mapping
+from wamctl.specs.sweep import Sweep, load_sweep, sweep_from_mapping
 
 SWEEP_FORMAT = "wamctl-sweep/1"
 INDEX_FORMAT = "wamctl-sweep-index/1"
@@ -109,6 +109,22 @@ def open_sweep_dir(sweep_dir: str | Path) -> tuple[Sweep, dict]:
     raw = yaml.safe_load((d / "sweep.yaml").read_text())
     base = Path(manifest["base_dir"]) if manifest.get("base_dir") else None
     return sweep_from_mapping(raw, manifest.get("source", str(d / "sweep.yaml")), base), manifest
+
+
+def sweep_to_run(spec_path: str | Path | None, resume_dir: str | Path | None) -> Sweep:
+    """The sweep a ``wamctl sweep`` call means: the spec's, or with ``resume_dir`` the sweep directory's own
+    (a spec given as well must have the same points, or SpecError)."""
+    if spec_path is None and resume_dir is None:
+        raise SpecError("give a spec with a `vary:` section, or --resume SWEEP_DIR")
+    if resume_dir is None:
+        return load_sweep(spec_path)
+    sw, _ = open_sweep_dir(resume_dir)
+    if spec_path is not None:
+        given = load_sweep(spec_path)
+        if [(p.point_id, p.spec) for p in given.points] != [(p.point_id, p.spec) for p in sw.points]:
+            raise SpecError(f"{spec_path}: not the spec of the sweep in {resume_dir} (its points differ); resume "
+                            f"without the spec, or start a new sweep")
+    return sw
 
 
 def update_manifest(sweep_dir: Path, **fields) -> dict:
