@@ -23,6 +23,8 @@ import logging
 
 import numpy as np
 
+from wamctl.analysis.diagnosis.backlash import resolution_rad
+from wamctl.analysis.diagnosis.design import block_of, levels_dict, model_levels
 from wamctl.control.controllers import pid_torque_series_Nm
 from wamctl.io import MODEL_FILE_FORMAT
 from wamctl.model import params as P
@@ -44,11 +46,9 @@ def encoder_counts(q_raw: np.ndarray, joints: list[int]) -> int:
     inv = np.abs(np.linalg.inv(P.J2MP))
     votes = {4096: 0, 40960: 0}
     for j in joints:
-        steps = np.abs(np.diff(q_raw[:, j]))
-        nz = steps[steps > 1e-12]
-        if len(nz) < 20:
+        obs = resolution_rad(q_raw[:, j], min_steps=20)
+        if obs == 0:
             continue
-        obs = np.percentile(nz, 10)
         row = inv[j][inv[j] > 1e-12]
         for cpr in votes:
             if abs(obs / (2 * np.pi / cpr * row.min()) - 1) < 0.3:
@@ -73,9 +73,7 @@ def plant_dict(diag, which: str = "after", thetas: dict | None = None) -> dict:
     base = declared.friction if declared.friction is not None else FrictionModel.table_4_1()
     joints = {}
     for j in range(N7):
-        d = {"fc_pos_Nm": float(base.fc_pos_Nm[j]), "fc_neg_Nm": float(base.fc_neg_Nm[j]),
-             "viscous_pos_Nm_s_rad": float(base.viscous_pos_Nm_s_rad[j]),
-             "viscous_neg_Nm_s_rad": float(base.viscous_neg_Nm_s_rad[j])}
+        d = levels_dict(model_levels(base, j))
         if j in diag.joints_:
             tb, ta = (thetas or {}).get(j, (None, None))
             fr = diag.friction_after(j, ta) if which == "after" else diag.friction_before(j, tb)
@@ -175,11 +173,8 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
     # moves in one part of the run only still has both halves); run samples take the half of their block
     half_fit, half_t = {}, {}
     for j, jd in diag.jd_.items():
-        blk = jd.extra["block"]
-        half_fit[j] = blk % 2
-        starts = jd.t_s[np.r_[0, np.flatnonzero(np.diff(blk)) + 1]]
-        half_t[j] = (np.clip(np.searchsorted(starts, sig.t_s[:n], side="right") - 1, 0, None)
-                     + blk[0]) % 2
+        half_fit[j] = jd.extra["block"] % 2
+        half_t[j] = block_of(jd, sig.t_s[:n]) % 2
     mp = diag.meta_.payload      # what the controller's gravity compensation knew
     ctl_payload = Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None
     dyn = WamDynamics(ctl_payload)

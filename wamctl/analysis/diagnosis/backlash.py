@@ -28,7 +28,9 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
+from wamctl.analysis.diagnosis.signals import measured_steps
 from wamctl.analysis.diagnosis.stats import nested_test
+from wamctl.model.friction import stribeck_decay
 
 MIN_ONSETS = 4
 MIN_REVERSALS = 3
@@ -46,11 +48,11 @@ class Onset:
     t_s: float
 
 
-def resolution_rad(q_raw: np.ndarray) -> float:
-    """Typical smallest measured step of a joint (encoder count through the transmission), rad."""
-    steps = np.abs(np.diff(q_raw))
-    nz = steps[steps > 1e-12]
-    if len(nz) == 0:
+def resolution_rad(q_raw: np.ndarray, min_steps: int = 1) -> float:
+    """Typical smallest measured step of a joint (encoder count through the transmission), rad, from its
+    measured positions (n,); 0 when fewer than ``min_steps`` steps were measured."""
+    nz = measured_steps(q_raw)
+    if len(nz) < max(min_steps, 1):
         return 0.0
     return float(np.percentile(nz, 10))
 
@@ -143,7 +145,7 @@ def _travel_kernel(u_Nm, dt_s, inertia, fc_pos, fc_neg, b_pos, b_neg, fs_pos, fs
             elif vs > 0:
                 fc = fc_pos if pos else fc_neg
                 fs = fs_pos if pos else fs_neg
-                level = fc + (fs - fc) * np.exp(-(v / vs) ** 2)
+                level = fc + (fs - fc) * stribeck_decay(v, vs, 2.0)
             else:
                 level = fc_pos if pos else fc_neg
             b = b_pos if pos else b_neg

@@ -2,7 +2,7 @@
 
 Every candidate turns the prepared signals of one joint into a change of the declared model that is linear in
 its parameters once a few shape parameters (a grid) are fixed, so that "declared model + effect" nests the
-declared model. Shape parameters are chosen on training data only (see :mod:`wamctl.analysis.diagnosis.estimator`).
+declared model. Shape parameters are chosen on training data only (see :mod:`wamctl.analysis.diagnosis.crossval`).
 Signs follow the residual ``y = tau - rnea(q, qd, qdd)``: what friction and the missing effects must supply.
 Columns are built at the full rate and smoothed like the torque.
 
@@ -21,8 +21,6 @@ backlash           (at onsets, :mod:`wamctl.analysis.diagnosis.backlash`) and th
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
-
 import numpy as np
 
 from wamctl.analysis.diagnosis.signals import savgol_gain
@@ -37,36 +35,7 @@ RIPPLE_PERIOD_MAX_RAD = 2.0
 DELAY_GRID_S = np.arange(2, 41) * 0.5e-3                # 1 to 20 ms
 DRIFT_T_GRID_FRACTION = np.geomspace(0.05, 4.0, 12)    # time constants as fractions of the run length
 D7_M = float(P.DH_D_M[6])
-
-
-@dataclass
-class JointData:
-    """The samples of one joint that the torque residual uses (decimated, sliding only).
-
-    Attributes
-    ----------
-    j : 0-based joint.
-    idx : (m,) indices into the full-rate signals.
-    t_s, q_rad, qd_rad_s, qdd_rad_s2, y_Nm : (m,) the joint's samples; ``y`` = tau - rnea.
-    fold : (m,) fold number of each sample (contiguous time blocks).
-    extra : per-run precomputed arrays keyed by name (payload regressor rows, shifted torques, ...).
-    """
-
-    j: int
-    idx: np.ndarray
-    t_s: np.ndarray
-    q_rad: np.ndarray
-    qd_rad_s: np.ndarray
-    qdd_rad_s2: np.ndarray
-    y_Nm: np.ndarray
-    fold: np.ndarray
-    extra: dict = field(default_factory=dict)
-
-    @property
-    def n(self) -> int:
-        return len(self.idx)
-
-
+MAX_BREAKAWAY_RATIO = 10.0        # Stribeck breakaway / Coulomb (the plant's own bound, specs.StribeckEffect)
 
 
 def stribeck_columns(qd: np.ndarray, vs: float) -> np.ndarray:
@@ -75,11 +44,24 @@ def stribeck_columns(qd: np.ndarray, vs: float) -> np.ndarray:
     return np.column_stack([(qd > 0) * e, -1.0 * (qd < 0) * e])
 
 
+def ripple_gain(qd: np.ndarray, period: float, window: int, gauss: float, dt_s: float) -> np.ndarray:
+    """(m,) share of a ripple of ``period`` (rad) in the angle that the smoothing filter leaves when the joint
+    passes it at speed ``qd`` (m,): the ripple's frequency in time is ``|qd| / period``."""
+    return savgol_gain(window, np.abs(qd) * dt_s / period, gauss)
+
+
 def ripple_columns(q: np.ndarray, qd: np.ndarray, period: float, window: int, gauss: float,
                    dt_s: float) -> np.ndarray:
     """sin/cos of 2 pi q / period (m, 2), attenuated as the smoothing filter attenuates them at the current
     speed (used to compare candidate periods; the kept columns are smoothed exactly)."""
-    gain = savgol_gain(window, np.abs(qd) * dt_s / period, gauss)
+    gain = ripple_gain(qd, period, window, gauss, dt_s)
     ph = 2 * np.pi * q / period
     return np.column_stack([gain * np.sin(ph), gain * np.cos(ph)])
 
+
+def payload_from_pi(pi: np.ndarray) -> dict:
+    """Mass (kg) and centre of mass (m, flange frame) of a payload from the first four of its ten inertial
+    parameters ``pi`` (link-7 frame: ``m``, ``m c``); the centre is zero for a mass that is not positive."""
+    m = float(pi[0])
+    com = pi[1:4] / m - np.array([0.0, 0.0, D7_M]) if m > 0 else np.zeros(3)
+    return {"mass_kg": m, "com_m": [float(x) for x in com]}

@@ -87,8 +87,8 @@ class Signals:
 
     @property
     def reach(self) -> int:
-        """Samples on either side that the smoothing reaches (Savitzky-Golay half window + 3 sigma)."""
-        return self.window // 2 + int(np.ceil(3 * self.gauss))
+        """Samples on either side that the smoothing reaches (see :func:`filter_reach`)."""
+        return filter_reach(self.window, self.gauss)
 
     def smooth(self, X: np.ndarray, deriv: int = 0) -> np.ndarray:
         """The analysis filter (Gaussian pre-filter, then Savitzky-Golay) along axis 0, or its derivative."""
@@ -124,10 +124,39 @@ def uniform_grid(t_s: np.ndarray, *arrays: np.ndarray, rate_hz: float) -> tuple[
         return t_s - 0.0, list(arrays), False
     n = int(np.floor((t_s[-1] - t_s[0]) / dt)) + 1
     tu = t_s[0] + np.arange(n) * dt
-    out = []
-    for a in arrays:
-        out.append(np.column_stack([np.interp(tu, t_s, a[:, j]) for j in range(a.shape[1])]))
-    return tu, out, True
+    return tu, [interp_columns(tu, t_s, a) for a in arrays], True
+
+
+def interp_columns(x_new: np.ndarray, x: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """Every column of ``Y`` (n, p), sampled at ``x`` (n,), interpolated linearly at ``x_new`` (m,): (m, p)."""
+    return np.column_stack([np.interp(x_new, x, c) for c in np.asarray(Y).T])
+
+
+def delayed(t_s: np.ndarray, Y: np.ndarray, delay_s: float) -> np.ndarray:
+    """``Y(t - delay_s)`` on the same time axis (held at the first value before the start); ``Y`` (n,) or (n, p)."""
+    if np.ndim(Y) == 1:
+        return np.interp(t_s - delay_s, t_s, Y)
+    return interp_columns(t_s - delay_s, t_s, Y)
+
+
+def zoh_centred(tau: np.ndarray) -> np.ndarray:
+    """Torque acting around each sample of a zero-order hold, ``(tau[k-1] + tau[k]) / 2`` along axis 0 (the
+    first sample kept): (n,) or (n, p), a new array."""
+    out = np.array(tau, dtype=float)
+    out[1:] = 0.5 * (tau[1:] + tau[:-1])
+    return out
+
+
+def filter_reach(window: int, gauss: float) -> int:
+    """Samples on either side that the analysis filter reaches (Savitzky-Golay half window + 3 sigma)."""
+    return window // 2 + int(np.ceil(3 * gauss))
+
+
+def measured_steps(q_raw: np.ndarray) -> np.ndarray:
+    """The nonzero sample-to-sample changes ``|q[k+1] - q[k]|`` of one joint's measured position (m,), rad:
+    multiples of an encoder count on a quantised signal."""
+    steps = np.abs(np.diff(q_raw))
+    return steps[steps > 1e-12]
 
 
 def window_samples(rate_hz: float, window_s: float = DEFAULT_WINDOW_S) -> int:
@@ -177,9 +206,8 @@ def position_noise_rad(q_raw: np.ndarray) -> np.ndarray:
     short += 1 - short % 2
     hf = q_raw - savgol_filter(q_raw, short, POLYORDER, axis=0)
     sig_q = 1.4826 * np.median(np.abs(hf - np.median(hf, axis=0)), axis=0)
-    steps = np.abs(np.diff(q_raw, axis=0))
     for j in range(q_raw.shape[1]):
-        nz = steps[:, j][steps[:, j] > 1e-12]
+        nz = measured_steps(q_raw[:, j])
         if len(nz):
             sig_q[j] = max(sig_q[j], np.percentile(nz, 5) / np.sqrt(12))
     return sig_q
@@ -230,8 +258,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     if len(t) < 4 * w:
         raise DataFormatError(f"only {len(t)} samples; the diagnosis needs at least {4 * w} "
                               f"({4 * w * dt:.2f} s at {rate_hz:g} Hz)")
-    tau_c = tau.copy()
-    tau_c[1:] = 0.5 * (tau[1:] + tau[:-1])          # torque acting around t[k] (zero-order hold)
+    tau_c = zoh_centred(tau)
     qs = smooth(q, w, gs)
     qd = smooth(q, w, gs, 1, dt)
     qdd = smooth(q, w, gs, 2, dt)
@@ -242,7 +269,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     # stuck: slower than 4 sigma of the velocity noise, and never faster than a floor of 1 mrad/s
     v_stick = np.maximum(4.0 * v_noise, 1e-3)
     stuck = np.abs(qd) < v_stick[None, :]
-    reach = w // 2 + int(np.ceil(3 * gs))
+    reach = filter_reach(w, gs)
     moving = ~binary_dilation(stuck, structure=np.ones((4 * reach + 1, 1), bool))
     edge = 2 * reach  # the filter's edge samples are extrapolations
     moving[:edge] = False

@@ -33,10 +33,16 @@ def orth_basis(X: np.ndarray, rtol: float = 1e-10) -> np.ndarray:
     return B @ (V2 / np.sqrt(np.maximum(lam2, 1e-300))) @ V2.T
 
 
-def lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
-    """Minimum-norm least squares (normal equations on scaled columns, pseudo-inverse for rank deficiency)."""
+def _column_scale(X: np.ndarray) -> np.ndarray:
+    """(p,) Euclidean norm of each column of ``X`` (m, p), 1 for an all-zero column."""
     scale = np.sqrt((X ** 2).sum(axis=0))
     scale[scale == 0] = 1.0
+    return scale
+
+
+def lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Minimum-norm least squares (normal equations on scaled columns, pseudo-inverse for rank deficiency)."""
+    scale = _column_scale(X)
     Xs = X / scale
     G = Xs.T @ Xs
     lam, V = np.linalg.eigh(G)
@@ -53,16 +59,20 @@ def lstsq_bounded(X: np.ndarray, y: np.ndarray, lower: np.ndarray | None = None)
         return theta
     from scipy.optimize import lsq_linear
 
-    scale = np.sqrt((X ** 2).sum(axis=0))
-    scale[scale == 0] = 1.0
+    scale = _column_scale(X)
     res = lsq_linear(X / scale, y, bounds=(np.asarray(lower) * scale, np.full(X.shape[1], np.inf)),
                      method="bvls", lsmr_tol="auto")
     return res.x / scale
 
 
+def project_out(U: np.ndarray, Y: np.ndarray) -> np.ndarray:
+    """``Y`` (m,) or (m, p) less its projection on the orthonormal basis ``U`` (m, r): the residual of a fit."""
+    return Y - U @ (U.T @ Y)
+
+
 def projection_gain(U: np.ndarray, r: np.ndarray, Z: np.ndarray) -> float:
     """Drop of the sum of squares of ``r`` (residual of a fit on basis ``U``) when columns ``Z`` are added."""
-    Zr = Z - U @ (U.T @ Z)
+    Zr = project_out(U, Z)
     G = Zr.T @ Zr
     a = Zr.T @ r
     lam, V = np.linalg.eigh(G)
@@ -71,6 +81,11 @@ def projection_gain(U: np.ndarray, r: np.ndarray, Z: np.ndarray) -> float:
         return 0.0
     b = V[:, keep].T @ a
     return float(b @ (b / lam[keep]))
+
+
+def finite_ss(e: np.ndarray) -> float:
+    """Sum of squares of the finite entries of ``e`` (held-out residuals are NaN where no model can predict)."""
+    return float(np.nansum(np.asarray(e, float) ** 2))
 
 
 def integrated_autocorr_time(e: np.ndarray, max_lag: int | None = None) -> float:

@@ -1,0 +1,115 @@
+"""Effects that are one for the whole arm: a payload and a measurement delay (no I/O).
+
+Each joint's forward selection may keep a payload or a delay on its own; the arm has one of each. A payload
+is fitted over every joint that kept it (shared mass and first moment) and must be a wrist payload; a delay
+must be seen alike at half the diagnosed joints or more. Joints that disagree are diagnosed again without it.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.candidates import payload_from_pi
+from wamctl.analysis.diagnosis.design import Design, columns, target_and_design
+from wamctl.analysis.diagnosis.stats import lstsq
+
+# a wrist payload the WAM can carry (its rated payload is about 4 kg; PayloadEffect allows up to 5 kg), held
+# within half a metre of the flange
+PAYLOAD_MASS_RANGE_KG = (0.01, 10.0)
+PAYLOAD_MAX_COM_M = 0.5
+N_PAYLOAD = 10                    # inertial parameters of the payload (m, m c, inertia)
+
+
+def payload_fit(des: Design, joints: dict, jds: dict, rows_of=None) -> dict | None:
+    """One payload for the whole arm, fitted over every joint that kept it (shared mass and first moment,
+    each joint's other terms free, joints weighted by their residual); ``rows_of`` (``JointData -> (m,)
+    bool``) restricts the samples. None when no joint kept a payload.
+
+    Returns ``mass_kg``, ``com_m``, ``joints_fitted`` (1-based) and ``pi`` (10,) the inertial parameters."""
+    with_p = [j for j, r in joints.items() if any(t["name"] == "payload" for t in r.kept)]
+    if not with_p:
+        return None
+    blocks, ys, shared, wts = [], [], [], []
+    for j in with_p:
+        res, jd = joints[j], jds[j]
+        mask = np.ones(jd.n, bool) if rows_of is None else rows_of(jd)
+        sub = np.flatnonzero(mask)
+        sub = sub[:: max(1, len(sub) // 5000)]
+        others = [t for t in res.kept if t["name"] != "payload"]
+        y_o, X_o = target_and_design(des, jd, others, None)
+        blocks.append(X_o[sub])
+        shared.append(columns(des, "payload", jd, None)[sub])
+        ys.append(y_o[sub])
+        wts.append(np.full(len(sub), 1.0 / max(res.torque_rms_after_Nm, 1e-9)))
+    X = _shared_design(blocks, shared)
+    w = np.concatenate(wts)
+    theta = lstsq(X * w[:, None], np.concatenate(ys) * w)
+    n_own = X.shape[1] - N_PAYLOAD
+    pi = theta[n_own:n_own + N_PAYLOAD]    # mass, first moment, inertia of the link-7 addition
+    return {**payload_from_pi(pi), "joints_fitted": [j + 1 for j in with_p], "pi": pi}
+
+
+def _shared_design(blocks: list[np.ndarray], shared: list[np.ndarray]) -> np.ndarray:
+    """Design of joints fitted together: each joint's own columns ``blocks[i]`` (m_i, p_i) block-diagonal,
+    the shared columns ``shared[i]`` (m_i, s) stacked in the last ``s`` columns: (sum m_i, sum p_i + s)."""
+    n_own = sum(b.shape[1] for b in blocks)
+    X = np.zeros((sum(len(b) for b in blocks), n_own + shared[0].shape[1]))
+    r0, c0 = 0, 0
+    for b, z in zip(blocks, shared):
+        X[r0:r0 + len(b), c0:c0 + b.shape[1]] = b
+        X[r0:r0 + len(b), n_own:] = z
+        r0 += len(b)
+        c0 += b.shape[1]
+    return X
+
+
+def payload_rejection(fit: dict) -> str | None:
+    """Why a payload fitted over the arm (:func:`payload_fit`) is not a wrist payload, or None."""
+    far = float(np.linalg.norm(fit["com_m"]))
+    if not (PAYLOAD_MASS_RANGE_KG[0] <= fit["mass_kg"] <= PAYLOAD_MASS_RANGE_KG[1]) or far > PAYLOAD_MAX_COM_M:
+        return (f"the payload fitted over joints {fit['joints_fitted']} is {fit['mass_kg']:.3g} kg at "
+                f"{far:.3g} m from the flange: not a wrist payload (mass {PAYLOAD_MASS_RANGE_KG[0]} to "
+                f"{PAYLOAD_MASS_RANGE_KG[1]} kg within {PAYLOAD_MAX_COM_M} m)")
+    return None
+
+
+def fold_payloads(des: Design, joints: dict, jds: dict, fit: dict) -> dict:
+    """{fold: (10,) the arm's payload fitted without that fold, None: ``fit``'s on all data}."""
+    pis = {None: fit["pi"]}
+    for f in range(des.n_folds):
+        ff = payload_fit(des, joints, jds, lambda jd, f=f: jd.fold != f)
+        pis[f] = ff["pi"] if ff is not None else fit["pi"]
+    return pis
+
+
+def global_payload_terms(kept: list[dict], n_folds: int) -> list[dict]:
+    """The joint's kept terms with its payload replaced by the arm's one (one column, fitted per fold)."""
+    terms = []
+    for t in kept:
+        if t["name"] == "payload":
+            t = dict(t, h_fold=[("global", f) for f in range(n_folds)], h_all=("global", None),
+                     fixed_h=("global", None))
+        terms.append(t)
+    return terms
+
+
+def delay_disagreements(joints: dict, dt_s: float) -> dict:
+    """{0-based joint: why} of the joints whose kept delay is not the arm's.
+
+    A late measurement delays every joint's positions by the same time: a delay stands only where at least
+    half of the diagnosed ``joints`` show it, within one sample period ``dt_s`` of their median (position
+    noise fed back by the controller can mimic a lag, but not the same one at every joint)."""
+    with_d = {j: next(t["h_all"] for t in r.kept if t["name"] == "delay")
+              for j, r in joints.items() if any(t["name"] == "delay" for t in r.kept)}
+    if not with_d:
+        return {}
+    need = int(np.ceil(len(joints) / 2))
+    med = float(np.median(list(with_d.values())))
+    agree = {j for j, d in with_d.items() if abs(d - med) <= max(dt_s, 0.25 * med)}
+    if len(agree) >= need:
+        return {j: (f"delay {with_d[j] * 1e3:.1f} ms disagrees with the {med * 1e3:.1f} ms of the other "
+                    "joints (a late measurement is one delay for the arm)") for j in with_d if j not in agree}
+    why = (f"a consistent delay was seen at {len(agree)} of {len(joints)} joints "
+           f"(delays {', '.join(f'{d * 1e3:.1f}' for d in with_d.values())} ms); a late measurement "
+           f"delays every joint alike (at least {need} joints within one sample period needed)")
+    return dict.fromkeys(with_d, why)

@@ -1,0 +1,244 @@
+"""Held-out residuals and shape parameters of a joint's model (no I/O).
+
+Each joint's sliding samples are dealt into folds of contiguous time blocks (:mod:`.prepare`). Every
+held-out residual comes from a model fitted on the other folds, and every shape parameter of a candidate
+(Stribeck velocity, ripple period, delay, drift time constant) is chosen on the training folds only.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.candidates import (
+    DELAY_GRID_S,
+    DRIFT_T_GRID_FRACTION,
+    RIPPLE_PERIOD_MAX_RAD,
+    RIPPLE_PERIOD_MIN_RAD,
+    STRIBECK_VS_GRID_RAD_S,
+    ripple_columns,
+)
+from wamctl.analysis.diagnosis.design import (
+    Design,
+    JointData,
+    at_fold,
+    columns,
+    delay_of,
+    fit_theta,
+    target_and_design,
+)
+from wamctl.analysis.diagnosis.stats import lstsq, orth_basis, project_out, projection_gain
+
+
+# ---------------------------------------------------------------------------------------------- shapes
+def shape_grid(des: Design, name: str) -> list:
+    """Shape parameters searched for candidate ``name`` ([None]: it has none; []: searched otherwise)."""
+    if name == "stribeck":
+        return list(STRIBECK_VS_GRID_RAD_S)
+    if name == "delay":
+        return list(DELAY_GRID_S)
+    if name == "friction_drift":
+        return list(DRIFT_T_GRID_FRACTION * max(des.sig.duration_s, 1e-3))
+    if name == "position_ripple":
+        return []  # searched, see select_ripple_period
+    return [None]
+
+
+def default_shape(des: Design, name: str | None):
+    """Shape parameter of a fold with no samples of its own: the middle of the grid."""
+    if name is None:
+        return None
+    g = shape_grid(des, name)
+    return g[len(g) // 2] if g else 0.2
+
+
+def first_shape(term: dict):
+    """A term's shape parameter on all data before it is refitted: the median of its per-fold values."""
+    hs = [h for h in term["h_fold"] if h is not None]
+    if not hs:
+        return None
+    if isinstance(hs[0], (tuple, str)):
+        return hs[0]
+    return float(np.median(hs))
+
+
+def select_shape(des: Design, name: str, jd: JointData, rows: np.ndarray, Xb: np.ndarray, y: np.ndarray,
+                 terms=()):
+    """Shape parameter of candidate ``name`` that best explains the current residual on ``rows``.
+
+    ``Xb`` (m, p) and ``y`` (m,) are the design and target of the current model; ``terms`` the other terms,
+    with ``h_all`` set (the delay's grid changes the whole design)."""
+    if name == "delay":
+        return select_delay(des, jd, rows, terms)
+    if name == "position_ripple":
+        return select_ripple_period(des, jd, rows, Xb, y)
+    grid = shape_grid(des, name)
+    if len(grid) == 1:
+        return grid[0]
+    d = delay_of(terms)
+    U = orth_basis(Xb[rows])
+    r = project_out(U, y[rows])
+    gains = [projection_gain(U, r, columns(des, name, jd, h, d)[rows]) for h in grid]
+    return grid[int(np.argmax(gains))]
+
+
+def select_delay(des: Design, jd: JointData, rows: np.ndarray, terms=()) -> float:
+    """Delay (s) that minimises the residual sum of squares on ``rows``: every fourth value of the grid,
+    then the neighbours of the best, then a parabola through the best three (a delay between grid points)."""
+    def ssr(d):
+        yd, X = target_and_design(des, jd, list(terms) + [{"name": "delay", "h_all": d}], None)
+        th = lstsq(X[rows], yd[rows])
+        r = yd[rows] - X[rows] @ th
+        return float(r @ r)
+
+    grid = DELAY_GRID_S
+    coarse = list(range(0, len(grid), 4)) + [len(grid) - 1]
+    scores = {i: ssr(grid[i]) for i in coarse}
+    i0 = min(scores, key=scores.get)
+    for i in range(max(0, i0 - 3), min(len(grid), i0 + 4)):
+        if i not in scores:
+            scores[i] = ssr(grid[i])
+    i0 = min(scores, key=scores.get)
+    if 0 < i0 < len(grid) - 1:
+        s0, s1, s2 = scores[i0 - 1], scores[i0], scores[i0 + 1]
+        den = s0 - 2 * s1 + s2
+        if den > 0:
+            step = grid[1] - grid[0]
+            d = float(grid[i0] + 0.5 * step * (s0 - s2) / den)
+            if ssr(d) < s1:
+                return d
+    return float(grid[i0])
+
+
+def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.ndarray,
+                         y_all: np.ndarray) -> float:
+    """Period (rad) of the strongest position-periodic component of the base residual on ``rows``.
+
+    The residual is binned over the joint angle (bins of a tenth of the shortest period) and its
+    periodogram over the angle taken by FFT (zero-padded 4x); the highest peaks are then compared by
+    their exact least-squares gain (filter-attenuated sin/cos, see ``ripple_columns``)."""
+    sig = des.sig
+    U = orth_basis(Xb[rows])
+    y = y_all[rows]
+    r = project_out(U, y)
+    q = jd.q_rad[rows]
+    dq = RIPPLE_PERIOD_MIN_RAD / 10
+    q0 = float(q.min())
+    nb = int(np.ptp(q) / dq) + 2
+    rb = np.bincount(((q - q0) / dq).astype(int), weights=r, minlength=nb)
+    L = 1 << int(np.ceil(np.log2(4 * nb)))
+    L = min(L, 1 << 22)
+    power = np.abs(np.fft.rfft(rb, L)) ** 2
+    k = np.arange(len(power)) / (L * dq)                      # cycles per rad
+    band = (k >= 1 / RIPPLE_PERIOD_MAX_RAD) & (k <= 1 / RIPPLE_PERIOD_MIN_RAD)
+    if not band.any():
+        return RIPPLE_PERIOD_MAX_RAD
+    pb = np.where(band, power, -1.0)
+    peak = (pb[1:-1] >= pb[:-2]) & (pb[1:-1] >= pb[2:]) & band[1:-1]
+    cand = np.flatnonzero(peak) + 1
+    if len(cand) == 0:
+        cand = np.array([int(np.argmax(pb))])
+    cand = cand[np.argsort(pb[cand])[-8:]]
+    step = 1.0 / (L * dq)
+    ks = np.unique(np.concatenate([k[c] + step * np.linspace(-0.5, 0.5, 5) for c in cand]))
+    ks = ks[(ks >= 1 / RIPPLE_PERIOD_MAX_RAD) & (ks <= 1 / RIPPLE_PERIOD_MIN_RAD)]
+    sub = rows[:: max(1, len(rows) // 6000)]
+    Us = orth_basis(Xb[sub])
+    ys = y_all[sub]
+    rs = project_out(Us, ys)
+    gains = [projection_gain(Us, rs, ripple_columns(jd.q_rad[sub], jd.qd_rad_s[sub], 1 / kk, sig.window,
+                                                     sig.gauss, sig.dt_s)) for kk in ks]
+    return float(1.0 / ks[int(np.argmax(gains))])
+
+
+# ---------------------------------------------------------------------------------------------- held out
+def unpredictable(jd: JointData, trr: np.ndarray, te_i: np.ndarray) -> np.ndarray:
+    """Held-out samples (indices among ``te_i``) no model of the joint fitted on ``trr`` can predict: in a
+    direction the training folds never moved in, or at a speed outside the training speeds of that
+    direction (by more than 25 %). They test extrapolation of the friction law, not an effect, and are left
+    out of every held-out figure (NaN)."""
+    qd = jd.qd_rad_s
+    bad = np.zeros(len(te_i), bool)
+    for sgn in (1.0, -1.0):
+        tr_v = np.abs(qd[trr][np.sign(qd[trr]) == sgn])
+        te_m = np.sign(qd[te_i]) == sgn
+        if len(tr_v) < 20:
+            bad |= te_m
+            continue
+        v = np.abs(qd[te_i])
+        bad |= te_m & ((v > 1.25 * tr_v.max()) | (v < tr_v.min() / 1.25))
+    return te_i[bad]
+
+
+def _fold_design(des: Design, jd: JointData, terms: list[dict], f: int, trr: np.ndarray, cand: str | None,
+                 fixed_h):
+    """Target, design and the candidate's shape parameter of fold ``f`` (chosen on the rows ``trr``)."""
+    y, Xb = target_and_design(des, jd, terms, f)
+    if cand is None:
+        return y, Xb, None
+    here = at_fold(terms, f)
+    if cand == "delay":
+        h = select_delay(des, jd, trr, here)
+        y, X = target_and_design(des, jd, terms + [{"name": "delay", "h_fold": [h] * des.n_folds}], f)
+        return y, X, h
+    h = fixed_h if fixed_h is not None else select_shape(des, cand, jd, trr, Xb, y, here)
+    return y, np.hstack([Xb, columns(des, cand, jd, h, delay_of(here))]), h
+
+
+def cv_residual(des: Design, jd: JointData, terms: list[dict], cand: str | None = None,
+                fixed_h=None) -> tuple[np.ndarray, list]:
+    """Held-out residuals (m,) of ``friction + terms (+ cand)`` and the candidate's per-fold shape parameters.
+
+    ``fixed_h`` fixes the candidate's shape parameter instead of choosing it on each fold's training data."""
+    e = np.zeros(jd.n)
+    h_fold = []
+    for f in range(des.n_folds):
+        te = jd.fold == f
+        if not te.any():
+            h_fold.append(h_fold[-1] if h_fold else default_shape(des, cand))
+            continue
+        trr, te_i = np.flatnonzero(~te), np.flatnonzero(te)
+        bad = unpredictable(jd, trr, te_i)
+        y, X, h = _fold_design(des, jd, terms, f, trr, cand, fixed_h)
+        h_fold.append(h)
+        if len(trr) < X.shape[1] + 5:
+            e[te] = y[te] - (np.mean(y[trr]) if len(trr) else 0.0)
+            continue
+        e[te] = y[te] - X[te] @ fit_theta(X[trr], y[trr], des.bounded)
+        e[bad] = np.nan
+    return e, h_fold
+
+
+def cv_terms(des: Design, jd: JointData, terms: list[dict]) -> np.ndarray:
+    """Held-out residual (m,) of ``friction + terms`` with the terms' per-fold shape parameters."""
+    e = np.zeros(jd.n)
+    for f in range(des.n_folds):
+        te = jd.fold == f
+        if not te.any():
+            continue
+        trr, te_i = np.flatnonzero(~te), np.flatnonzero(te)
+        y, X = target_and_design(des, jd, terms, f)
+        if len(trr) < X.shape[1] + 5:
+            e[te] = np.nan
+            continue
+        e[te] = y[te] - X[te] @ fit_theta(X[trr], y[trr], des.bounded)
+        e[unpredictable(jd, trr, te_i)] = np.nan
+    return e
+
+
+def fit_all(des: Design, jd: JointData, terms: list[dict]) -> tuple[list[dict], np.ndarray]:
+    """Refit on all data: shape parameters chosen one term at a time with the others fixed.
+
+    Returns the terms with ``h_all`` set and the coefficients (p,) of ``friction + terms``."""
+    terms = [dict(t) for t in terms]
+    for t in terms:
+        t.setdefault("h_all", first_shape(t))
+    rows = np.arange(jd.n)
+    for i, t in enumerate(terms):
+        if t.get("fixed_h") is not None:
+            t["h_all"] = t["fixed_h"]
+            continue
+        others = terms[:i] + terms[i + 1:]
+        y, Xb = target_and_design(des, jd, others, None)
+        t["h_all"] = select_shape(des, t["name"], jd, rows, Xb, y, others)
+    y, X = target_and_design(des, jd, terms, None)
+    return terms, fit_theta(X, y, des.bounded)

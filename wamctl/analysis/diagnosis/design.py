@@ -1,0 +1,256 @@
+"""Design matrices of the torque residual: a joint's samples, the run's arrays, each term's columns (no I/O).
+
+A joint's model is ``y = X theta`` on its sliding samples: the classic friction first (four columns,
+:func:`wamctl.model.friction.classic_friction_columns`), then one block of columns per term. A *term* is a
+dict ``{"name", "h_fold", "h_all", ...}``: the effect name, its shape parameter chosen without each fold
+(``h_fold[f]``) and on all data (``h_all``). A delay term adds no column: it shifts the target and the
+friction columns in time.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.candidates import stribeck_columns
+from wamctl.analysis.diagnosis.signals import Signals, interp_columns
+from wamctl.analysis.diagnosis.stats import lstsq, lstsq_bounded
+from wamctl.model.friction import FrictionModel, classic_friction_columns
+
+N_FRICTION = 4                    # classic friction: Coulomb and viscous, per direction
+N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 10, "delay": 0, "friction_drift": 2,
+             "backlash": 1}
+FRICTION_KEYS = ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad", "viscous_neg_Nm_s_rad")
+
+
+@dataclass
+class JointData:
+    """The samples of one joint that the torque residual uses (decimated, sliding only).
+
+    Attributes
+    ----------
+    j : 0-based joint.
+    idx : (m,) indices into the full-rate signals.
+    t_s, q_rad, qd_rad_s, qdd_rad_s2, y_Nm : (m,) the joint's samples; ``y`` = tau - rnea.
+    fold : (m,) fold number of each sample (contiguous time blocks).
+    extra : per-run precomputed arrays keyed by name (payload regressor rows, shifted torques, ...).
+    """
+
+    j: int
+    idx: np.ndarray
+    t_s: np.ndarray
+    q_rad: np.ndarray
+    qd_rad_s: np.ndarray
+    qdd_rad_s2: np.ndarray
+    y_Nm: np.ndarray
+    fold: np.ndarray
+    extra: dict = field(default_factory=dict)
+
+    @property
+    def n(self) -> int:
+        return len(self.idx)
+
+
+@dataclass
+class Design:
+    """The run's arrays every joint's design is built from (full rate unless said otherwise).
+
+    Attributes
+    ----------
+    sig : the prepared signals.
+    rnea_Nm : (n, 7) rigid-body torque of the declared model (a declared payload included).
+    known_Nm : (n, 7) torque a declared model file adds beyond the rigid body (zero when friction is fitted).
+    known_other_Nm : (n, 7) its part that is not friction (ripple).
+    tau_Nm : (n, 7) smoothed torque the model is compared with (a declared delay applied).
+    friction_given : the declared friction, or None when it is fitted from the data.
+    n_folds : folds of the held-out figures.
+    decimation : the joints' sliding samples are taken every ``decimation`` samples.
+    union : (u,) full-rate samples where some diagnosed joint slides (decimated).
+    payload_pi : {fold (None: all data): (10,) inertial parameters of the arm's one payload fitted without
+        that fold}, once a payload is kept.
+    """
+
+    sig: Signals
+    rnea_Nm: np.ndarray
+    known_Nm: np.ndarray
+    known_other_Nm: np.ndarray
+    tau_Nm: np.ndarray
+    friction_given: FrictionModel | None
+    n_folds: int
+    decimation: int = 1
+    union: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
+    payload_pi: dict = field(default_factory=dict)
+
+    @property
+    def bounded(self) -> bool:
+        """Friction is fitted from the data, so its levels are magnitudes (kept >= 0)."""
+        return self.friction_given is None
+
+
+# ---------------------------------------------------------------------------------------------- terms
+def ncols(term: dict) -> int:
+    """Columns a term adds (the arm's one payload, once fitted over all joints, adds one)."""
+    if term["name"] == "payload" and isinstance(term.get("h_all", term.get("fixed_h")), tuple):
+        return 1
+    return N_COLUMNS[term["name"]]
+
+
+def split_coefs(terms: list[dict], theta: np.ndarray) -> dict:
+    """Coefficients ``theta`` (p,) of ``friction + terms`` by term name."""
+    out = {"friction": theta[:N_FRICTION]}
+    k = N_FRICTION
+    for t in terms:
+        n = ncols(t)
+        out[t["name"]] = theta[k:k + n]
+        k += n
+    return out
+
+
+def shape_of(term: dict, fold: int | None):
+    """The term's shape parameter fitted without ``fold`` (None: on all data)."""
+    return term["h_all"] if fold is None else term["h_fold"][fold]
+
+
+def at_fold(terms: list[dict], fold: int) -> list[dict]:
+    """Copies of ``terms`` whose ``h_all`` is their shape parameter fitted without ``fold``."""
+    return [dict(t, h_all=t["h_fold"][fold]) for t in terms]
+
+
+def delay_of(terms: list[dict], fold: int | None = None) -> float:
+    """The delay (s) among ``terms`` (see :func:`shape_of`), 0 without one."""
+    return next((shape_of(t, fold) for t in terms if t["name"] == "delay"), 0.0) or 0.0
+
+
+# ---------------------------------------------------------------------------------------------- friction
+def levels(friction_given: FrictionModel | None, j: int, theta: np.ndarray) -> np.ndarray:
+    """(4,) absolute classic friction ``[fc_pos, fc_neg, b_pos, b_neg]`` of 0-based joint ``j`` from the
+    four fitted coefficients ``theta[:4]`` (a model file's levels plus the correction fitted on top)."""
+    fr = np.array(theta[:N_FRICTION], float)
+    if friction_given is not None:
+        fr = fr + model_levels(friction_given, j)
+    return fr
+
+
+def model_levels(friction: FrictionModel, j: int) -> np.ndarray:
+    """(4,) classic friction ``[fc_pos, fc_neg, b_pos, b_neg]`` of 0-based joint ``j`` of a friction model."""
+    return np.array([friction.fc_pos_Nm[j], friction.fc_neg_Nm[j], friction.viscous_pos_Nm_s_rad[j],
+                     friction.viscous_neg_Nm_s_rad[j]])
+
+
+def levels_dict(fr: np.ndarray) -> dict:
+    """Classic friction levels (4,) by name (units in the keys)."""
+    return {k: float(v) for k, v in zip(FRICTION_KEYS, fr)}
+
+
+def drift_offset(coef: np.ndarray, tb: np.ndarray) -> np.ndarray:
+    """(4,) the part of the friction levels that decays with a drift: the declared levels ``tb`` (4,), the
+    Coulomb pair scaled by ``coef[0]`` and the viscous pair by ``coef[1]`` (the drift's two columns)."""
+    return np.array([coef[0] * tb[0], coef[0] * tb[1], coef[1] * tb[2], coef[1] * tb[3]])
+
+
+def declared_levels(des: Design, jd: JointData) -> np.ndarray:
+    """(4,) absolute classic friction of the joint's declared model (the shape a drift scales)."""
+    return levels(des.friction_given, jd.j, jd.extra["theta_before"])
+
+
+def fit_theta(X: np.ndarray, y: np.ndarray, bounded: bool) -> np.ndarray:
+    """Least squares of a joint model ``y ~ X theta`` whose first four columns are the classic friction.
+
+    ``bounded``: Coulomb levels and viscous coefficients are magnitudes, kept >= 0 when fitted from the data
+    (a direction seen at one speed only cannot tell Coulomb from viscous, and an unbounded fit trades one
+    against the other to absurd values)."""
+    if not bounded:
+        return lstsq(X, y)
+    lower = np.full(X.shape[1], -np.inf)
+    lower[:N_FRICTION] = 0.0
+    return lstsq_bounded(X, y, lower)
+
+
+# ---------------------------------------------------------------------------------------------- columns
+def columns(des: Design, name: str, jd: JointData, h, d: float = 0.0) -> np.ndarray:
+    """Columns (m, p) of term ``name`` with shape parameter ``h`` at the joint's samples, with the state
+    taken ``d`` seconds later (a delay term).
+
+    Features that are nonlinear functions of the state are built at the full rate and smoothed by the
+    same filter as the torque, so that feature and torque are averaged alike over each window."""
+    cache = jd.extra.setdefault("_cache", {})
+    key = (name, h if (h is None or isinstance(h, tuple)) else round(float(h), 12), round(float(d), 9))
+    if key in cache:
+        return cache[key]
+    X = _build_columns(des, name, jd, h, d)
+    if len(cache) > 400:
+        cache.clear()
+    cache[key] = X
+    return X
+
+
+def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.ndarray:
+    sig = des.sig
+    j = jd.j
+    qd_f = sig.qd_rad_s[:, j]
+
+    def sample(raw):
+        """The smoothed feature at the joint's samples (shifted by d: from the smoothed full-rate one)."""
+        if not d:
+            return sig.smooth_at(raw, jd.idx)
+        return interp_columns(jd.t_s + d, sig.t_s, sig.smooth(raw))
+
+    if name == "friction":
+        if not d:
+            return sample(classic_friction_columns(qd_f))
+        full = jd.extra.get("fric_smooth")
+        if full is None:
+            full = jd.extra["fric_smooth"] = sig.smooth(classic_friction_columns(qd_f))
+        return interp_columns(jd.t_s + d, sig.t_s, full)
+    if name == "stribeck":
+        return sample(stribeck_columns(qd_f, h))
+    if name == "position_ripple":
+        ph = 2 * np.pi * sig.q_rad[:, j] / h
+        return sample(np.column_stack([np.sin(ph), np.cos(ph)]))
+    if name == "payload":
+        X = jd.extra["payload"]
+        if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold
+            X = (X @ des.payload_pi[h[1]])[:, None]
+        return X
+    if name == "friction_drift":
+        # the Coulomb and the viscous torque of the declared fit, each drifting as exp(-t / T): two columns
+        # that keep the directions together (a direction seen only early in the run would otherwise be
+        # extrapolated in time)
+        F = columns(des, "friction", jd, None, d)
+        tb = declared_levels(des, jd)
+        return np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * np.exp(-jd.extra["t_rel"] / h)[:, None]
+    if name == "backlash":
+        return sample((jd.extra["dgdq_full"] * np.sign(qd_f))[:, None])
+    raise ValueError(name)
+
+
+def shifted_target(des: Design, jd: JointData, d: float) -> np.ndarray:
+    """Target (m,) with the positions taken ``d`` later: ``y_d = tau - rnea(q(t + d))`` (a measurement ``d``
+    late means ``tau(t) = model(q(t + d))``)."""
+    cache = jd.extra.setdefault("_shift", {})
+    key = round(float(d), 9)
+    if key not in cache:
+        model = des.rnea_Nm[:, jd.j] + des.known_Nm[:, jd.j]
+        if len(cache) > 100:
+            cache.clear()
+        cache[key] = des.tau_Nm[jd.idx, jd.j] - np.interp(jd.t_s + d, des.sig.t_s, model)
+    return cache[key]
+
+
+def target_and_design(des: Design, jd: JointData, terms: list[dict],
+                      fold: int | None) -> tuple[np.ndarray, np.ndarray]:
+    """Target (m,) and design (m, p) of ``friction + terms`` with the terms' shape parameters of ``fold``
+    (None: chosen on all data); a delay term shifts target and friction instead of adding columns."""
+    d = delay_of(terms, fold)
+    y = shifted_target(des, jd, d) if d else jd.y_Nm
+    cols = [columns(des, "friction", jd, None, d)]
+    cols += [columns(des, t["name"], jd, shape_of(t, fold), d) for t in terms if t["name"] != "delay"]
+    return y, np.hstack(cols)
+
+
+def block_of(jd: JointData, t_s: np.ndarray) -> np.ndarray:
+    """(m,) the joint's time block each time ``t_s`` (m,) falls in (before the first: the first)."""
+    blk = jd.extra["block"]
+    starts = jd.t_s[np.r_[0, np.flatnonzero(np.diff(blk)) + 1]]
+    return np.clip(np.searchsorted(starts, t_s, side="right") - 1, 0, None) + blk[0]

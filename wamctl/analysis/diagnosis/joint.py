@@ -1,0 +1,269 @@
+"""Diagnosis of one joint: forward selection of the torque-domain candidates, and their plausibility (no I/O).
+
+Each candidate is tested as a nested model against the current model on the held-out residuals
+(:func:`wamctl.analysis.diagnosis.stats.nested_test`); the best passing candidate (largest held-out gain)
+that is physically plausible is added, and the rest are tested again against the augmented model, until none
+passes. From the second step on, the minimum effect is a share of the declared model's residual, so that the
+imperfections of a strong effect's model are not named as further effects.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.candidates import DELAY_GRID_S, MAX_BREAKAWAY_RATIO, STRIBECK_VS_GRID_RAD_S
+from wamctl.analysis.diagnosis.crossval import cv_residual, fit_all
+from wamctl.analysis.diagnosis.design import (
+    N_COLUMNS,
+    N_FRICTION,
+    Design,
+    JointData,
+    columns,
+    fit_theta,
+    ncols,
+    split_coefs,
+    target_and_design,
+)
+from wamctl.analysis.diagnosis.onsets import slip_vs
+from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss, nested_test, whiteness_p
+
+HAS_GRID = {"stribeck": True, "position_ripple": True, "payload": False, "delay": True,
+            "friction_drift": True, "backlash": False}
+EVIDENCE_KEYS = ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")
+UNTESTED = {"p_value": float("nan"), "delta_bic": float("nan")}
+
+
+@dataclass
+class JointResult:
+    """Diagnosis of one joint (0-based ``j``)."""
+
+    j: int
+    kept: list[dict] = field(default_factory=list)           # name, h_fold, h_all, coef, evidence, gain
+    candidates: dict = field(default_factory=dict)           # name -> test dict + kept + reason
+    theta_before: np.ndarray | None = None                   # classic friction fitted on all data
+    theta_after: np.ndarray | None = None                    # all coefficients of the final model
+    columns_after: list[tuple[str, int]] = field(default_factory=list)   # (term name, n columns)
+    e_before: np.ndarray | None = None                        # held-out residuals (JointData order)
+    e_base: np.ndarray | None = None                          # held-out residual of the fitted declared model
+    stall_before: np.ndarray | None = None                    # torque residual at stalls (set-valued friction)
+    stall_after: np.ndarray | None = None
+    stall_t: np.ndarray | None = None                         # their times, s
+    e_after: np.ndarray | None = None
+    torque_rms_before_Nm: float = float("nan")
+    torque_rms_after_Nm: float = float("nan")
+    whiteness_p_before: float = float("nan")
+    whiteness_p_after: float = float("nan")
+    position_rms_before_rad: float = float("nan")
+    position_rms_after_rad: float = float("nan")
+    effects: list[dict] = field(default_factory=list)         # report-ready: name, params, evidence
+
+
+def joint_baseline(des: Design, jd: JointData) -> JointResult:
+    """The declared model of a joint: its held-out residual and its classic friction fitted on all data
+    (also kept as ``jd.extra["theta_before"]``, the shape a drift scales)."""
+    res = JointResult(jd.j)
+    e_base, _ = cv_residual(des, jd, [])
+    # a given model is not refitted: its residual is the target itself
+    res.e_before = e_base if des.bounded else jd.y_Nm.copy()
+    res.e_base = e_base
+    res.theta_before = fit_theta(columns(des, "friction", jd, None), jd.y_Nm, des.bounded)
+    jd.extra["theta_before"] = res.theta_before
+    return res
+
+
+def forward_select(des: Design, jd: JointData, res: JointResult, tests: list[str], threshold: float,
+                   max_steps: int, pre: tuple | None = None, rejected: dict | None = None) -> JointResult:
+    """Forward selection of the torque-domain candidates ``tests`` at one joint, from ``joint_baseline``.
+
+    ``pre``: (test, onsets) when the breakaways under the declared model show a Stribeck effect
+    (:func:`wamctl.analysis.diagnosis.onset_tests.stribeck_at_breakaways`). ``rejected`` maps candidates
+    excluded beforehand to the reason (e.g. a payload whose mass fitted over all joints is not positive)."""
+    rejected = dict(rejected or {})
+    terms: list[dict] = []
+    current = res.e_base
+    remaining = [c for c in tests if c not in rejected]
+    last = {}
+    for step in range(max_steps):
+        trial = _trial(des, jd, terms, remaining, res.e_base, current)
+        for c, (t, _, _) in trial.items():
+            last[c] = dict(t, step=step)
+        passing = sorted((c for c, (t, _, _) in trial.items() if t["p_value"] < threshold and t["delta_bic"] < 0),
+                         key=lambda c: trial[c][0]["ssr_ratio"])
+        if step == 0 and pre is not None and "stribeck" in remaining and \
+                (not passing or passing[0] == "stribeck"
+                 or pre[0]["p_value"] < min(trial[c][0]["p_value"] for c in passing)):
+            # seen at the breakaways too: their levels and the slips after them pin Fs and vs better than
+            # the few low-speed sliding samples a joint that sticks and slips leaves
+            term, e1 = _stribeck_from_breakaways(des, jd, terms, pre)
+            terms.append(term)
+            last["stribeck"] = dict(term["evidence"], step=step, reason="kept (seen at the breakaways)")
+            current = e1 if finite_ss(e1) < finite_ss(current) else current
+            remaining.remove("stribeck")
+            continue
+        chosen = _first_plausible(des, jd, terms, passing, trial, last, remaining)
+        if chosen is None:
+            break
+        c, t, h_fold, e1 = chosen
+        base_ssr = finite_ss(res.e_base)
+        gain = (finite_ss(current) - finite_ss(e1)) / base_ssr if base_ssr > 0 else 0.0
+        terms.append({"name": c, "h_fold": h_fold, "evidence": t, "gain": gain})
+        current = e1
+        remaining.remove(c)
+    set_after(des, res, jd, terms, current)
+    res.candidates = _candidate_table(res, tests, rejected, last, threshold)
+    return res
+
+
+def _trial(des: Design, jd: JointData, terms: list[dict], remaining: list[str], e_base: np.ndarray,
+           current: np.ndarray) -> dict:
+    """{candidate: (test, per-fold shape parameters, held-out residual)} of each remaining candidate added
+    to ``friction + terms``."""
+    trial = {}
+    for c in remaining:
+        if c == "payload" and "payload" not in jd.extra:
+            continue
+        e1, h_fold = cv_residual(des, jd, terms, c)
+        k1 = N_FRICTION + sum(ncols(t) for t in terms) + N_COLUMNS[c]
+        p_extra = N_COLUMNS[c] + (1 if HAS_GRID[c] else 0)
+        # the minimum effect is a share of what the declared model left, not of what is left now: after a
+        # strong effect, the traces of its imperfect model are not new effects
+        share = finite_ss(e_base) / max(finite_ss(current), 1e-300)
+        t = nested_test(current, e1, p_extra, k1, min(MIN_EFFECT * share, 0.9), jd.fold)
+        trial[c] = (t, h_fold, e1)
+    return trial
+
+
+def _stribeck_from_breakaways(des: Design, jd: JointData, terms: list[dict], pre: tuple) -> tuple[dict, np.ndarray]:
+    """The Stribeck term seen at the breakaways (its velocity from the slips after them) and the held-out
+    residual with it."""
+    r, ons = pre
+    ratio = float(np.exp(r["coef"]))
+    vs = slip_vs(ons["windows"], des.sig.dt_s, ratio) or float(np.median(STRIBECK_VS_GRID_RAD_S))
+    e1, h_fold = cv_residual(des, jd, terms, "stribeck", vs)
+    ev = {k: r[k] for k in EVIDENCE_KEYS}
+    term = {"name": "stribeck", "h_fold": h_fold, "fixed_h": vs, "evidence": ev, "gain": 1.0 - r["ssr_ratio"],
+            "onset_ratio": ratio, "onset_vs": vs, "onset_test": True}
+    return term, e1
+
+
+def _first_plausible(des: Design, jd: JointData, terms: list[dict], passing: list[str], trial: dict, last: dict,
+                     remaining: list[str]):
+    """(name, test, per-fold shapes, residual) of the first passing candidate that is plausible once fitted on
+    all data, or None; the implausible ones are dropped from ``remaining`` with their reason in ``last``."""
+    for c in passing:
+        t, h_fold, e1 = trial[c]
+        fitted, theta = fit_all(des, jd, terms + [{"name": c, "h_fold": h_fold}])
+        ok, why = plausible(des, c, jd, fitted, theta)
+        if ok:
+            return c, t, h_fold, e1
+        last[c]["reason"] = why
+        remaining.remove(c)
+    return None
+
+
+def _candidate_table(res: JointResult, tests: list[str], rejected: dict, last: dict, threshold: float) -> dict:
+    """{candidate: its last test, whether it was kept and why (not)} of the joint."""
+    out = {}
+    kept_names = {t["name"] for t in res.kept}
+    for c in tests:
+        if c in rejected:
+            out[c] = dict(last.get(c, UNTESTED), kept=False, reason=rejected[c])
+        elif c not in last:
+            out[c] = dict(UNTESTED, kept=False, reason="not testable on this joint")
+        elif c in kept_names:
+            ev = next(k["evidence"] for k in res.kept if k["name"] == c)
+            out[c] = dict(ev, kept=True, reason="kept")
+        else:
+            t = last[c]
+            out[c] = dict(t, kept=False, reason=t.get("reason") or why_rejected(t, threshold))
+    return out
+
+
+def why_rejected(t: dict, threshold: float) -> str:
+    """Why the nested test ``t`` does not keep its candidate."""
+    if t["ssr_ratio"] >= 1:
+        return "does not predict held-out data better than the model without it"
+    if t["p_value"] >= threshold:
+        return f"p = {t['p_value']:.3g} not below the threshold {threshold:.3g}"
+    return f"BIC does not drop (delta {t['delta_bic']:.1f})"
+
+
+def set_rms(res: JointResult) -> None:
+    """Held-out torque RMS over the sliding samples and (once the onsets are analysed) the stalls."""
+    for which in ("before", "after"):
+        e = getattr(res, f"e_{which}")
+        e = e[np.isfinite(e)]
+        st = getattr(res, f"stall_{which}")
+        both = np.concatenate([e, st]) if st is not None else e
+        setattr(res, f"torque_rms_{which}_Nm", float(np.sqrt(np.mean(both ** 2))) if len(both) else float("nan"))
+
+
+def set_after(des: Design, res: JointResult, jd: JointData, terms: list[dict], e_after: np.ndarray) -> None:
+    """Refit the final model of a joint on all data and record the held-out figures."""
+    spacing = max(1, 2 * des.sig.reach // des.decimation)
+    fitted, theta = fit_all(des, jd, terms)
+    res.kept = fitted
+    res.theta_after = theta
+    res.columns_after = [("friction", N_FRICTION)] + [(t["name"], ncols(t)) for t in fitted]
+    res.e_after = e_after
+    set_rms(res)
+    res.whiteness_p_before = whiteness_p(res.e_before, spacing)
+    res.whiteness_p_after = whiteness_p(e_after, spacing)
+
+
+# ---------------------------------------------------------------------------------------------- plausible
+def plausible(des: Design, name: str, jd: JointData, terms: list[dict], theta: np.ndarray) -> tuple[bool, str]:
+    """Whether candidate ``name``, fitted on all data with ``terms`` (coefficients ``theta``), is a physical
+    effect, and why not."""
+    if name == "stribeck":
+        return _stribeck_plausible(jd, split_coefs(terms, theta))
+    if name == "position_ripple":
+        return _ripple_plausible(des, jd, terms)
+    if name == "delay":
+        return _delay_plausible(next(t["h_all"] for t in terms if t["name"] == "delay"), des.sig.dt_s)
+    return True, ""
+
+
+def _stribeck_plausible(jd: JointData, c: dict) -> tuple[bool, str]:
+    """A breakaway above the Coulomb level, by at most ``MAX_BREAKAWAY_RATIO``, in the directions seen."""
+    coef = c["stribeck"]
+    w = np.array([(jd.qd_rad_s > 0).sum(), (jd.qd_rad_s < 0).sum()], float)
+    if (coef * w).sum() <= 0:
+        return False, "fitted breakaway below the Coulomb level (not a Stribeck effect)"
+    fc = c["friction"][:2]
+    seen = w > 0
+    ratio = (fc + coef)[seen] / np.maximum(fc[seen], 1e-9)
+    if np.any(ratio > MAX_BREAKAWAY_RATIO):
+        return False, (f"fitted breakaway {ratio.max():.3g} times the Coulomb level: beyond a physical "
+                       f"Stribeck effect (at most {MAX_BREAKAWAY_RATIO:g})")
+    return True, ""
+
+
+def _ripple_plausible(des: Design, jd: JointData, terms: list[dict]) -> tuple[bool, str]:
+    """Torque periodic in the angle is the same whichever way the joint turns; a periodic trace of the
+    control loop (hunting at a speed-dependent frequency) is not."""
+    h = next(t["h_all"] for t in terms if t["name"] == "position_ripple")
+    amps = []
+    for m in (jd.qd_rad_s > 0, jd.qd_rad_s < 0):
+        if m.sum() < 100 or np.ptp(jd.q_rad[m]) < h:
+            continue
+        y, X = target_and_design(des, jd, terms, None)
+        th = fit_theta(X[m], y[m], des.bounded)
+        k = N_FRICTION + sum(ncols(t) for t in terms[: [t["name"] for t in terms].index("position_ripple")])
+        amps.append(complex(th[k], th[k + 1]))
+    if len(amps) == 2 and abs(amps[0] - amps[1]) > 0.5 * max(abs(amps[0]), abs(amps[1])):
+        return False, (f"the ripple differs between the two directions of motion (amplitudes "
+                       f"{abs(amps[0]):.3g} and {abs(amps[1]):.3g} N m): not a torque periodic in the angle")
+    return True, ""
+
+
+def _delay_plausible(h: float, dt_s: float) -> tuple[bool, str]:
+    """A delay inside the range searched and longer than one sample period."""
+    if h >= DELAY_GRID_S[-1] - 1e-12:
+        return False, f"fitted delay at the end of the range searched ({h * 1e3:.1f} ms): not a delay"
+    if h < dt_s * (1 + 1e-9):
+        return False, (f"fitted delay {h * 1e3:.1f} ms is not longer than one sample period "
+                       f"({dt_s * 1e3:.1f} ms): within the timing convention of the log")
+    return True, ""

@@ -1,0 +1,177 @@
+"""Effects seen where a joint starts to move: backlash, and Stribeck at the breakaways (no I/O).
+
+* backlash: hidden travel ``d`` at reversals, ``d = c + w [reversal]`` against ``d = c`` (``c`` only when
+  there are same-direction onsets to estimate it);
+* Stribeck at breakaway (when the torque residual did not already keep it): the log breakaway ratio
+  ``l = log(rho)``, ``l = c`` against ``l = 0``, at every onset (at same-direction onsets only when backlash
+  was kept: a dead band also delays the measured breakaway at reversals).
+
+Both are nested tests on held-out onsets (:func:`wamctl.analysis.diagnosis.backlash.onset_test`), with the
+threshold of the torque tests.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.backlash import MIN_ONSETS, MIN_REVERSALS, onset_test
+from wamctl.analysis.diagnosis.candidates import MAX_BREAKAWAY_RATIO
+from wamctl.analysis.diagnosis.crossval import cv_residual
+from wamctl.analysis.diagnosis.joint import EVIDENCE_KEYS, UNTESTED, set_after, set_rms, why_rejected
+from wamctl.analysis.diagnosis.onsets import (
+    direction_breakaway_ratio,
+    geometric_mean,
+    joint_onsets,
+    onset_model,
+    slip_vs,
+    stall_residual,
+)
+from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
+
+
+def _stribeck_log_ratio_plausible(coef: float) -> bool:
+    """A breakaway above the Coulomb level, by at most ``MAX_BREAKAWAY_RATIO`` (``coef``: its log)."""
+    return 0 < coef <= np.log(MAX_BREAKAWAY_RATIO)
+
+
+def _public(r: dict) -> dict:
+    """An onset test without its coefficients (what the joint's candidate table shows)."""
+    return {k: v for k, v in r.items() if k not in ("coef", "coef_fold")}
+
+
+def onset_candidate(values: np.ndarray, rev: np.ndarray | None, fold: np.ndarray, n_folds: int, threshold: float,
+                    plausible, why_not) -> dict:
+    """Nested test at onsets of one candidate on ``values`` (k,) over ``fold`` (k,).
+
+    ``rev is None`` tests a common offset against zero; otherwise ``rev`` (k,) bool marks reversals and a
+    reversal term is tested against a common offset (or zero without same-direction onsets). ``plausible``
+    (coef -> bool) and ``why_not`` (coef -> str) judge the fitted coefficient of a passing candidate."""
+    n = len(values)
+    if n < MIN_ONSETS or (rev is not None and rev.sum() < MIN_REVERSALS):
+        what = "onsets" if rev is None else "reversals"
+        have = n if rev is None else int(rev.sum())
+        need = MIN_ONSETS if rev is None else MIN_REVERSALS
+        return dict(UNTESTED, kept=False, reason=f"not testable: {have} {what} measured (at least {need} needed)")
+    if rev is None:
+        X0, X1 = np.zeros((n, 0)), np.ones((n, 1))
+    else:
+        X0 = np.ones((n, 1)) if (~rev).sum() >= 2 else np.zeros((n, 0))
+        X1 = np.column_stack([X0, rev.astype(float)])
+    t = onset_test(values, X0, X1, fold, n_folds, MIN_EFFECT)
+    coef = float(t["coef"][-1])
+    out = {k: v for k, v in t.items() if k not in ("e0", "e1", "coef", "coef_fold")}
+    out["coef"] = coef
+    out["coef_fold"] = t["coef_fold"]
+    kept = t["p_value"] < threshold and t["delta_bic"] < 0
+    if kept and not plausible(coef):
+        out.update(kept=False, reason=why_not(coef))
+    else:
+        out.update(kept=kept, reason="kept (seen at onsets)" if kept else why_rejected(t, threshold))
+    return out
+
+
+def stribeck_at_breakaways(diag, j: int) -> tuple[dict, dict] | None:
+    """(test, onsets) when the breakaway ratios of 0-based joint ``j`` under the declared model show a
+    Stribeck effect, else None."""
+    ons = joint_onsets(diag.design_, diag.dynamics_, diag.jd_[j], onset_model(diag, j, declared=True))
+    ratio = ons["breakaway_ratio"]
+    ok = np.isfinite(ratio)
+    if ok.sum() < MIN_ONSETS:
+        return None
+    r = onset_candidate(np.log(ratio[ok]), None, ons["fold"][ok], diag.n_folds, diag.threshold_,
+                        _stribeck_log_ratio_plausible, lambda c: "")
+    return (r, ons) if r["kept"] else None
+
+
+def onset_tests(diag, j: int, tests: list[str]) -> None:
+    """Test the onset effects among ``tests`` at 0-based joint ``j`` of a fitted ``ModelDiagnosis``, add the
+    ones found to the joint's model, and add the torque residual at the stalls to its held-out figures."""
+    res = diag.joints_[j]
+    ons = joint_onsets(diag.design_, diag.dynamics_, diag.jd_[j], onset_model(diag, j))
+    diag.onsets_[j] = ons
+    rev = ons["reversal"]
+    found = []
+    if "backlash" in tests:
+        r = _test_backlash(diag, ons)
+        res.candidates["backlash"] = _public(r)
+        if r["kept"]:
+            found.append(("backlash", r))
+    stribeck_kept = any(t["name"] == "stribeck" for t in res.kept)
+    if "stribeck" in tests and not stribeck_kept:
+        r = _test_stribeck(diag, ons, exclude_reversals=bool(found))
+        if r["kept"]:
+            found.append(("stribeck", r))
+        elif "stribeck" in res.candidates:
+            res.candidates["stribeck"]["onset_test"] = {k: r[k] for k in ("p_value", "delta_bic", "reason")
+                                                        if k in r}
+    if "stribeck" in tests and stribeck_kept:
+        # Stribeck kept from the sliding samples: the breakaways measure its static level directly
+        use = np.isfinite(ons["breakaway_ratio"]) & (~rev if found else True)
+        t = next(t for t in res.kept if t["name"] == "stribeck")
+        if use.sum() >= MIN_ONSETS and not t.get("onset_ratio"):
+            rho = geometric_mean(ons["breakaway_ratio"][use])
+            if 1.0 < rho <= MAX_BREAKAWAY_RATIO:
+                t["onset_ratio"] = rho
+    ons["fold_coef"] = {}
+    for name, r in sorted(found, key=lambda x: x[1]["ssr_ratio"]):
+        add_onset_effect(diag, j, name, r, ons)
+        ons["fold_coef"][name] = r.get("coef_fold", {})
+    _stribeck_levels_per_direction(res, ons, backlash=any(n == "backlash" for n, _ in found))
+    # the torque residual at the stalls (set-valued friction at rest) joins the sliding residual
+    res.stall_before = stall_residual(diag, j, ons, after=False)
+    res.stall_after = stall_residual(diag, j, ons, after=True)
+    set_rms(res)
+
+
+def _test_backlash(diag, ons: dict) -> dict:
+    """Hidden travel at reversals beyond the same-direction onsets': a dead band of at least the tolerance."""
+    tol = ons["tol_rad"]
+    return onset_candidate(
+        ons["travel_rad"], ons["reversal"], ons["fold"], diag.n_folds, diag.threshold_, lambda coef: coef >= tol,
+        lambda coef: f"fitted dead band {coef:.2g} rad is below two measurement steps ({tol:.2g} rad)")
+
+
+def _test_stribeck(diag, ons: dict, exclude_reversals: bool) -> dict:
+    """Log breakaway ratio above zero at the onsets (same-direction ones only when backlash was kept:
+    reversals are not clean breakaways then)."""
+    same = np.isfinite(ons["breakaway_ratio"])
+    if exclude_reversals:
+        same &= ~ons["reversal"]
+    return onset_candidate(
+        np.log(ons["breakaway_ratio"][same]), None, ons["fold"][same], diag.n_folds, diag.threshold_,
+        _stribeck_log_ratio_plausible,
+        lambda coef: f"breakaway ratio {np.exp(coef):.2f} is not between 1 and {MAX_BREAKAWAY_RATIO:g}")
+
+
+def _stribeck_levels_per_direction(res, ons: dict, backlash: bool) -> None:
+    """The breakaway level of each direction on its own, for a kept Stribeck term: a joint that sticks and
+    slips one way only has few sliding samples there, and a ratio shared by both directions would inherit
+    their Coulomb fit."""
+    t = next((t for t in res.kept if t["name"] == "stribeck"), None)
+    if t is None:
+        return
+    use = np.isfinite(ons["breakaway_ratio"]) & (~ons["reversal"] if backlash else True)
+    ons["use_breakaway"] = use
+    rho = {key: direction_breakaway_ratio(ons, sgn) for key, sgn in (("pos", 1.0), ("neg", -1.0))}
+    rho = {key: r for key, r in rho.items() if r is not None}
+    if rho:
+        t["onset_ratio_dir"] = rho
+
+
+def add_onset_effect(diag, j: int, name: str, r: dict, ons: dict) -> None:
+    """Add an effect found at onsets to the joint's model (its torque-domain part refitted)."""
+    res, jd, des = diag.joints_[j], diag.jd_[j], diag.design_
+    ev = {k: v for k, v in r.items() if k in EVIDENCE_KEYS}
+    extra = {}
+    if name == "backlash":
+        extra["width_rad"] = float(r["coef"])
+    else:
+        extra["onset_ratio"] = float(np.exp(r["coef"]))
+        extra["onset_vs"] = slip_vs(ons["windows"], des.sig.dt_s, extra["onset_ratio"])
+        extra["fixed_h"] = extra["onset_vs"]
+    e1, h_fold = cv_residual(des, jd, res.kept, name, extra.get("fixed_h"))
+    term = {"name": name, "h_fold": h_fold, "evidence": ev, "gain": 1.0 - r["ssr_ratio"], **extra}
+    if finite_ss(e1) > finite_ss(res.e_after):
+        e1 = res.e_after
+    set_after(des, res, jd, res.kept + [term], e1)
+    res.candidates[name] = _public(r)

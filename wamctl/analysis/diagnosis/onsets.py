@@ -1,0 +1,293 @@
+"""A joint's onsets under a model of it: torque available, hidden travel, breakaway levels, stall residual (no I/O).
+
+An onset is a measured stall followed by motion (:func:`wamctl.analysis.diagnosis.backlash.find_onsets`).
+Through each stall the joint's own dynamics are integrated with the torque available to it,
+``u = tau - rnea_j(q, qd, qdd with the joint's own velocity and acceleration zeroed)``, and the model's
+friction (:func:`wamctl.analysis.diagnosis.backlash.hidden_travel`): the travel the model predicts before the
+measurement moved, and the breakaway level the joint withstood.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.backlash import breakaway_ratio, find_onsets, hidden_travel, resolution_rad
+from wamctl.analysis.diagnosis.candidates import MAX_BREAKAWAY_RATIO, STRIBECK_VS_GRID_RAD_S
+from wamctl.analysis.diagnosis.design import Design, block_of, levels, levels_dict
+from wamctl.analysis.diagnosis.signals import Signals, delayed, zoh_centred
+from wamctl.model.dynamics import Payload, WamDynamics
+from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
+
+EXTEND_SAMPLES = 100        # samples of the slip kept after each stall (the slip velocity is fitted on them)
+
+
+@dataclass
+class OnsetModel:
+    """A joint's model as it acts at onsets.
+
+    Attributes
+    ----------
+    friction : classic friction levels by name (absolute; at t = 0 when friction drifts).
+    fs_ratio : (positive, negative) breakaway / Coulomb of a kept Stribeck effect, else None.
+    drift, ripple : parameters of a kept friction drift / position ripple, else None.
+    dynamics : the rigid body with a kept payload (else the declared one).
+    delay_s : the delay of the measurement (declared plus kept).
+    delay_declared_s : its declared part.
+    """
+
+    friction: dict
+    fs_ratio: tuple[float, float] | None
+    drift: dict | None
+    ripple: dict | None
+    dynamics: WamDynamics
+    delay_s: float
+    delay_declared_s: float
+
+
+def stribeck_ratio(p: dict) -> tuple[float, float]:
+    """(positive, negative) breakaway / Coulomb of Stribeck parameters ``p`` (see ``effect_params``)."""
+    return p["Fs_pos_Nm"] / max(p["Fc_pos_Nm"], 1e-9), p["Fs_neg_Nm"] / max(p["Fc_neg_Nm"], 1e-9)
+
+
+def payload_dynamics(declared: Payload | None, found: dict) -> WamDynamics:
+    """The rigid body carrying the declared payload and the one found (``mass_kg``, ``com_m``) together."""
+    if declared is None:
+        return WamDynamics(Payload(found["mass_kg"], tuple(found["com_m"])))
+    m = declared.mass_kg + found["mass_kg"]
+    com = (declared.mass_kg * np.asarray(declared.com_m) + found["mass_kg"] * np.asarray(found["com_m"])) / m
+    return WamDynamics(Payload(m, tuple(com)))
+
+
+def onset_model(diag, j: int, declared: bool = False) -> OnsetModel:
+    """The model of 0-based joint ``j`` of a fitted ``ModelDiagnosis`` at onsets: the final one (its kept
+    effects), or with ``declared`` the declared model fitted."""
+    if declared:
+        fr = levels_dict(levels(diag.declared_.friction, j, diag.jd_[j].extra["theta_before"]))
+        kept = {}
+    else:
+        fr = diag.friction_after(j)
+        kept = {t["name"]: t for t in diag.joints_[j].kept}
+
+    def params(name):
+        return diag.effect_params(j, name) if name in kept else None
+
+    stri = params("stribeck")
+    dyn = diag.dynamics_
+    if "payload" in kept and diag.payload_ is not None:
+        dyn = payload_dynamics(diag.payload_declared_, diag.payload_)
+    delay_decl = diag.declared_.delay_s
+    delay = delay_decl + (params("delay")["delay_s"] if "delay" in kept else 0.0)
+    return OnsetModel(fr, stribeck_ratio(stri) if stri else None, params("friction_drift"),
+                      params("position_ripple"), dyn, delay, delay_decl)
+
+
+def detection_tolerance(sig: Signals, j: int) -> tuple[float, float]:
+    """(encoder step, tolerance) rad: the measurement has moved once it left the stall value by two encoder
+    steps (or four noise sigmas)."""
+    quantum = resolution_rad(sig.q_raw_rad[:, j])
+    return quantum, max(2.0 * quantum, 4.0 * float(sig.q_noise_rad[j]), 1e-6)
+
+
+def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: int = EXTEND_SAMPLES) -> dict:
+    """Hidden travel and breakaway ratio at every onset of the joint of ``jd`` under ``model``.
+
+    ``dyn0`` is the declared rigid body (``des.rnea_Nm``'s). The torque available uses the model with its
+    kept effects (payload in the rigid body, ripple added), and the friction levels are scaled by a kept
+    drift at the onset's time. Onsets are dealt into the folds of the joint's blocks they fall in.
+
+    Returns
+    -------
+    dict of (k,) arrays over the k onsets: ``travel_rad``, ``reversal``, ``t_s``, ``fold``, ``breakaway_ratio``,
+    ``sign``; and ``resolution_rad``, ``tol_rad``, ``windows`` (per onset: the torques, inertia, friction,
+    measured travel of its window).
+    """
+    sig, j = des.sig, jd.j
+    q_raw = sig.q_raw_rad[:, j]
+    quantum, tol = detection_tolerance(sig, j)
+    ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, 2 * sig.reach)
+    tau_c = zoh_centred(sig.tau_raw_Nm[:, j])      # as for the sliding residual
+    tau_c_decl = delayed(sig.t_s, tau_c, model.delay_declared_s) if model.delay_declared_s > 0 else tau_c
+    if model.delay_s > 0:   # positions measured d late: the torque that moved the link to q_meas(t) acted at t - d
+        tau_c = delayed(sig.t_s, tau_c, model.delay_s)
+    travel, ratio, windows = [], [], []
+    for o in ons:
+        w = _onset_window(des, dyn0, j, o, model, tau_c, tau_c_decl, extend)
+        stall = o.end - o.start
+        f = w["friction"]
+        fsp = f["fc_pos_Nm"] * model.fs_ratio[0] if model.fs_ratio else None
+        fsn = f["fc_neg_Nm"] * model.fs_ratio[1] if model.fs_ratio else None
+        x = travel_with(w["u"][:stall], sig.dt_s, w["inertia"], f, fsp, fsn)
+        travel.append(o.sign_new * x[-1] - tol)
+        ratio.append(breakaway_ratio(w["u"][:stall], sig.dt_s, w["inertia"], max(f["fc_pos_Nm"], 1e-6),
+                                     max(f["fc_neg_Nm"], 1e-6), f["viscous_pos_Nm_s_rad"],
+                                     f["viscous_neg_Nm_s_rad"], tol))
+        windows.append(w)
+    t_on = np.asarray([o.t_s for o in ons])
+    return {"travel_rad": np.asarray(travel), "reversal": np.asarray([o.reversal for o in ons], bool),
+            "t_s": t_on, "fold": block_of(jd, t_on) % des.n_folds, "breakaway_ratio": np.asarray(ratio),
+            "sign": np.asarray([o.sign_new for o in ons]), "resolution_rad": quantum, "tol_rad": tol,
+            "windows": windows}
+
+
+def _onset_window(des: Design, dyn0: WamDynamics, j: int, o, model: OnsetModel, tau_c: np.ndarray,
+                  tau_c_decl: np.ndarray, extend: int) -> dict:
+    """Torque available (final and declared model), inertia, friction and measured travel through onset
+    ``o`` (a :class:`wamctl.analysis.diagnosis.backlash.Onset`) and ``extend`` samples after it."""
+    sig = des.sig
+    q_raw = sig.q_raw_rad[:, j]
+    ii = np.arange(o.start, min(o.end + extend, sig.n))
+    b_jj = float(dyn0.mass_matrix(sig.q_rad[o.end])[j, j])
+    # the rigid body without the joint's own acceleration (its velocity is ~0 in a stall)
+    rigid = des.rnea_Nm[ii, j] - b_jj * sig.qdd_rad_s2[ii, j] + des.known_other_Nm[ii, j]
+    u_decl = tau_c_decl[ii] - rigid
+    u = tau_c[ii] - rigid
+    dyn = model.dynamics
+    if dyn is not dyn0:
+        u = u - _payload_torque(dyn, dyn0, sig, ii, j)
+    if model.ripple:
+        r = model.ripple
+        u += ripple_torque_Nm(q_raw[ii], r["amplitude_Nm"], 2 * np.pi / r["period_rad"], r["phase_rad"])
+    scale = 1.0
+    if model.drift:
+        scale = float(friction_drift_scale(o.t_s - sig.t_s[0], model.drift["fraction"],
+                                           model.drift["time_constant_s"]))
+    f = {k: max(v, 0.0) * scale for k, v in model.friction.items()}
+    inertia = b_jj if dyn is dyn0 else float(dyn.mass_matrix(sig.q_rad[o.end])[j, j])
+    stall = o.end - o.start
+    return {"u": u, "u_declared": u_decl[:stall], "inertia": inertia, "friction": f, "start": o.start,
+            "end": o.end, "sign": o.sign_new, "q": q_raw[ii] - q_raw[o.start], "reversal": o.reversal,
+            "t_s": o.t_s}
+
+
+def _payload_torque(dyn: WamDynamics, dyn0: WamDynamics, sig: Signals, ii: np.ndarray, j: int) -> np.ndarray:
+    """(len(ii),) torque a kept payload adds at joint ``j`` along samples ``ii`` (the joint's own velocity and
+    acceleration zeroed), computed every 10 ms and interpolated."""
+    pts = np.unique(np.r_[ii[::5], ii[-1]])
+    extra_t = []
+    for i in pts:
+        qd_i, qdd_i = sig.qd_rad_s[i].copy(), sig.qdd_rad_s2[i].copy()
+        qd_i[j] = qdd_i[j] = 0.0
+        extra_t.append(dyn.inverse_dynamics(sig.q_rad[i], qd_i, qdd_i)[j]
+                       - dyn0.inverse_dynamics(sig.q_rad[i], qd_i, qdd_i)[j])
+    return np.interp(ii, pts, extra_t)
+
+
+def travel_with(u_Nm: np.ndarray, dt_s: float, inertia: float, f: dict, fs_pos: float | None = None,
+                fs_neg: float | None = None, vs_rad_s: float = 0.0) -> np.ndarray:
+    """:func:`hidden_travel` (m,) with the classic friction levels ``f`` by name."""
+    return hidden_travel(u_Nm, dt_s, inertia, f["fc_pos_Nm"], f["fc_neg_Nm"], f["viscous_pos_Nm_s_rad"],
+                         f["viscous_neg_Nm_s_rad"], fs_pos, fs_neg, vs_rad_s=vs_rad_s)
+
+
+# ---------------------------------------------------------------------------------------------- levels
+def geometric_mean(x: np.ndarray) -> float:
+    """Geometric mean of positive values (k,) (breakaway ratios: a ratio and its inverse weigh alike)."""
+    return float(np.exp(np.mean(np.log(x))))
+
+
+def direction_breakaway_ratio(ons: dict, sign: float, fold: int | None = None) -> float | None:
+    """Breakaway ratio (geometric mean) of direction ``sign`` at the onsets usable for it
+    (``ons["use_breakaway"]``), outside fold ``fold`` when given; None when fewer than two."""
+    use = ons.get("use_breakaway")
+    if use is None:
+        return None
+    m = use & (ons["sign"] == sign)
+    if fold is not None:
+        m &= ons["fold"] != fold
+    if m.sum() < 2:
+        return None
+    return float(np.clip(geometric_mean(ons["breakaway_ratio"][m]), 1.0, MAX_BREAKAWAY_RATIO))
+
+
+def slip_vs(windows: list[dict], dt_s: float, ratio: float) -> float | None:
+    """Stribeck velocity that best reproduces the measured slips after each same-direction breakaway
+    (``windows`` of :func:`joint_onsets`; the joint integrated open-loop from rest with the logged torque,
+    ``Fs = ratio Fc``); None without same-direction onsets."""
+    wins = [w for w in windows if not w["reversal"]]
+    if not wins:
+        return None
+    best, arg = np.inf, None
+    for vs in STRIBECK_VS_GRID_RAD_S:
+        ssr = 0.0
+        for w in wins:
+            f = w["friction"]
+            x = travel_with(w["u"], dt_s, w["inertia"], f, ratio * f["fc_pos_Nm"], ratio * f["fc_neg_Nm"], vs)
+            err = x - w["q"]
+            ssr += float(err @ err)
+        if ssr < best:
+            best, arg = ssr, float(vs)
+    return arg
+
+
+# ---------------------------------------------------------------------------------------------- stalls
+def stall_residual(diag, j: int, ons: dict, after: bool) -> np.ndarray:
+    """Torque residual (m,) at the samples where the measured joint stood still before an onset.
+
+    At rest, friction is set-valued: anything up to the breakaway level. The model is wrong at a stall
+    sample when its link, integrated from rest through the stall with the applied torque, has already
+    moved further than the measurement allows (two encoder steps; plus the dead band for a model with
+    backlash); the residual there is the torque beyond the level the model holds a joint with. The
+    declared model uses its Coulomb levels; the augmented one its breakaway levels, dead band, and the
+    torque of its other effects. Breakaway ratio and dead band come from the onsets of the other folds.
+    Sets the stall samples' times on the joint's result (``stall_t``).
+    """
+    sig, res = diag.signals_, diag.joints_[j]
+    if not ons["windows"]:
+        return np.zeros(0)
+    kept = {t["name"]: t for t in res.kept} if after else {}
+    p_ratio = stribeck_ratio(diag.effect_params(j, "stribeck")) if "stribeck" in kept else None
+    fb = diag.friction_before(j)
+    out = []
+    res.stall_t = np.concatenate([sig.t_s[w["start"]:w["end"]] for w in ons["windows"]])
+    for w, f_on in zip(ons["windows"], ons["fold"]):
+        stall = w["end"] - w["start"]
+        if after:
+            u, f = w["u"][:stall], w["friction"]
+            ratio, band = _held_out_levels(ons, w, int(f_on), kept, p_ratio)
+        else:
+            u, f = w["u_declared"], {k: max(v, 0.0) for k, v in fb.items()}
+            ratio, band = (1.0, 1.0), 0.0
+        fsp, fsn = ratio[0] * f["fc_pos_Nm"], ratio[1] * f["fc_neg_Nm"]
+        x = travel_with(u, sig.dt_s, w["inertia"], f, fsp, fsn)
+        out.append(stall_gap_residual(u, x, w["q"][:stall], w["sign"], ons["tol_rad"], band, fsp, fsn))
+    return np.concatenate(out) if out else np.zeros(0)
+
+
+def _held_out_levels(ons: dict, w: dict, fold: int, kept: dict,
+                     p_ratio: tuple[float, float] | None) -> tuple[tuple[float, float], float]:
+    """(breakaway ratio per direction, dead band) of the final model at onset window ``w`` of ``fold``: from
+    the onsets of the other folds where they give them, else from the fit on all data (``p_ratio``)."""
+    fold_coef = ons.get("fold_coef", {})
+    ratio = (1.0, 1.0)
+    if "stribeck" in kept:
+        r = fold_coef.get("stribeck", {}).get(fold)
+        ratio = p_ratio if r is None else (float(np.exp(r)),) * 2
+        held_out = [direction_breakaway_ratio(ons, sgn, fold) for sgn in (1.0, -1.0)]
+        ratio = tuple(rr if h is None else h for h, rr in zip(held_out, ratio))
+    band = 0.0
+    if "backlash" in kept and w["reversal"]:
+        wf = fold_coef.get("backlash", {}).get(fold)
+        band = max(wf if wf is not None else kept["backlash"]["width_rad"], 0.0)
+    return ratio, band
+
+
+def stall_gap_residual(u: np.ndarray, x: np.ndarray, q: np.ndarray, sign: float, tol: float, band: float,
+                       fs_pos: float, fs_neg: float) -> np.ndarray:
+    """Torque residual (m,) of one stall: ``u`` (m,) torque available, ``x`` (m,) the model's travel, ``q`` (m,)
+    the measured one, ``sign`` the new direction, ``band`` a dead band, ``fs_*`` the breakaway levels.
+
+    Both travels are counted from the sample before the model moved by half the tolerance (the window opens
+    while the joint may still settle by a count or two); travel toward the new direction may use the dead
+    band, back along the old one may not. Where the gap exceeds what is allowed, the residual is the torque
+    beyond the breakaway level, else zero."""
+    away = np.flatnonzero(np.abs(x) > 0.5 * tol)
+    k0 = max(away[0] - 1, 0) if len(away) else 0
+    gap = (x - x[k0]) - (q - q[k0])
+    gap[:k0] = 0.0
+    along = sign * gap
+    allowed = tol + np.where(along > 0, band, 0.0)
+    wrong = np.abs(gap) > allowed
+    level = np.where(u > 0, fs_pos, fs_neg)
+    return np.where(wrong, np.sign(u) * np.maximum(np.abs(u) - level, 0.0), 0.0)

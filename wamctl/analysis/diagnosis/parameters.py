@@ -1,0 +1,122 @@
+"""Parameters of a diagnosis' models in physical units: friction before and after, each kept effect's (no I/O).
+
+The fitted coefficients of a joint are ``[friction (4), term 1, term 2, ...]`` (:mod:`.design`); here they
+become the quantities a model file and the report name (levels in N m, a ripple's amplitude and phase, a
+payload's mass and centre of mass, ...).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.candidates import payload_from_pi
+from wamctl.analysis.diagnosis.design import (
+    columns,
+    declared_levels,
+    drift_offset,
+    levels,
+    levels_dict,
+    split_coefs,
+)
+
+TEST_NAME = "nested F-test on held-out folds"
+ONSET_TEST_NAME = "nested F-test on held-out folds (hidden travel at onsets)"
+
+
+def friction_levels_before(diag, j: int, theta: np.ndarray | None = None) -> dict:
+    """Classic friction of 0-based joint ``j`` in the declared model of a fitted ``ModelDiagnosis`` (``theta``:
+    its four coefficients, default fitted on all data)."""
+    return levels_dict(levels(diag.declared_.friction, j, diag.joints_[j].theta_before if theta is None else theta))
+
+
+def friction_levels_after(diag, j: int, theta: np.ndarray | None = None) -> dict:
+    """Classic friction of 0-based joint ``j`` in the final model (at t = 0 when friction drifts)."""
+    res = diag.joints_[j]
+    c = split_coefs(res.kept, res.theta_after if theta is None else theta)
+    fr = np.array(c["friction"], float)
+    if "friction_drift" in c:
+        fr = fr + drift_offset(c["friction_drift"], declared_levels(diag.design_, diag.jd_[j]))
+    return levels_dict(levels(diag.declared_.friction, j, fr))
+
+
+def kept_effect_params(diag, j: int, name: str, theta: np.ndarray | None = None) -> dict:
+    """Parameters of kept effect ``name`` at 0-based joint ``j`` (units in the key names); ``theta`` overrides
+    the coefficients fitted on all data (see ``ModelDiagnosis.refit``)."""
+    res = diag.joints_[j]
+    c = split_coefs(res.kept, res.theta_after if theta is None else theta)
+    t = next(t for t in res.kept if t["name"] == name)
+    h = t.get("h_all")
+    fr = levels(diag.declared_.friction, j, c["friction"])     # absolute levels
+    coef = c[name]
+    if name == "stribeck":
+        return stribeck_params(fr, coef, h, t)
+    if name == "position_ripple":
+        return ripple_params(coef, h)
+    if name == "payload":
+        if diag.payload_ is not None and (theta is None or len(coef) == 1):
+            return dict(diag.payload_)
+        return payload_from_pi(coef)
+    if name == "delay":
+        return {"delay_s": float(h)}
+    if name == "friction_drift":
+        jd = diag.jd_[j]
+        return drift_params(columns(diag.design_, "friction", jd, None), fr, coef,
+                            declared_levels(diag.design_, jd), h)
+    if name == "backlash":
+        return backlash_params(t, coef, diag.onsets_.get(j, {}))
+    raise ValueError(name)
+
+
+def stribeck_params(fr: np.ndarray, coef: np.ndarray, vs_rad_s: float, term: dict) -> dict:
+    """Breakaway and Coulomb levels per direction and the Stribeck velocity, from the absolute classic levels
+    ``fr`` (4,) and the breakaway excess ``coef`` (2,); a term found at the breakaways takes the levels the
+    joint withstood there."""
+    out = {"Fs_pos_Nm": float(fr[0] + coef[0]), "Fs_neg_Nm": float(fr[1] + coef[1]),
+           "Fc_pos_Nm": float(fr[0]), "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(vs_rad_s)}
+    if term.get("onset_ratio"):
+        rho = term.get("onset_ratio_dir", {})
+        out["Fs_pos_Nm"] = rho.get("pos", term["onset_ratio"]) * out["Fc_pos_Nm"]
+        out["Fs_neg_Nm"] = rho.get("neg", term["onset_ratio"]) * out["Fc_neg_Nm"]
+        if term.get("onset_vs"):
+            out["vs_rad_s"] = term["onset_vs"]
+        out["Fs_from"] = "breakaways"
+    return out
+
+
+def ripple_params(coef: np.ndarray, period_rad: float) -> dict:
+    """Amplitude and phase of the ripple ``A sin(2 pi q / P + phase)`` from its sin/cos coefficients (2,)."""
+    a, b = -coef[0], -coef[1]          # y = friction - ripple: the plant's ripple is minus the fit
+    return {"amplitude_Nm": float(np.hypot(a, b)), "period_rad": float(period_rad),
+            "phase_rad": float(np.arctan2(b, a) % (2 * np.pi))}
+
+
+def drift_params(X: np.ndarray, fr: np.ndarray, coef: np.ndarray, tb: np.ndarray, T_s: float) -> dict:
+    """Fraction and time constant of a friction drift, and the friction at t = 0.
+
+    ``X`` (m, 4) classic friction columns at the joint's samples, ``fr`` (4,) the levels the friction drifts
+    to, ``coef`` (2,) the drift's coefficients, ``tb`` (4,) the declared levels they scale. The fraction is the
+    least-squares ratio of the decaying part of the friction torque to the torque at t = 0."""
+    dec = drift_offset(coef, tb)
+    f0 = X @ (fr + dec)                  # friction at t = 0
+    f1 = X @ dec                         # the part that decays
+    frac = -float(f1 @ f0 / max(f0 @ f0, 1e-300))
+    return {"fraction": frac, "time_constant_s": float(T_s), "friction_t0": levels_dict(fr + dec)}
+
+
+def backlash_params(term: dict, coef: np.ndarray, ons: dict) -> dict:
+    """Dead band (from the onsets), its gravity offset coefficient (1,) and the onsets it was measured at."""
+    rev = ons.get("reversal", [])
+    return {"width_rad": float(term["width_rad"]), "gravity_offset_rad": float(coef[0]),
+            "reversals": int(np.sum(rev)), "same_direction_onsets": int(np.sum(~np.asarray(rev, bool)))}
+
+
+def report_effects(diag) -> None:
+    """Set every joint's report-ready ``effects`` (name, parameters, evidence) of a fitted ``ModelDiagnosis``."""
+    for j, res in diag.joints_.items():
+        res.effects = []
+        for t in res.kept:
+            ev = t["evidence"]
+            test = TEST_NAME if t["name"] != "backlash" else ONSET_TEST_NAME
+            res.effects.append({"name": t["name"], "params": kept_effect_params(diag, j, t["name"]),
+                                "evidence": {"test": test, "p_value": float(ev["p_value"]),
+                                             "delta_bic": float(ev["delta_bic"])}})

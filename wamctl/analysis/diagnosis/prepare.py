@@ -1,0 +1,144 @@
+"""The run's arrays the diagnosis fits on: rigid-body torque, the declared model's torque, each joint's samples
+(no I/O).
+
+``y = tau - rnea(q, qd, qdd) - known`` is what friction and any missing effect must supply at a joint's
+sliding samples; ``known`` is what a declared model file adds beyond the rigid body (friction with its
+Stribeck and drift terms, ripple). Each joint's sliding samples (in time order) are cut into ``n_blocks``
+contiguous blocks of equal size, dealt into ``n_folds`` folds (block ``b`` -> fold ``b % n_folds``): a joint
+that moves in one part of the run only still has every fold populated.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.candidates import ripple_gain
+from wamctl.analysis.diagnosis.design import Design, JointData
+from wamctl.analysis.diagnosis.signals import Signals, delayed, interp_columns
+from wamctl.model import params as P
+from wamctl.model.dynamics import WamDynamics
+from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
+from wamctl.model.friction import FrictionModel
+
+N7 = P.N_JOINTS
+MAX_SAMPLES_PER_JOINT = 8000      # decimation above this (smoothed signals: little information is lost)
+MAX_RNEA_GRID = 60000             # full-rate rigid-body torque: interpolated from at most this many samples
+MAX_STIFFNESS_GRID = 3000         # gravity stiffness: computed at about this many samples, interpolated
+PAYLOAD_REGRESSOR = slice(60, 70)   # the link-7 columns of the joint torque regressor (m, m c, inertia)
+
+
+def declared_delay_s(effects: dict | None) -> float:
+    """The measurement delay (s) a declared model's ``effects`` mapping gives (0 without one)."""
+    return float(((effects or {}).get("delay") or {}).get("delay_s", 0.0))
+
+
+def prepare_design(sig: Signals, dyn: WamDynamics, friction_given: FrictionModel | None, effects: dict | None,
+                   n_blocks: int, n_folds: int, want_payload: bool) -> tuple[Design, dict[int, JointData]]:
+    """The run's :class:`Design` and {0-based joint: :class:`JointData`} of every diagnosed joint.
+
+    ``dyn`` is the declared rigid body; ``friction_given``/``effects`` the declared model file's friction
+    (None: fitted) and effects; ``want_payload`` adds the payload regressor rows to each joint's data."""
+    dec = 1
+    n_mov = max(int(sig.moving[:, j].sum()) for j in sig.joints)
+    if n_mov > MAX_SAMPLES_PER_JOINT:
+        dec = int(np.ceil(n_mov / MAX_SAMPLES_PER_JOINT))
+    keep = np.zeros(sig.n, bool)
+    keep[::dec] = True
+    union = np.flatnonzero(keep & sig.moving[:, sig.joints].any(axis=1))
+    rnea, reg = _rigid_body_rows(dyn, sig, union, want_payload)
+    coarse = union[:: max(1, len(union) // MAX_STIFFNESS_GRID)]
+    dgdq_c = _gravity_stiffness(dyn, sig, coarse)
+    known, known_other = declared_torque(sig, friction_given, effects)
+    delay = declared_delay_s(effects)
+    tau = delayed(sig.t_s, sig.tau_Nm, delay) if delay > 0 else sig.tau_Nm
+    des = Design(sig, _rigid_body_full(dyn, sig), known, known_other, tau, friction_given, n_folds, dec, union)
+    pos = np.searchsorted(union, np.arange(sig.n))
+    jds = {}
+    for j in sig.joints:
+        idx = np.flatnonzero(keep & sig.moving[:, j])
+        u = pos[idx]
+        block = np.minimum((np.arange(len(idx)) * n_blocks) // max(len(idx), 1), n_blocks - 1)
+        y = tau[idx, j] - rnea[u, j] - known[idx, j]
+        extra = {"t_rel": sig.t_s[idx] - sig.t_s[0], "block": block,
+                 "dgdq_full": np.interp(sig.t_s, sig.t_s[coarse], dgdq_c[:, j])}
+        if want_payload:
+            extra["payload"] = reg[u, j, :]
+        jds[j] = JointData(j, idx, sig.t_s[idx], sig.q_rad[idx, j], sig.qd_rad_s[idx, j], sig.qdd_rad_s2[idx, j],
+                           y, block % n_folds, extra)
+    return des, jds
+
+
+def _rigid_body_rows(dyn: WamDynamics, sig: Signals, rows: np.ndarray,
+                     want_payload: bool) -> tuple[np.ndarray, np.ndarray | None]:
+    """Rigid-body torque (r, 7) at the samples ``rows`` (r,), and the payload regressor (r, 7, 10) there."""
+    q, qd, qdd = sig.q_rad, sig.qd_rad_s, sig.qdd_rad_s2
+    rnea = np.empty((len(rows), N7))
+    reg = np.empty((len(rows), N7, 10)) if want_payload else None
+    for k, i in enumerate(rows):
+        rnea[k] = dyn.inverse_dynamics(q[i], qd[i], qdd[i])
+        if want_payload:
+            reg[k] = dyn.regressor_basis(q[i], qd[i], qdd[i])[:, PAYLOAD_REGRESSOR]
+    return rnea, reg
+
+
+def _rigid_body_full(dyn: WamDynamics, sig: Signals) -> np.ndarray:
+    """Rigid-body torque (n, 7) at every sample (interpolated from a uniform grid: the delay shifts it in time)."""
+    stride = max(1, sig.n // MAX_RNEA_GRID)
+    grid = np.arange(0, sig.n, stride)
+    if grid[-1] != sig.n - 1:
+        grid = np.append(grid, sig.n - 1)
+    rg = np.array([dyn.inverse_dynamics(sig.q_rad[i], sig.qd_rad_s[i], sig.qdd_rad_s2[i]) for i in grid])
+    return interp_columns(np.arange(sig.n), grid, rg)
+
+
+def _gravity_stiffness(dyn: WamDynamics, sig: Signals, rows: np.ndarray, eps: float = 1e-4) -> np.ndarray:
+    """(r, 7) gravity stiffness ``dg_j / dq_j`` of the diagnosed joints at the samples ``rows`` (r,) (backlash:
+    the link sits w/2 away from the encoder), by forward differences."""
+    q = sig.q_rad
+    out = np.zeros((len(rows), N7))
+    for k, i in enumerate(rows):
+        g0 = dyn.gravity(q[i])
+        for j in sig.joints:
+            dq = np.zeros(N7)
+            dq[j] = eps
+            out[k, j] = (dyn.gravity(q[i] + dq)[j] - g0[j]) / eps
+    return out
+
+
+def declared_torque(sig: Signals, friction: FrictionModel | None, effects: dict | None) -> tuple[np.ndarray,
+                                                                                                 np.ndarray]:
+    """(n, 7) torque of the declared model beyond the rigid body when a model file gives it (friction,
+    ripple; zero when friction is fitted from the data), and (n, 7) its part that is not friction (at rest,
+    the friction is what the stall analysis estimates)."""
+    out = np.zeros((sig.n, N7))
+    other = np.zeros((sig.n, N7))
+    if friction is None:
+        return out, other
+    fx = effects or {}
+    fr = friction
+    if fx.get("stribeck"):
+        s = fx["stribeck"]
+        m = np.zeros(N7, bool)
+        m[[j - 1 for j in s["joints"]]] = True
+        r = float(s.get("breakaway_ratio", 1.6))
+        fr = fr.with_stribeck(np.where(m, fr.fc_pos_Nm * r, np.nan), np.where(m, fr.fc_neg_Nm * r, np.nan),
+                              np.where(m, float(s.get("vs_rad_s", 0.05)), np.nan), float(s.get("delta", 2.0)))
+    f = fr.friction_torque(sig.qd_rad_s)
+    if fx.get("friction_drift"):
+        s = fx["friction_drift"]
+        scale = friction_drift_scale(sig.t_s - sig.t_s[0], float(s.get("fraction", -0.4)),
+                                     float(s.get("time_constant_s", 20.0)))
+        for jj in s["joints"]:
+            f[:, jj - 1] *= scale
+    out += f
+    if fx.get("position_ripple"):
+        s = fx["position_ripple"]
+        per = float(s.get("period_rad", 0.2))
+        for jj in s["joints"]:
+            j = jj - 1
+            rip = ripple_torque_Nm(sig.q_rad[:, j], float(s.get("amplitude_Nm", 0.5)), 2 * np.pi / per,
+                                   float(s.get("phase_rad", 0.0)))
+            # the model's torque is smoothed like the measured one: the ripple as the filter leaves it
+            out[:, j] -= ripple_gain(sig.qd_rad_s[:, j], per, sig.window, sig.gauss, sig.dt_s) * rip
+            other[:, j] -= rip
+    return out, other

@@ -1,0 +1,58 @@
+"""``diagnosis.json`` of a fitted diagnosis (format ``wamctl-diagnosis/1``, see docs/diagnosis-report.md).
+
+Builds the mapping only; writing it is the caller's (no I/O).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.parameters import friction_levels_after, friction_levels_before
+
+FORMAT = "wamctl-diagnosis/1"
+DECLARED_MODEL = "wam7 rigid body + armature + classic friction (Coulomb + viscous, per direction)"
+
+
+def _num(x):
+    """A JSON number: None for a missing or non-finite value."""
+    if x is None:
+        return None
+    x = float(x)
+    return None if not np.isfinite(x) else x
+
+
+def _joint_dict(diag, j: int, res) -> dict:
+    return {
+        "effects": res.effects,
+        "candidates": [{"name": c, "p_value": _num(d.get("p_value")), "delta_bic": _num(d.get("delta_bic")),
+                        "kept": bool(d.get("kept")), "reason": d.get("reason", "")}
+                       for c, d in res.candidates.items()],
+        "torque_rms_before_Nm": _num(res.torque_rms_before_Nm),
+        "torque_rms_after_Nm": _num(res.torque_rms_after_Nm),
+        "position_rms_before_rad": _num(res.position_rms_before_rad),
+        "position_rms_after_rad": _num(res.position_rms_after_rad),
+        "residual_whiteness_p_before": _num(res.whiteness_p_before),
+        "residual_whiteness_p_after": _num(res.whiteness_p_after),
+        "friction_before": friction_levels_before(diag, j),
+        "friction_after": friction_levels_after(diag, j),
+    }
+
+
+def diagnosis_dict(diag, data_path: str = "") -> dict:
+    """The ``diagnosis.json`` mapping of a fitted ``ModelDiagnosis`` (``data_path``: the data it was fitted on)."""
+    joints = {str(j + 1): _joint_dict(diag, j, res) for j, res in sorted(diag.joints_.items())}
+    declared = DECLARED_MODEL if diag.declared_.fitted else \
+        f"{DECLARED_MODEL}, parameters from {diag.declared_.source}"
+    out = {"format": FORMAT, "data": data_path, "declared_model": declared,
+           "effects_found": list(diag.effects_found_), "joints": joints,
+           "conclusive": bool(diag.conclusive_), "reason": diag.reason_}
+    sig = getattr(diag, "signals_", None)
+    if sig is not None:
+        out["skipped_joints"] = {str(j + 1): r for j, r in sig.skipped.items()}
+        out["method"] = {"test_threshold_p": _num(getattr(diag, "threshold_", float("nan"))),
+                         "alpha_per_run": diag.alpha, "folds": diag.n_folds, "blocks": diag.n_blocks,
+                         "savgol_window_samples": sig.window, "gauss_sigma_samples": sig.gauss,
+                         "sample_rate_hz": 1.0 / sig.dt_s,
+                         "samples": sig.n, "resampled": sig.resampled,
+                         "decimation": getattr(diag, "decimation_", 1)}
+    return out
