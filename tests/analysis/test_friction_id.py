@@ -280,9 +280,10 @@ def test_selection_prefers_the_model_that_generated_the_data():
 
 # ================================================================================================ (a) the arm
 def test_table_4_1_recovered_on_the_simulated_arm(sweep_run):
-    """Coulomb within 5 %, viscous within 10 %, every joint and direction, from the written model file."""
+    """Every Coulomb level and viscous coefficient within 1 %, every joint and direction, from the written model
+    file (README: "within 1 %"; measured 2026-11: at most 0.75 %, viscous of joint 2 in the negative direction)."""
     model = FrictionModel.load(sweep_run / "friction_model.yaml")
-    checks = {"fc_pos_Nm": 0.05, "fc_neg_Nm": 0.05, "viscous_pos_Nm_s_rad": 0.10, "viscous_neg_Nm_s_rad": 0.10}
+    checks = {"fc_pos_Nm": 0.01, "fc_neg_Nm": 0.01, "viscous_pos_Nm_s_rad": 0.01, "viscous_neg_Nm_s_rad": 0.01}
     for name, tol in checks.items():
         got, want = getattr(model, name), getattr(TRUE, name)
         rel = np.abs(got / want - 1)
@@ -338,13 +339,14 @@ def test_stribeck_plant_selects_stribeck_and_recovers_breakaway():
         ji = ident.joints[j]
         assert ji.chosen == "stribeck", ji.selection
         est = ji.fits["stribeck"]
-        assert est.fs_pos_ == pytest.approx(1.5 * TRUE.fc_pos_Nm[j - 1], rel=0.10)
-        assert est.fs_neg_ == pytest.approx(1.5 * TRUE.fc_neg_Nm[j - 1], rel=0.10)
+        # README: breakaway levels within 0.5 % (measured 2026-11: 0.004 % on joint 1, 0.14 % on joint 7)
+        assert est.fs_pos_ == pytest.approx(1.5 * TRUE.fc_pos_Nm[j - 1], rel=0.005)
+        assert est.fs_neg_ == pytest.approx(1.5 * TRUE.fc_neg_Nm[j - 1], rel=0.005)
         # the classic model cannot hold both the breakaway and the sliding level
         sel = ji.selection
         assert sel.loc["stribeck", "bic_cv"] < sel.loc["classic", "bic_cv"] - 10
     assert ident.model.has_stribeck[[0, 6]].all() and not ident.model.has_stribeck[1:6].any()
-    assert ident.model.fs_pos_Nm[0] == pytest.approx(1.5 * TRUE.fc_pos_Nm[0], rel=0.10)
+    assert ident.model.fs_pos_Nm[0] == pytest.approx(1.5 * TRUE.fc_pos_Nm[0], rel=0.005)
 
 
 # ================================================================================================ (c) feed-forward
@@ -365,8 +367,10 @@ def test_identified_feedforward_lowers_rotation_error(sweep_run, tmp_path):
         runs[kind] = outcome.path
     a = rotation_metrics(load_run_data(runs["pd_g"]).data)
     b = rotation_metrics(load_run_data(runs["pd_g_ff"]).data)
+    # README: the feed-forward cuts the mean rotation error at least 50x on these joints (measured 2026-11:
+    # 120x on joint 5 to 460x on joint 7)
     for j in joints:
-        assert b.loc[j, "mean_abs_error_rad"] < 0.5 * a.loc[j, "mean_abs_error_rad"], (j, a, b)
+        assert b.loc[j, "mean_abs_error_rad"] < a.loc[j, "mean_abs_error_rad"] / 50, (j, a, b)
     # the report shows both
     doc = comparison_document(runs["pd_g"], runs["pd_g_ff"], tmp_path / "cmp")
     t = doc.to_json()["tables"]["ff_comparison"]
@@ -459,13 +463,29 @@ def test_cli_dry_run_and_wrong_kind(monkeypatch, capsys, tmp_path):
 
 
 def test_declared_model_inverse_dynamics_is_what_friction_is_measured_against():
-    """tau - inverse_dynamics removes gravity and inertia: on a rigid-body-only torque it leaves zero."""
+    """tau - inverse_dynamics removes gravity and inertia: on the torque another dynamics engine (MuJoCo's
+    inverse dynamics on the MJCF model of the same arm, frictionless, with armature) computes for a smooth
+    multi-joint motion, what is left as "friction" is zero up to the differentiation filter's error."""
+    mujoco = pytest.importorskip("mujoco")
+    from wamctl.model.mjcf import load_mujoco_model
+
+    m = load_mujoco_model()
+    d = mujoco.MjData(m)
+    t = np.arange(0, 2, DT)
+    w = 2 * np.pi * np.array([0.5, 0.3, 0.7, 0.4, 0.9, 0.6, 1.1])       # rad/s, one frequency per joint
+    amp = np.array([0.3, 0.2, 0.3, 0.25, 0.4, 0.3, 0.5])
+    q = Q0 + amp * np.sin(np.outer(t, w))
+    qd = amp * w * np.cos(np.outer(t, w))
+    qdd = -amp * w ** 2 * np.sin(np.outer(t, w))
+    tau = np.empty_like(q)
+    for i in range(len(t)):
+        d.qpos[:], d.qvel[:], d.qacc[:] = q[i], qd[i], qdd[i]
+        mujoco.mj_inverse(m, d)
+        tau[i] = d.qfrc_inverse
     dyn = WamDynamics()
-    t = np.arange(0, 1, DT)
-    q = np.tile(Q0, (len(t), 1))
-    q[:, 1] = 0.3 * np.sin(2 * t)
-    qd = np.gradient(q, DT, axis=0)
-    qdd = np.gradient(qd, DT, axis=0)
-    tau = np.array([dyn.inverse_dynamics(a, b, c) for a, b, c in zip(q, qd, qdd)])
-    f = friction_samples(t, q, tau, np.arange(100, 400), dyn)
-    assert np.abs(f).max() < 2e-3
+    assert np.abs(tau[100:900]).max() > 1.0            # a real load: gravity and inertia of several N m
+    exact = np.array([dyn.inverse_dynamics(a, b, c) for a, b, c in zip(q[::50], qd[::50], qdd[::50])])
+    assert np.abs(exact - tau[::50]).max() < 1e-9      # the two engines agree (5e-15 measured)
+    f = friction_samples(t, q, tau, np.arange(100, 900), dyn)
+    # what is left is the Savitzky-Golay derivatives' error on this motion (up to 24 rad/s^2): 2.1e-3 N m measured
+    assert np.abs(f).max() < 5e-3

@@ -102,9 +102,11 @@ def test_analysis_json_carries_every_number() -> None:
     assert d["complete_cases"]["exclusions"] == [
         {"unit": "9", "reason": "missing E2: no data; E3: no data; E5: no data; E6: no data"}]
     between = d["one_way_anova"]["hit_rate"]["table"][0]
-    assert_printed(between["ss"], "0.37364") and assert_printed(between["F"], "2.86")
+    assert_printed(between["ss"], "0.37364")
+    assert_printed(between["F"], "2.86")
     within = d["one_way_anova"]["mean_time_s"]["table"][1]
-    assert_printed(within["ss"], "3277.04") and within["df"] == 42
+    assert_printed(within["ss"], "3277.04")
+    assert within["df"] == 42
     assert d["rm_anova"]["hit_rate"]["df_error"] == 35
     assert "p_gg" in d["rm_anova"]["hit_rate"]["sphericity"]
     table = d["tables"]["hit_pct"]

@@ -146,9 +146,53 @@ def test_ift_gradient_matches_finite_differences_of_J_on_the_model(tmp_path):
         results[joint] = (np.linalg.norm(g_ift - g_fd) / np.linalg.norm(g_fd), g_ift, g_fd)
     print({j: round(v[0], 5) for j, v in results.items()})
     for joint, (rel, g_ift, g_fd) in results.items():
-        assert rel < 0.10, (joint, g_ift, g_fd)
+        # README: "within 1 %" (measured 2026-11: 0.25-0.50 % on joints 1, 4, 6, 7)
+        assert rel < 0.01, (joint, g_ift, g_fd)
         assert np.sign(g_ift[0]) == np.sign(g_fd[0]) == -1       # larger kp lowers J (friction error ~ Fc / kp)
         assert g_ift[2] == pytest.approx(g_fd[2], rel=0.10)      # and the integral gain, separately
+
+
+def test_ift_gradient_against_finite_differences_of_J_on_the_plant(tmp_path):
+    """Where it matters: the plant is not the model. It carries the undeclared 0.3 kg tool, 4096-count encoders
+    and position noise; the second experiment runs on the model (rigid body + Table 4.1 friction, ideal sensors).
+    The IFT gradient is compared with central differences of J measured on the plant itself (same noise draws
+    for every evaluation: common random numbers, as the first experiment's seed is fixed per iteration).
+
+    Compared in d J / d log(rho): the kp and the ki components each within 10 % of the plant's finite
+    differences (measured 2026-11: kp 0.05-0.3 %, ki 1.7-4 % on joints 1, 4, 7). The kd component is three
+    orders of magnitude below kp's and within the noise of J on the plant, so only its size is checked."""
+    plant = {"friction": "table_4_1", "effects": {"payload": {"mass_kg": 0.3, "com_m": [0.0, 0.0, 0.05]}},
+             "sensors": {"encoder_counts_per_rev": 4096, "position_noise_rad": 2e-5}}
+    spec = parse_spec(ift_spec(joints=[1, 4, 7]) | {"plant": plant})
+    run = RunDir.create(tmp_path, "grad-plant", {}, 0, "ift")
+    tuner = IftTuner(spec, run)
+    for joint in (1, 4, 7):
+        rho = tuner.g0[joint - 1].copy()
+        tables = IterationTables()
+        r, y1, qref, _ = tuner.first_experiment(0, joint, rho, tuner.g0, tables)
+        est = tuner.estimate(0, joint, rho, tuner.g0, r, y1, qref, tables)
+        ref, n_task = E.planning.task_reference(spec, joint, tuner.with_return)
+        seed = tuner._plant_seed(0, joint)
+
+        def J_plant(p, joint=joint, ref=ref, n_task=n_task, seed=seed):
+            rows, _, reason = tuner._run_backend(joint, E.experiments.with_joint_gains(tuner.g0, joint, p), ref,
+                                                 seed)
+            assert reason is None
+            j0 = joint - 1
+            return A.objective(rows[:n_task, E.experiments.Q_MEAS + j0] - rows[:n_task, E.experiments.Q_REF + j0])
+        assert est.J == pytest.approx(J_plant(rho), rel=1e-12)        # the same experiment
+        fd = np.zeros(3)
+        for i in range(3):
+            h = 0.05 * rho[i]
+            up, dn = rho.copy(), rho.copy()
+            up[i] += h
+            dn[i] -= h
+            fd[i] = (J_plant(up) - J_plant(dn)) / (2 * h)
+        g_ift, g_fd = est.gradient * rho, fd * rho
+        print(joint, g_ift, g_fd)
+        assert g_ift[0] == pytest.approx(g_fd[0], rel=0.10), (joint, g_ift, g_fd)
+        assert g_ift[2] == pytest.approx(g_fd[2], rel=0.10), (joint, g_ift, g_fd)
+        assert abs(g_ift[1]) < 1e-2 * abs(g_ift[0]) and abs(g_fd[1]) < 1e-2 * abs(g_fd[0])
 
 
 # ------------------------------------------------------------------------------------------------ (b) tuning
@@ -162,7 +206,11 @@ def tuned(tmp_path_factory):
     return outcome.path
 
 
-def test_tuning_lowers_J_monotonically_and_at_least_halves_it(tuned):
+def test_tuning_lowers_J_by_two_orders_of_magnitude_on_a_plant_the_model_does_not_describe(tuned):
+    """The plant carries a 0.3 kg tool that neither the gravity compensation nor the model knows. Accepted steps
+    lower J by construction (a step is kept only if J fell); what can fail is how far J falls from the initial
+    gains after the seven iterations: README "at least two orders of magnitude on every joint" (measured
+    2026-11: 2.5 orders on joint 2 to 4.2 on joint 7)."""
     it = read_iterations(tuned)
     assert sorted(it["joint"].unique()) == list(range(1, 8))
     t51 = table_5_1(it)
@@ -171,8 +219,7 @@ def test_tuning_lowers_J_monotonically_and_at_least_halves_it(tuned):
         acc = g[g["status"].isin(["initial", "accepted"])].sort_values("iteration")
         J = acc["J"].to_numpy()
         assert len(J) >= 3, joint                          # at least two accepted iterations per joint
-        assert np.all(np.diff(J) < 0), (joint, J)          # monotone over the accepted iterations
-        assert J[-1] <= 0.5 * J[0], (joint, J)
+        assert J[-1] <= 1e-2 * J[0], (joint, J)
     gt = gains_table(it)
     assert (gt["ki_tuned"] > 100 * gt["ki_initial"]).all()   # the integral action grew from Ki = Kd / 10
     lo, hi = gain_bounds(parse_spec(yaml.safe_load((tuned / "spec.yaml").read_text())))
@@ -185,13 +232,15 @@ def test_tuned_pid_final_position_rpe_and_strategy_comparison(tuned):
     ct = comparison_table(tuned)
     print(ct.to_string())
     assert list(ct.index) == list(range(1, 8))
-    assert (ct["rpe_pid_pct"] < 0.05).all(), ct["rpe_pid_pct"]
+    assert (ct["rpe_pid_pct"] < 0.05).all(), ct["rpe_pid_pct"]    # README: below 0.05 % (measured <= 0.033 %)
     # PD + gravity leaves the friction error Fc / Kp (thesis ch. 3: about 0.2-5 %); the tuned PID removes it
     assert (ct["rpe_pd_g_pct"] > ct["rpe_pid_pct"]).all()
     assert ct["rpe_pd_g_pct"].median() > 0.3 and ct["rpe_pid_pct"].median() < 0.02
-    # the thesis' figures sit beside ours
-    np.testing.assert_allclose(ct["thesis_rpe_pd_g_pct"], P.THESIS_RPE_PCT["pd_g"])
-    assert ct.loc[7, "thesis_rpe_pid_pct"] == 0.0007
+    # the thesis' figures sit beside ours, joint by joint: typed here from the thesis text (section 4.4 and
+    # section 5.4), not from the constants the report uses, so a transcription or ordering error would show
+    assert ct["thesis_rpe_pd_g_pct"].tolist() == [1.0876, 0.2342, 0.8666, 0.2912, 1.3592, 3.2848, 5.4132]
+    assert ct["thesis_rpe_pd_g_ff_pct"].tolist() == [1.1198, 0.2244, 0.8988, 0.4398, 1.2426, 1.7974, 7.2360]
+    assert ct["thesis_rpe_pid_pct"].tolist() == [0.0003, 0.0, 0.0004, 0.0003, 0.0003, 0.0003, 0.0007]
 
 
 def test_ift_report_tables_and_figures(tuned, tmp_path):
