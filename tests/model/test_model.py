@@ -141,3 +141,29 @@ def test_jacobian_matches_finite_difference_of_fk():
         dq[j] = h
         dp = (dyn.link7_pose(q + dq)[:3, 3] - dyn.link7_pose(q - dq)[:3, 3]) / (2 * h)
         np.testing.assert_allclose(J[:3, j], dp, atol=1e-6)
+
+
+def test_friction_torque_is_thesis_eq_2_8_at_hand_computed_points():
+    """The Stribeck form against values worked out by hand from eq. 2.8, ``F = Fc + (Fs - Fc) exp(-|v/vs|^d)``
+    (+ viscous), per direction: an outside reference for the one copy of the shape that the simulator, the
+    identification and the diagnosis all share (a wrong exponent there would go unnoticed by comparing them
+    with each other)."""
+    from wamctl.model.friction import FrictionModel
+
+    n = P.N_JOINTS
+    fm = FrictionModel(fc_pos_Nm=np.full(n, 2.0), fc_neg_Nm=np.full(n, 1.0),
+                       viscous_pos_Nm_s_rad=np.full(n, 0.5), viscous_neg_Nm_s_rad=np.full(n, 0.25),
+                       fs_pos_Nm=np.full(n, 3.0), fs_neg_Nm=np.full(n, 1.5), vs_rad_s=np.full(n, 0.1),
+                       stribeck_delta=np.full(n, 2.0))
+    v = np.array([[0.1, 0.2, 0.05, -0.1, -0.2, 1.0, 0.0]])
+    expected = [2 + 1 * np.exp(-1) + 0.05,          # v = vs: the excess has fallen to 1/e
+                2 + 1 * np.exp(-4) + 0.10,          # v = 2 vs, delta 2: exp(-4)
+                2 + 1 * np.exp(-0.25) + 0.025,      # v = vs / 2: exp(-1/4)
+                -(1 + 0.5 * np.exp(-1)) - 0.025,    # negative direction, its own levels
+                -(1 + 0.5 * np.exp(-4)) - 0.05,
+                2 + 1 * np.exp(-100) + 0.5,         # far above vs: Coulomb + viscous only
+                0.0]                                # at rest: no sliding friction (stiction is the simulator's)
+    np.testing.assert_allclose(fm.friction_torque(v)[0], expected, rtol=1e-12, atol=1e-15)
+    # another exponent: at v = 2 vs with delta = 1 the excess is exp(-2)
+    fm1 = FrictionModel(**{**fm.__dict__, "stribeck_delta": np.full(n, 1.0)})
+    assert fm1.friction_torque(np.full((1, n), 0.2))[0, 0] == pytest.approx(2 + np.exp(-2) + 0.1, rel=1e-12)

@@ -1,0 +1,141 @@
+"""Hand-made mutation check: does the test suite notice when the core of an estimator is broken?
+
+Each mutant below is one small, plausible bug in a module under test (a sign, an index, a constant, a dropped
+term), written as an exact text replacement. For each, the script makes a scratch copy of the committed tree
+(``git worktree``), applies the mutant, runs the tests that exercise that module, and records whether they went
+red (the mutant is *killed*) or stayed green (it *survived*: a blind spot of the tests). Nothing in the working
+tree is touched.
+
+    .venv/bin/python benchmarks/mutants.py [--only NAME ...] [--out docs/mutation-check.md]
+
+A mutant whose text is no longer found (the code moved) is reported as *stale*: update its replacement.
+"""
+
+from __future__ import annotations
+
+import argparse
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+@dataclass(frozen=True)
+class Mutant:
+    name: str
+    path: str           # module, relative to the repository
+    old: str            # exact text (must occur once)
+    new: str
+    tests: tuple[str, ...]
+    why: str            # the bug it stands for
+
+
+MUTANTS: tuple[Mutant, ...] = (
+    # ---------------------------------------------------------------- IFT (thesis ch. 5)
+    Mutant("ift-gradient-sign", "wamctl/analysis/ift.py",
+           "return psi.T @ y / len(y)",
+           "return -psi.T @ y / len(y)",
+           ("tests/experiments/test_ift.py",), "gradient of J with the wrong sign (eq. 2.15)"),
+    Mutant("ift-hessian-scale", "wamctl/analysis/ift.py",
+           "return psi.T @ psi / len(psi)",
+           "return psi.T @ psi / len(psi) / 2",
+           ("tests/experiments/test_ift.py",), "Gauss-Newton Hessian off by a factor (eq. 2.16)"),
+    # ---------------------------------------------------------------- control law
+    Mutant("pid-derivative-sign", "wamctl/control/controllers.py",
+           "out[j] = kp[j] * e + state_i[j] + kd[j] * (e - e_prev) / dt + extra[j]",
+           "out[j] = kp[j] * e + state_i[j] + kd[j] * (e_prev - e) / dt + extra[j]",
+           ("tests/backends/test_sim.py", "tests/experiments/test_ift.py::test_ift_filters_invert_the_libbarrett_pid"),
+           "derivative term of libbarrett's PID reversed"),
+    Mutant("pid-integral-current-error", "wamctl/control/controllers.py",
+           "state_i[j] += ki[j] * dt * e_prev",
+           "state_i[j] += ki[j] * dt * e",
+           ("tests/experiments/test_ift.py::test_ift_filters_invert_the_libbarrett_pid",),
+           "integral accumulates the current error instead of the previous one (libbarrett's order)"),
+    # ---------------------------------------------------------------- friction
+    Mutant("stribeck-exponent", "wamctl/model/friction.py",
+           "return np.exp(-np.abs(v / vs_rad_s) ** delta)",
+           "return np.exp(-np.abs(v / vs_rad_s) ** (delta / 2))",
+           ("tests/model/test_model.py", "tests/analysis/test_friction_id.py"), "Stribeck decay with the wrong exponent (eq. 2.8)"),
+    Mutant("classic-regressor-direction", "wamctl/model/friction.py",
+           "return np.column_stack([pos, -neg, qd * pos, qd * neg])",
+           "return np.column_stack([pos, -neg, qd * neg, qd * pos])",
+           ("tests/analysis/test_friction_id.py",), "viscous columns of the two directions swapped"),
+    # ---------------------------------------------------------------- dynamics
+    Mutant("dynamics-no-armature", "wamctl/model/dynamics.py",
+           "model.armature = P.ARMATURE_KG_M2.copy()",
+           "model.armature = 0.0 * P.ARMATURE_KG_M2",
+           ("tests/model/",), "reflected rotor inertia left out of the rigid-body model"),
+    # ---------------------------------------------------------------- ANOVA (thesis ch. 6)
+    Mutant("anova-df-within", "wamctl/analysis/anova/oneway.py",
+           "df_b, df_w = k - 1, n_total - k",
+           "df_b, df_w = k - 1, n_total - k - 1",
+           ("tests/analysis/test_anova.py", "tests/analysis/test_hmi_results.py"),
+           "error degrees of freedom of the one-way ANOVA table off by one"),
+    Mutant("greenhouse-geisser-effect-df", "wamctl/analysis/anova/repeated.py",
+           "df = (eps * df_effect, eps * df_error)",
+           "df = (df_effect, eps * df_error)",
+           ("tests/analysis/test_anova.py", "tests/analysis/test_hmi_results.py"),
+           "sphericity correction applied to the error df only"),
+)
+
+
+def run(cmd: list[str], cwd: Path, timeout: float) -> subprocess.CompletedProcess:
+    return subprocess.run(cmd, cwd=cwd, capture_output=True, text=True, timeout=timeout)
+
+
+def check(m: Mutant, tree: Path, timeout_s: float) -> tuple[str, float, str]:
+    """(verdict, seconds, detail) of one mutant in the scratch tree (restored afterwards)."""
+    path = tree / m.path
+    src = path.read_text()
+    if src.count(m.old) != 1:
+        return "stale", 0.0, f"text found {src.count(m.old)} times"
+    path.write_text(src.replace(m.old, m.new))
+    t0 = time.perf_counter()
+    try:
+        r = run([sys.executable, "-m", "pytest", "-x", "-q", "-p", "no:cacheprovider", *m.tests], tree, timeout_s)
+        verdict = "survived" if r.returncode == 0 else "killed"
+        tail = (r.stdout.strip().splitlines() or [""])[-1]
+    except subprocess.TimeoutExpired:
+        verdict, tail = "killed", "timed out"
+    finally:
+        path.write_text(src)
+    return verdict, time.perf_counter() - t0, tail
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--only", nargs="*", help="names of mutants to run (default: all)")
+    ap.add_argument("--out", type=Path, help="write the table as Markdown here")
+    ap.add_argument("--timeout", type=float, default=1200.0, help="seconds per mutant's tests")
+    args = ap.parse_args()
+    chosen = [m for m in MUTANTS if not args.only or m.name in args.only]
+    rows = []
+    with tempfile.TemporaryDirectory(prefix="wamctl-mutants-") as tmp:
+        tree = Path(tmp) / "tree"
+        run(["git", "worktree", "add", "--detach", str(tree), "HEAD"], ROOT, 120).check_returncode()
+        try:
+            for m in chosen:
+                verdict, secs, detail = check(m, tree, args.timeout)
+                rows.append((m, verdict, secs, detail))
+                print(f"{verdict:9s} {m.name:32s} {secs:6.1f} s  {detail}", flush=True)
+        finally:
+            run(["git", "worktree", "remove", "--force", str(tree)], ROOT, 120)
+    killed = sum(v == "killed" for _, v, _, _ in rows)
+    print(f"\n{killed}/{len(rows)} mutants killed")
+    if args.out:
+        lines = ["# Mutation check", "", "Written by `benchmarks/mutants.py`: each row is one deliberate bug in a "
+                 "module under test and whether the tests named went red.", "",
+                 "| mutant | module | bug | tests | verdict |", "|---|---|---|---|---|"]
+        lines += [f"| `{m.name}` | `{m.path}` | {m.why} | {', '.join(f'`{t}`' for t in m.tests)} | {v} |"
+                  for m, v, _, _ in rows]
+        lines += ["", f"{killed} of {len(rows)} mutants killed."]
+        args.out.write_text("\n".join(lines) + "\n")
+    return 0 if killed == len(rows) else 1
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
