@@ -1,4 +1,8 @@
-"""The gaze tracker's ASCII line format: parse, format, decode a stream of lines.
+"""The ``ascii-timestamped`` format: ASCII lines ``t_ms,x_px,y_px`` with the tracker's time; parse, format, decode a
+stream of lines. (The line framing is shared with the ``ascii-pair`` format of :mod:`.ascii_pair`.)
+
+This is not what an ASL tracker sends by itself (see :mod:`.asl`): it is the format of a relay program between the
+tracker and the PC, and the format wamctl used first.
 
 Line format
 -----------
@@ -26,6 +30,7 @@ from __future__ import annotations
 import logging
 import re
 
+from wamctl.backends.gaze.base import Decoded, DecodeStats
 from wamctl.hmi.gaze import BLINK_SENTINEL_PX, CORRUPT_SAMPLE, GazeFlag, GazeSample, classify
 
 logger = logging.getLogger(__name__)
@@ -137,13 +142,15 @@ class LineFramer:
         ``max_line_bytes`` and the rest of that line is skipped up to its terminator.
     """
 
-    def __init__(self, *, max_line_bytes: int = MAX_LINE_BYTES) -> None:
+    def __init__(self, *, max_line_bytes: int = MAX_LINE_BYTES, stats: DecodeStats | None = None) -> None:
         self.max_line_bytes = max_line_bytes
+        self.stats = stats if stats is not None else DecodeStats()
         self._buf = bytearray()
         self._skipping = False
 
     def feed(self, data: bytes) -> list[bytes]:
         """Add bytes; return the complete lines (without terminators) now available."""
+        self.stats.bytes += len(data)
         self._buf += data
         lines: list[bytes] = []
         while True:
@@ -152,6 +159,7 @@ class LineFramer:
                 if len(self._buf) > self.max_line_bytes:
                     if not self._skipping:
                         lines.append(bytes(self._buf[: self.max_line_bytes + 1]))
+                        self._overlong(self._buf)
                     self._skipping = True
                     self._buf.clear()
                 return lines
@@ -160,11 +168,20 @@ class LineFramer:
                 self._skipping = False
             elif end:  # an over-long line is cut to max_line_bytes + 1: enough to be flagged
                 lines.append(bytes(self._buf[: min(end, self.max_line_bytes + 1)]))
+                if end > self.max_line_bytes:
+                    self._overlong(self._buf[:end])
             del self._buf[: end + 1]
+
+    def _overlong(self, line: bytes | bytearray) -> None:
+        # counted as a corrupt sample by the decoder; the example shows the whole start of the line
+        self.stats.example("corrupt", bytes(line), f"no line end within {self.max_line_bytes} bytes")
 
     def flush(self) -> bool:
         """Drop the unterminated tail; return True when there was one (a line cut short)."""
         cut = bool(self._buf) and not self._skipping
+        if cut:
+            self.stats.cut_frames += 1
+            self.stats.example("cut", bytes(self._buf), "unterminated at the end of the stream")
         self._buf.clear()
         self._skipping = False
         return cut
@@ -172,8 +189,9 @@ class LineFramer:
 
 
 class LineStreamDecoder:
-    """The line format as a stream decoder: :class:`LineFramer` splits the bytes, :class:`GazeLineDecoder`
-    decodes each line (see :class:`~wamctl.backends.gaze.base.GazeStreamDecoder`).
+    """The ``ascii-timestamped`` format as a stream decoder: :class:`LineFramer` splits the bytes,
+    :class:`GazeLineDecoder` decodes each line (see :class:`~wamctl.backends.gaze.base.GazeStreamDecoder`).
+    The sample's time is the tracker's (``t_ms``); the arrival time is kept beside it.
 
     Parameters
     ----------
@@ -183,18 +201,30 @@ class LineStreamDecoder:
         See :class:`GazeLineDecoder`.
     """
 
+    format = "ascii-timestamped"
+
     def __init__(self, *, max_line_bytes: int = MAX_LINE_BYTES, resync_after: int = 3) -> None:
-        self.framer = LineFramer(max_line_bytes=max_line_bytes)
+        self.stats = DecodeStats()
+        self.framer = LineFramer(max_line_bytes=max_line_bytes, stats=self.stats)
         self.lines = GazeLineDecoder(max_line_bytes=max_line_bytes, resync_after=resync_after)
 
     def feed(self, data: bytes) -> list[bytes]:
         """Add bytes; return the complete lines (without terminators) now available."""
-        return self.framer.feed(data)
+        lines = self.framer.feed(data)
+        self.stats.frames += len(lines)
+        return lines
 
     def flush(self) -> bool:
         """Drop the unterminated tail; True when there was one (a line cut short)."""
         return self.framer.flush()
 
-    def decode(self, frame: bytes) -> GazeSample | None:
+    def decode(self, frame: bytes, arrival_s: float) -> Decoded | None:
         """Decode one line; ``None`` for blank and comment lines."""
-        return self.lines.decode(frame)
+        sample = self.lines.decode(frame)
+        if sample is None:
+            return None
+        self.stats.count(sample)
+        if sample.flags & GazeFlag.CORRUPT and len(frame) <= self.framer.max_line_bytes:
+            self.stats.example("corrupt", frame, "not t_ms,x_px,y_px, or a time that does not increase")
+        fields = {} if not sample.has_time else {"raw_x": sample.x_px, "raw_y": sample.y_px}
+        return Decoded(sample, arrival_s, fields)

@@ -1,21 +1,35 @@
-"""Recorded gaze files and their replay.
+"""Recorded gaze and its replay: decoded samples, and raw byte captures played back through a decoder.
 
 Recorded gaze files are CSV with a header naming at least ``t_s,x_px,y_px`` (extra columns are ignored); see
 :func:`read_gaze_csv` and :func:`write_gaze_csv`. :class:`ReplayGazeSource` plays samples back, as fast as they are
 read or paced on the wall clock.
+
+Raw captures (:mod:`.capture`) are replayed two ways (the ``replay-raw`` source of an ``hmi_block``):
+:class:`RawReplaySource` feeds the recorded reads to a fresh decoder in-process, stamped with their recorded
+arrival times, so it gives exactly the samples of the live session; :class:`PtyReplaySource` writes them at their
+recorded pace into a pseudo-terminal read by a :class:`~wamctl.backends.gaze.serial.SerialGazeSource`, the whole
+live path with new arrival stamps.
 """
 
 from __future__ import annotations
 
 import csv
+import logging
 import math
 import os
-from collections.abc import Iterable, Sequence
+import threading
+import time
+from collections import deque
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
 
-from wamctl.backends.gaze.base import RealtimePacer, SourceBase
+from wamctl.backends.gaze.base import Decoded, DecodeStats, GazeStreamDecoder, RealtimePacer, SourceBase, cut_tail
+from wamctl.backends.gaze.capture import CaptureSection, read_capture
+from wamctl.backends.gaze.serial import SerialGazeSource
 from wamctl.errors import DataFormatError
 from wamctl.hmi.gaze import GazeSample, classify
+
+log = logging.getLogger(__name__)
 
 
 def read_gaze_csv(path: str | os.PathLike) -> list[GazeSample]:
@@ -122,3 +136,168 @@ class ReplayGazeSource(SourceBase):
         self._i += 1
         return sample
 
+
+
+def merge_stats(stats: Sequence[DecodeStats]) -> DecodeStats:
+    """The counts of several decoders (one per section of a capture) added up; the first examples kept."""
+    out = DecodeStats()
+    for st in stats:
+        for k in ("bytes", "frames", "samples", "valid", "blink", "out_of_range", "corrupt", "garbage_bytes",
+                  "cut_frames", "bad_frames", "dropped_frames", "clock_adjusts"):
+            setattr(out, k, getattr(out, k) + getattr(st, k))
+        for kind, examples in st.examples.items():
+            kept = out.examples.setdefault(kind, [])
+            kept.extend(examples[: max(0, 3 - len(kept))])
+        out.extra.update(st.extra)
+    return out
+
+
+class RawReplaySource(SourceBase):
+    """A raw capture played back through a decoder in-process: each section (one opening of the port) through a
+    fresh decoder, each read stamped with its recorded arrival time, so the samples are those of the live session.
+
+    Parameters
+    ----------
+    sections : sequence of CaptureSection
+        From :func:`~wamctl.backends.gaze.capture.read_capture`.
+    make_decoder : callable
+        ``make_decoder() -> GazeStreamDecoder``, called once per section.
+    realtime : bool
+        If True, reads are held back until their recorded time has come on the wall clock.
+    timeout_s : float
+        Default wait of :meth:`read` (only matters when ``realtime``).
+    """
+
+    def __init__(self, sections: Sequence[CaptureSection], make_decoder: Callable[[], GazeStreamDecoder], *,
+                 realtime: bool = False, timeout_s: float = 0.1) -> None:
+        self._sections = list(sections)
+        self._make_decoder = make_decoder
+        self.realtime = realtime
+        self.timeout_s = timeout_s
+        self._pacer = RealtimePacer()
+        self._section = -1
+        self._chunk = 0
+        self._frames: deque[tuple[bytes | None, float]] = deque()
+        self.decoders: list[GazeStreamDecoder] = []
+        self._next_section()
+
+    @classmethod
+    def from_capture(cls, path: str | os.PathLike, make_decoder: Callable[[], GazeStreamDecoder], *,
+                     realtime: bool = False) -> RawReplaySource:
+        """Replay a capture file (``DataFormatError`` if it is malformed or holds no bytes)."""
+        sections = read_capture(path)
+        if not any(s.chunks for s in sections):
+            raise DataFormatError(f"{path}: the capture holds no bytes")
+        return cls(sections, make_decoder, realtime=realtime)
+
+    @property
+    def stats(self) -> DecodeStats:
+        return merge_stats([d.stats for d in self.decoders])
+
+    @property
+    def exhausted(self) -> bool:
+        return self._section >= len(self._sections) and not self._frames
+
+    def _next_section(self) -> None:
+        self._section += 1
+        self._chunk = 0
+        if self._section < len(self._sections):
+            self.decoders.append(self._make_decoder())
+
+    def read(self, timeout_s: float | None = None) -> GazeSample | None:
+        d = self.read_decoded(timeout_s)
+        return None if d is None else d.sample
+
+    def read_decoded(self, timeout_s: float | None = None) -> Decoded | None:
+        self._check_open()
+        while True:
+            while self._frames:
+                frame, arrival_s = self._frames.popleft()
+                decoder = self.decoders[-1] if frame is not None else None
+                decoded = cut_tail(arrival_s) if decoder is None else decoder.decode(frame, arrival_s)
+                if decoded is not None:
+                    return decoded
+            if self._section >= len(self._sections):
+                return None
+            section = self._sections[self._section]
+            decoder = self.decoders[-1]
+            if self._chunk >= len(section.chunks):
+                if decoder.flush():
+                    last_s = section.chunks[-1][0] if section.chunks else math.nan
+                    self._frames.append((None, last_s))
+                self._next_section()
+                continue
+            t_s, data = section.chunks[self._chunk]
+            if self.realtime and not self._pacer.wait(t_s, self.timeout_s if timeout_s is None else timeout_s):
+                return None
+            self._chunk += 1
+            self._frames.extend((f, t_s) for f in decoder.feed(data))
+
+
+class _PtyPlayer:
+    """Writes recorded reads into the master side of a pseudo-terminal at their recorded pace (a thread)."""
+
+    def __init__(self, sections: Sequence[CaptureSection], *, speed: float = 1.0) -> None:
+        import pty
+        import tty
+
+        self._chunks = [c for s in sections for c in s.chunks]
+        self.speed = speed
+        self.master_fd, self.slave_fd = pty.openpty()
+        tty.setraw(self.slave_fd)  # no echo or line editing before the reader configures the port
+        self.path = os.ttyname(self.slave_fd)
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._play, name="gaze-pty-replay", daemon=True)
+
+    def start(self) -> None:
+        self._thread.start()
+
+    def _play(self) -> None:
+        if not self._chunks:
+            return
+        t0_rec, t0 = self._chunks[0][0], time.monotonic()
+        for t_s, data in self._chunks:
+            due = t0 + (t_s - t0_rec) / self.speed
+            if self._stop.wait(max(0.0, due - time.monotonic())):
+                return
+            view = memoryview(data)
+            while view:
+                view = view[os.write(self.master_fd, view):]
+
+    def close(self) -> None:
+        self._stop.set()
+        self._thread.join(2.0)
+        for fd in (self.master_fd, self.slave_fd):
+            try:
+                os.close(fd)
+            except OSError:
+                pass
+
+
+class PtyReplaySource(SerialGazeSource):
+    """A raw capture written at its recorded pace into a pseudo-terminal and read back by the serial source (the
+    whole live path: port settings, reads, arrival stamps). Exhausted ``eof_idle_s`` after the last byte.
+
+    Parameters
+    ----------
+    sections : sequence of CaptureSection
+        What to play.
+    speed : float
+        Playback speed (1: as recorded).
+    **serial_options
+        For :class:`~wamctl.backends.gaze.serial.SerialGazeSource` (``format``/``decoder``, ``baudrate``, ...).
+    """
+
+    def __init__(self, sections: Sequence[CaptureSection], *, speed: float = 1.0, eof_idle_s: float = 1.0,
+                 **serial_options) -> None:
+        self._player = _PtyPlayer(sections, speed=speed)
+        try:
+            super().__init__(self._player.path, eof_idle_s=eof_idle_s, **serial_options)
+        except BaseException:
+            self._player.close()
+            raise
+        self._player.start()  # after the open: pyserial flushes the input when it opens a port
+
+    def _close(self) -> None:
+        super()._close()
+        self._player.close()

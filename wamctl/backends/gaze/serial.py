@@ -1,22 +1,37 @@
 """The gaze tracker on a serial port (pyserial): bytes in, classified samples out, through a stream decoder.
 
-The decoder is a plug-in (:class:`~wamctl.backends.gaze.base.GazeStreamDecoder`): the ASCII line format of
-:mod:`wamctl.backends.gaze.line_format` by default; a binary format of the tracker is a module next to it whose
-decoder is passed as ``decoder=``.
+The decoder is a plug-in chosen by format name (:mod:`wamctl.backends.gaze.formats`: ``asl-serial-out``, the
+tracker's own binary output and the default; ``ascii-pair``; ``ascii-timestamped``) or passed as ``decoder=``.
+
+Arrival stamps: each read returns as soon as a byte is there (``read(1)`` with a short timeout, then what else is
+waiting), and the frames it completes are stamped with ``time.monotonic()`` taken when the read returned. For the
+formats without a tracker clock that stamp is the sample's time. What delays it: the transport (a USB serial
+adapter holds bytes up to its latency timer, 16 ms by default on FTDI chips; see the README), the operating system's
+scheduling, and in a busy Python process the GIL. Several frames completed by one read share its stamp.
+
+Every read can go to a capture file (:class:`~wamctl.backends.gaze.capture.CaptureWriter`) as it arrives; the first
+:data:`HEAD_BYTES` bytes are also kept in memory, to say what arrived when nothing decoded.
 """
 
 from __future__ import annotations
 
+import datetime as _dt
 import logging
 import time
 from collections import deque
 
-from wamctl.backends.gaze.base import GazeStreamDecoder, SourceBase
-from wamctl.backends.gaze.line_format import MAX_LINE_BYTES, LineStreamDecoder
+from wamctl.backends.gaze.base import Decoded, GazeStreamDecoder, SourceBase, cut_tail
+from wamctl.backends.gaze.capture import CaptureWriter
+from wamctl.backends.gaze.formats import DEFAULT_FORMAT, make_decoder
 from wamctl.errors import BackendError
-from wamctl.hmi.gaze import CORRUPT_SAMPLE, GazeSample
+from wamctl.hmi.gaze import GazeSample
 
 logger = logging.getLogger(__name__)
+
+#: Bytes kept in memory from the start of the stream (for diagnosis when nothing decodes).
+HEAD_BYTES = 8192
+PARITIES = {"none": "N", "even": "E", "odd": "O", "mark": "M", "space": "S"}
+FLOW_CONTROLS = ("none", "rtscts", "xonxoff", "dsrdtr")
 
 
 class SerialGazeSource(SourceBase):
@@ -27,18 +42,24 @@ class SerialGazeSource(SourceBase):
     url : str
         Device path or pyserial URL, passed to ``serial.serial_for_url``.
     baudrate : int
-        Line speed (ignored by ``loop://`` and ``socket://``).
+        Line speed (ignored by ``loop://`` and ``socket://``); 57600, the ASL Serial Out rate, by default.
+    bytesize, parity, stopbits : int, str, float
+        Character format: 8, ``"none"`` (or ``even``, ``odd``, ``mark``, ``space``), 1 (or 1.5, 2).
+    flow_control : str
+        ``none`` (the tracker streams without handshake), ``rtscts``, ``xonxoff`` or ``dsrdtr``.
+    format : str
+        Stream format (:data:`wamctl.backends.gaze.formats.FORMATS`), unless ``decoder`` is given.
+    decoder : GazeStreamDecoder or None
+        How the bytes become samples (overrides ``format``).
     timeout_s : float
         Default wait of :meth:`read`.
     poll_s : float
         Longest single blocking read on the port; bounds how late a ``read`` returns after its timeout.
-    max_line_bytes : int
-        Longer lines are ``CORRUPT`` (for the default line decoder).
     eof_idle_s : float or None
         If set, the source is exhausted after this long without a byte (useful for files and ptys whose
         writer never hangs up). A closed connection exhausts it in any case.
-    decoder : GazeStreamDecoder or None
-        How the bytes become samples; the line format (:class:`LineStreamDecoder`) if None.
+    capture : CaptureWriter or str or path or None
+        Where every read goes as it arrives (a path opens a :class:`CaptureWriter`, closed with the source).
 
     Raises
     ------
@@ -46,24 +67,42 @@ class SerialGazeSource(SourceBase):
         When the port cannot be opened.
     """
 
-    def __init__(self, url: str, *, baudrate: int = 115200, timeout_s: float = 0.1, poll_s: float = 0.01,
-                 max_line_bytes: int = MAX_LINE_BYTES, eof_idle_s: float | None = None,
-                 decoder: GazeStreamDecoder | None = None) -> None:
+    def __init__(self, url: str, *, baudrate: int = 57600, bytesize: int = 8, parity: str = "none",
+                 stopbits: float = 1, flow_control: str = "none", format: str = DEFAULT_FORMAT,
+                 decoder: GazeStreamDecoder | None = None, timeout_s: float = 0.1, poll_s: float = 0.01,
+                 eof_idle_s: float | None = None, capture=None) -> None:
         import serial  # pyserial is only needed here
 
+        if parity not in PARITIES or flow_control not in FLOW_CONTROLS:
+            raise ValueError(f"parity {parity!r} / flow_control {flow_control!r}: expected one of "
+                             f"{', '.join(PARITIES)} / {', '.join(FLOW_CONTROLS)}")
         self.url = url
         self.timeout_s = timeout_s
         self.eof_idle_s = eof_idle_s
+        self.decoder = decoder if decoder is not None else make_decoder(format)
+        self.format = getattr(self.decoder, "format", format)
+        self.settings = {"url": url, "baudrate": baudrate, "bytesize": bytesize, "parity": PARITIES[parity],
+                         "stopbits": stopbits, "flow_control": flow_control, "format": self.format}
         self._serial_error = serial.SerialException
-        self._decoder = decoder if decoder is not None else LineStreamDecoder(max_line_bytes=max_line_bytes)
-        self._frames: deque[bytes | None] = deque()  # None: a frame cut short by the end of the stream
+        self._frames: deque[tuple[bytes | None, float]] = deque()  # None: a frame cut short by the end of the stream
         self._exhausted = False
+        self.reads = 0
+        self.head: list[tuple[float, bytes]] = []  # the first HEAD_BYTES bytes, as read
+        self._head_bytes = 0
         try:
-            self._port = serial.serial_for_url(url, baudrate=baudrate, timeout=poll_s)
+            self._port = serial.serial_for_url(
+                url, baudrate=baudrate, bytesize=bytesize, parity=PARITIES[parity], stopbits=stopbits,
+                rtscts=flow_control == "rtscts", xonxoff=flow_control == "xonxoff",
+                dsrdtr=flow_control == "dsrdtr", timeout=poll_s)
         except (serial.SerialException, ValueError, OSError) as exc:
             raise BackendError(f"gaze tracker: cannot open serial port {url!r}: {exc}") from exc
-        self._last_rx_s = time.monotonic()
-        logger.info("gaze tracker serial port %s open at %d Bd", url, baudrate)
+        self.opened_s = self._last_rx_s = time.monotonic()
+        self.first_rx_s: float | None = None
+        if capture is not None and not isinstance(capture, CaptureWriter):
+            capture = CaptureWriter(capture, {**self.settings, "opened_utc": _dt.datetime.now(
+                _dt.timezone.utc).isoformat(timespec="milliseconds"), "opened_monotonic_s": self.opened_s})
+        self.capture: CaptureWriter | None = capture
+        logger.info("gaze tracker serial port %s open at %d Bd, format %s", url, baudrate, self.format)
 
     @property
     def port(self):
@@ -71,18 +110,28 @@ class SerialGazeSource(SourceBase):
         return self._port
 
     @property
+    def stats(self):
+        """What the decoder has seen (:class:`~wamctl.backends.gaze.base.DecodeStats`)."""
+        return self.decoder.stats
+
+    @property
     def exhausted(self) -> bool:
         return self._exhausted and not self._frames
 
     def read(self, timeout_s: float | None = None) -> GazeSample | None:
+        d = self.read_decoded(timeout_s)
+        return None if d is None else d.sample
+
+    def read_decoded(self, timeout_s: float | None = None) -> Decoded | None:
+        """Next decoded frame (sample, arrival time, raw fields), or None as :meth:`read`."""
         self._check_open()
         deadline = time.monotonic() + (self.timeout_s if timeout_s is None else timeout_s)
         while True:
             while self._frames:
-                frame = self._frames.popleft()
-                sample = CORRUPT_SAMPLE if frame is None else self._decoder.decode(frame)
-                if sample is not None:
-                    return sample
+                frame, arrival_s = self._frames.popleft()
+                decoded = cut_tail(arrival_s) if frame is None else self.decoder.decode(frame, arrival_s)
+                if decoded is not None:
+                    return decoded
             if self._exhausted:
                 return None
             self._receive()
@@ -101,22 +150,34 @@ class SerialGazeSource(SourceBase):
             ended = exc
         now = time.monotonic()
         if data:
-            self._last_rx_s = now
-            self._frames.extend(self._decoder.feed(bytes(data)))
+            self._got(bytes(data), now)
         if ended is not None:
             logger.warning("gaze tracker %s: connection ended (%s)", self.url, ended)
-            self._end_of_stream()
+            self._end_of_stream(now)
         elif not data and self.eof_idle_s is not None and now - self._last_rx_s > self.eof_idle_s:
             logger.info("gaze tracker %s: no data for %.2f s, end of stream", self.url, self.eof_idle_s)
-            self._end_of_stream()
+            self._end_of_stream(now)
 
-    def _end_of_stream(self) -> None:
+    def _got(self, data: bytes, now: float) -> None:
+        self._last_rx_s = now
+        if self.first_rx_s is None:
+            self.first_rx_s = now
+        self.reads += 1
+        if self._head_bytes < HEAD_BYTES:
+            self.head.append((now, data))
+            self._head_bytes += len(data)
+        if self.capture is not None:
+            self.capture.write(now, data)
+        self._frames.extend((f, now) for f in self.decoder.feed(data))
+
+    def _end_of_stream(self, now: float) -> None:
         self._exhausted = True
-        if self._decoder.flush():
-            self._frames.append(None)  # an unterminated tail may be cut short, whatever it holds
+        if self.decoder.flush():
+            self._frames.append((None, now))  # an unterminated tail may be cut short, whatever it holds
 
     def _close(self) -> None:
         self._exhausted = True
         self._port.close()
+        if self.capture is not None:
+            self.capture.close()
         logger.info("gaze tracker serial port %s closed", self.url)
-
