@@ -363,7 +363,8 @@ def test_serial_block_gives_the_same_commands_as_the_replay(tmp_path):
     base = {"kind": "hmi_block", "seed": 1,
             "hmi": {"subject": {"id": "P01"}, "locations": ["P4"], "start": "auto", "timeout_s": 20}}
     serial = parse_spec({**base, "name": "serial",
-                         "hmi": {**base["hmi"], "source": {"kind": "serial", "url": f"socket://127.0.0.1:{port}"}}})
+                         "hmi": {**base["hmi"], "source": {"kind": "serial", "url": f"socket://127.0.0.1:{port}",
+                                                          "format": "ascii-timestamped"}}})
     replay = parse_spec({**base, "name": "replay", "hmi": {**base["hmi"], "source": {"kind": "replay",
                                                                                       "path": "gaze.csv"}}})
     out_r = run_spec(replay, tmp_path, tmp_path / "runs", make_report=False)

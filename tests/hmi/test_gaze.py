@@ -184,7 +184,7 @@ def test_serial_reader_survives_garbage_through_loop():
     rng = np.random.default_rng(7)
     data, good, n_blink = _garbage_stream(rng)
     samples = []
-    with SerialGazeSource("loop://", timeout_s=0.05, eof_idle_s=0.2) as src:
+    with SerialGazeSource("loop://", format="ascii-timestamped", timeout_s=0.05, eof_idle_s=0.2) as src:
         for start in range(0, len(data), 1000):  # loop:// holds 4096 bytes: write and read in turns
             src.port.write(data[start:start + 1000])
             while (s := src.read(0.0)) is not None:
@@ -247,10 +247,11 @@ def test_serial_session_gives_same_commands_as_replay(transport, tmp_path):
     go = threading.Event()
     if transport == "socket":
         port, thread = _serve_tcp(data, go)
-        source = SerialGazeSource(f"socket://127.0.0.1:{port}", timeout_s=0.05)
+        source = SerialGazeSource(f"socket://127.0.0.1:{port}", format="ascii-timestamped", timeout_s=0.05)
     else:
         master_fd, slave_fd = os.openpty()
-        source = SerialGazeSource(os.ttyname(slave_fd), baudrate=115200, timeout_s=0.05, eof_idle_s=0.5)
+        source = SerialGazeSource(os.ttyname(slave_fd), format="ascii-timestamped", baudrate=115200,
+                                  timeout_s=0.05, eof_idle_s=0.5)
 
         def write_all():
             go.wait(5.0)
@@ -490,7 +491,7 @@ def test_corrupt_only_stream_stalls_on_the_callers_clock():
 
 
 def test_drive_with_clock_polls_a_silent_port():
-    with SerialGazeSource("loop://", timeout_s=0.02, eof_idle_s=0.3) as src:
+    with SerialGazeSource("loop://", format="ascii-timestamped", timeout_s=0.02, eof_idle_s=0.3) as src:
         out = list(drive(src, make_gaze_controller(strategy="four", profile="single"), clock=time.monotonic,
                          read_timeout_s=0.05))
     assert out and all(s is None and c.hold is Hold.NO_GAZE for s, c in out)

@@ -5,6 +5,7 @@ velocity profile, the spots on the table, the geometry of table, tool and scene 
 from __future__ import annotations
 
 import math
+import re
 from typing import Annotated, Literal
 
 from pydantic import Field, model_validator
@@ -49,11 +50,82 @@ class VirtualSourceSpec(Strict):
     kind: Literal["virtual"] = "virtual"
 
 
-class SerialSourceSpec(Strict):
+# The gaze stream formats and the ASL Serial Out item types: the decoders live in wamctl.backends.gaze (formats.py,
+# asl.py), above this layer; tests/backends/test_gaze_formats.py checks that these lists match theirs.
+STREAM_FORMATS = ("asl-serial-out", "ascii-pair", "ascii-timestamped")
+ASL_FIELD_TYPES = ("u8", "i8", "u16", "i16", "u32", "i32", "f32")
+ASL_STANDARD_FIELDS = ("status:u8", "pupil:i16", "spare:u8", "x:i16", "y:i16")
+_ASL_FIELD_RE = re.compile(rf"[A-Za-z_][A-Za-z0-9_]*:(?:{'|'.join(ASL_FIELD_TYPES)})")
+
+
+class AslOptions(Strict):
+    """Options of the ``asl-serial-out`` format (see :mod:`wamctl.backends.gaze.asl`)."""
+
+    fields: list[str] = Field(default_factory=lambda: list(ASL_STANDARD_FIELDS),
+                              description="the Serial Out items in order, NAME:TYPE; x and y required; pupil, "
+                                          "status, counter have a meaning")
+    byte_order: Literal["big", "little"] = Field("big", description="of multi-byte items (the tracker: big)")
+    blink: Literal["either", "pupil-zero", "sentinel"] = Field(
+        "either", description="pupil-zero: pupil diameter 0 (the tracker's loss code); sentinel: gaze (-2000, -2000) "
+                              "(the thesis' relay); either")
+    scale: Annotated[list[float], Field(min_length=2, max_length=2)] = Field(
+        default_factory=lambda: [1.0, 1.0], description="pixels per tracker unit, x and y")
+    offset_px: Annotated[list[float], Field(min_length=2, max_length=2)] = Field(default_factory=lambda: [0.0, 0.0])
+    counter_hz: float = Field(30.0, gt=0.0, le=2000.0, description="counts per second of the counter item")
+
+    @model_validator(mode="after")
+    def _check(self):
+        names = []
+        for k, item in enumerate(self.fields):
+            if not _ASL_FIELD_RE.fullmatch(item):
+                raise ValueError(f"fields[{k}]: {item!r} is not NAME:TYPE with TYPE one of "
+                                 f"{', '.join(ASL_FIELD_TYPES)}")
+            names.append(item.partition(":")[0])
+        for role in ("x", "y"):
+            if role not in names:
+                raise ValueError(f"fields: no {role!r} item (name the gaze coordinates x and y)")
+        if len(set(names)) != len(names):
+            raise ValueError("fields: a name appears twice")
+        if "counter" in names and not self.fields[names.index("counter")].endswith((":u8", ":u16", ":u32")):
+            raise ValueError("fields: the counter must be unsigned (u8, u16 or u32)")
+        if self.blink == "pupil-zero" and "pupil" not in names:
+            raise ValueError("blink: pupil-zero needs a pupil item in fields")
+        return self
+
+
+class StreamSpec(Strict):
+    """How the bytes of a tracker stream are decoded: ``format`` and its options."""
+
+    format: Literal["asl-serial-out", "ascii-pair", "ascii-timestamped"] = Field(
+        "asl-serial-out", description="asl-serial-out: the tracker's binary Serial Out; ascii-pair: 'x,y' lines "
+                                      "(thesis); ascii-timestamped: 't_ms,x_px,y_px' lines")
+    asl: AslOptions | None = Field(None, description="options of asl-serial-out (default: the standard items)")
+
+    @model_validator(mode="after")
+    def _asl_only(self):
+        if self.asl is not None and self.format != "asl-serial-out":
+            raise ValueError(f"asl: options of the asl-serial-out format, but format is {self.format}")
+        return self
+
+    def decoder_options(self) -> dict:
+        """Keyword arguments of the format's decoder."""
+        if self.format != "asl-serial-out":
+            return {}
+        a = self.asl or AslOptions()
+        return {"fields": list(a.fields), "byte_order": a.byte_order, "blink": a.blink, "scale": tuple(a.scale),
+                "offset_px": tuple(a.offset_px), "counter_hz": a.counter_hz}
+
+
+class SerialSourceSpec(StreamSpec):
     kind: Literal["serial"]
     url: str = Field(description="device path or pyserial URL (socket://host:port, loop://, a pty)")
-    baudrate: int = Field(115200, gt=0)
+    baudrate: int = Field(57600, gt=0, description="57600: ASL Serial Out")
+    bytesize: Literal[5, 6, 7, 8] = 8
+    parity: Literal["none", "even", "odd", "mark", "space"] = "none"
+    stopbits: Literal[1, 1.5, 2] = 1
+    flow_control: Literal["none", "rtscts", "xonxoff", "dsrdtr"] = "none"
     eof_idle_s: float | None = Field(None, gt=0.0, description="end of stream after this long without a byte")
+    start_timeout_s: float = Field(30.0, gt=0.0, le=600.0, description="longest wait for the first sample")
 
 
 class ReplaySourceSpec(Strict):
@@ -61,7 +133,20 @@ class ReplaySourceSpec(Strict):
     path: str = Field(description="gaze file (CSV t_s,x_px,y_px), relative to the spec's folder")
 
 
-SourceSpec = Annotated[VirtualSourceSpec | SerialSourceSpec | ReplaySourceSpec, Field(discriminator="kind")]
+class RawReplaySourceSpec(StreamSpec):
+    """A raw byte capture (``gaze_capture.txt`` of a run, ``gaze-check --capture``) decoded again: in-process with the
+    recorded arrival times (``via: direct``), or written at its recorded pace into a pseudo-terminal read as a serial
+    port (``via: pty``)."""
+
+    kind: Literal["replay-raw"]
+    path: str = Field(description="capture file, relative to the spec's folder")
+    via: Literal["direct", "pty"] = "direct"
+    realtime: bool = Field(False, description="direct: pace the reads on the wall clock (pty always does)")
+    start_timeout_s: float = Field(30.0, gt=0.0, le=600.0, description="longest wait for the first sample")
+
+
+SourceSpec = Annotated[VirtualSourceSpec | SerialSourceSpec | ReplaySourceSpec | RawReplaySourceSpec,
+                       Field(discriminator="kind")]
 
 
 class FilterSpec(Strict):

@@ -37,6 +37,7 @@ import struct
 from collections import deque
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
+from functools import cached_property
 from typing import Literal
 
 from wamctl.backends.gaze.base import Decoded, DecodeStats
@@ -137,14 +138,14 @@ class AslLayout:
     def names(self) -> tuple[str, ...]:
         return tuple(n for n, _ in self.fields)
 
-    @property
-    def struct(self) -> struct.Struct:
+    @cached_property
+    def packer(self) -> struct.Struct:
         codes = "".join(FIELD_TYPES[t] for _, t in self.fields)
         return struct.Struct((">" if self.byte_order == "big" else "<") + codes)
 
     @property
     def n_data(self) -> int:
-        return self.struct.size
+        return self.packer.size
 
     @property
     def n_wire(self) -> int:
@@ -155,11 +156,11 @@ class AslLayout:
         return None if kind is None else 1 << (8 * struct.calcsize(FIELD_TYPES[kind]))
 
     def values(self, data: bytes) -> dict[str, float]:
-        return dict(zip(self.names, self.struct.unpack(data)))
+        return dict(zip(self.names, self.packer.unpack(data)))
 
     def encode(self, values: Mapping[str, float]) -> bytes:
         """The wire bytes of one frame (missing items are 0): the tracker's side, for simulated trackers."""
-        return pack_7bit(self.struct.pack(*(values.get(n, 0) for n in self.names)))
+        return pack_7bit(self.packer.pack(*(values.get(n, 0) for n in self.names)))
 
     def describe(self) -> str:
         return ", ".join(f"{n}:{t}" for n, t in self.fields)

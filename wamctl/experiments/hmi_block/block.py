@@ -15,7 +15,7 @@ from wamctl.backends import make_backend
 from wamctl.backends.gaze.virtual import VirtualSubject
 from wamctl.errors import BackendError
 from wamctl.experiments.common import make_joint_controller
-from wamctl.experiments.hmi_block.feeds import STREAM_START_TIMEOUT_S, open_feed
+from wamctl.experiments.hmi_block.feeds import open_feed
 from wamctl.experiments.hmi_block.planning import HmiPlan, Trial, trial_seed
 from wamctl.experiments.hmi_block.supervisor import Supervisor
 from wamctl.experiments.hmi_block.tables import (
@@ -172,7 +172,7 @@ class HmiBlock:
             log.info("every trial of %s is done", self.run.path)
             return
         ff, friction_ff = self._friction_feedforward()
-        self.feed = open_feed(h, self.base_dir)
+        self.feed = open_feed(h, self.base_dir, self.run.path)
         try:
             with make_backend(self.spec, self.base_dir) as backend:
                 self.run.update_manifest(backend=backend.describe())
@@ -244,9 +244,8 @@ class HmiBlock:
         """Hold until the gaze stream delivers its first sample (a recorded one at once)."""
         if self.feed.started:
             return
-        if not self._tick_until(lambda: self.feed.started, STREAM_START_TIMEOUT_S, pace=True):
-            raise BackendError(f"no gaze sample from {self.h.source.kind} source within {STREAM_START_TIMEOUT_S:g} s "
-                               f"(is the tracker streaming?)")
+        if not self._tick_until(lambda: self.feed.started, self.feed.start_timeout_s, pace=True):
+            raise BackendError(self.feed.no_sample_message(self.feed.start_timeout_s))
         self._event("stream_start", f"first gaze sample at tracker time {self.feed.offset_s:.3f} s")
 
     def _go_home(self) -> None:

@@ -1,24 +1,93 @@
 """The gaze on the arm clock: the current trial's virtual subject (:class:`VirtualFeed`) or a recorded or live
-tracker stream (:class:`StreamFeed`), chosen by the spec's ``hmi.source`` (:func:`open_feed`)."""
+tracker stream (:class:`StreamFeed`), chosen by the spec's ``hmi.source`` (:func:`open_feed`).
+
+What a stream leaves in the run directory (:class:`StreamRecord`): for a serial tracker, ``gaze_capture.txt``, the
+raw bytes of every read with its arrival time (:mod:`wamctl.backends.gaze.capture`); for every decoded stream,
+``gaze_samples.csv``, one row per decoded frame (:data:`wamctl.backends.gaze.base.RECORD_COLUMNS`: arrival time,
+sample time, gaze, flags, and the frame's raw x/y, pupil, status and counter when it has them), both appended and
+flushed as they come; and when the stream closes, ``gaze_stream.json``, the decoder's counts (samples, blinks,
+framing and decode errors with their first examples in hex) that the report shows.
+"""
 
 from __future__ import annotations
 
+import json
 import logging
+import math
 import queue
 import threading
 import time
 from collections.abc import Callable
 from pathlib import Path
 
+from wamctl.backends.gaze.base import RECORD_COLUMNS, Decoded
 from wamctl.backends.gaze.virtual import VirtualSubject
 from wamctl.hmi.gaze import GazeSample
 from wamctl.io import resolve_path
+from wamctl.runs.store import atomic_write_text, json_default
 from wamctl.specs.hmi_block import HmiTask
 
 log = logging.getLogger(__name__)
 
-#: Longest wait for the first sample of a serial or replayed stream, s.
+#: Longest wait for the first sample of a stream, s (the default of the spec's ``source.start_timeout_s``).
 STREAM_START_TIMEOUT_S = 30.0
+CAPTURE_FILE = "gaze_capture.txt"
+SAMPLES_FILE = "gaze_samples.csv"
+STREAM_FILE = "gaze_stream.json"
+
+
+class StreamRecord:
+    """``gaze_samples.csv`` (appended, one flushed line per decoded frame) and, at :meth:`close`,
+    ``gaze_stream.json`` in a run directory. A resumed session appends to the same files."""
+
+    def __init__(self, run_path: Path, source_spec: dict) -> None:
+        self.run_path = Path(run_path)
+        self.source_spec = source_spec
+        path = self.run_path / SAMPLES_FILE
+        new = not path.is_file() or path.stat().st_size == 0
+        self._fh = path.open("a", encoding="ascii", buffering=1)
+        if new:
+            self._fh.write(",".join(RECORD_COLUMNS) + "\n")
+        self.rows = 0
+
+    def write(self, d: Decoded) -> None:
+        if not self._fh.closed:
+            self._fh.write(",".join("" if math.isnan(v) else repr(v) for v in d.record()) + "\n")
+            self.rows += 1
+
+    def close_file(self) -> None:
+        self._fh.close()
+
+    def close(self, source) -> dict:
+        """Close the samples file; write and return the stream's summary (the source's counts)."""
+        self.close_file()
+        summary = stream_summary(source, self.source_spec)
+        summary["samples_file"] = SAMPLES_FILE
+        if (self.run_path / CAPTURE_FILE).is_file():
+            summary["capture_file"] = CAPTURE_FILE
+        previous = self.run_path / STREAM_FILE
+        if previous.is_file():  # a resumed session: keep the earlier sessions' summaries
+            try:
+                old = json.loads(previous.read_text())
+                summary["earlier_sessions"] = old.pop("earlier_sessions", []) + [old]
+            except json.JSONDecodeError:
+                pass
+        atomic_write_text(previous, json.dumps(summary, indent=2, default=json_default))
+        return summary
+
+
+def stream_summary(source, source_spec: dict) -> dict:
+    """What a stream source saw: its format and settings, the decoder's counts and first error examples."""
+    stats = getattr(source, "stats", None)
+    out = {"source": source_spec.get("kind"), "format": source_spec.get("format"),
+           "settings": getattr(source, "settings", None)}
+    if stats is not None:
+        out["stats"] = stats.as_dict()
+        out["errors"] = stats.errors
+    first, last = getattr(source, "first_rx_s", None), getattr(source, "_last_rx_s", None)
+    if first is not None and last is not None and last > first and stats is not None:
+        out["bytes_per_s"] = round(stats.bytes / (last - first), 1)
+    return out
 
 
 class VirtualFeed:
@@ -27,6 +96,7 @@ class VirtualFeed:
     exhausted = False
     started = True
     offset_s = 0.0
+    start_timeout_s = STREAM_START_TIMEOUT_S
 
     def __init__(self) -> None:
         self._subject: VirtualSubject | None = None
@@ -68,10 +138,14 @@ class StreamFeed:
     simulation follows the tracker and a silent tracker stalls in real time).
     """
 
-    def __init__(self, source, *, live: bool, clock: Callable[[], float] = time.monotonic) -> None:
+    def __init__(self, source, *, live: bool, clock: Callable[[], float] = time.monotonic,
+                 record: StreamRecord | None = None, start_timeout_s: float = STREAM_START_TIMEOUT_S) -> None:
         self.source = source
         self.live = live
         self.clock = clock
+        self.record = record
+        self.start_timeout_s = start_timeout_s
+        self.summary: dict | None = None
         self._ahead: GazeSample | None = None
         self._offset_s: float | None = None
         self._last_t_s: float | None = None
@@ -85,10 +159,22 @@ class StreamFeed:
             self._thread = threading.Thread(target=self._reader, name="gaze-reader", daemon=True)
             self._thread.start()
 
+    def _next(self, timeout_s: float) -> GazeSample | None:
+        """The source's next sample, its decoded frame recorded (sources with ``read_decoded``)."""
+        read_decoded = getattr(self.source, "read_decoded", None)
+        if read_decoded is None:
+            return self.source.read(timeout_s)
+        d = read_decoded(timeout_s)
+        if d is None:
+            return None
+        if self.record is not None:
+            self.record.write(d)
+        return d.sample
+
     def _reader(self) -> None:
         try:
             while not self._stop.is_set():
-                s = self.source.read(0.05)
+                s = self._next(0.05)
                 if s is not None:
                     self._queue.put(s)
                 elif self.source.exhausted:
@@ -116,7 +202,7 @@ class StreamFeed:
         if self._ended:
             return None
         if not self.live:
-            s = self.source.read(0.0)
+            s = self._next(0.0)
             if s is None and self.source.exhausted:
                 self._ended = True
             return s
@@ -156,21 +242,63 @@ class StreamFeed:
             return s
         return None
 
+    def no_sample_message(self, waited_s: float) -> str:
+        """Why no sample came in ``waited_s``: what arrived and what to try (serial sources), else the basics."""
+        if getattr(self.source, "settings", None) is not None:
+            from wamctl.backends.gaze.check import describe_silence
+            return describe_silence(self.source, waited_s)
+        stats = getattr(self.source, "stats", None)
+        seen = f": {stats.bytes} bytes, {stats.samples} samples, {stats.errors} errors" if stats is not None else ""
+        return f"no gaze sample from the {type(self.source).__name__} within {waited_s:g} s{seen}"
+
     def close(self) -> None:
         self._stop.set()
         if self._thread is not None:
             self._thread.join(2.0)
         self.source.close()
+        if self.record is not None and self.summary is None:
+            self.summary = self.record.close(self.source)
+            errors = self.summary.get("errors") or 0
+            if errors or (self.summary.get("stats") or {}).get("garbage_bytes"):
+                st = self.summary["stats"]
+                first = next((f"{k}: {v[0]}" for k, v in st["examples"].items() if v), "")
+                log.warning("gaze stream: %d samples, %d framing/decode errors, %d bytes outside frames%s",
+                            st["samples"], errors, st["garbage_bytes"], f"; first {first}" if first else "")
 
 
-def open_feed(h: HmiTask, base_dir: Path | None) -> VirtualFeed | StreamFeed:
-    """The feed of ``h.source``: a virtual subject, a replayed gaze file (relative to ``base_dir`` unless it exists
-    as given), or a serial tracker read in a thread."""
+def open_feed(h: HmiTask, base_dir: Path | None, run_path: Path | None = None) -> VirtualFeed | StreamFeed:
+    """The feed of ``h.source``: a virtual subject, a replayed gaze file or raw capture (relative to ``base_dir``
+    unless it exists as given), or a serial tracker read in a thread. With ``run_path``, a stream is recorded there
+    (:class:`StreamRecord`, and the raw capture of a serial port)."""
     src = h.source
     if src.kind == "virtual":
         return VirtualFeed()
     if src.kind == "replay":
         from wamctl.backends.gaze.replay import ReplayGazeSource
         return StreamFeed(ReplayGazeSource.from_csv(resolve_path(src.path, base_dir)), live=False)
-    from wamctl.backends.gaze.serial import SerialGazeSource
-    return StreamFeed(SerialGazeSource(src.url, baudrate=src.baudrate, eof_idle_s=src.eof_idle_s), live=True)
+    from wamctl.backends.gaze.formats import make_decoder
+
+    def decoder():
+        return make_decoder(src.format, **src.decoder_options())
+
+    record = StreamRecord(run_path, src.model_dump(mode="json")) if run_path is not None else None
+    capture = Path(run_path) / CAPTURE_FILE if run_path is not None else None
+    try:
+        if src.kind == "replay-raw":
+            from wamctl.backends.gaze.capture import read_capture
+            from wamctl.backends.gaze.replay import PtyReplaySource, RawReplaySource
+            path = resolve_path(src.path, base_dir)
+            if src.via == "direct":
+                source = RawReplaySource.from_capture(path, decoder, realtime=src.realtime)
+                return StreamFeed(source, live=src.realtime, record=record, start_timeout_s=src.start_timeout_s)
+            source = PtyReplaySource(read_capture(path), decoder=decoder(), capture=capture)
+            return StreamFeed(source, live=True, record=record, start_timeout_s=src.start_timeout_s)
+        from wamctl.backends.gaze.serial import SerialGazeSource
+        source = SerialGazeSource(src.url, baudrate=src.baudrate, bytesize=src.bytesize, parity=src.parity,
+                                  stopbits=src.stopbits, flow_control=src.flow_control, decoder=decoder(),
+                                  eof_idle_s=src.eof_idle_s, capture=capture)
+        return StreamFeed(source, live=True, record=record, start_timeout_s=src.start_timeout_s)
+    except BaseException:
+        if record is not None:
+            record.close_file()
+        raise
