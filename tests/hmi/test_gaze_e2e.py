@@ -1,0 +1,157 @@
+"""The hmi block end to end through a pseudo-terminal at 57600 Bd, for each stream format (issue 20).
+
+A simulated tracker in its own process (:mod:`wamctl.backends.gaze.tracker_sim`) writes a scripted stream at 30 Hz,
+with garbage between some frames and some frames split across two writes, into the master side of a pty; the block
+reads the slave as its serial port. Checked: the port was opened at 57600 Bd; every frame sent before the block ended is in
+``gaze_samples.csv`` with its values and class (the blink as a blink, in each format's own encoding); the trial ends
+with the grasp the voluntary blink commands; the raw capture beside the samples replays, in-process, to exactly the
+same samples; and the sample times.
+
+Timing (the choice and why): a sample without a tracker clock is stamped when its last byte is read. The reference
+is the sender's actual write of that byte, on the same monotonic clock, not its plan, so that a late sender (the
+machine is shared) is not blamed on the reader. The bytes became readable somewhere between the start of the write
+and its return, so the reader's latency is ``max(0, arrival - write returned)``, and ``arrival`` never precedes the
+start of the write. That latency is the reader's own: wake-up, the GIL, the read loop. The issue's figure, p99
+within 5 ms, is asserted on it here; the strict figures (p50/p99/max per format over a longer stream, on a quiet
+machine) are benchmarks/bench_gaze.py's. What keeps the test from being flaky on a loaded machine: the sender is a
+separate process (its schedule does not wait for our GIL), the reference is its actual writes, the block's main loop
+sleeps while it waits for samples (it runs ahead of the tracker), and the reader stamps in its own thread.
+A broken stamp fails it: stamping when the block consumes the sample, or at the frame count times a nominal
+period, is tens of milliseconds off (see tests/backends/test_gaze_serial.py for the unit versions).
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tty
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import pytest
+
+from wamctl.backends.gaze import tracker_sim
+from wamctl.backends.gaze.formats import make_decoder
+from wamctl.backends.gaze.replay import RawReplaySource
+from wamctl.experiments.runner import run_spec
+from wamctl.hmi.gaze import GazeFlag
+from wamctl.runs.store import read_table
+from wamctl.specs import parse_spec
+
+ROOT = Path(__file__).resolve().parents[2]
+
+P99_LIMIT_S = 0.005
+
+
+def _run_block(fmt: str, tmp_path: Path):
+    master_fd, slave_fd = os.openpty()
+    tty.setraw(slave_fd)
+    slave = os.ttyname(slave_fd)
+    out_json = tmp_path / "sender.json"
+    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
+    sender = subprocess.Popen([sys.executable, "-m", "wamctl.backends.gaze.tracker_sim", "--fd", str(master_fd),
+                               "--slave", slave, "--format", fmt, "--out", str(out_json)], pass_fds=(master_fd,),
+                              env=env)
+    try:
+        spec = parse_spec({"kind": "hmi_block", "seed": 1, "name": f"pty-{fmt}", "hmi": {
+            "subject": {"id": "P01"}, "locations": ["P4"], "start": "auto", "timeout_s": 20,
+            "source": {"kind": "serial", "url": slave, "format": fmt, "eof_idle_s": 2.0}}})
+        assert spec.hmi.source.baudrate == 57600  # the default
+        outcome = run_spec(spec, tmp_path, tmp_path / "runs", make_report=False)
+        sender.wait(timeout=60)
+    finally:
+        if sender.poll() is None:
+            sender.kill()
+        os.close(master_fd)
+        os.close(slave_fd)
+    assert sender.returncode == 0
+    return outcome, json.loads(out_json.read_text())
+
+
+@pytest.fixture(scope="module", params=["asl-serial-out", "ascii-pair", "ascii-timestamped"])
+def block_run(request, tmp_path_factory):
+    tmp = tmp_path_factory.mktemp(request.param)
+    outcome, sent = _run_block(request.param, tmp)
+    return request.param, outcome, sent
+
+
+def _n_garbage(n: int) -> int:
+    """How many of the first ``n`` frames the sender preceded with garbage."""
+    return sum(k % tracker_sim.GARBAGE_EVERY == tracker_sim.GARBAGE_EVERY // 2 for k in range(n))
+
+
+def _samples(outcome, fmt):
+    """The decoded samples of the run without the ASCII garbage lines (corrupt samples: the sender's garbage),
+    and how many of those there were."""
+    got = pd.read_csv(outcome.path / "gaze_samples.csv")
+    corrupt = got["flags"] == int(GazeFlag.CORRUPT)
+    return got[~corrupt].reset_index(drop=True), int(corrupt.sum())
+
+
+def test_block_completes_and_every_sample_is_recovered(block_run):
+    import termios
+
+    fmt, outcome, sent = block_run
+    assert sent["ospeed"] == termios.B57600
+    assert outcome.status == "completed"
+    trials = pd.read_csv(outcome.path / "trials.csv")
+    assert len(trials) == 1 and trials.loc[0, "outcome"] != "timeout"  # the voluntary blink closed the hand
+    assert trials.loc[0, "n_voluntary_blinks"] == 1
+    got, n_garbage_lines = _samples(outcome, fmt)
+    script = tracker_sim.expand(tracker_sim.TRIAL_SCRIPT)
+    n = len(got)
+    assert 130 <= n <= len(sent["written_s"]) <= len(script)  # the block ends after the grasp and the way home
+    assert n_garbage_lines == (0 if fmt == "asl-serial-out" else _n_garbage(n))
+    for k, xy in enumerate(script[:n]):
+        row = got.iloc[k]
+        if xy is None:
+            assert row["flags"] == int(GazeFlag.BLINK), k
+            assert (row["x_px"], row["y_px"]) == (-2000.0, -2000.0)
+        else:
+            assert row["flags"] == 0 and (row["x_px"], row["y_px"]) == xy, k
+    if fmt == "asl-serial-out":
+        assert (got["pupil"] == np.where([xy is None for xy in script[:n]], 0, 40)).all()
+    traj = read_table(outcome.path, "trajectory")
+    assert set(traj["gaze_t_s"].dropna()) <= set(got["t_s"])  # the trajectory holds the decoded samples' times
+    stream = json.loads((outcome.path / "gaze_stream.json").read_text())
+    assert stream["format"] == fmt and stream["stats"]["samples"] >= n
+    assert stream["stats"]["corrupt"] >= n_garbage_lines and stream["stats"]["cut_frames"] == 0
+    if fmt == "asl-serial-out":
+        assert stream["stats"]["garbage_bytes"] == 3 * _n_garbage(n)
+        assert stream["stats"]["examples"]["garbage"][0].startswith("13 55 07")
+
+
+def test_raw_capture_replays_to_the_same_samples(block_run):
+    fmt, outcome, _ = block_run
+    replay = RawReplaySource.from_capture(outcome.path / "gaze_capture.txt", lambda: make_decoder(fmt))
+    records = []
+    while (d := replay.read_decoded()) is not None:
+        records.append(d.record())
+    got = pd.read_csv(outcome.path / "gaze_samples.csv")
+    again = pd.DataFrame(records, columns=got.columns).iloc[:len(got)]
+    pd.testing.assert_frame_equal(again.reset_index(drop=True), got, check_dtype=False, rtol=0, atol=1e-6)
+
+
+def test_sample_times_follow_the_senders_schedule(block_run):
+    fmt, outcome, sent = block_run
+    got, _ = _samples(outcome, fmt)
+    n = len(got)
+    written = np.array(sent["written_s"][:n])
+    start = np.array(sent["write_start_s"][:n])
+    planned = np.array(sent["planned_s"][:n])
+    arrival = got["arrival_s"].to_numpy()
+    assert (arrival >= start).all()  # nothing is stamped before it was written
+    latency = np.maximum(arrival - written, 0.0)
+    print(f"{fmt}: arrival - written p50 {1e3 * np.median(latency):.2f} ms, p99 "
+          f"{1e3 * np.percentile(latency, 99):.2f} ms, max {1e3 * latency.max():.2f} ms; sender late p99 "
+          f"{1e3 * np.percentile(written - planned, 99):.2f} ms")
+    assert np.percentile(latency, 99) <= P99_LIMIT_S
+    t = got["t_s"].to_numpy()
+    if fmt == "ascii-timestamped":  # the tracker's own times: exactly the schedule (to the ms of the line)
+        assert np.abs((t - t[0]) - np.arange(n) / 30.0).max() <= 0.0005 + 1e-9
+    else:  # the arrival stamps are the sample times
+        np.testing.assert_array_equal(t, got["arrival_s"].to_numpy())
+        assert np.percentile(np.abs(np.diff(t) - np.diff(written)), 99) <= P99_LIMIT_S + 0.002
