@@ -2,10 +2,10 @@
 
 A simulated tracker in its own process (:mod:`wamctl.backends.gaze.tracker_sim`) writes a scripted stream at 30 Hz,
 with garbage between some frames and some frames split across two writes, into the master side of a pty; the block
-reads the slave as its serial port. Checked: the port was opened at 57600 Bd; every frame sent before the block ended is in
-``gaze_samples.csv`` with its values and class (the blink as a blink, in each format's own encoding); the trial ends
-with the grasp the voluntary blink commands; the raw capture beside the samples replays, in-process, to exactly the
-same samples; and the sample times.
+reads the slave as its serial port. Checked: the port was opened at 57600 Bd; every frame sent before the block
+ended is in ``gaze_samples.csv`` with its values and class (the blink as a blink, in each format's own encoding);
+the trial ends with the grasp the voluntary blink commands; the raw capture beside the samples replays, in-process,
+to exactly the same samples; and the sample times.
 
 Timing (the choice and why): a sample without a tracker clock is stamped when its last byte is read. The reference
 is the sender's actual write of that byte, on the same monotonic clock, not its plan, so that a late sender (the
