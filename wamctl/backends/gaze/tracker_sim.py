@@ -1,5 +1,6 @@
 """A simulated gaze tracker on a pseudo-terminal: writes a scripted stream in any of the formats, one frame per
-period on an absolute schedule, and records when each frame was written (for end-to-end tests and benchmarks).
+period on an absolute schedule (with one pause), and records when each frame was written (for end-to-end tests and
+benchmarks).
 
 Run it as its own process, so that its schedule does not share a GIL with the reader under test::
 
@@ -38,12 +39,20 @@ TRIAL_SCRIPT: tuple[tuple[int, tuple[int, int] | None], ...] = (
 #: 2 ms apart when k % SPLIT_EVERY == 7.
 GARBAGE_EVERY = 40
 SPLIT_EVERY = 25
+#: After frame PAUSE_AT the tracker skips PAUSE_FRAMES periods (a hiccup): frame times are not k / rate.
+PAUSE_AT = 60
+PAUSE_FRAMES = 6
 _BAUDS = {9600: termios.B9600, 19200: termios.B19200, 38400: termios.B38400, 57600: termios.B57600,
           115200: termios.B115200}
 
 
 def expand(script: Sequence[tuple[int, tuple[int, int] | None]]) -> list[tuple[int, int] | None]:
     return [xy for n, xy in script for _ in range(n)]
+
+
+def schedule_s(k: int, rate_hz: float = RATE_HZ) -> float:
+    """Time of frame ``k`` from the first one, s: ``k / rate_hz``, plus the pause after frame ``PAUSE_AT``."""
+    return (k + (PAUSE_FRAMES if k > PAUSE_AT else 0)) / rate_hz
 
 
 def frame(fmt: str, k: int, xy: tuple[int, int] | None, rate_hz: float = RATE_HZ) -> bytes:
@@ -55,7 +64,7 @@ def frame(fmt: str, k: int, xy: tuple[int, int] | None, rate_hz: float = RATE_HZ
     if fmt == "ascii-pair":
         return format_pair(float(x), float(y))
     if fmt == "ascii-timestamped":
-        return format_line(k / rate_hz, float(x), float(y))
+        return format_line(schedule_s(k, rate_hz), float(x), float(y))
     raise ValueError(f"unknown format {fmt!r}")
 
 
@@ -86,7 +95,7 @@ def stream(fd: int, fmt: str, samples: Sequence[tuple[int, int] | None], rate_hz
         data = frame(fmt, k, xy, rate_hz)
         if k % GARBAGE_EVERY == GARBAGE_EVERY // 2:
             data = garbage(fmt) + data
-        due = t0 + k / rate_hz
+        due = t0 + schedule_s(k, rate_hz)
         time.sleep(max(0.0, due - time.monotonic()))
         try:
             if k % SPLIT_EVERY == 7:
