@@ -367,6 +367,9 @@ class AslStreamDecoder:
         else:
             x_px = v["x"] * self.scale[0] + self.offset_px[0]
             y_px = v["y"] * self.scale[1] + self.offset_px[1]
-            sample = GazeSample(t_s, x_px, y_px, classify(x_px, y_px))
+            flags = classify(x_px, y_px)
+            if flags & GazeFlag.BLINK:  # (-2000, -2000) when the sentinel is not a blink: just off the image
+                flags = GazeFlag.OUT_OF_RANGE
+            sample = GazeSample(t_s, x_px, y_px, flags)
         self.stats.count(sample)
         return Decoded(sample, arrival_s, fields)
