@@ -40,14 +40,15 @@ class Candidate:
     label: str
     format: str
     options: dict = field(default_factory=dict)
+    short: str = ""
 
 
 CANDIDATES: tuple[Candidate, ...] = (
-    Candidate("asl-serial-out (standard items)", "asl-serial-out", {"fields": list(STANDARD_FIELDS)}),
+    Candidate("asl-serial-out (standard items)", "asl-serial-out", {"fields": list(STANDARD_FIELDS)}, "asl std"),
     Candidate("asl-serial-out (frame counter after the status)", "asl-serial-out",
-              {"fields": list(COUNTER_FIELDS)}),
-    Candidate("ascii-pair", "ascii-pair"),
-    Candidate("ascii-timestamped", "ascii-timestamped"),
+              {"fields": list(COUNTER_FIELDS)}, "asl counter"),
+    Candidate("ascii-pair", "ascii-pair", short="ascii-pair"),
+    Candidate("ascii-timestamped", "ascii-timestamped", short="ascii-ts"),
 )
 
 
