@@ -214,11 +214,12 @@ frames_st = st.lists(st.tuples(st.integers(0, 255), st.integers(-32768, 32767), 
 
 @given(frames_st, st.lists(st.binary(max_size=12), min_size=20, max_size=20), st.randoms(use_true_random=False))
 @settings(max_examples=200, deadline=None)
-def test_every_frame_survives_garbage_before_it_and_any_chunking(frames, junk, rnd):
-    """Garbage of any bytes before each frame: each real frame still decodes (its start mark opens a new frame;
-    garbage with bit 7 set may decode as frames of its own, there is no checksum to tell)."""
+def test_every_frame_survives_garbage_between_frames_and_any_chunking(frames, junk, rnd):
+    """Garbage of any bytes between frames (not after two frames in a row: that is the signature of frames too
+    short for the stream, see the next test): each real frame decodes, whatever the chunking (its start mark opens
+    a new frame; garbage with bit 7 set may decode as frames of its own, there is no checksum to tell)."""
     layout = AslLayout.parse(STANDARD_FIELDS)
-    stream = b"".join(junk[i] + layout.encode({"status": s, "pupil": p, "x": x, "y": y})
+    stream = b"".join((junk[i] if i % 2 else b"") + layout.encode({"status": s, "pupil": p, "x": x, "y": y})
                       for i, (s, p, x, y) in enumerate(frames))
     cuts = sorted(rnd.sample(range(len(stream) + 1), min(5, len(stream) + 1)))
     chunks = [stream[a:b] for a, b in zip([0] + cuts, cuts + [len(stream)])]
@@ -226,6 +227,18 @@ def test_every_frame_survives_garbage_before_it_and_any_chunking(frames, junk, r
            for d in decode_all(AslStreamDecoder(), chunks)]
     it = iter(got)
     assert all(f in it for f in frames)  # the real frames, in order, among whatever the garbage made
+
+
+def test_frames_too_short_for_the_stream_are_withheld():
+    """The counter frames D1, D2, D3, D1 read with the standard items (10 of their 12 bytes). D1 decodes to
+    nonsense; D2's 10th byte (0x78) fails the last-overflow check; both are followed by 2 bytes without a start
+    mark, so from then on frames are withheld as bad (D3, D1, and A, which still comes right after 2 such bytes)
+    until a frame is followed directly by a start mark again (A is: C and E decode)."""
+    dec = AslStreamDecoder()
+    out = decode_all(dec, [WIRE_D1 + WIRE_D2 + WIRE_D3 + WIRE_D1, WIRE_A + WIRE_C + WIRE_E])
+    assert [d.fields["pupil"] for d in out] == [-1, 200, 40]  # D1 read as pupil 0xFFFF, then C and E
+    assert dec.stats.bad_frames == 4 and dec.stats.garbage_bytes == 8
+    assert "the tracker's frames are 12 bytes (10 data bytes), not 10" in dec.stats.examples["bad"][1]
 
 
 @pytest.mark.parametrize("fields, byte_order, values", [

@@ -170,7 +170,13 @@ class AslFramer:
     """Cuts a byte stream into frames of ``n_wire`` bytes by their start marks, strictly (see the module doc).
 
     Counts into ``stats``: ``garbage_bytes`` (bit 7 clear, no frame open), ``cut_frames`` (a frame interrupted by
-    the next start mark), ``bad_frames`` (the last overflow byte has bits for bytes its group does not have).
+    the next start mark), ``bad_frames`` (the last overflow byte has bits for bytes its group does not have, or the
+    frames are too short for the stream).
+
+    Too short: a configured item list shorter than the tracker's makes frames that end early, each followed by the
+    rest of the tracker's frame (bytes with bit 7 clear) before the next start mark; such frames would decode to
+    nonsense. When the last two frames were each followed by the same number of such bytes, frames are withheld
+    (``bad``, with the length the stream seems to have) until one is followed directly by a start mark again.
     """
 
     def __init__(self, n_data: int, stats: DecodeStats | None = None) -> None:
@@ -179,6 +185,14 @@ class AslFramer:
         self._last_group = n_data - 7 * ((n_data - 1) // 7)
         self.stats = stats if stats is not None else DecodeStats()
         self._buf = b""  # empty, or an unfinished frame starting with its start mark
+        self._trail: int | None = None  # bytes without a start mark since the last frame ended (None: not after one)
+        self._trails: list[int] = []  # what followed the last two frames
+
+    @property
+    def too_short(self) -> int:
+        """Bytes that followed each of the last two frames before a start mark, when the same and > 0 (else 0)."""
+        t = self._trails
+        return t[0] if len(t) == 2 and t[0] == t[1] > 0 else 0
 
     def feed(self, data: bytes) -> list[bytes]:
         self.stats.bytes += len(data)
@@ -191,8 +205,13 @@ class AslFramer:
                 m = _START.search(buf, pos)
                 end = m.start() if m else n
                 self._garbage(buf[pos:end])
+                if self._trail is not None:
+                    self._trail += end - pos
                 pos = end
                 continue
+            if self._trail is not None:
+                self._trails = [*self._trails[-1:], self._trail]
+                self._trail = None
             m = _START.search(buf, pos + 1, min(pos + size, n))
             if m is not None:
                 self._cut(buf[pos:m.start()])
@@ -203,6 +222,15 @@ class AslFramer:
                 break
             frame = buf[pos:pos + size]
             pos += size
+            self._trail = 0
+            if extra := self.too_short:
+                self.stats.bad_frames += 1
+                longer = data_length(size + extra)
+                self.stats.example("bad", frame, f"frames are followed by {extra} bytes without a start mark: the "
+                                                 f"tracker's frames are {size + extra} bytes"
+                                                 + (f" ({longer} data bytes)" if longer else "")
+                                                 + f", not {size}; set asl.fields to its items")
+                continue
             if frame[-1] >> self._last_group:
                 self.stats.bad_frames += 1
                 self.stats.example("bad", frame, f"last overflow byte {frame[-1]:#04x} has bits for bytes "

@@ -103,6 +103,23 @@ class DecodeStats:
         return out
 
 
+#: A stream is usable once it gave this many samples with at most MAX_PROBLEM_SHARE errors and garbage.
+MIN_GOOD_SAMPLES = 3
+MAX_PROBLEM_SHARE = 0.25
+
+
+def stream_problem(stats: DecodeStats) -> str | None:
+    """Why a stream is not usable yet (too few samples, too many errors or bytes outside frames), or None."""
+    good = stats.samples - stats.corrupt
+    if good < MIN_GOOD_SAMPLES:
+        return f"{good} sample(s) decoded"
+    if stats.errors > MAX_PROBLEM_SHARE * (good + stats.errors):
+        return f"{stats.errors} framing/decode errors for {good} samples"
+    if stats.garbage_bytes > MAX_PROBLEM_SHARE * max(stats.bytes, 1):
+        return f"{stats.garbage_bytes} of {stats.bytes} bytes outside frames"
+    return None
+
+
 @runtime_checkable
 class GazeStreamDecoder(Protocol):
     """Turns the bytes of a tracker into samples: frames first, then one sample per frame.

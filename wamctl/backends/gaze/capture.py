@@ -4,10 +4,11 @@ A capture file (``gaze_capture.txt`` in a run directory, ``--capture FILE`` of `
 
     # wamctl gaze capture 1
     # section {"url": "/dev/ttyUSB0", "baudrate": 57600, "bytesize": 8, "parity": "N", "stopbits": 1, ...}
-    1234.567890 80002800010001202000
-    1234.601223 800028000100012020...
+    1234.567890123 80002800010001202000
+    1234.601223456 800028000100012020...
 
-One line per read: the host's monotonic clock (s) when the read returned, then the bytes in hex. A ``# section``
+One line per read: the host's monotonic clock (s, written so that it reads back bit for bit) when the read
+returned, then the bytes in hex. A ``# section``
 line starts the bytes of one opening of the port (its settings as JSON); a resumed session or another baud rate
 tried by ``gaze-check`` adds a section. Each line is written and flushed as it comes, so a crash loses at most the
 line being written; :func:`read_capture` skips such a torn last line. Replaying the chunks through the same decoder
@@ -68,7 +69,7 @@ class CaptureWriter:
 
     def write(self, t_s: float, data: bytes) -> None:
         if data and not self._fh.closed:
-            self._fh.write(f"{t_s:.6f} {data.hex()}\n")
+            self._fh.write(f"{t_s!r} {data.hex()}\n")  # repr: the stamp reads back bit for bit
             self.bytes_written += len(data)
 
     def close(self) -> None:
@@ -97,7 +98,9 @@ def read_capture(path: str | os.PathLike) -> list[CaptureSection]:
         line = raw.strip()
         if not line:
             continue
-        last = number == len(lines)
+        if number == len(lines) and not raw.endswith("\n"):  # every line is written with its end: torn
+            log.warning("%s, line %d: torn last line skipped", path, number)
+            break
         if line.startswith("# section "):
             try:
                 sections.append(CaptureSection(json.loads(line[len("# section "):])))
@@ -112,9 +115,6 @@ def read_capture(path: str | os.PathLike) -> list[CaptureSection]:
             if not sections:
                 raise ValueError("bytes before the first '# section' line")
         except ValueError as exc:
-            if last and not raw.endswith("\n"):
-                log.warning("%s, line %d: torn last line skipped", path, number)
-                break
             raise DataFormatError(f"{path}, line {number}: not 'TIME HEX' ({exc})") from None
         sections[-1].chunks.append(chunk)
     return sections

@@ -21,7 +21,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wamctl.backends.gaze.asl import BAUD_RATE, COUNTER_FIELDS, STANDARD_FIELDS, data_length
-from wamctl.backends.gaze.base import Decoded, hex_bytes
+from wamctl.backends.gaze.base import Decoded, hex_bytes, stream_problem
 from wamctl.backends.gaze.capture import CaptureSection, CaptureWriter, MemoryCapture
 from wamctl.backends.gaze.formats import FORMATS, make_decoder
 from wamctl.hmi.gaze import BLINK_SENTINEL_PX
@@ -298,7 +298,7 @@ def best_of(results: Sequence[CheckResult]) -> CheckResult | None:
 
 
 def describe_silence(source, waited_s: float) -> str:
-    """Why no gaze sample came from a serial source in ``waited_s``: what arrived and what to try (one paragraph).
+    """Why no usable gaze stream came from a serial source in ``waited_s``: what arrived and what to try.
 
     ``source`` is a :class:`~wamctl.backends.gaze.serial.SerialGazeSource` (its settings, the bytes it kept from the
     start of the stream and its decoder's counts).
@@ -310,10 +310,12 @@ def describe_silence(source, waited_s: float) -> str:
         return (f"no gaze sample within {waited_s:g} s: no byte arrived on {where}. Check that the tracker streams "
                 f"(ASL: Serial Out enabled, streaming mode), the cable (the tracker's SERIAL OUT port; null modem "
                 f"between two PC-style ports) and the port name; then run `wamctl gaze-check --port {info['url']}`.")
+    good = st.samples - st.corrupt
+    what = ("no gaze sample" if good == 0 else
+            f"no usable gaze stream ({stream_problem(st) or 'too few samples'})")
     rate = st.bytes / max(waited_s, 1e-9)
-    counts = (f"{st.frames} frame(s) of {info['format']}, {st.samples - st.corrupt} sample(s), "
-              f"{st.garbage_bytes} byte(s) outside frames, {st.cut_frames} cut frame(s), {st.bad_frames} bad "
-              f"frame(s), {st.corrupt} corrupt")
+    counts = (f"{st.frames} frame(s) of {info['format']}, {good} sample(s), {st.garbage_bytes} byte(s) outside "
+              f"frames, {st.cut_frames} cut frame(s), {st.bad_frames} bad frame(s), {st.corrupt} corrupt")
     head = CaptureSection(info, list(source.head))
     found = identify(head)
     if found.best is not None and found.best.candidate.format != info["format"]:
@@ -325,8 +327,9 @@ def describe_silence(source, waited_s: float) -> str:
         todo = f"these bytes decode as {c.label}: set asl.fields [{', '.join(c.options.get('fields', []))}]"
     else:
         todo = f"they look like {found.looks_like}; " + " ".join(found.notes)
-    return (f"no gaze sample within {waited_s:g} s from {where}, format {info['format']}: {st.bytes} bytes arrived "
-            f"({rate:.0f} B/s, {source.reads} reads): {counts}. First bytes: {hex_bytes(head.data, 48)}. "
+    bad = next((f" First {k} frame: {v[0]}." for k, v in st.examples.items() if v and k in ("bad", "cut")), "")
+    return (f"{what} within {waited_s:g} s from {where}, format {info['format']}: {st.bytes} bytes arrived "
+            f"({rate:.0f} B/s, {source.reads} reads): {counts}. First bytes: {hex_bytes(head.data, 48)}.{bad} "
             f"What to try: {todo}; `wamctl gaze-check --port {info['url']}` tries every format and baud rate.")
 
 

@@ -20,7 +20,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from wamctl.backends.gaze.base import RECORD_COLUMNS, Decoded
+from wamctl.backends.gaze.base import RECORD_COLUMNS, Decoded, stream_problem
 from wamctl.backends.gaze.virtual import VirtualSubject
 from wamctl.hmi.gaze import GazeSample
 from wamctl.io import resolve_path
@@ -190,8 +190,13 @@ class StreamFeed:
 
     @property
     def started(self) -> bool:
-        """True once the first timed sample has been seen (it sets the stream's time offset)."""
-        return self._offset_s is not None
+        """True once the first timed sample has been seen (it sets the stream's time offset) and, for a decoded
+        stream, the stream is usable (:func:`~wamctl.backends.gaze.base.stream_problem`: a few samples, few errors):
+        a misconfigured decoder that makes a sample or two of nonsense does not start a session."""
+        if self._offset_s is None:
+            return False
+        stats = getattr(self.source, "stats", None)
+        return stats is None or stream_problem(stats) is None
 
     @property
     def offset_s(self) -> float:
