@@ -98,9 +98,8 @@ class CheckResult:
                                 "bad_frames", "dropped_frames")}} for t in self.trials]}
 
 
-def run_candidate(candidate: Candidate, chunks: Sequence[tuple[float, bytes]]) -> Trial:
-    """Decode ``chunks`` (``(arrival_s, bytes)``) with a fresh decoder of ``candidate`` and judge the result."""
-    decoder = make_decoder(candidate.format, **candidate.options)
+def _decode(fmt: str, options: dict, chunks: Sequence[tuple[float, bytes]]):
+    decoder = make_decoder(fmt, **options)
     decoded: list[Decoded] = []
     for t_s, data in chunks:
         for frame in decoder.feed(data):
@@ -108,6 +107,18 @@ def run_candidate(candidate: Candidate, chunks: Sequence[tuple[float, bytes]]) -
             if d is not None:
                 decoded.append(d)
     decoder.flush()
+    return decoder, decoded
+
+
+def run_candidate(candidate: Candidate, chunks: Sequence[tuple[float, bytes]]) -> Trial:
+    """Decode ``chunks`` (``(arrival_s, bytes)``) with a fresh decoder of ``candidate`` and judge the result. A frame
+    counter's rate is measured on a first pass and the times rebuilt with it on a second."""
+    decoder, decoded = _decode(candidate.format, candidate.options, chunks)
+    hz = decoder.stats.extra.get("counter_hz_measured")
+    if hz:
+        candidate = Candidate(candidate.label, candidate.format, {**candidate.options, "counter_hz": float(hz)},
+                              candidate.short)
+        decoder, decoded = _decode(candidate.format, candidate.options, chunks)
     st = decoder.stats
     good = st.samples - st.corrupt
     errors = st.errors
@@ -213,7 +224,8 @@ def _notes(result: CheckResult) -> list[str]:
     if s.get("blinks", {}).get("samples", 0) == 0:
         notes.append("no blink seen: close the eyes for a second during the check to see how the tracker signals "
                      "them")
-    if s.get("arrival_jitter_p99_ms", 0) > 5.0 and result.best.candidate.format != "ascii-timestamped":
+    stamped = result.best.candidate.format != "ascii-timestamped" and "counter" not in s
+    if s.get("arrival_jitter_p99_ms", 0) > 5.0 and stamped:
         notes.append(f"reads arrive in bursts (inter-arrival jitter p99 {s['arrival_jitter_p99_ms']} ms): samples "
                      f"stamped on arrival inherit it. A USB serial adapter holds bytes up to its latency timer "
                      f"(FTDI: 16 ms); set it to 1 ms (see the README)")
