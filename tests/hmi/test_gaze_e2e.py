@@ -26,8 +26,11 @@ from __future__ import annotations
 
 import json
 import os
+import socket
 import subprocess
 import sys
+import threading
+import time
 import tty
 from pathlib import Path
 
@@ -158,3 +161,54 @@ def test_sample_times_follow_the_senders_schedule(block_run):
         assert np.abs((t - t[0]) - schedule).max() <= 0.0005 + 1e-9
     else:  # the arrival stamps are the sample times
         np.testing.assert_array_equal(t, arrival)
+
+
+def test_report_shows_the_gaze_stream_diagnostics(block_run, tmp_path):
+    from wamctl.report import write_report
+
+    fmt, outcome, _ = block_run
+    if fmt != "asl-serial-out":
+        pytest.skip("one format is enough for the report")
+    write_report(outcome.path, tmp_path)
+    md = (tmp_path / "report.md").read_text()
+    assert "## Gaze stream" in md and "format asl-serial-out" in md and "gaze_capture.txt" in md
+    assert "13 55 07 (bit 7 clear outside a frame)" in md  # the first example of garbage, in hex
+    data = json.loads((tmp_path / "report.json").read_text())["gaze_stream"]
+    assert data["garbage_bytes"] == 3 * _n_garbage(data["samples"]) and data["cut_frames"] == 0
+
+
+def _serve(data: bytes):
+    server = socket.create_server(("127.0.0.1", 0))
+
+    def run():
+        conn, _ = server.accept()
+        time.sleep(0.3)  # pyserial flushes its input when it opens
+        with conn:
+            conn.sendall(data)
+            time.sleep(3.0)
+        server.close()
+
+    threading.Thread(target=run, daemon=True).start()
+    return f"socket://127.0.0.1:{server.getsockname()[1]}"
+
+
+def test_a_block_with_the_wrong_format_says_what_arrived_and_what_to_try(tmp_path):
+    """'x,y' lines read as ASL Serial Out: no sample; the run fails with a message naming the bytes, their rate,
+    the framing, and the format that reads them; the report shows the stream's counts and the first bytes."""
+    from wamctl.report import write_report
+
+    url = _serve(b"".join(tracker_sim.frame("ascii-pair", k, (100 + k, 200)) for k in range(30)))
+    spec = parse_spec({"kind": "hmi_block", "seed": 1, "name": "wrong-format", "hmi": {
+        "subject": {"id": "P01"}, "locations": ["P4"], "start": "auto",
+        "source": {"kind": "serial", "url": url, "start_timeout_s": 1.5}}})
+    outcome = run_spec(spec, tmp_path, tmp_path / "runs", make_report=False)
+    assert outcome.status == "failed"
+    reason = outcome.reason
+    assert reason.startswith(f"no gaze sample within 1.5 s from {url} at 57600 Bd 8N1, format asl-serial-out: "
+                             f"360 bytes arrived")
+    assert "360 byte(s) outside frames" in reason and "First bytes: 31 30 30 2e 30 2c 32 30 30 2e 30 0a" in reason
+    assert "these bytes decode as ascii-pair: set source.format: ascii-pair" in reason
+    assert (outcome.path / "gaze_capture.txt").is_file()
+    write_report(outcome.path, tmp_path)
+    md = (tmp_path / "report.md").read_text()
+    assert "## Gaze stream" in md and "| bytes outside any frame | 360 |" in md

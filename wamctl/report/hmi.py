@@ -13,6 +13,7 @@ per-location and per-subject tables, the ANOVA and the bar charts (thesis Figure
 
 from __future__ import annotations
 
+import json
 import logging
 import math
 from collections.abc import Sequence
@@ -169,6 +170,7 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
                 else "") + ".")
     if manifest.get("reason"):
         doc.text(f"Reason: {manifest['reason']}.")
+    gaze_stream_section(doc, run_path)
     if not len(trials):
         doc.text("No trial finished.")
         return doc
@@ -205,6 +207,58 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     if fig is not None:
         doc.figure(fig, "hand paths (blue hit, red miss, orange time-out), seen from above with x forward")
     return doc
+
+
+#: What each error count of the gaze stream means, for the report.
+_STREAM_ROWS = (
+    ("bytes", "bytes received"), ("samples", "samples decoded"), ("valid", "valid gaze points"),
+    ("blink", "blink samples"), ("out_of_range", "outside the image"), ("corrupt", "corrupt (unreadable) samples"),
+    ("garbage_bytes", "bytes outside any frame"), ("cut_frames", "frames cut short (bytes lost)"),
+    ("bad_frames", "frames of the right length that break the format"),
+    ("dropped_frames", "frames the tracker's counter says never arrived"),
+    ("clock_adjusts", "frame counter restarts or jumps"),
+)
+
+
+def gaze_stream_section(doc: Document, run_path: Path) -> None:
+    """The gaze stream's diagnostics (``gaze_stream.json``, written when a decoded stream closes): what was
+    received, the framing and decode errors with their first examples in hex, and where the raw bytes are."""
+    path = Path(run_path) / "gaze_stream.json"
+    if not path.is_file():
+        return
+    try:
+        info = json.loads(path.read_text())
+    except json.JSONDecodeError as exc:
+        doc.text(f"gaze_stream.json is not readable ({exc}).")
+        return
+    stats = info.get("stats") or {}
+    doc.heading("Gaze stream")
+    settings = info.get("settings") or {}
+    where = (f" from {settings.get('url')} at {settings.get('baudrate')} Bd {settings.get('bytesize')}"
+             f"{settings.get('parity')}{settings.get('stopbits')}" if settings else "")
+    rate = f", {info['bytes_per_s']:g} B/s" if info.get("bytes_per_s") else ""
+    doc.text(f"{info.get('source')} source{where}, format {info.get('format')}{rate}; "
+             f"{info.get('errors', 0)} framing/decode error(s). Every decoded frame is in "
+             f"{info.get('samples_file', 'gaze_samples.csv')} (arrival time, sample time, gaze, flags, raw fields)"
+             + (f"; the raw bytes of every read are in {info['capture_file']} (replay them with a `replay-raw` "
+                f"source, or check them with `wamctl gaze-check --from-capture {info['capture_file']}`)"
+                if info.get("capture_file") else "") + ".")
+    rows = [(what, stats[k]) for k, what in _STREAM_ROWS if k in stats]
+    if rows:
+        doc.table("gaze_stream", pd.DataFrame(rows, columns=["count", "n"]).set_index("count"), digits=0)
+    doc.data["gaze_stream"] = {k: stats.get(k) for k, _ in _STREAM_ROWS} | {"errors": info.get("errors")}
+    frames = max(int(stats.get("frames") or 0), 1)
+    if stats.get("garbage_bytes", 0) >= frames and stats.get("frames"):
+        doc.text(f"{stats['garbage_bytes'] / frames:.1f} bytes outside frames per frame: the configured format or "
+                 f"items may not match the tracker's (check the capture with gaze-check).")
+    examples = [(kind, e) for kind, es in (stats.get("examples") or {}).items() for e in es]
+    if examples:
+        doc.table("gaze_stream_examples", pd.DataFrame(examples, columns=["kind", "first examples (hex)"])
+                  .set_index("kind"), "The first examples of each kind of error, bytes in hex.")
+    for k, earlier in enumerate(info.get("earlier_sessions") or [], start=1):
+        es = earlier.get("stats") or {}
+        doc.text(f"Earlier session {k} (before a resume): {es.get('samples', 0)} samples, "
+                 f"{earlier.get('errors', 0)} error(s), {es.get('garbage_bytes', 0)} bytes outside frames.")
 
 
 def study_report(run_dirs: Sequence[str | Path], out_dir: str | Path | None = None,

@@ -244,8 +244,13 @@ class HmiBlock:
         """Hold until the gaze stream delivers its first sample (a recorded one at once)."""
         if self.feed.started:
             return
-        if not self._tick_until(lambda: self.feed.started, self.feed.start_timeout_s, pace=True):
-            raise BackendError(self.feed.no_sample_message(self.feed.start_timeout_s))
+        t0 = self.arm.t_s
+        try:
+            started = self._tick_until(lambda: self.feed.started, self.feed.start_timeout_s, pace=True)
+        except _SessionEnded:  # the stream ended before it delivered anything usable
+            started = False
+        if not started:
+            raise BackendError(self.feed.no_sample_message(self.arm.t_s - t0, ended=self.feed.exhausted))
         self._event("stream_start", f"first gaze sample at tracker time {self.feed.offset_s:.3f} s")
 
     def _go_home(self) -> None:

@@ -150,6 +150,7 @@ class StreamFeed:
         self._offset_s: float | None = None
         self._last_t_s: float | None = None
         self._last_wall_s = clock()
+        self._first_look: tuple[float, float] | None = None  # (arm time, wall time) when first looked for a sample
         self._ended = False
         self._queue: queue.Queue | None = None
         self._stop = threading.Event()
@@ -214,8 +215,10 @@ class StreamFeed:
         try:
             item = self._queue.get_nowait()
         except queue.Empty:
-            if self._last_t_s is None:
-                wait = 0.02
+            if self._last_t_s is None:  # before the first sample: the arm clock keeps to the wall clock
+                if self._first_look is None:
+                    self._first_look = (t_s, self.clock())
+                wait = (t_s - self._first_look[0]) - (self.clock() - self._first_look[1])
             else:
                 wait = t_s - (self._last_t_s + self.clock() - self._last_wall_s)
             if wait <= 0.0:
@@ -247,14 +250,19 @@ class StreamFeed:
             return s
         return None
 
-    def no_sample_message(self, waited_s: float) -> str:
-        """Why no sample came in ``waited_s``: what arrived and what to try (serial sources), else the basics."""
+    def no_sample_message(self, waited_s: float, ended: bool = False) -> str:
+        """Why no usable sample came in ``waited_s`` (or before the stream ``ended``): what arrived and what to try
+        (serial sources), else the basics."""
+        waited_s = round(waited_s, 1)
         if getattr(self.source, "settings", None) is not None:
             from wamctl.backends.gaze.check import describe_silence
-            return describe_silence(self.source, waited_s)
-        stats = getattr(self.source, "stats", None)
-        seen = f": {stats.bytes} bytes, {stats.samples} samples, {stats.errors} errors" if stats is not None else ""
-        return f"no gaze sample from the {type(self.source).__name__} within {waited_s:g} s{seen}"
+            text = describe_silence(self.source, waited_s)
+        else:
+            stats = getattr(self.source, "stats", None)
+            seen = (f": {stats.bytes} bytes, {stats.samples} samples, {stats.errors} errors"
+                    if stats is not None else "")
+            text = f"no gaze sample from the {type(self.source).__name__} within {waited_s:g} s{seen}"
+        return text + (" (the stream ended)" if ended else "")
 
     def close(self) -> None:
         self._stop.set()
