@@ -212,3 +212,29 @@ def test_a_block_with_the_wrong_format_says_what_arrived_and_what_to_try(tmp_pat
     write_report(outcome.path, tmp_path)
     md = (tmp_path / "report.md").read_text()
     assert "## Gaze stream" in md and "| bytes outside any frame | 360 |" in md
+
+
+@pytest.mark.parametrize("via", ["direct", "pty"])
+def test_replay_raw_source_reruns_the_session_offline(block_run, tmp_path, via):
+    """The run's raw capture as a ``replay-raw`` source: in-process it gives the very samples of the live run (same
+    arrival stamps); through a pty, the same values with new stamps. The trial is the same to within a sample
+    (the live run took each sample at the first tick after it arrived, the replay at the tick it is due)."""
+    fmt, outcome, _ = block_run
+    if fmt != "ascii-pair":
+        pytest.skip("one format is enough here")
+    spec = parse_spec({"kind": "hmi_block", "seed": 1, "name": f"replay-{via}", "hmi": {
+        "subject": {"id": "P01"}, "locations": ["P4"], "start": "auto", "timeout_s": 20,
+        "source": {"kind": "replay-raw", "path": str(outcome.path / "gaze_capture.txt"), "format": fmt,
+                   "via": via}}})
+    again = run_spec(spec, tmp_path, tmp_path / "runs", make_report=False)
+    assert again.status == "completed"
+    live, _ = _samples(outcome, fmt)
+    rerun, _ = _samples(again, fmt)
+    n = min(len(live), len(rerun))
+    assert n >= 130
+    cols = ["x_px", "y_px", "flags"] if via == "pty" else list(live.columns)
+    pd.testing.assert_frame_equal(rerun[cols].iloc[:n], live[cols].iloc[:n])
+    t_live = pd.read_csv(outcome.path / "trials.csv")
+    t_again = pd.read_csv(again.path / "trials.csv")
+    assert t_again.loc[0, "outcome"] == t_live.loc[0, "outcome"]
+    assert t_again.loc[0, "time_s"] == pytest.approx(t_live.loc[0, "time_s"], abs=0.05)
