@@ -193,3 +193,13 @@ def test_cli_on_a_live_port_writes_a_capture(tmp_path):
     sections = read_capture(tmp_path / "cap.txt")
     assert [s.info["baudrate"] for s in sections] == [57600, 115200]
     assert identify(sections[0]).verdict == "ascii-pair"
+
+
+def test_line_noise_between_frames_still_decodes_and_is_shown():
+    """Noise before every third frame (about 10 % of the bytes outside frames): the stream still decodes, and the
+    noise is counted with its first bytes."""
+    frames = _asl_standard()
+    frames = [(b"\x01\x02\x03" if k % 3 == 1 else b"") + f for k, f in enumerate(frames)]
+    result = identify(_capture(frames, 30.0))
+    assert result.verdict == "asl-serial-out (standard items)" and result.summary["samples"] == 150
+    assert result.summary["garbage_bytes"] == 150 and result.summary["examples"]["garbage"][0].startswith("01 02 03")

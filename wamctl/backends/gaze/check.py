@@ -3,9 +3,10 @@ of a session that got no sample.
 
 :func:`identify` runs each candidate decoder (:data:`CANDIDATES`: ASL Serial Out with the standard items and with a
 frame counter, ASCII pairs, ASCII timestamped lines) over one capture section, with the recorded arrival times, and
-judges each: a candidate *decodes* when it gives at least :data:`MIN_SAMPLES` samples, its errors (cut and bad
-frames, corrupt lines) are at most :data:`MAX_ERROR_SHARE` of its frames, and at most :data:`MAX_GARBAGE_SHARE` of
-the bytes fall outside its frames. The best candidate (most samples, then fewest errors) is the answer, with its
+judges each: a candidate *decodes* when it gives at least :data:`MIN_SAMPLES` samples and its errors (cut and bad
+frames, corrupt lines) are at most :data:`MAX_ERROR_SHARE` of its frames. Bytes outside frames are counted and shown,
+not held against it (a stream with line noise still decodes; ASL items shorter than the tracker's frames are caught
+by the framer, which withholds such frames). The best candidate (most samples, then fewest errors) is the answer, with its
 sample rate, value ranges, how blinks showed, its framing errors and a spec section; if none decodes the answer is
 "no known format", with the first bytes in hex and what they look like. :func:`check_port` captures a port at each
 baud rate asked for and identifies each capture.
@@ -28,7 +29,6 @@ from wamctl.hmi.gaze import BLINK_SENTINEL_PX
 
 MIN_SAMPLES = 3
 MAX_ERROR_SHARE = 0.10
-MAX_GARBAGE_SHARE = 0.05
 #: Baud rates ``gaze-check`` suggests trying when nothing decodes.
 COMMON_BAUDS = (57600, 115200, 38400, 19200, 9600)
 
@@ -127,8 +127,6 @@ def run_candidate(candidate: Candidate, chunks: Sequence[tuple[float, bytes]]) -
         why = f"{good} sample(s)"
     elif errors > MAX_ERROR_SHARE * (good + errors):
         why = f"{errors} errors for {good} samples"
-    elif st.garbage_bytes > MAX_GARBAGE_SHARE * max(st.bytes, 1):
-        why = f"{st.garbage_bytes} of {st.bytes} bytes outside frames"
     return Trial(candidate, decoded, st.as_dict(), not why, why)
 
 
