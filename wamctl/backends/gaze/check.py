@@ -4,12 +4,12 @@ of a session that got no sample.
 :func:`identify` runs each candidate decoder (:data:`CANDIDATES`: ASL Serial Out with the standard items and with a
 frame counter, ASCII pairs, ASCII timestamped lines) over one capture section, with the recorded arrival times, and
 judges each: a candidate *decodes* when it gives at least :data:`MIN_SAMPLES` samples and its errors (cut and bad
-frames, corrupt lines) are at most :data:`MAX_ERROR_SHARE` of its frames. Bytes outside frames are counted and shown,
-not held against it (a stream with line noise still decodes; ASL items shorter than the tracker's frames are caught
-by the framer, which withholds such frames). The best candidate (most samples, then fewest errors) is the answer, with its
-sample rate, value ranges, how blinks showed, its framing errors and a spec section; if none decodes the answer is
-"no known format", with the first bytes in hex and what they look like. :func:`check_port` captures a port at each
-baud rate asked for and identifies each capture.
+frames, corrupt lines) are at most :data:`MAX_ERROR_SHARE` of its frames. Bytes outside frames are counted and
+shown, not held against it (a stream with line noise still decodes; ASL items shorter than the tracker's frames are
+caught by the framer, which withholds such frames). The best candidate (most samples, then fewest errors) is the
+answer, with its sample rate, value ranges, how blinks showed, its framing errors and a spec section; if none
+decodes the answer is "no known format", with the first bytes in hex and what they look like. :func:`check_port`
+captures a port at each baud rate asked for and identifies each capture.
 """
 
 from __future__ import annotations
