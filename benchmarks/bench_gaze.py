@@ -9,8 +9,9 @@ Three parts, each can run alone (``--only chain|decode|pty``):
 * ``pty``: the arrival stamps of each format through a pseudo-terminal at 57600 Bd. A simulated tracker
   (:mod:`wamctl.backends.gaze.tracker_sim`, its own process) writes a frame every 1/30 s on an absolute schedule and
   records the start and return of each write; the reader's latency is ``max(0, arrival - write returned)`` (the
-  bytes became readable during the write). Measured twice: the serial source alone in a thread (``reader``), and
-  the whole ``hmi_block`` on the simulated arm (``block``, the samples of ``gaze_samples.csv``). The tracker's own
+  bytes became readable during the write). Measured three ways: the serial source alone, reading the port in this
+  process (``thread``) or in a child process (``process``), and the whole ``hmi_block`` on the simulated arm
+  (``block``, which reads its port in a child process; the samples of ``gaze_samples.csv``). The tracker's own
   lateness against its schedule (``sender late``) shows the machine's wake-up noise in the same window.
   ``--hogs N`` runs N busy processes meanwhile (a loaded machine).
 
@@ -131,9 +132,9 @@ def _sender(fmt: str, seconds: float, out: Path, master_fd: int, slave: str) -> 
                             pass_fds=(master_fd,), env=env)
 
 
-def _reader_alone(fmt: str, slave: str, seconds: float) -> list:
+def _reader_alone(fmt: str, slave: str, seconds: float, reader: str) -> list:
     records = []
-    with SerialGazeSource(slave, format=fmt, timeout_s=0.1) as source:
+    with SerialGazeSource(slave, format=fmt, timeout_s=0.1, reader=reader) as source:
         stop = threading.Event()
 
         def read():
@@ -172,7 +173,7 @@ def run_pty(args) -> None:
     print(f"{'format':<20}{'where':<8}{'n':>6}{'p50 ms':>9}{'p99 ms':>9}{'max ms':>9}{'sender late p99 ms':>21}")
     try:
         for fmt in FORMAT_NAMES:
-            for where in ("reader", "block"):
+            for where in ("thread", "process", "block"):
                 with tempfile.TemporaryDirectory() as d:
                     tmp = Path(d)
                     master_fd, slave_fd = os.openpty()
@@ -180,8 +181,8 @@ def run_pty(args) -> None:
                     slave = os.ttyname(slave_fd)
                     sender = _sender(fmt, args.pty_seconds, tmp / "sent.json", master_fd, slave)
                     try:
-                        arrivals = (_reader_alone(fmt, slave, args.pty_seconds) if where == "reader"
-                                    else _block(fmt, slave, args.pty_seconds, tmp))
+                        arrivals = (_block(fmt, slave, args.pty_seconds, tmp) if where == "block"
+                                    else _reader_alone(fmt, slave, args.pty_seconds, where))
                         sender.wait(timeout=60)
                         sent = json.loads((tmp / "sent.json").read_text())
                     finally:

@@ -20,7 +20,7 @@ from wamctl.backends.gaze.check import describe_silence
 from wamctl.backends.gaze.formats import make_decoder
 from wamctl.backends.gaze.replay import PtyReplaySource, RawReplaySource
 from wamctl.backends.gaze.serial import SerialGazeSource
-from wamctl.errors import DataFormatError
+from wamctl.errors import BackendError, DataFormatError
 from wamctl.hmi.gaze import GazeFlag
 
 WIRE_A = bytes.fromhex("80 00 28 00 01 00 01 20 20 00")  # status 0, pupil 40, (384, 288): test_gaze_formats.py
@@ -47,10 +47,12 @@ def pty_pair():
             pass
 
 
-@pytest.mark.parametrize("fmt", ["asl-serial-out", "ascii-pair"])
-def test_arrival_stamp_is_taken_when_the_bytes_are_there(pty_pair, fmt):
+@pytest.mark.parametrize("fmt, reader", [("asl-serial-out", "thread"), ("ascii-pair", "thread"),
+                                         ("asl-serial-out", "process")])
+def test_arrival_stamp_is_taken_when_the_bytes_are_there(pty_pair, fmt, reader):
     """A frame written 50 ms after the reader starts waiting is stamped after the write started, not when the read
-    began; for formats without a tracker clock the stamp is the sample's time."""
+    began; for formats without a tracker clock the stamp is the sample's time. The same with the port read in a
+    child process."""
     master, slave = pty_pair
     data = tracker_sim.frame(fmt, 0, (384, 288))
     written = []
@@ -61,7 +63,7 @@ def test_arrival_stamp_is_taken_when_the_bytes_are_there(pty_pair, fmt):
         written.append(time.monotonic())
         os.write(master, data)
 
-    with SerialGazeSource(slave, format=fmt, timeout_s=5.0) as src:
+    with SerialGazeSource(slave, format=fmt, timeout_s=5.0, reader=reader) as src:
         threading.Thread(target=write, daemon=True).start()
         d = src.read_decoded(5.0)
     assert d is not None and written
@@ -79,6 +81,22 @@ def test_port_settings_reach_pyserial():
         assert (src.port.baudrate, src.port.parity, src.port.rtscts) == (57600, "N", False)
     with pytest.raises(ValueError, match="parity"):
         SerialGazeSource("loop://", parity="odd-ish")
+
+
+def test_process_reader_reports_open_failures_and_the_end_of_the_stream(pty_pair):
+    with pytest.raises(BackendError, match="cannot open serial port '/dev/does-not-exist-gaze'"):
+        SerialGazeSource("/dev/does-not-exist-gaze", reader="process")
+    master, slave = pty_pair
+    with SerialGazeSource(slave, format="ascii-pair", reader="process", timeout_s=0.1) as src:
+        tracker_sim.wait_for_reader(slave, 57600)
+        time.sleep(0.2)
+        os.write(master, b"1,2\n3,4\n5,")
+        first = src.read_decoded(5.0)
+        os.close(master)  # the tracker hangs up: the child reads EIO and says so
+        rest = _read_all(src)
+    assert first.sample.x_px == 1.0 and len(rest) == 2
+    assert rest[0].sample.x_px == 3.0 and rest[1].sample.flags == GazeFlag.CORRUPT  # "5," cut by the hang-up
+    assert src.exhausted and src.port is None
 
 
 def test_capture_round_trip_sections_and_a_torn_last_line(tmp_path):

@@ -9,6 +9,10 @@ formats without a tracker clock that stamp is the sample's time. What delays it:
 adapter holds bytes up to its latency timer, 16 ms by default on FTDI chips; see the README), the operating system's
 scheduling, and in a busy Python process the GIL. Several frames completed by one read share its stamp.
 
+With ``reader="process"`` the port is read, and the reads stamped, in a child process of its own (sent to this
+one over a pipe): the stamps then do not wait for this process' GIL, which a busy main loop (an ``hmi_block``
+writing its tables between trials) can hold for tens of milliseconds. The ``hmi_block`` reads its tracker that way.
+
 Every read can go to a capture file (:class:`~wamctl.backends.gaze.capture.CaptureWriter`) as it arrives; the first
 :data:`HEAD_BYTES` bytes are also kept in memory, to say what arrived when nothing decoded.
 """
@@ -17,6 +21,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import logging
+import multiprocessing
 import time
 from collections import deque
 
@@ -60,6 +65,8 @@ class SerialGazeSource(SourceBase):
         writer never hangs up). A closed connection exhausts it in any case.
     capture : CaptureWriter or str or path or None
         Where every read goes as it arrives (a path opens a :class:`CaptureWriter`, closed with the source).
+    reader : {"thread", "process"}
+        Read the port in the calling thread, or in a child process that stamps the reads (see the module doc).
 
     Raises
     ------
@@ -70,9 +77,11 @@ class SerialGazeSource(SourceBase):
     def __init__(self, url: str, *, baudrate: int = 57600, bytesize: int = 8, parity: str = "none",
                  stopbits: float = 1, flow_control: str = "none", format: str = DEFAULT_FORMAT,
                  decoder: GazeStreamDecoder | None = None, timeout_s: float = 0.1, poll_s: float = 0.01,
-                 eof_idle_s: float | None = None, capture=None) -> None:
+                 eof_idle_s: float | None = None, capture=None, reader: str = "thread") -> None:
         import serial  # pyserial is only needed here
 
+        if reader not in ("thread", "process"):
+            raise ValueError(f"reader must be thread or process, got {reader!r}")
         if parity not in PARITIES or flow_control not in FLOW_CONTROLS:
             raise ValueError(f"parity {parity!r} / flow_control {flow_control!r}: expected one of "
                              f"{', '.join(PARITIES)} / {', '.join(FLOW_CONTROLS)}")
@@ -89,13 +98,19 @@ class SerialGazeSource(SourceBase):
         self.reads = 0
         self.head: list[tuple[float, bytes]] = []  # the first HEAD_BYTES bytes, as read
         self._head_bytes = 0
-        try:
-            self._port = serial.serial_for_url(
-                url, baudrate=baudrate, bytesize=bytesize, parity=PARITIES[parity], stopbits=stopbits,
-                rtscts=flow_control == "rtscts", xonxoff=flow_control == "xonxoff",
-                dsrdtr=flow_control == "dsrdtr", timeout=poll_s)
-        except (serial.SerialException, ValueError, OSError) as exc:
-            raise BackendError(f"gaze tracker: cannot open serial port {url!r}: {exc}") from exc
+        options = {"baudrate": baudrate, "bytesize": bytesize, "parity": PARITIES[parity], "stopbits": stopbits,
+                   "rtscts": flow_control == "rtscts", "xonxoff": flow_control == "xonxoff",
+                   "dsrdtr": flow_control == "dsrdtr", "timeout": poll_s}
+        self._poll_s = poll_s
+        self._port = None
+        self._child: _ChildReader | None = None
+        if reader == "process":
+            self._child = _ChildReader(url, options)
+        else:
+            try:
+                self._port = serial.serial_for_url(url, **options)
+            except (serial.SerialException, ValueError, OSError) as exc:
+                raise BackendError(f"gaze tracker: cannot open serial port {url!r}: {exc}") from exc
         self.opened_s = self._last_rx_s = time.monotonic()
         self.first_rx_s: float | None = None
         if capture is not None and not isinstance(capture, CaptureWriter):
@@ -139,18 +154,17 @@ class SerialGazeSource(SourceBase):
                 return None
 
     def _receive(self) -> None:
-        data = bytearray()
-        ended = None
-        try:
-            data += self._port.read(1)
-            # in_waiting is exact for ttys and loop://, 0/1 for socket://: drain what is there, bounded.
-            while data and len(data) < 65536 and (n := self._port.in_waiting):
-                data += self._port.read(n)
-        except self._serial_error as exc:  # keep what came before the hang-up
-            ended = exc
-        now = time.monotonic()
-        if data:
-            self._got(bytes(data), now)
+        if self._child is not None:
+            chunks, ended = self._child.receive(self._poll_s)
+            for now, data in chunks:
+                self._got(data, now)
+            now = chunks[-1][0] if chunks else time.monotonic()
+            data = bool(chunks)
+        else:
+            data, ended = read_port(self._port, self._serial_error)
+            now = time.monotonic()
+            if data:
+                self._got(bytes(data), now)
         if ended is not None:
             logger.warning("gaze tracker %s: connection ended (%s)", self.url, ended)
             self._end_of_stream(now)
@@ -177,7 +191,97 @@ class SerialGazeSource(SourceBase):
 
     def _close(self) -> None:
         self._exhausted = True
-        self._port.close()
+        if self._child is not None:
+            self._child.close()
+        else:
+            self._port.close()
         if self.capture is not None:
             self.capture.close()
         logger.info("gaze tracker serial port %s closed", self.url)
+
+
+def read_port(port, serial_error) -> tuple[bytearray, Exception | None]:
+    """One read: wait up to the port's timeout for a byte, then take what else is waiting (bounded); the error
+    that ended the connection, if any (what came before it is kept)."""
+    data = bytearray()
+    try:
+        data += port.read(1)
+        # in_waiting is exact for ttys and loop://, 0/1 for socket://: drain what is there, bounded.
+        while data and len(data) < 65536 and (n := port.in_waiting):
+            data += port.read(n)
+    except serial_error as exc:
+        return data, exc
+    return data, None
+
+
+def _child_main(url: str, options: dict, conn, stop) -> None:
+    """The child process of ``reader="process"``: open the port, then send ``("data", t, bytes)`` for every read
+    (``t`` taken when the read returned) until told to stop or the connection ends (``("end", t, why)``)."""
+    import serial
+
+    try:
+        port = serial.serial_for_url(url, **options)
+    except (serial.SerialException, ValueError, OSError) as exc:
+        conn.send(("error", 0.0, str(exc)))
+        conn.close()
+        return
+    conn.send(("open", time.monotonic(), b""))
+    try:
+        while not stop.is_set():
+            data, ended = read_port(port, serial.SerialException)
+            now = time.monotonic()
+            if data:
+                conn.send(("data", now, bytes(data)))
+            if ended is not None:
+                conn.send(("end", now, str(ended)))
+                break
+    except (BrokenPipeError, EOFError, OSError):  # the parent went away
+        pass
+    finally:
+        port.close()
+        conn.close()
+
+
+class _ChildReader:
+    """A child process reading a serial port and stamping its reads (``reader="process"``)."""
+
+    START_TIMEOUT_S = 20.0
+
+    def __init__(self, url: str, options: dict) -> None:
+        ctx = multiprocessing.get_context("spawn")  # no fork of a process that runs threads
+        self._conn, child_conn = ctx.Pipe(duplex=False)
+        self._stop = ctx.Event()
+        self._proc = ctx.Process(target=_child_main, args=(url, options, child_conn, self._stop),
+                                 name="gaze-port-reader", daemon=True)
+        self._proc.start()
+        child_conn.close()
+        if not self._conn.poll(self.START_TIMEOUT_S):
+            self.close()
+            raise BackendError(f"gaze tracker: the reader process for {url!r} did not start")
+        kind, _, payload = self._conn.recv()
+        if kind == "error":
+            self.close()
+            raise BackendError(f"gaze tracker: cannot open serial port {url!r}: {payload}")
+
+    def receive(self, timeout_s: float) -> tuple[list[tuple[float, bytes]], Exception | None]:
+        """The reads that came within ``timeout_s`` (all that are waiting), and the end of the connection, if any."""
+        chunks: list[tuple[float, bytes]] = []
+        try:
+            wait = timeout_s
+            while self._conn.poll(wait):
+                kind, t_s, payload = self._conn.recv()
+                if kind == "end":
+                    return chunks, ConnectionError(payload)
+                chunks.append((t_s, payload))
+                wait = 0.0
+        except (EOFError, OSError) as exc:
+            return chunks, ConnectionError(f"the reader process ended ({exc or 'no more data'})")
+        return chunks, None
+
+    def close(self) -> None:
+        self._stop.set()
+        self._proc.join(2.0)
+        if self._proc.is_alive():
+            self._proc.terminate()
+            self._proc.join(1.0)
+        self._conn.close()

@@ -281,8 +281,9 @@ class StreamFeed:
 
 def open_feed(h: HmiTask, base_dir: Path | None, run_path: Path | None = None) -> VirtualFeed | StreamFeed:
     """The feed of ``h.source``: a virtual subject, a replayed gaze file or raw capture (relative to ``base_dir``
-    unless it exists as given), or a serial tracker read in a thread. With ``run_path``, a stream is recorded there
-    (:class:`StreamRecord`, and the raw capture of a serial port)."""
+    unless it exists as given), or a serial tracker (its port read and stamped in a child process, its samples
+    decoded in a thread). With ``run_path``, a stream is recorded there (:class:`StreamRecord`, and the raw
+    capture of a serial port)."""
     src = h.source
     if src.kind == "virtual":
         return VirtualFeed()
@@ -304,12 +305,12 @@ def open_feed(h: HmiTask, base_dir: Path | None, run_path: Path | None = None) -
             if src.via == "direct":
                 source = RawReplaySource.from_capture(path, decoder, realtime=src.realtime)
                 return StreamFeed(source, live=src.realtime, record=record, start_timeout_s=src.start_timeout_s)
-            source = PtyReplaySource(read_capture(path), decoder=decoder(), capture=capture)
+            source = PtyReplaySource(read_capture(path), decoder=decoder(), capture=capture, reader="process")
             return StreamFeed(source, live=True, record=record, start_timeout_s=src.start_timeout_s)
         from wamctl.backends.gaze.serial import SerialGazeSource
         source = SerialGazeSource(src.url, baudrate=src.baudrate, bytesize=src.bytesize, parity=src.parity,
                                   stopbits=src.stopbits, flow_control=src.flow_control, decoder=decoder(),
-                                  eof_idle_s=src.eof_idle_s, capture=capture)
+                                  eof_idle_s=src.eof_idle_s, capture=capture, reader="process")
         return StreamFeed(source, live=True, record=record, start_timeout_s=src.start_timeout_s)
     except BaseException:
         if record is not None:
