@@ -155,6 +155,10 @@ def test_cli_from_captures(tmp_path):
     assert "no known format in 344 bytes; first bytes: 00 03 06 09 0c 0f" in " ".join(r.stderr.split())
     r = _wamctl("gaze-check")
     assert r.returncode == 2 and "give --port URL or --from-capture FILE" in r.stderr
+    r = _wamctl("gaze-check", "--port", "loop://", "--parity", "bogus")
+    assert r.returncode == 2 and "--parity: 'bogus' is not one of none, even" in r.stderr and "Traceback" not in r.stderr
+    r = _wamctl("gaze-check", "--port", "/dev/does-not-exist-gaze", "--seconds", 0.5)
+    assert r.returncode == 2 and "cannot open serial port" in r.stderr and "Traceback" not in r.stderr
 
 
 def test_cli_on_a_live_port_writes_a_capture(tmp_path):

@@ -38,6 +38,11 @@ def gaze_check_cmd(
 
     if (port is None) == (from_capture is None):
         raise SpecError("give --port URL or --from-capture FILE")
+    for name, value, allowed in (("--parity", parity, ("none", "even", "odd", "mark", "space")),
+                                 ("--flow-control", flow_control, ("none", "rtscts", "xonxoff", "dsrdtr")),
+                                 ("--stopbits", stopbits, (1, 1.5, 2))):
+        if value not in allowed:
+            raise SpecError(f"{name}: {value!r} is not one of {', '.join(map(str, allowed))}")
     if from_capture is not None:
         results = [identify(section) for section in read_capture(from_capture) if section.chunks]
         if not results:

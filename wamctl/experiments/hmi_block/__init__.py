@@ -76,6 +76,12 @@ gaze_flags, motion, level, vx_cmd_m_s, vy_cmd_m_s, hold, arm_hold, hand_x_m, han
 ref_x_m, ref_y_m, gripper`` and ``q_1_rad .. q_7_rad`` (measured). Codes: ``motion`` indexes
 :data:`.tables.MOTION_CODES`, ``hold`` :data:`.tables.HOLD_CODES`, ``arm_hold`` :data:`.tables.ARM_HOLD_CODES`.
 
+With a tracker stream (``serial`` or ``replay-raw`` source), beside the tables: ``gaze_capture.txt`` (every read of
+the port, raw, with its arrival time), ``gaze_samples.csv`` (every decoded frame: ``arrival_s, t_s, x_px, y_px,
+flags, raw_x, raw_y, pupil, status, counter``) and ``gaze_stream.json`` (the decoder's counts and first examples of
+each framing/decode error); see :mod:`.feeds` and docs/gaze-streams.md. A stream that gives no usable sample within
+``source.start_timeout_s`` ends the run as failed, with what arrived and what to try.
+
 What lives here
 ---------------
 The plan (:mod:`.planning`: poses solved palm down, trials, seeds), the gaze feeds on the arm clock
