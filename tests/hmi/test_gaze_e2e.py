@@ -240,3 +240,4 @@ def test_replay_raw_source_reruns_the_session_offline(block_run, tmp_path, via):
     t_again = pd.read_csv(again.path / "trials.csv")
     assert t_again.loc[0, "outcome"] == t_live.loc[0, "outcome"]
     assert t_again.loc[0, "time_s"] == pytest.approx(t_live.loc[0, "time_s"], abs=0.05)
+    assert (again.path / "gaze_capture.txt").read_text().count("\n# section") == 1  # the bytes it decoded, kept

@@ -15,6 +15,7 @@ import json
 import logging
 import math
 import queue
+import shutil
 import threading
 import time
 from collections.abc import Callable
@@ -304,6 +305,8 @@ def open_feed(h: HmiTask, base_dir: Path | None, run_path: Path | None = None) -
             path = resolve_path(src.path, base_dir)
             if src.via == "direct":
                 source = RawReplaySource.from_capture(path, decoder, realtime=src.realtime)
+                if capture is not None and not capture.exists():  # the run keeps the bytes it decoded
+                    shutil.copyfile(path, capture)
                 return StreamFeed(source, live=src.realtime, record=record, start_timeout_s=src.start_timeout_s)
             source = PtyReplaySource(read_capture(path), decoder=decoder(), capture=capture, reader="process")
             return StreamFeed(source, live=True, record=record, start_timeout_s=src.start_timeout_s)
