@@ -152,6 +152,17 @@ class WamDynamics:
         pin.framesForwardKinematics(self.model, self.data, q)
         return pin.getFrameJacobian(self.model, self.data, self._link7, pin.LOCAL_WORLD_ALIGNED).copy()
 
+    def link7_speed_m_s(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Linear speed of the link-7 origin (the wrist flange), m/s, for states (n, 7): (n,)."""
+        q, qd = np.atleast_2d(q), np.atleast_2d(qd)
+        out = np.empty(len(q))
+        for k in range(len(q)):
+            pin.forwardKinematics(self.model, self.data, q[k], qd[k])
+            pin.updateFramePlacement(self.model, self.data, self._link7)
+            v = pin.getFrameVelocity(self.model, self.data, self._link7, pin.LOCAL_WORLD_ALIGNED)
+            out[k] = np.linalg.norm(v.linear)
+        return out
+
     def regressor_basis(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Joint torque regressor Y (7, 70) with tau = Y @ pi for the standard inertial parameters."""
         return pin.computeJointTorqueRegressor(self.model, self.data, q, qd, qdd).copy()

@@ -145,7 +145,8 @@ class LinkParameters:
         return f"LinkParameters({'datasheet' if not changed else 'links ' + str(changed) + ' changed'})"
 
     def with_overrides(self, links: dict | None) -> LinkParameters:
-        """A copy with the values of ``links`` ({joint: {key: value}}, 1-based joints) in place of these.
+        """A copy with the values of ``links`` ({joint: {key: value}}, 1-based joints; None values and absent
+        keys keep this one's) in place of these.
 
         Raises ValueError naming ``links.<joint>.<key>`` for an unknown key, a wrong length or a mass <= 0."""
         if not links:
@@ -155,7 +156,11 @@ class LinkParameters:
             j = int(key)
             if not 1 <= j <= N_JOINTS:
                 raise ValueError(f"links.{key}: joint numbers are 1..{N_JOINTS}")
+            if hasattr(entry, "model_dump"):        # a validated spec entry
+                entry = entry.model_dump()
             for name, value in (entry or {}).items():
+                if value is None:
+                    continue
                 if name not in LINK_KEYS:
                     raise ValueError(f"links.{key}.{name}: unknown key (known: {', '.join(LINK_KEYS)})")
                 want = out[name][j - 1].shape
@@ -183,6 +188,25 @@ class LinkParameters:
                 entry[name] = float(v) if np.ndim(v) == 0 else [float(x) for x in v]
             if entry:
                 out[j + 1] = entry
+        return out
+
+    def inconsistent_links(self, rel_tol: float = 1e-9) -> dict[int, str]:
+        """``{joint (1-based): why}`` for every link that is not a physical body: mass <= 0, or an inertia
+        about the COM that is not positive semidefinite or breaks the triangle inequality (each principal
+        moment at most the sum of the other two); together these are exactly a positive semidefinite
+        pseudo-inertia (Wensing, Kim and Slotine, 2017)."""
+        out = {}
+        for i in range(N_JOINTS):
+            if not self.mass_kg[i] > 0:
+                out[i + 1] = f"mass {self.mass_kg[i]:g} kg"
+                continue
+            ev = np.linalg.eigvalsh(self.inertia_matrix_kg_m2(i))
+            tol = rel_tol * max(ev.max(), 1e-12)
+            if ev.min() < -tol:
+                out[i + 1] = f"inertia about the COM has a negative principal moment ({ev.min():.3g} kg m^2)"
+            elif ev.max() > ev.sum() - ev.max() + tol:
+                out[i + 1] = (f"principal moments {', '.join(f'{e:.3g}' for e in ev)} kg m^2 break the triangle "
+                              "inequality")
         return out
 
     def inertia_matrix_kg_m2(self, i: int) -> np.ndarray:
