@@ -19,7 +19,7 @@ PEAK_COLUMNS = {"position": "position_peak_rad", "speed": "speed_peak_rad_s",
                 "acceleration": "acceleration_peak_rad_s2", "torque": "torque_peak_Nm"}
 
 
-def limits_table(use, limits) -> pd.DataFrame:
+def limits_table(use) -> pd.DataFrame:
     """Per joint: the peak of each quantity and the share of its limit used (a LimitUse and its limits)."""
     rows = []
     for j in range(P.N_JOINTS):
@@ -45,7 +45,7 @@ def design_document(spec, design, use, limits, out_dir: Path) -> Document:
                f"{limits.cartesian_speed_m_s:g} m/s. All limits checked at {P.CONTROL_RATE_HZ:.0f} Hz over the "
                "whole period.")
     doc.heading("Limits reached")
-    doc.table("limits", limits_table(use, limits), "peak of each quantity over one period and the share of its "
+    doc.table("limits", limits_table(use), "peak of each quantity over one period and the share of its "
               "limit used (position: distance from the middle of the range with margin, as a share of its half).")
     doc.heading("Starts")
     doc.table("starts", pd.DataFrame(design.starts), "each random feasible start and where SLSQP ended")

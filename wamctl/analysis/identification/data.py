@@ -28,12 +28,13 @@ Instruments
 -----------
 ``Z``: the standard regressor of the reference ``q_ref`` through the same two filters. The reference is
 exogenous (free of the measurement's noise and of the actuation noise the closed loop feeds back into the
-motion) and close to the motion, so it is the instrument of the estimator's instrumental-variable fit.
+motion) and close to the motion, so it is the instrument of the estimator's instrumental-variable fit (when it
+follows the motion: :func:`reference_tracks`; otherwise the run's rows are fitted by least squares).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.ndimage import binary_dilation
@@ -54,6 +55,7 @@ N7 = P.N_JOINTS
 ROW_RATE_HZ = 100.0
 SIGNAL_SHARE = 0.99     # of the reference's acceleration energy that sets the signal band
 BAND_MARGIN = 3.0       # the second filter's cut-off at least this many times the signal band
+TRACKING_SHARE = 0.2    # a reference further from the motion than this is no instrument
 MIN_SPEED_RAD_S = 0.02  # slower sliding is left out (see the module doc)
 WINDOWS_S = (0.06, 0.08, 0.1, 0.15, 0.2, 0.3, 0.4)     # candidate Savitzky-Golay windows (Gaussian: a quarter)
 
@@ -92,6 +94,7 @@ class RunRows:
     reach_s: float
     window_s: float | None
     gauss_s: float | None
+    reference_tracks: bool = True
 
     @property
     def n_rows(self) -> int:
@@ -104,10 +107,16 @@ class RunRows:
         k, j = np.nonzero(use)
         return self.Y[k, j, :], self.tau_Nm[k, j], j, k
 
+    def restricted(self, mask: np.ndarray) -> RunRows:
+        """A copy whose usable rows are limited to the samples ``mask`` (m,) bool (e.g. a fitting block)."""
+        return replace(self, usable=self.usable & np.asarray(mask, bool)[:, None])
+
     def instruments(self) -> np.ndarray:
-        """The instruments' rows (r, 105), in the order of :meth:`stacked` (no mask)."""
+        """The instruments' rows (r, 105), in the order of :meth:`stacked` (no mask): the reference's regressor
+        when the reference follows the motion (:func:`reference_tracks`), else the regressor itself (least
+        squares on this run's rows)."""
         k, j = np.nonzero(self.usable)
-        return self.Z[k, j, :]
+        return (self.Z if self.reference_tracks else self.Y)[k, j, :]
 
 
 def signal_band_hz(t_s: np.ndarray, q_ref_rad: np.ndarray, share: float = SIGNAL_SHARE) -> float:
@@ -143,6 +152,16 @@ def auto_filter(t_s: np.ndarray, q_ref_rad: np.ndarray, rate_hz: float = ROW_RAT
         if band <= cutoff_hz(rate_hz, w, g) < first:
             best = (w, g)
     return best
+
+
+def reference_tracks(q_rad: np.ndarray, q_ref_rad: np.ndarray, joints: list[int]) -> bool:
+    """Whether the reference follows the motion closely enough to serve as an instrument: for every moving
+    joint, the tracking error's RMS is below ``TRACKING_SHARE`` of the motion's own RMS (about its mean)."""
+    for j in joints:
+        motion = np.std(q_rad[:, j])
+        if motion <= 0 or np.sqrt(np.mean((q_rad[:, j] - q_ref_rad[:, j]) ** 2)) > TRACKING_SHARE * motion:
+            return False
+    return bool(joints)
 
 
 def _dilate(mask: np.ndarray, reach: int) -> np.ndarray:
@@ -189,9 +208,10 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
     usable = ~_dilate(~sliding, reach2)
     if reach2:
         usable[:reach2] = usable[-reach2:] = False
+    joints = [j for j in sig.joints if usable[:, j].any()]
     return RunRows(str(data.source), sig.t_s[keep], sig.q_rad[keep], sig.qd_rad_s[keep], tau, usable, Y, Z,
-                   [j for j in sig.joints if usable[:, j].any()], dict(sig.skipped), dt,
-                   sig.reach * sig.dt_s + reach2 * dt, window_s, gauss_s)
+                   joints, dict(sig.skipped), dt, sig.reach * sig.dt_s + reach2 * dt, window_s, gauss_s,
+                   reference_tracks(sig.q_raw_rad, sig.q_ref_rad, joints))
 
 
 

@@ -31,6 +31,7 @@ Method (``InertialIdentification(...).fit(runs)``)
 from __future__ import annotations
 
 import logging
+import warnings
 from contextlib import contextmanager
 
 import numpy as np
@@ -56,7 +57,6 @@ log = logging.getLogger(__name__)
 N7 = P.N_JOINTS
 Z95 = 1.959963984540054
 MIN_ROWS = 50
-IV = True
 HAC_REACHES = 4.0       # Newey-West lags: this many filter reaches (at least Newey and West's rule)
 PRIOR_WEIGHT = 1e-2      # the declared arm as a prior, ten times wider than prior_scale (see there)
 PD_MARGIN = 1e-7         # each pseudo-inertia >= this share of the declared one's largest eigenvalue
@@ -114,6 +114,7 @@ class InertialIdentification:
                       for r in runs]
         Y, y, jrow, groups = self._stack(self.rows_)
         Zs = np.vstack([rr.instruments() for rr in self.rows_]) if self.rows_ else np.zeros((0, N_STANDARD))
+        self.instrumented_ = any(rr.reference_tracks for rr in self.rows_)
         if len(y) < MIN_ROWS:
             raise DataFormatError(f"only {len(y)} usable (sliding) rows in the data; the identification needs "
                                   f"at least {MIN_ROWS}: did any joint move?")
@@ -125,7 +126,7 @@ class InertialIdentification:
             w = 1.0 / self.sigma_Nm_[jrow]
             Xw, yw = Xb * w[:, None], y * w
             self.identifiability_ = identifiability(Xw, base)
-            self._wls(Xw, yw, groups, base.regressor(Zs) * w[:, None] if IV else None)
+            self._wls(Xw, yw, groups, base.regressor(Zs) * w[:, None] if self.instrumented_ else None)
             self._consistent()
             self.pi_nominal_ = self._nominal(Y, y, w)
         self.n_rows_ = len(y)
@@ -212,13 +213,18 @@ class InertialIdentification:
         ev = np.maximum(ev, ev.max() * 1e-14)
         W = (V / np.sqrt(ev)).T                  # whitening: W (beta_D - beta_hat_D) ~ N(0, 1)
         pi0 = self.pi_declared_
-        s = prior_scale(pi0) / np.sqrt(PRIOR_WEIGHT)
-        Rs = (W @ K[D]) * s                      # in units of the prior: delta = (pi - pi0) / s ~ N(0, 1)
+        s = prior_scale(pi0)
+        Rs = (W @ K[D]) * s                      # in units of the prior: delta = (pi - pi0) / s
         r0 = W @ (K[D] @ pi0 - self.beta_wls_[D])
-        norm = np.sqrt(max(float(np.sum(r0 ** 2)), 1.0))       # objective of order one for the solver
+        # the prior: weak (PRIOR_WEIGHT) along the standard directions that move a base parameter, full along
+        # those that move none (they only split the base parameters into links: the declared arm decides)
+        _, sv, Vt = np.linalg.svd(K * s, full_matrices=True)
+        r = int(np.sum(sv > 1e-10 * sv[0]))
+        Pw = np.vstack([np.sqrt(PRIOR_WEIGHT) * Vt[:r], Vt[r:]])     # prior precision = Pw^T Pw
+        norm = np.sqrt(max(float(np.sum(r0 ** 2)), 1.0))               # objective of order one for the solver
         delta = cp.Variable(N_STANDARD)
         pi = pi0 + cp.multiply(s, delta)
-        objective = (cp.sum_squares(Rs @ delta + r0) + cp.sum_squares(delta)) / norm ** 2
+        objective = (cp.sum_squares(Rs @ delta + r0) + cp.sum_squares(Pw @ delta)) / norm ** 2
         cons = [pi[ARMATURE_SLICE] >= 0, pi[FRICTION_SLICE] >= 0]
         for i in range(N7):
             eps = PD_MARGIN * np.linalg.eigvalsh(pseudo_inertia(pi0[10 * i:10 * i + 10]))[-1]
@@ -226,9 +232,13 @@ class InertialIdentification:
             cons.append(J - eps * np.eye(4) >> 0)
         prob = cp.Problem(cp.Minimize(objective), cons)
         try:
-            prob.solve(solver=cp.CLARABEL)
+            with warnings.catch_warnings(record=True) as caught:
+                warnings.simplefilter("always")
+                prob.solve(solver=cp.CLARABEL)
         except cp.error.SolverError as exc:
             raise DataFormatError(f"the physically consistent fit failed: {exc}") from None
+        for w in caught:
+            log.info("consistent fit: %s", w.message)
         if prob.status not in ("optimal", "optimal_inaccurate") or delta.value is None:
             raise DataFormatError(f"the physically consistent fit did not converge ({prob.status})")
         self.opt_ = {"solver": "clarabel", "status": prob.status, "objective": float(prob.value * norm ** 2)}
@@ -236,8 +246,8 @@ class InertialIdentification:
         self.pi_[ARMATURE_SLICE] = np.maximum(self.pi_[ARMATURE_SLICE], 0.0)
         self.pi_[FRICTION_SLICE] = np.maximum(self.pi_[FRICTION_SLICE], 0.0)
         self.beta_ = base.of(self.pi_)
-        # posterior covariance (Gaussian, constraints inactive): precision = prior + data, in delta units
-        P_inv = np.linalg.inv(np.eye(N_STANDARD) + Rs.T @ Rs)
+        # posterior covariance (Gaussian, constraints inactive): precision = data + prior, in delta units
+        P_inv = np.linalg.inv(Rs.T @ Rs + Pw.T @ Pw)
         Ks = K * s
         self.cov_post_ = Ks @ P_inv @ Ks.T
         self.se_post_ = np.sqrt(np.diag(self.cov_post_))
@@ -300,29 +310,38 @@ class InertialIdentification:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(cnt > 0, np.sqrt(sq / np.maximum(cnt, 1)), np.nan)
 
+    def status(self) -> np.ndarray:
+        """(nb,) per base parameter: ``identified``, ``weak`` (the data give less than half of the posterior's
+        information: the declared arm weighs more) or ``not identified`` (the data do not determine it)."""
+        return np.where(~self.identified_, "not identified",
+                        np.where(self.data_share_ >= 0.5, "identified", "weak"))
+
     def table(self) -> pd.DataFrame:
-        """One row per base parameter: expression, unit, declared value, estimate, standard error, interval,
-        how far it moved from the declared value (in standard errors), status."""
+        """One row per base parameter: expression, unit, declared value, consistent estimate with its posterior
+        standard error and interval, the data-only (IV) estimate and its standard error, how far the estimate
+        moved from the declared value (in standard errors), the data's share of the information, status.
+        Numbers are NaN where the data do not determine the parameter."""
         base = self.base_
         beta_decl = base.of(self.pi_declared_)
         lo, hi = self.intervals()
         ident = self.identified_
         with np.errstate(invalid="ignore", divide="ignore"):
-            moved = (self.beta_ - beta_decl) / self.se_
-        df = pd.DataFrame({
-            "parameter": base.names, "unit": base.units, "expression": [base.expression(k) for k in range(base.n_base)],
-            "declared": beta_decl,
-            "estimate": np.where(ident, self.beta_, np.nan), "se": np.where(ident, self.se_, np.nan),
-            "ci_low": np.where(ident, lo, np.nan), "ci_high": np.where(ident, hi, np.nan),
-            "moved_se": np.where(ident, moved, np.nan), "wls": np.where(ident, self.beta_wls_, np.nan),
-            "status": np.where(ident, "identified", "not identified")})
-        return df
+            moved = (self.beta_ - beta_decl) / self.se_post_
+        return pd.DataFrame({
+            "parameter": base.names, "unit": base.units,
+            "expression": [base.expression(k) for k in range(base.n_base)], "declared": beta_decl,
+            "estimate": np.where(ident, self.beta_, np.nan), "se": np.where(ident, self.se_post_, np.nan),
+            "ci_low": lo, "ci_high": hi, "moved_se": np.where(ident, moved, np.nan),
+            "data_only": np.where(ident, self.beta_wls_, np.nan), "data_only_se": np.where(ident, self.se_, np.nan),
+            "data_share": np.where(ident, self.data_share_, np.nan), "status": self.status()})
 
     def to_dict(self) -> dict:
         return {"n_rows": int(self.n_rows_), "sigma_Nm": _floats(self.sigma_Nm_),
                 "identifiability": self.identifiability_.to_dict(), "hac_lags": [int(x) for x in self.hac_lags_],
+                "instruments": "reference" if self.instrumented_ else "none (least squares)",
                 "consistent": bool((self.margin_ > 0).all()), "pseudo_inertia_margin": _floats(self.margin_),
-                "optimiser": self.opt_, "base": self.table().replace({np.nan: None}).to_dict("records")}
+                "optimiser": self.opt_, "links": self.links_.to_mapping(),
+                "base": self.table().replace({np.nan: None}).to_dict("records")}
 
 
 def _floats(a) -> list:
