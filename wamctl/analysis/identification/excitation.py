@@ -251,6 +251,17 @@ class Criterion:
         """``1 - share of the limit used`` at every grid point, moving joint and limit (>= 0 where it holds)."""
         return self._evaluate(x)[1]
 
+    def worst(self, x) -> tuple[str, int | None, float]:
+        """(limit kind, 1-based joint or None, share of the limit used) of the most used limit at ``x``."""
+        m = self.margins(x)
+        k = int(np.argmin(m))
+        n, nj = len(self.t_grid), len(self.joints)
+        kinds = ("position", "speed", "acceleration", "torque")
+        block = k // (n * nj)
+        if block >= len(kinds):
+            return "cartesian_speed", None, float(1.0 - m[k])
+        return kinds[block], self.joints[k % nj] + 1, float(1.0 - m[k])
+
     def joint_kinematic_scale(self, x: np.ndarray) -> np.ndarray:
         """``x`` with each joint's block scaled to use at most half of its own range, speed and acceleration
         (the joints' starts do not depend on each other; the torque and Cartesian limits then scale all)."""
@@ -309,8 +320,11 @@ def design_excitation(q0_rad, joints: list[int], period_s: float, harmonics: int
             if progress:
                 progress(s + 1, starts, f"excitation design: start {s + 1}/{starts}")
     if best is None:
-        raise ValueError("no feasible excitation: at q0 the limits leave no room to move (check q0_rad against "
-                         "the joint margins and the torque margin)")
+        kind, joint, share = crit.worst(1e-4 * crit.joint_kinematic_scale(np.ones(crit.n_free)))
+        where = f"joint {joint} " if joint else ""
+        raise ValueError(f"no feasible excitation: barely moving from q0, {where}{kind} is at {share:.0%} of its "
+                         "limit (torque: gravity and Coulomb friction of the declared model against the torque "
+                         "margin); choose another q0_rad or relax the limit")
     f, x = best
     return ExcitationDesign(crit.trajectory(x), criterion, f, crit.condition_number(x), int(len(crit.cols)), tried)
 
