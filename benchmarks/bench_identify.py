@@ -90,9 +90,9 @@ def main(argv=None) -> None:
         Yv, yv, jv, _ = vr.stacked()
         Xv = base.regressor(Yv)
 
-        def rms(beta):
-            e = yv - Xv @ beta
-            return np.array([np.sqrt(np.mean(e[jv == j] ** 2)) for j in range(7)])
+        def rms(beta, X=Xv, y=yv, j_row=jv):
+            e = y - X @ beta
+            return np.array([np.sqrt(np.mean(e[j_row == j] ** 2)) for j in range(7)])
 
         floor = rms(truth)
         t0 = time.perf_counter()

@@ -26,12 +26,18 @@ from wamctl.experiments.runner import run_spec
 from wamctl.model import params as P
 from wamctl.model.dynamics import WamDynamics
 from wamctl.model.friction import FrictionModel
+from wamctl.runs.measured import load_run_data
 from wamctl.runs.store import read_table
 from wamctl.specs import PlantSpec, load_model_file, load_spec, parse_spec
 from wamctl.specs.common import link_parameters
 
 ROOT = Path(__file__).resolve().parents[2]
 SENSORS = {"position_noise_rad": 2.0e-5, "torque_noise_Nm": 0.02}
+# 8 physics sub-steps per 2 ms period (0.25 ms): at the default 2, the simulator's own semi-implicit Euler step
+# lets the viscous friction act with the velocity half a step late, a bias of 3-4 standard errors on some
+# viscous coefficients of this fast excitation (interval coverage 79-82 % instead of 91-93 %: reported in
+# docs/claims.md); the held-out torque is unaffected (<= 1.17 x the floor either way)
+BACKEND = {"kind": "sim", "physics_substeps": 8}
 
 
 def perturbed_plant(seed: int = 18, share: float = 0.2) -> dict:
@@ -54,7 +60,8 @@ def true_standard(plant: dict) -> np.ndarray:
 
 def run_config(config: str, plant: dict, out: Path, **overrides) -> Path:
     raw = yaml.safe_load((ROOT / "configs" / config).read_text())
-    raw.update(plant=plant, **overrides)
+    raw.update(plant=plant, backend=BACKEND)
+    raw.update(overrides)
     outcome = run_spec(parse_spec(raw), ROOT / "configs", out, make_report=False)
     assert outcome.status == "completed", outcome.reason
     return outcome.path
@@ -67,8 +74,7 @@ def arm(tmp_path_factory):
     train = run_config("excitation.yaml", plant, out)
     held = run_config("excitation_validation.yaml", plant, out)
     est, validation, _ = identify([train], [held])
-    rows = run_rows(__import__("wamctl.runs.measured", fromlist=["x"]).load_run_data(held), WamDynamics(),
-                    window_s=None)
+    rows = run_rows(load_run_data(held), WamDynamics(), window_s=None)
     pi_true = true_standard(plant)
     floor = est.rms_by_joint([rows], pi=pi_true)
     return {"out": out, "plant": plant, "train": train, "held": held, "est": est, "validation": validation,
@@ -139,17 +145,21 @@ def test_model_file_runs_the_identified_arm_and_feeds_the_controller(arm, tmp_pa
 
 
 def test_gravity_compensation_with_the_identified_model_reduces_the_static_rotation_error(arm, tmp_path):
-    """Thesis rotation test (PD + gravity, each joint 0.5 rad, one at a time) on the perturbed arm: the final
-    (static) errors of the gravity-loaded joints 2 and 4 are smaller with the identified model declared."""
+    """Rotation test (PD + gravity, libbarrett's gains, each joint 0.3 rad, one at a time, 1.5 s hold) on the
+    perturbed arm's links, joints 2 and 4 (the ones gravity loads). Friction is switched off in this plant: with
+    it, a move ends anywhere in the stick band (friction / kp) and the band, not the gravity compensation, sets
+    the final error. The static error left is then the gravity mismatch over kp: smaller with the identified
+    model declared (controller.declared_links: model.yaml) than with the datasheet's, on both joints."""
     model = identify_to_run_dir([arm["train"]], [arm["held"]], out=tmp_path)[0] / "model.yaml"
-    links = yaml.safe_load(model.read_text())["links"]
-    base = {"kind": "rotation", "name": "g", "seed": 1, "plant": arm["plant"],
-            "q0_rad": [0.0, 0.6, 0.0, 1.2, 0.0, 0.0, 0.0],
-            "rotation": {"joints": [2, 4], "mode": "one_at_a_time", "hold_s": 2.0}}
-    errors = {}
-    for name, ctl in (("nominal", {}), ("identified", {"declared_links": links})):
-        outcome = run_spec(parse_spec(dict(base, controller=ctl)), None, tmp_path, make_report=False)
-        errors[name] = rotation_metrics(read_table(outcome.path))["final_error_rad"].abs()
-    print(errors)
-    assert (errors["identified"] < errors["nominal"]).all()
-    assert errors["identified"].sum() < 0.5 * errors["nominal"].sum()
+    plant = dict(arm["plant"], friction="none")
+    static = {}
+    for name, ctl in (("nominal", {}), ("identified", {"declared_links": str(model)})):
+        spec = {"kind": "rotation", "name": f"g-{name}", "seed": 1, "plant": plant, "controller": ctl,
+                "q0_rad": [0.0, 0.2, 0.0, 1.2, 0.0, 0.0, 0.0],
+                "rotation": {"joints": [2, 4], "mode": "one_at_a_time", "amplitude_rad": 0.3, "hold_s": 1.5,
+                             "return_to_start": False}}
+        outcome = run_spec(parse_spec(spec), None, tmp_path, make_report=False)
+        assert outcome.status == "completed", outcome.reason
+        static[name] = rotation_metrics(read_table(outcome.path))["final_error_rad"].abs()
+    print({k: v.round(6).to_dict() for k, v in static.items()})
+    assert (static["identified"] < 0.25 * static["nominal"]).all()

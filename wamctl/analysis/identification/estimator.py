@@ -251,9 +251,9 @@ class InertialIdentification:
         Ks = K * s
         self.cov_post_ = Ks @ P_inv @ Ks.T
         self.se_post_ = np.sqrt(np.diag(self.cov_post_))
-        with np.errstate(invalid="ignore", divide="ignore"):
+        with np.errstate(invalid="ignore", divide="ignore"):       # data precision / posterior precision
             share = (self.se_post_ / self.se_) ** 2
-        self.data_share_ = np.where(self.identified_, 1.0 - np.clip(np.nan_to_num(share, nan=1.0), 0, 1), 0.0)
+        self.data_share_ = np.where(self.identified_, np.clip(np.nan_to_num(share, nan=0.0), 0, 1), 0.0)
         from wamctl.model.dynamics import links_from_standard
 
         inertial, armature, self.friction_ = split_standard(self.pi_)
