@@ -163,3 +163,41 @@ def test_gravity_compensation_with_the_identified_model_reduces_the_static_rotat
         static[name] = rotation_metrics(read_table(outcome.path))["final_error_rad"].abs()
     print({k: v.round(6).to_dict() for k, v in static.items()})
     assert (static["identified"] < 0.25 * static["nominal"]).all()
+
+
+def test_data_where_only_some_joints_move_name_what_they_cannot_determine(tmp_path):
+    """A recording where only joints 2 and 4 move (the others held by the controller), identified without a
+    separate validation run (the last quarter is held out): the held joints' parameters are named "not
+    identified" and carry no number, the arm written is still physically consistent, and the held-out torque
+    of the moving joints is not worse than the nominal model's."""
+    coeffs = {2: {"a_rad_s": [0.1, -0.1, 0.0], "b_rad_s": [-0.06, -0.06, 0.06]},
+              4: {"a_rad_s": [-0.2, 0.1, 0.1], "b_rad_s": [0.3, -0.3, 0.1]}}
+    spec = {"kind": "excitation", "name": "two", "seed": 2, "q0_rad": [0.0, 0.0, 0.0, 2.2, 0.0, 0.0, 0.0],
+            "plant": perturbed_plant(), "backend": BACKEND,
+            "excitation": {"joints": [2, 4], "period_s": 6.0, "harmonics": 3, "periods": 4, "coefficients": coeffs,
+                           "limits": {"torque_margin": 0.2}}}
+    outcome = run_spec(parse_spec(spec), None, tmp_path, make_report=False)
+    assert outcome.status == "completed", outcome.reason
+    run_path, result, _ = identify_to_run_dir([outcome.path], out=tmp_path)
+    ident = result["identifiability"]
+    assert ident["rank"] < ident["n_base"]
+    und = set(ident["undetermined"])
+    assert {"fc_pos1", "b_neg3", "Ia5", "fc_neg7", "Izz7"} <= und
+    assert not {"fc_pos2", "fc_neg4"} & und
+    rows = {r["parameter"]: r for r in result["base"]}
+    assert rows["fc_pos1"]["estimate"] is None and rows["fc_pos1"]["status"] == "not identified"
+    assert rows["fc_pos2"]["estimate"] is not None
+    assert result["consistent"]
+    v = result["validation"]
+    for j in (1, 3):
+        assert v["identified"][j] <= v["nominal"][j] * 1.05
+    assert "not identified" in (run_path / "report.md").read_text()
+
+
+def test_unusable_input_is_one_line_and_exit_code_2(tmp_path):
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-m", "wamctl", "identify", str(tmp_path / "nope")], capture_output=True,
+                       text=True, timeout=300)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and "nope" in r.stderr

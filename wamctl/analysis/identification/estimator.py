@@ -2,30 +2,33 @@
 
 Method (``InertialIdentification(...).fit(runs)``)
 ------------------------------------------------------
-1. Rows: every run through the diagnosis' filter (:mod:`.data`): sliding (sample, joint) rows of the standard
-   regressor (rigid body + armature + classic per-direction friction) and the filtered torque.
-2. Weighted least squares on the base regressor (:mod:`.base`): ordinary least squares first, then each
-   joint's rows weighted by ``1 / sigma_j`` with ``sigma_j`` the RMS of that joint's residual (per-joint noise:
-   the joints' torque noise differs by two orders of magnitude).
+1. Rows (:mod:`.data`): the diagnosis' filter, then a second pass of the same filter over the torque and every
+   regressor column alike (parallel filtering); sliding (sample, joint) rows of the standard regressor (rigid
+   body + armature + classic per-direction friction).
+2. Per-joint weights: each joint's rows weighted by ``1 / sigma_j``, ``sigma_j`` the RMS of that joint's
+   ordinary least-squares residual (the joints' torque noise differs by two orders of magnitude).
 3. What the data determine (:func:`.base.identifiability` on the weighted rows): undetermined base
    parameters are reported as such, never as numbers; the fit uses the determined ones plus an independent
-   subset of the others (so the determined ones are estimated without bias).
-4. Uncertainty: the residuals of filtered signals are correlated in time (the filter's reach and any model
-   error), so the covariance is a heteroskedasticity- and autocorrelation-consistent sandwich (Newey-West,
-   statsmodels' ``S_hac_simple``) over each run's per-sample scores (the joints of one sample summed: their
-   errors are correlated too), with ``nlags`` covering four filter reaches (at least Newey and West's rule).
-   95 % intervals are ``+-1.96`` standard errors.
-5. A physically consistent estimate: standard parameters ``pi(theta)`` with every link's pseudo-inertia
-   positive definite by construction (log-Cholesky, :mod:`.consistency`), armature positive (log) and friction
-   levels non-negative (bounds), found by scipy's ``least_squares`` minimising the WLS misfit of the base
-   parameters ``(beta(theta) - beta_wls)^T A (beta(theta) - beta_wls)`` (``A`` the weighted information
-   matrix) plus a weak prior pulling towards the declared arm (log-Cholesky coordinates: 0.5 on logs,
-   0.1 m on lengths; 0.5 on log armature; 5 N m on friction). The prior decides only where the data say
-   nothing (undetermined directions, and the split of each base parameter into standard ones); on determined
-   directions the data outweigh it by orders of magnitude. Started from the declared arm and from the WLS
-   solution projected onto consistent bodies; the better end is kept.
-6. The nominal model for comparison: the declared links (datasheet + payload) with friction fitted by WLS on
-   the same rows (so that "identified vs nominal" measures the inertial parameters, not friction).
+   subset of the others (so that the determined ones are estimated without bias).
+4. Instrumental variables: in closed loop the actuation noise moves the arm, so the measured accelerations
+   are correlated with the torque residual and least squares is biased (on the simulator: held-out RMS 2-18x
+   the noise floor). The instruments are the reference's regressor through the same filters (exogenous, close
+   to the motion; :func:`.data.reference_tracks` decides per run, else that run's rows enter by least
+   squares).
+5. Uncertainty: the residuals of filtered signals are correlated in time, so the covariance is a
+   heteroskedasticity- and autocorrelation-consistent sandwich (Newey-West, statsmodels' ``S_hac_simple``)
+   over each run's per-sample scores (the joints of one sample summed: their errors are correlated too),
+   ``nlags`` covering ``HAC_REACHES`` filter reaches (at least Newey and West's rule).
+6. The physically consistent estimate, a convex program (cvxpy, Clarabel): standard parameters minimising the
+   Mahalanobis distance of their base parameters to the IV estimate (metric: its HAC covariance) plus a prior
+   at the declared arm, subject to every link's pseudo-inertia positive definite (a linear matrix inequality),
+   armature and friction levels non-negative. The prior is weak (``PRIOR_WEIGHT``: ten times
+   :func:`prior_scale`) along the standard directions that move a base parameter, and full along those that
+   move none (they only split base parameters into links: the declared arm decides the split). Intervals are
+   the Gaussian posterior's (data + prior, constraints inactive); ``data_share_`` is the data's share of each
+   base parameter's posterior information (below one half: status ``weak``).
+7. The nominal model for comparison: the declared links (datasheet + payload) with friction fitted by weighted
+   least squares on the same rows (so that "identified vs nominal" measures the inertial parameters).
 """
 
 from __future__ import annotations
@@ -125,8 +128,11 @@ class InertialIdentification:
             self.sigma_Nm_ = self._noise(Xb, y, jrow)
             w = 1.0 / self.sigma_Nm_[jrow]
             Xw, yw = Xb * w[:, None], y * w
+            Zw = base.regressor(Zs) * w[:, None] if self.instrumented_ else None
             self.identifiability_ = identifiability(Xw, base)
-            self._wls(Xw, yw, groups, base.regressor(Zs) * w[:, None] if self.instrumented_ else None)
+            if Zw is not None:      # with instruments, a direction must be excited by the commanded motion too
+                self.identifiability_ = _both(self.identifiability_, identifiability(Zw, base))
+            self._wls(Xw, yw, groups, Zw)
             self._consistent()
             self.pi_nominal_ = self._nominal(Y, y, w)
         self.n_rows_ = len(y)
@@ -163,17 +169,18 @@ class InertialIdentification:
         ident = self.identifiability_
         D = np.flatnonzero(ident.identified)
         U = np.flatnonzero(~ident.identified)
-        cols = np.concatenate([D, _independent_subset(Xw[:, U], U)]) if len(U) else D
+        inst = Xw if Zw is None else Zw
+        cols = np.concatenate([D, _independent_subset(inst[:, U], U)]) if len(U) else D
         Xc = Xw[:, cols]
         if Zw is None:
-            gamma = np.linalg.lstsq(Xc, yw, rcond=None)[0]
-            Zc = Xc
-        else:
-            Zc = Zw[:, cols]
-            gamma = np.linalg.solve(Zc.T @ Xc, Zc.T @ yw)
+            Xh = Xc
+        else:       # two-stage least squares: the regressor projected on the instruments' span
+            Qz, _ = np.linalg.qr(Zw[:, cols])
+            Xh = Qz @ (Qz.T @ Xc)
+        gamma = np.linalg.lstsq(Xh, yw, rcond=None)[0]
         e = yw - Xc @ gamma
-        H_inv = np.linalg.pinv(Zc.T @ Xc)
-        scores = Zc * e[:, None]
+        H_inv = np.linalg.pinv(Xh.T @ Xh)
+        scores = Xh * e[:, None]
         reach_rows = max(rr.reach_s / rr.dt_s for rr in self.rows_)
         S = np.zeros((len(cols), len(cols)))
         lags = []
@@ -196,8 +203,14 @@ class InertialIdentification:
         self.beta_wls_[D] = gamma[:nD]
         self.cov_[np.ix_(D, D)] = cov_c[:nD, :nD]
         self.se_ = np.sqrt(np.diag(self.cov_))
-        self._beta_any = np.linalg.lstsq(Xw, yw, rcond=None)[0]      # any solution: the same fitted torque
-        self._beta_any[cols] = gamma
+        # what the data determine as a whole: gamma = G beta (the determined parameters, and the undetermined
+        # ones only through the combinations their independent subset carries), estimate and covariance
+        G = np.zeros((len(cols), nb))
+        G[np.arange(nD), D] = 1.0
+        if len(cols) > nD:
+            Us = cols[nD:]
+            G[nD:, U] = np.linalg.lstsq(Xw[:, Us], Xw[:, U], rcond=None)[0]
+        self._G, self._gamma, self._cov_gamma = G, gamma, cov_c
         self.residual_rms_wls_ = float(np.sqrt(np.mean(e ** 2)))
 
     # ------------------------------------------------------------------------------------------- consistent
@@ -206,16 +219,16 @@ class InertialIdentification:
         import cvxpy as cp
 
         base = self.base_
-        K = base.matrix
-        D = np.flatnonzero(self.identified_)
-        C = self.cov_[np.ix_(D, D)]
+        C = self._cov_gamma
         ev, V = np.linalg.eigh(0.5 * (C + C.T))
         ev = np.maximum(ev, ev.max() * 1e-14)
-        W = (V / np.sqrt(ev)).T                  # whitening: W (beta_D - beta_hat_D) ~ N(0, 1)
+        W = (V / np.sqrt(ev)).T                  # whitening: W (gamma(beta) - gamma_hat) ~ N(0, 1)
+        GK = self._G @ base.matrix               # gamma of the standard parameters
+        K = base.matrix
         pi0 = self.pi_declared_
         s = prior_scale(pi0)
-        Rs = (W @ K[D]) * s                      # in units of the prior: delta = (pi - pi0) / s
-        r0 = W @ (K[D] @ pi0 - self.beta_wls_[D])
+        Rs = (W @ GK) * s                        # in units of the prior: delta = (pi - pi0) / s
+        r0 = W @ (GK @ pi0 - self._gamma)
         # the prior: weak (PRIOR_WEIGHT) along the standard directions that move a base parameter, full along
         # those that move none (they only split the base parameters into links: the declared arm decides)
         _, sv, Vt = np.linalg.svd(K * s, full_matrices=True)
@@ -342,6 +355,18 @@ class InertialIdentification:
                 "consistent": bool((self.margin_ > 0).all()), "pseudo_inertia_margin": _floats(self.margin_),
                 "optimiser": self.opt_, "links": self.links_.to_mapping(),
                 "base": self.table().replace({np.nan: None}).to_dict("records")}
+
+
+def _both(a, b):
+    """Identifiability of two regressors of one base (the measured one and the instruments'): a parameter is
+    determined when both determine it; rank and condition numbers are the measured one's."""
+    from dataclasses import replace
+
+    identified = a.identified & b.identified
+    names = a.names
+    return replace(a, identified=identified, null_share=np.maximum(a.null_share, b.null_share),
+                   rank=min(a.rank, int(identified.sum()) + (a.rank - int(a.identified.sum()))),
+                   null_directions=a.null_directions or b.null_directions, names=names)
 
 
 def _floats(a) -> list:
