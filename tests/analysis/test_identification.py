@@ -35,7 +35,7 @@ ROOT = Path(__file__).resolve().parents[2]
 SENSORS = {"position_noise_rad": 2.0e-5, "torque_noise_Nm": 0.02}
 # 8 physics sub-steps per 2 ms period (0.25 ms): at the default 2, the simulator's own semi-implicit Euler step
 # lets the viscous friction act with the velocity half a step late, a bias of 3-4 standard errors on some
-# viscous coefficients of this fast excitation (interval coverage 79-82 % instead of 91-93 %: reported in
+# viscous coefficients of this fast excitation (interval coverage 82 % instead of 91 % for this arm: reported in
 # docs/claims.md); the held-out torque is unaffected (<= 1.17 x the floor either way)
 BACKEND = {"kind": "sim", "physics_substeps": 8}
 

@@ -75,7 +75,7 @@ def test_base_size_is_the_regressor_rank(base):
     q, qd, qdd = random_states(150, rng)
     W = standard_regressor(WamDynamics(), q, qd, qdd).reshape(-1, N_STANDARD)
     s = np.linalg.svd(W, compute_uv=False)
-    assert int(np.sum(s > 1e-9 * s[0])) == base.n_base
+    assert int(np.sum(s > 1e-9 * s[0])) == base.n_base == 76       # 48 inertial (with armature) + 28 friction
     sb = np.linalg.svd(base.regressor(W), compute_uv=False)
     assert sb[-1] / sb[0] > 1e-6
     # structural facts of the WAM: joint 1's axis is vertical (its link's mass and first moments never act),
