@@ -39,7 +39,9 @@ def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, 
         from wamctl.report.document import Document
         from wamctl.report.excitation import limits_table
 
-        print_document_tables(Document("Excitation design").table("limits", limits_table(use)))
+        shares = limits_table(use)[[c for c in limits_table(use).columns if c.endswith("_used_pct")]]
+        print_document_tables(Document("Excitation design").table("limits used (%)", shares.rename(
+            columns=lambda c: c.removesuffix("_used_pct")), digits=1))
     console.print(f"condition number {design.condition_number:.4g} ({design.criterion}, {design.n_target} base "
                   f"parameters); limits used: {limits_summary(use)}\ndesigned spec: {path / 'excitation.yaml'} "
                   f"(run it with `wamctl run`)  report: {path / 'report.md'}", highlight=False)
