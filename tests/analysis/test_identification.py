@@ -123,7 +123,7 @@ def test_model_file_runs_the_identified_arm_and_feeds_the_controller(arm, tmp_pa
     datasheet's."""
     run_path, result, doc = identify_to_run_dir([arm["train"]], [arm["held"]], out=tmp_path)
     for f in ("model.yaml", "identification.json", "parameters.csv", "validation.parquet", "report.md",
-              "identification_validation.png", "identification_moved.png"):
+              "identification_validation.png", "identification_residuals.png", "identification_moved.png"):
         assert (run_path / f).stat().st_size > 0, f
     model = run_path / "model.yaml"
     plant = PlantSpec.model_validate(load_model_file(model))

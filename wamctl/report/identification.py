@@ -116,6 +116,18 @@ def _validation_figure(run_path: Path, out_dir: Path, doc: Document) -> None:
     axes[0].legend(markerscale=6)
     doc.figure(save(fig, out_dir / "identification_validation.png"),
                "held-out torque (sliding samples of the first held-out run): measured, nominal and identified")
+    fig, axes = joint_grid(len(joints), "Held-out residual: measured - predicted")
+    for ax, j in zip(axes, joints):
+        d = first[first["joint"] == j]
+        ax.plot(d["t_s"], d["measured_Nm"] - d["nominal_Nm"], ".", ms=1.2, color="C1", label="nominal")
+        ax.plot(d["t_s"], d["measured_Nm"] - d["identified_Nm"], ".", ms=1.2, color="C0", label="identified")
+        ax.set_title(f"joint {j}")
+        ax.set_ylabel("residual (N m)")
+        ax.set_xlabel("t (s)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(markerscale=6)
+    doc.figure(save(fig, out_dir / "identification_residuals.png"),
+               "held-out residual of the nominal and the identified model (the same samples)")
 
 
 def _moved_figure(result: dict, out_dir: Path, doc: Document) -> None:
