@@ -12,7 +12,7 @@ from typing import Annotated
 
 import typer
 from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+from rich.text import Text
 
 console = Console()
 err_console = Console(stderr=True)
@@ -24,6 +24,8 @@ def progress_bar(description: str, enabled: bool = True):
     if not enabled:
         yield None
         return
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
                   TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, transient=True) as prog:
         task = prog.add_task(description, total=None)
@@ -45,21 +47,102 @@ QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar a
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (for scripts).")]
 
 
-def print_document_tables(doc) -> None:
-    """The tables of a report :class:`~wamctl.report.document.Document` on the terminal."""
+def print_document_tables(doc, out: Console | None = None) -> None:
+    """The tables of a report :class:`~wamctl.report.document.Document` on the terminal, then its warnings.
+
+    Each column keeps the report's one number format (:func:`wamctl.report.document.format_column`); a table
+    wider than the terminal is split into parts that each repeat the key column, so that no number and no word
+    is ever cut."""
+    out = out or console
+    for kind, obj in doc.blocks:
+        if kind == "table":
+            print_table(f"{doc.title}: {obj.name}", obj, out)
+    for kind, obj in doc.blocks:
+        if kind == "warn":
+            out.print(Text.assemble(("warning: ", "bold yellow"), str(obj)), soft_wrap=False)
+
+
+_TEXT_MIN_CAP = 40     # a text column narrower than its longest word wraps; words longer than this may fold
+
+
+def _words(s: str) -> int:
+    return max((len(w) for w in s.split()), default=0)
+
+
+def print_table(title: str, table, out: Console | None = None) -> None:
+    """One :class:`~wamctl.report.document.Table` as one or more rich tables that fit the terminal width: the
+    title and caption as paragraphs, each column wide enough for its longest number (numbers never wrap) and its
+    longest word."""
+    from rich import box
     from rich.table import Table
 
-    for kind, obj in doc.blocks:
-        if kind != "table":
-            continue
-        name, df, caption, digits = obj
-        t = Table(title=f"{doc.title}: {name}", caption=caption or None)
-        frame = df.reset_index() if df.index.name else df
-        for c in frame.columns:
-            t.add_column(str(c).replace("_", " "), justify="right", overflow="fold")
-        for row in frame.itertuples(index=False):
-            t.add_row(*[f"{v:.{digits}f}" if isinstance(v, float) else str(v) for v in row])
-        console.print(t)
+    out = out or console
+    names, rows, is_key = table.cells(na="-")
+    numeric = table.numeric()
+    heads = [n.replace("_", " ") for n in names]
+    no_wrap = [k or num for k, num in zip(is_key, numeric)]   # sized to their longest cell: never wrapped
+    least, natural = [], []
+    for c, head in enumerate(heads):
+        cells = [r[c] for r in rows]
+        longest = max((len(x) for x in cells), default=0)
+        body = longest if no_wrap[c] else min(max((_words(x) for x in cells), default=0), _TEXT_MIN_CAP)
+        least.append(max(body, _words(head), 1))
+        natural.append(max(longest, len(head), 1))
+    parts = pack_columns(least, is_key, out.width)
+    out.print(Text(title, style="bold"), soft_wrap=False)
+    for i, cols in enumerate(parts):
+        widths = _widen({c: least[c] for c in cols}, natural, out.width)
+        t = Table(box=box.SIMPLE_HEAD, title=Text(f"({i + 1}/{len(parts)})") if len(parts) > 1 else None,
+                  pad_edge=False, show_edge=False)
+        for c in cols:
+            t.add_column(Text(heads[c]), justify="left" if (is_key[c] or not numeric[c]) else "right",
+                         width=widths[c], overflow="fold")
+        for r in rows:
+            t.add_row(*[Text(r[c]) for c in cols])
+        out.print(t)
+    if table.caption:
+        out.print(Text(table.caption, style="dim"))
+    out.print()
+
+
+def _overhead(n: int) -> int:
+    """Characters rich's SIMPLE_HEAD table without edges adds around ``n`` columns: a space either side of a
+    column and a separator between columns, none at the edges."""
+    return max(0, 3 * n - 3) if n else 0
+
+
+def _widen(widths: dict[int, int], natural: list[int], total: int) -> dict[int, int]:
+    """Give the columns of one part the room left, smallest shortfall first, up to their natural widths."""
+    room = total - sum(widths.values()) - _overhead(len(widths))
+    for c in sorted(widths, key=lambda c: natural[c] - widths[c]):
+        add = max(0, min(natural[c] - widths[c], room))
+        widths[c] += add
+        room -= add
+    return widths
+
+
+def pack_columns(widths: list[int], is_key: list[bool], total: int) -> list[list[int]]:
+    """Split columns (by index) into as few parts as fit ``total`` characters, of similar widths, each part
+    starting with the key columns."""
+    keys = [c for c, k in enumerate(is_key) if k]
+    rest = [c for c, k in enumerate(is_key) if not k]
+
+    def greedy(cap: int) -> list[list[int]]:
+        parts, cur = [], list(keys)
+        for c in rest:
+            if sum(widths[x] for x in cur + [c]) + _overhead(len(cur) + 1) > cap and len(cur) > len(keys):
+                parts.append(cur)
+                cur = list(keys)
+            cur.append(c)
+        return parts + [cur]
+
+    parts = greedy(total)
+    if len(parts) > 1:   # same number of parts, evened out: the smallest width that still needs no more parts
+        lo = sum(widths[c] for c in keys) + _overhead(len(keys) + 1) + max(widths[c] for c in rest)
+        for cap in range(lo, total):
+            if len(greedy(cap)) == len(parts):
+                return greedy(cap)
+    return parts
 
 
 def run_and_report(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as_json: bool,
