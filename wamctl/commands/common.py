@@ -8,14 +8,33 @@ import json
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.console import Console
-from rich.text import Text
 
-console = Console()
-err_console = Console(stderr=True)
+if TYPE_CHECKING:
+    from rich.console import Console
+
+
+class _LazyConsole:
+    """A rich Console made on first use, so that ``wamctl --help`` does not import rich."""
+
+    def __init__(self, stderr: bool = False):
+        self._stderr = stderr
+        self._console = None
+
+    def _get(self) -> Console:
+        if self._console is None:
+            from rich.console import Console
+            self._console = Console(stderr=self._stderr)
+        return self._console
+
+    def __getattr__(self, name):
+        return getattr(self._get(), name)
+
+
+console = _LazyConsole()
+err_console = _LazyConsole(stderr=True)
 
 
 @contextmanager
@@ -27,7 +46,7 @@ def progress_bar(description: str, enabled: bool = True):
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                  TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, transient=True) as prog:
+                  TimeElapsedColumn(), TimeRemainingColumn(), console=err_console._get(), transient=True) as prog:
         task = prog.add_task(description, total=None)
 
         def update(done: int, total: int, label: str | None = None):
@@ -53,6 +72,8 @@ def print_document_tables(doc, out: Console | None = None) -> None:
     Each column keeps the report's one number format (:func:`wamctl.report.document.format_column`); a table
     wider than the terminal is split into parts that each repeat the key column, so that no number and no word
     is ever cut."""
+    from rich.text import Text
+
     out = out or console
     for kind, obj in doc.blocks:
         if kind == "table":
@@ -60,6 +81,13 @@ def print_document_tables(doc, out: Console | None = None) -> None:
     for kind, obj in doc.blocks:
         if kind == "warn":
             out.print(Text.assemble(("warning: ", "bold yellow"), str(obj)), soft_wrap=False)
+
+
+def print_frame(title: str, df, caption: str = "", key: str | None = None, out: Console | None = None) -> None:
+    """A pandas frame as a terminal table (:func:`print_table`): its index, ``key`` or first column as key."""
+    from wamctl.report.document import DEFAULT_DIGITS, Table
+
+    print_table(title, Table(title, df, caption, DEFAULT_DIGITS, (key,) if key else ()), out)
 
 
 _TEXT_MIN_CAP = 40     # a text column narrower than its longest word wraps; words longer than this may fold
@@ -75,6 +103,7 @@ def print_table(title: str, table, out: Console | None = None) -> None:
     longest word."""
     from rich import box
     from rich.table import Table
+    from rich.text import Text
 
     out = out or console
     names, rows, is_key = table.cells(na="-")
