@@ -30,6 +30,7 @@ from typing import NamedTuple
 import numpy as np
 import pandas as pd
 
+from wamctl.io import ensure_dir
 from wamctl.runs.store import atomic_write_text, json_default
 
 DEFAULT_DIGITS = 4          # significant digits of a column's smallest magnitude
@@ -257,8 +258,7 @@ class Document:
         return {"title": self.title, "tables": tables, **self.data}
 
     def write(self, out_dir: Path, stem: str = "report", formats=("md", "html", "json")) -> list[Path]:
-        out_dir = Path(out_dir)
-        out_dir.mkdir(parents=True, exist_ok=True)
+        out_dir = ensure_dir(out_dir, "report directory")
         written = []
         for fmt in formats:
             p = out_dir / f"{stem}.{fmt}"

@@ -13,7 +13,7 @@ from pydantic import Field, TypeAdapter, ValidationError
 
 from wamctl.errors import SpecError
 from wamctl.io import load_yaml, resolve_path
-from wamctl.specs.common import Common, PlantSpec
+from wamctl.specs.common import Common, PlantSpec, check_files
 from wamctl.specs.registry import KINDS, SPEC_KINDS, resolve
 
 
@@ -74,4 +74,6 @@ def load_spec(path: str | Path) -> Common:
     data = load_yaml(path)
     if isinstance(data, dict) and isinstance(data.get("plant"), str):
         data = dict(data, plant=load_model_file(resolve_path(data["plant"], path.parent)))
-    return parse_spec(data, str(path))
+    spec = parse_spec(data, str(path))
+    check_files(spec, path.resolve().parent, str(path))
+    return spec
