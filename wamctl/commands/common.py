@@ -72,15 +72,20 @@ def print_document_tables(doc, out: Console | None = None) -> None:
     Each column keeps the report's one number format (:func:`wamctl.report.document.format_column`); a table
     wider than the terminal is split into parts that each repeat the key column, so that no number and no word
     is ever cut."""
-    from rich.text import Text
-
     out = out or console
     for kind, obj in doc.blocks:
         if kind == "table":
             print_table(f"{doc.title}: {obj.name}", obj, out)
+    print_warnings(doc, out)
+
+
+def print_warnings(doc, out: Console | None = None) -> None:
+    """The warnings of a report (shown even with --quiet: they ask the user to act)."""
+    from rich.text import Text
+
     for kind, obj in doc.blocks:
         if kind == "warn":
-            out.print(Text.assemble(("warning: ", "bold yellow"), str(obj)), soft_wrap=False)
+            (out or console).print(Text.assemble(("warning: ", "bold yellow"), str(obj)))
 
 
 def print_frame(title: str, df, caption: str = "", key: str | None = None, out: Console | None = None) -> None:
@@ -213,8 +218,8 @@ def show_outcome(outcome, quiet: bool, as_json: bool, files: dict | None = None)
         emit_json({"run_dir": str(outcome.path), "status": outcome.status, "reason": outcome.reason, **shown,
                    "report": doc.to_json() if doc else None})
     else:
-        if doc is not None and not quiet:
-            print_document_tables(doc)
+        if doc is not None:
+            (print_warnings if quiet else print_document_tables)(doc)
         colour = "green" if outcome.status == "completed" else "red"
         msg = f"[{colour}]{outcome.status}[/]" + (f": {outcome.reason}" if outcome.reason else "")
         lines = [f"{msg}  run directory: {outcome.path}"] + [f"{k.replace('_', ' ')}: {v}" for k, v in shown.items()
