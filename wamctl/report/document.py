@@ -274,6 +274,24 @@ class Document:
         return written
 
 
+def key_figures(report_data: dict, limit: int = 32) -> dict[str, float]:
+    """The numbers of a report's ``data`` (its JSON beside the tables): scalars, and one level of mappings
+    (``rpe_pct.1``, ...), at most ``limit``. Used to compare runs (sweep index, combined report)."""
+    out: dict[str, float] = {}
+    for k, v in report_data.items():
+        if k in ("title", "tables"):
+            continue
+        if isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, (bool, np.bool_)):
+            out[k] = float(v)
+        elif isinstance(v, dict):
+            for kk, vv in v.items():
+                if isinstance(vv, (int, float, np.floating, np.integer)) and not isinstance(vv, (bool, np.bool_)):
+                    out[f"{k}.{kk}"] = float(vv)
+        if len(out) >= limit:
+            break
+    return dict(list(out.items())[:limit])
+
+
 # ---------------------------------------------------------------------------------------------- Markdown
 def _md_cell(text: str) -> str:
     return text.replace("|", "\\|").replace("\n", " ")
