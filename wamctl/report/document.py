@@ -9,9 +9,10 @@ holds every table in full precision). Conventions shared by the formats:
   the first column. The key is always shown: first, left-aligned, and in HTML kept in view when a wide table
   scrolls sideways; on the terminal it is repeated in every part of a table split to fit the width.
 * **One number format per column** (:func:`format_column`), chosen from the column's values and name: whole
-  numbers as integers; p-values with two significant digits; otherwise fixed decimals, as many as the column's
-  smallest magnitude needs for ``digits`` significant digits (fewer when every value is exact with fewer), or
-  scientific notation for the whole column when fixed decimals would hide a value or exceed 6 decimals.
+  numbers as integers; p-values with three decimals or, when one is below 0.001, in scientific notation;
+  otherwise fixed decimals, as many as the column's smallest magnitude needs for ``digits`` significant digits
+  (a value typed with fewer decimals, such as a published figure, shows as typed), or scientific notation for
+  the whole column when that would take more than 6 decimals or a value reaches 1e6.
 * **One file to mail.** ``report.html`` embeds its figures (PNG as ``data:`` URIs, SVG inline); the PNG files
   are written beside it too, for the Markdown.
 """
@@ -144,8 +145,8 @@ def column_format(values, digits: int = DEFAULT_DIGITS, name: str = "") -> str:
         return f".{digits - 1}e"
     dec = 0
     for x in a:
-        sig = max(0, digits - 1 - math.floor(math.log10(x)))
-        dec = max(dec, min(sig, _exact_decimals(float(x), MAX_DECIMALS + 1)))
+        exact = _exact_decimals(float(x), MAX_DECIMALS + 1)   # a value typed in (a thesis figure) shows as typed
+        dec = max(dec, exact if exact <= MAX_DECIMALS else max(0, digits - 1 - math.floor(math.log10(x))))
     if dec > MAX_DECIMALS:
         return f".{digits - 1}e"
     return f".{dec}f"
