@@ -85,7 +85,10 @@ def _print_error(exc: WamctlError) -> None:
 
 
 def main() -> None:
+    from wamctl.commands.common import reset_consoles
+
     _register()
+    reset_consoles()
     try:
         app()  # usage errors, --help and typer.Exit are handled by typer itself
     except WamctlError as exc:

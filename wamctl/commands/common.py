@@ -37,6 +37,11 @@ console = _LazyConsole()
 err_console = _LazyConsole(stderr=True)
 
 
+def reset_consoles() -> None:
+    """Forget the consoles made so far (a new command line: the terminal's width is read again)."""
+    console._console = err_console._console = None
+
+
 @contextmanager
 def progress_bar(description: str, enabled: bool = True):
     """Yields a callback ``progress(done, total)`` drawing a rich bar on stderr (a no-op when disabled)."""
