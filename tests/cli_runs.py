@@ -146,11 +146,12 @@ def make_small_runs(root: Path) -> SmallRuns:
     t0 = time.perf_counter()
     s.runs["sweep"] = _sweep(root / "sweep.yaml", root / "sweeps")
     s.seconds["sweep (library)"] = time.perf_counter() - t0
-    for k in ("rotation", "friction_sweep", "ift", "hmi_block", "measured", "diagnosis"):
+    for k in ("rotation", "friction_sweep", "ift", "hmi_block", "diagnosis"):
         s.reports[k] = s.runs[k] / "report.html"
-    # the reports of repeated runs and an HMI block into one folder, with the combined report over them
-    cli("report", "report", s.runs["rotation"], s.runs["rotation_seed_4"], s.runs["hmi_block"], "--out",
-        root / "reports")
+    # the reports of repeated runs, an HMI block and the imported run into one folder, with the combined report
+    cli("report", "report", s.runs["rotation"], s.runs["rotation_seed_4"], s.runs["hmi_block"], s.runs["measured"],
+        "--out", root / "reports")
+    s.reports["measured"] = root / "reports" / s.runs["measured"].name / "report.html"
     s.reports["combined"] = root / "reports" / "combined_report.html"
     s.reports["sweep"] = s.runs["sweep"] / "report.html"
     csv = ROOT / "tests" / "fixtures" / "hmi" / "thesis_t6_10_subjects.csv"
