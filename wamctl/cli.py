@@ -84,13 +84,19 @@ def _print_error(exc: WamctlError) -> None:
         err.print(Text.assemble(("error:", "bold red"), " ", line), highlight=False, soft_wrap=True)
 
 
+_command = None   # the click command built from ``app`` (once per process: typer builds it from signatures)
+
+
 def main() -> None:
+    global _command
     from wamctl.commands.common import reset_consoles
 
-    _register()
+    if _command is None:
+        _register()
+        _command = typer.main.get_command(app)
     reset_consoles()
     try:
-        app()  # usage errors, --help and typer.Exit are handled by typer itself
+        _command()  # usage errors, --help and typer.Exit are handled by click itself (exit codes 2 and 0)
     except WamctlError as exc:
         _print_error(exc)
         sys.exit(exc.exit_code)

@@ -30,14 +30,16 @@ def resolve_path(path: str | Path, base_dir: str | Path | None) -> Path:
     return p
 
 
-class _UniqueKeyLoader(yaml.SafeLoader):
-    """PyYAML's safe loader, refusing a mapping that gives the same key twice."""
+class _UniqueKeyLoader(getattr(yaml, "CSafeLoader", yaml.SafeLoader)):
+    """PyYAML's safe loader (libyaml's parser when PyYAML has it), refusing a mapping that gives the same key
+    twice."""
 
 
 def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: bool = False):
-    loader.flatten_mapping(node)     # merge keys (<<) first: a key they bring may be overridden on purpose
     seen: dict = {}
-    for key_node, _ in node.value:
+    for key_node, _ in node.value:     # the keys written here: one merged in by `<<` may be overridden
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            continue
         try:
             key = loader.construct_object(key_node, deep=True)
             hash(key)
@@ -47,7 +49,7 @@ def _construct_mapping(loader: _UniqueKeyLoader, node: yaml.MappingNode, deep: b
             raise yaml.constructor.ConstructorError(
                 None, None, f"duplicate key {key!r} (first given at line {seen[key].line + 1})", key_node.start_mark)
         seen[key] = key_node.start_mark
-    return yaml.SafeLoader.construct_mapping(loader, node, deep)
+    return yaml.constructor.SafeConstructor.construct_mapping(loader, node, deep)
 
 
 _UniqueKeyLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)

@@ -160,6 +160,11 @@ def validate_samples(df: pd.DataFrame, sample_rate_hz: float, source: str) -> pd
         raise DataFormatError(f"{source}: data row {row + 1}, column {name}: {str(df.iat[row, col])[:40]!r} is not "
                               "a number")
     df = num.astype(float)
+    inf = np.isinf(df.to_numpy())
+    if inf.any():
+        row, col = map(int, np.argwhere(inf)[0])
+        raise DataFormatError(f"{source}: data row {row + 1}, column {_external_name(cols[col])}: "
+                              f"{df.iat[row, col]} is not a finite number")
     if len(df) < 10:
         raise DataFormatError(f"{source}: only {len(df)} rows; a run needs at least 10")
     nan_rows = df[required].isna().any(axis=1)

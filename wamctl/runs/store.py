@@ -25,6 +25,7 @@ import signal
 import socket
 import subprocess
 from contextlib import contextmanager
+from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
 
@@ -46,18 +47,26 @@ def utc_now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
 
 
-def package_versions() -> dict[str, str | None]:
-    out = {}
+@lru_cache(maxsize=1)
+def _versions() -> tuple:
+    out = []
     for name in ("wamctl",) + _DEPENDENCIES:
         try:
-            out[name] = metadata.version(name)
+            out.append((name, metadata.version(name)))
         except metadata.PackageNotFoundError:
-            out[name] = None
-    return out
+            out.append((name, None))
+    return tuple(out)
 
 
+def package_versions() -> dict[str, str | None]:
+    """The versions of wamctl and its dependencies in this process (looked up once)."""
+    return dict(_versions())
+
+
+@lru_cache(maxsize=1)
 def git_revision() -> str | None:
-    """The source checkout's revision (with ``+dirty`` when it has changes), or None."""
+    """The source checkout's revision (with ``+dirty`` when it has changes), or None; looked up once per
+    process (the code running is the code loaded at its start)."""
     here = Path(__file__).resolve().parent
     try:
         rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
