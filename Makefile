@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: setup demo test lint bench clean
+.PHONY: setup browser demo test lint bench clean
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -18,8 +18,18 @@ setup: $(STAMP)
 demo: $(STAMP)
 	$(BIN)/wamctl run configs/rotation.yaml
 
+## browser: Debian's headless Chromium, for the test that renders every report (installed when missing; without
+## it, that test is skipped and says why)
+browser:
+	@command -v chromium >/dev/null 2>&1 || command -v chromium-browser >/dev/null 2>&1 || \
+	  { echo "installing chromium (apt-get) for tests/report/test_browser.py"; \
+	    { DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null 2>&1 || \
+	      { apt-get update -q >/dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null 2>&1; } || \
+	      sudo -n env DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null 2>&1; } || \
+	    echo "chromium could not be installed here: the browser test will be skipped"; }
+
 ## test: set up, check the code (ruff, the import layers) and run the whole test suite
-test: lint
+test: lint browser
 	$(BIN)/python -m pytest -q
 
 ## lint: ruff and the layer contract of docs/architecture.md (import-linter)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from cli_runs import small_runs  # noqa: F401, E402 - the session fixture of small runs of every kind (cli_runs.py)
 
 from wamctl.model import params as P
 

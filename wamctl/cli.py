@@ -2,15 +2,17 @@
 
 Errors a user can cause end in one line (``error: ...``) and exit code 2, without a traceback;
 an interrupted run exits 130.
+
+Start-up stays light: ``wamctl --help`` and ``--version`` import typer and the command modules only (every
+command imports the library it calls inside its function), and help is click's plain text, wrapped to the
+terminal (typer's rich help would import a Markdown parser on every call).
 """
 
 from __future__ import annotations
 
-import logging
 import sys
 
 import typer
-from rich.console import Console
 
 from wamctl import __version__
 from wamctl.errors import WamctlError
@@ -19,9 +21,8 @@ app = typer.Typer(
     name="wamctl",
     help="Lab tool for the 7-DOF Barrett WAM: run experiments from YAML specs on the simulated arm or the real "
          "one over CAN, identify friction, tune PIDs, diagnose model errors, run the gaze HMI, and report.",
-    no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False,
+    no_args_is_help=True, pretty_exceptions_enable=False, add_completion=False, rich_markup_mode=None,
 )
-err_console = Console(stderr=True)
 
 
 def _version(value: bool):
@@ -34,30 +35,73 @@ def _version(value: bool):
 def _root(verbose: bool = typer.Option(False, "--verbose", "-v", help="Log progress details to stderr."),
           version: bool = typer.Option(False, "--version", callback=_version, is_eager=True,
                                        help="Print the version and exit.")):
+    import logging
+
     logging.basicConfig(level=logging.INFO if verbose else logging.WARNING,
                         format="%(levelname)s %(name)s: %(message)s", stream=sys.stderr)
+
+
+def short_help(doc: str | None) -> str | None:
+    """The first sentence of a command's docstring, whole (click would cut it at 45 characters, and at
+    abbreviations such as "ch. 4"): up to the first ". " before a capital or the first ": " outside
+    parentheses."""
+    if not doc:
+        return None
+    first = " ".join(doc.strip().split("\n\n")[0].split())
+    depth = 0
+    for i, ch in enumerate(first):
+        depth += {"(": 1, ")": -1}.get(ch, 0)
+        nxt = first[i + 1: i + 3]
+        if ch == "." and (nxt == "" or (nxt[:1] == " " and nxt[1:].isupper())):
+            return first[:i]
+        if ch == ":" and depth == 0 and nxt[:1] == " ":
+            return first[:i]
+    return first
 
 
 def _register() -> None:
     """Every command module adds its commands to ``app`` (in the order of ``--help``)."""
     import importlib
+    import inspect
 
     from wamctl.commands import COMMAND_MODULES
 
+    if app.registered_commands:
+        return
     for name in COMMAND_MODULES:
         importlib.import_module(f"wamctl.commands.{name}").register(app)
+    for info in app.registered_commands:
+        if info.short_help is None:
+            info.short_help = short_help(info.help or inspect.getdoc(info.callback))
+
+
+def _print_error(exc: WamctlError) -> None:
+    from rich.console import Console
+    from rich.text import Text
+
+    err = Console(stderr=True)
+    for line in str(exc).splitlines() or [type(exc).__name__]:
+        err.print(Text.assemble(("error:", "bold red"), " ", line), highlight=False, soft_wrap=True)
+
+
+_command = None   # the click command built from ``app`` (once per process: typer builds it from signatures)
 
 
 def main() -> None:
-    _register()
+    global _command
+    from wamctl.commands.common import reset_consoles
+
+    if _command is None:
+        _register()
+        _command = typer.main.get_command(app)
+    reset_consoles()
     try:
-        app()  # usage errors, --help and typer.Exit are handled by typer itself
+        _command()  # usage errors, --help and typer.Exit are handled by click itself (exit codes 2 and 0)
     except WamctlError as exc:
-        for line in str(exc).splitlines() or [type(exc).__name__]:
-            err_console.print(f"[bold red]error:[/] {line}", highlight=False, markup=True, soft_wrap=True)
+        _print_error(exc)
         sys.exit(exc.exit_code)
     except KeyboardInterrupt:
-        err_console.print("interrupted")
+        sys.stderr.write("interrupted\n")
         sys.exit(130)
 
 

@@ -5,9 +5,8 @@ from __future__ import annotations
 from typing import Annotated
 
 import typer
-from rich.table import Table
 
-from wamctl.commands.common import console, emit_json, err_console
+from wamctl.commands.common import console, emit_json, err_console, print_frame
 
 
 def bus_check_cmd(
@@ -47,15 +46,15 @@ def _fmt(v) -> str:
 
 
 def _print(r: dict) -> None:
+    import pandas as pd
+
     sim = " (simulated pucks)" if r["simulated"] else ""
-    t = Table(title=f"Pucks on {r['interface']} {r['channel']} at {r['bitrate'] / 1e6:g} Mbit/s{sim}")
-    for c in ("id", "node", "state", "VERS", "CTS", "IPNM", "PIDX", "MODE", "SN"):
-        t.add_column(c, justify="right" if c not in ("node", "state", "MODE") else "left")
-    for p in r["pucks"]:
-        vers = _fmt(p["vers"]) + ("" if p.get("firmware_ok", True) else " (too old)")
-        t.add_row(str(p["puck_id"]), p["kind"], _fmt(p["stat_name"]), vers, _fmt(p["cts"]), _fmt(p["ipnm"]),
-                  _fmt(p["pidx"]), _fmt(p["mode_name"]), _fmt(p["sn"]))
-    console.print(t)
+    rows = [{"id": p["puck_id"], "node": p["kind"], "state": p["stat_name"],
+             "VERS": _fmt(p["vers"]) + ("" if p.get("firmware_ok", True) else " (too old)"), "CTS": p["cts"],
+             "IPNM": p["ipnm"], "PIDX": p["pidx"], "MODE": p["mode_name"], "SN": p["sn"]} for p in r["pucks"]]
+    print_frame(f"Pucks on {r['interface']} {r['channel']} at {r['bitrate'] / 1e6:g} Mbit/s{sim}",
+                pd.DataFrame(rows, columns=["id", "node", "state", "VERS", "CTS", "IPNM", "PIDX", "MODE", "SN"]),
+                key="id")
     ld = r["load"]
     console.print(f"bus load over {ld['window_s']:.2f} s: {ld['frames_per_s']:.0f} frames/s, "
                   f"{ld['bits_per_s'] / 1e3:.1f} kbit/s = {ld['load_pct']:.1f} % of the bit rate "

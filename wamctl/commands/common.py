@@ -8,14 +8,38 @@ import json
 import sys
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Annotated
+from typing import TYPE_CHECKING, Annotated
 
 import typer
-from rich.console import Console
-from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-console = Console()
-err_console = Console(stderr=True)
+if TYPE_CHECKING:
+    from rich.console import Console
+
+
+class _LazyConsole:
+    """A rich Console made on first use, so that ``wamctl --help`` does not import rich."""
+
+    def __init__(self, stderr: bool = False):
+        self._stderr = stderr
+        self._console = None
+
+    def _get(self) -> Console:
+        if self._console is None:
+            from rich.console import Console
+            self._console = Console(stderr=self._stderr)
+        return self._console
+
+    def __getattr__(self, name):
+        return getattr(self._get(), name)
+
+
+console = _LazyConsole()
+err_console = _LazyConsole(stderr=True)
+
+
+def reset_consoles() -> None:
+    """Forget the consoles made so far (a new command line: the terminal's width is read again)."""
+    console._console = err_console._console = None
 
 
 @contextmanager
@@ -24,8 +48,10 @@ def progress_bar(description: str, enabled: bool = True):
     if not enabled:
         yield None
         return
+    from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
+
     with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                  TimeElapsedColumn(), TimeRemainingColumn(), console=err_console, transient=True) as prog:
+                  TimeElapsedColumn(), TimeRemainingColumn(), console=err_console._get(), transient=True) as prog:
         task = prog.add_task(description, total=None)
 
         def update(done: int, total: int, label: str | None = None):
@@ -45,21 +71,117 @@ QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar a
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (for scripts).")]
 
 
-def print_document_tables(doc) -> None:
-    """The tables of a report :class:`~wamctl.report.document.Document` on the terminal."""
-    from rich.table import Table
+def print_document_tables(doc, out: Console | None = None) -> None:
+    """The tables of a report :class:`~wamctl.report.document.Document` on the terminal, then its warnings.
+
+    Each column keeps the report's one number format (:func:`wamctl.report.document.format_column`); a table
+    wider than the terminal is split into parts that each repeat the key column, so that no number and no word
+    is ever cut."""
+    out = out or console
+    for kind, obj in doc.blocks:
+        if kind == "table":
+            print_table(f"{doc.title}: {obj.name}", obj, out)
+    print_warnings(doc, out)
+
+
+def print_warnings(doc, out: Console | None = None) -> None:
+    """The warnings of a report (shown even with --quiet: they ask the user to act)."""
+    from rich.text import Text
 
     for kind, obj in doc.blocks:
-        if kind != "table":
-            continue
-        name, df, caption, digits = obj
-        t = Table(title=f"{doc.title}: {name}", caption=caption or None)
-        frame = df.reset_index() if df.index.name else df
-        for c in frame.columns:
-            t.add_column(str(c).replace("_", " "), justify="right", overflow="fold")
-        for row in frame.itertuples(index=False):
-            t.add_row(*[f"{v:.{digits}f}" if isinstance(v, float) else str(v) for v in row])
-        console.print(t)
+        if kind == "warn":
+            (out or console).print(Text.assemble(("warning: ", "bold yellow"), str(obj)))
+
+
+def print_frame(title: str, df, caption: str = "", key: str | None = None, out: Console | None = None) -> None:
+    """A pandas frame as a terminal table (:func:`print_table`): its index, ``key`` or first column as key."""
+    from wamctl.report.document import DEFAULT_DIGITS, Table
+
+    print_table(title, Table(title, df, caption, DEFAULT_DIGITS, (key,) if key else ()), out)
+
+
+_TEXT_MIN_CAP = 40     # a text column narrower than its longest word wraps; words longer than this may fold
+
+
+def _words(s: str) -> int:
+    return max((len(w) for w in s.split()), default=0)
+
+
+def print_table(title: str, table, out: Console | None = None) -> None:
+    """One :class:`~wamctl.report.document.Table` as one or more rich tables that fit the terminal width: the
+    title and caption as paragraphs, each column wide enough for its longest number (numbers never wrap) and its
+    longest word."""
+    from rich import box
+    from rich.table import Table
+    from rich.text import Text
+
+    out = out or console
+    names, rows, is_key = table.cells(na="-")
+    numeric = table.numeric()
+    heads = [n.replace("_", " ") for n in names]
+    no_wrap = [k or num for k, num in zip(is_key, numeric)]   # sized to their longest cell: never wrapped
+    least, natural = [], []
+    for c, head in enumerate(heads):
+        cells = [r[c] for r in rows]
+        longest = max((len(x) for x in cells), default=0)
+        body = longest if no_wrap[c] else min(max((_words(x) for x in cells), default=0), _TEXT_MIN_CAP)
+        least.append(max(body, _words(head), 1))
+        natural.append(max(longest, len(head), 1))
+    parts = pack_columns(least, is_key, out.width)
+    out.print(Text(title, style="bold"), soft_wrap=False)
+    for i, cols in enumerate(parts):
+        widths = _widen({c: least[c] for c in cols}, natural, out.width)
+        t = Table(box=box.SIMPLE_HEAD, title=Text(f"({i + 1}/{len(parts)})") if len(parts) > 1 else None,
+                  pad_edge=False, show_edge=False)
+        for c in cols:
+            t.add_column(Text(heads[c]), justify="left" if (is_key[c] or not numeric[c]) else "right",
+                         width=widths[c], overflow="fold")
+        for r in rows:
+            t.add_row(*[Text(r[c]) for c in cols])
+        out.print(t)
+    if table.caption:
+        out.print(Text(table.caption, style="dim"))
+    out.print()
+
+
+def _overhead(n: int) -> int:
+    """Characters rich's SIMPLE_HEAD table without edges adds around ``n`` columns: a space either side of a
+    column and a separator between columns, none at the edges."""
+    return max(0, 3 * n - 3) if n else 0
+
+
+def _widen(widths: dict[int, int], natural: list[int], total: int) -> dict[int, int]:
+    """Give the columns of one part the room left, smallest shortfall first, up to their natural widths."""
+    room = total - sum(widths.values()) - _overhead(len(widths))
+    for c in sorted(widths, key=lambda c: natural[c] - widths[c]):
+        add = max(0, min(natural[c] - widths[c], room))
+        widths[c] += add
+        room -= add
+    return widths
+
+
+def pack_columns(widths: list[int], is_key: list[bool], total: int) -> list[list[int]]:
+    """Split columns (by index) into as few parts as fit ``total`` characters, of similar widths, each part
+    starting with the key columns."""
+    keys = [c for c, k in enumerate(is_key) if k]
+    rest = [c for c, k in enumerate(is_key) if not k]
+
+    def greedy(cap: int) -> list[list[int]]:
+        parts, cur = [], list(keys)
+        for c in rest:
+            if sum(widths[x] for x in cur + [c]) + _overhead(len(cur) + 1) > cap and len(cur) > len(keys):
+                parts.append(cur)
+                cur = list(keys)
+            cur.append(c)
+        return parts + [cur]
+
+    parts = greedy(total)
+    if len(parts) > 1:   # same number of parts, evened out: the smallest width that still needs no more parts
+        lo = sum(widths[c] for c in keys) + _overhead(len(keys) + 1) + max(widths[c] for c in rest)
+        for cap in range(lo, total):
+            if len(greedy(cap)) == len(parts):
+                return greedy(cap)
+    return parts
 
 
 def run_and_report(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as_json: bool,
@@ -101,8 +223,8 @@ def show_outcome(outcome, quiet: bool, as_json: bool, files: dict | None = None)
         emit_json({"run_dir": str(outcome.path), "status": outcome.status, "reason": outcome.reason, **shown,
                    "report": doc.to_json() if doc else None})
     else:
-        if doc is not None and not quiet:
-            print_document_tables(doc)
+        if doc is not None:
+            (print_warnings if quiet else print_document_tables)(doc)
         colour = "green" if outcome.status == "completed" else "red"
         msg = f"[{colour}]{outcome.status}[/]" + (f": {outcome.reason}" if outcome.reason else "")
         lines = [f"{msg}  run directory: {outcome.path}"] + [f"{k.replace('_', ' ')}: {v}" for k, v in shown.items()

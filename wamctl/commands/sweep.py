@@ -7,9 +7,8 @@ from pathlib import Path
 from typing import Annotated
 
 import typer
-from rich.table import Table
 
-from wamctl.commands.common import console, emit_json, err_console, progress_bar
+from wamctl.commands.common import console, emit_json, err_console, print_frame, progress_bar
 
 
 def sweep(
@@ -74,14 +73,13 @@ def _show_result(sw, result, quiet: bool, json: bool) -> None:
                    "n_workers": result.n_workers, "max_concurrent": result.max_concurrent,
                    "efficiency": result.efficiency, "report": [str(p) for p in result.report]})
     elif not quiet:
-        t = Table(title=f"sweep {sw.name}: {len(sw.points)} points")
-        for c in ("completed", "failed", "ran now", "skipped", "workers", "at once", "wall (s)", "busy"):
-            t.add_column(c, justify="right")
+        import pandas as pd
+
         eff = f"{100 * result.efficiency:.0f} %" if result.efficiency is not None else "-"
-        t.add_row(str(result.counts["completed"]), str(result.counts["failed"]), str(result.ran),
-                  str(result.skipped), str(result.n_workers), str(result.max_concurrent), f"{result.wall_s:.1f}",
-                  eff)
-        console.print(t)
+        row = {"completed": result.counts["completed"], "failed": result.counts["failed"], "ran now": result.ran,
+               "skipped": result.skipped, "workers": result.n_workers, "at once": result.max_concurrent,
+               "wall (s)": round(result.wall_s, 1), "busy": eff}
+        print_frame(f"sweep {sw.name}: {len(sw.points)} points", pd.DataFrame([row]))
     if not json:
         colour = "green" if result.ok else "red"
         (console if result.ok else err_console).print(
@@ -94,13 +92,15 @@ def _dry_run(sw, checks: list[str], as_json: bool) -> None:
         emit_json({"spec": sw.source, "kind": sw.kind, "name": sw.name, "parameters": sw.parameters,
                    "checks": checks, "points": [{"point": p.point_id, **p.values} for p in sw.points]})
         return
-    t = Table(title=f"sweep {sw.name}: {len(sw.points)} points of {sw.kind}")
-    t.add_column("point")
-    for p in sw.parameters:
-        t.add_column(p, justify="right")
-    for p in sw.points[:50]:
-        t.add_row(p.point_id, *[str(p.values.get(k, "")) for k in sw.parameters])
-    console.print(t)
+    import json as _json
+
+    import pandas as pd
+
+    def cell(v):
+        return _json.dumps(v) if isinstance(v, (list, dict)) else v
+    rows = [{"point": p.point_id, **{k: cell(p.values.get(k)) for k in sw.parameters}} for p in sw.points[:50]]
+    print_frame(f"sweep {sw.name}: {len(sw.points)} points of {sw.kind}",
+                pd.DataFrame(rows, columns=["point", *sw.parameters]), key="point")
     if len(sw.points) > 50:
         console.print(f"... {len(sw.points) - 50} more points")
     console.print(f"[green]ok[/] every point planned; first point: {'; '.join(checks)}", highlight=False)

@@ -23,6 +23,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wamctl.errors import SpecError
+
 
 @dataclass
 class Reference:
@@ -90,6 +92,10 @@ class ReferenceBuilder:
         Every joint uses the same t_f, set by the largest displacement at ``velocity_rad_s``.
         """
         amp = max(abs(d) for d in deltas_rad.values())
+        if not (velocity_rad_s > 0 and 0 < tc_s <= amp / velocity_rad_s):   # eq. 3.3 needs 2 t_c <= t_f
+            raise SpecError(f"{label}: a move of {amp:g} rad at {velocity_rad_s:g} rad/s cruises "
+                            f"{amp / velocity_rad_s if velocity_rad_s > 0 else float('nan'):.3g} s, less than its "
+                            f"blend time tc_s = {tc_s:g} s; use a smaller tc_s, a larger amplitude or a lower velocity")
         t_f = lspb_final_time_s(amp, velocity_rad_s, tc_s)
         n = int(round(t_f / self.dt_s))
         t = np.arange(1, n + 1) * self.dt_s
@@ -104,7 +110,7 @@ class ReferenceBuilder:
 
     def build(self) -> Reference:
         if not self._parts:
-            raise ValueError("empty reference")
+            raise SpecError("the plan is empty: nothing to move and no time to hold")
         segments, start = [], 0
         for part in self._parts:
             segments.append((start, part[3]))

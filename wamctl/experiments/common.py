@@ -57,7 +57,11 @@ class Plan:
             j = int(np.argmax(over))
             raise SpecError(f"reference: joint {j + 1} velocity {speed[j]:.3f} rad/s above the limit "
                             f"{P.QD_MAX_RAD_S[j]} rad/s")
-        done.append(f"reference speeds within {P.QD_MAX_RAD_S[0]} rad/s (max {speed.max():.3f})")
+        if speed.max() > 0:
+            done.append(f"reference speeds within {P.QD_MAX_RAD_S[0]} rad/s (max {speed.max():.3f} rad/s)")
+        else:   # poses only (e.g. an HMI block): the motion between them is made while running
+            done.append(f"poses only, no planned motion: speeds are limited while running ({P.QD_MAX_RAD_S[0]} "
+                        "rad/s fault limit)")
         if self.feedforward_Nm is not None:
             ff = np.abs(self.feedforward_Nm).max(axis=0)
             if (ff > P.TAU_MAX_NM).any():

@@ -127,8 +127,12 @@ def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, bas
 def write_identification(path: Path, result) -> None:
     """``friction_model.yaml``, ``friction_map.csv`` and ``identification.json`` into ``path``."""
     import json
+
+    import yaml
+
     path = Path(path)
-    result.model.save(path / MODEL_FILE, extra=result.file_extra())
+    data, header = result.model_file()
+    (path / MODEL_FILE).write_text(header + yaml.safe_dump(data, sort_keys=False))
     result.map.to_csv(path / MAP_FILE, index=False)
     (path / IDENT_FILE).write_text(json.dumps(result.to_dict(), indent=2, default=json_default))
 

@@ -125,8 +125,8 @@ def _figures(run_path: Path, out_dir: Path, result: dict, doc: Document) -> None
             ax.plot(t, (pos[f"q_before_{j}_rad"] - qm) * 1e3, lw=0.8, label="declared model - measured")
             ax.plot(t, (pos[f"q_after_{j}_rad"] - qm) * 1e3, lw=0.8, label="with effects - measured")
             d = result["joints"][str(j)]
-            ax.set_title(f"joint {j}: RMS {_g(d['position_rms_before_rad'])} -> "
-                         f"{_g(d['position_rms_after_rad'])} rad")
+            ax.set_title(f"joint {j}: RMS {_g(_milli(d['position_rms_before_rad']))} -> "
+                         f"{_g(_milli(d['position_rms_after_rad']))} mrad")   # the axis' unit
             ax.set_ylabel("mrad")
             ax.set_xlabel("t (s)")
             ax.grid(alpha=0.3)
@@ -149,6 +149,10 @@ def _figures(run_path: Path, out_dir: Path, result: dict, doc: Document) -> None
 def _p(x) -> str:
     """A p-value as text (tables print floats with fixed decimals, which would show 0.0000)."""
     return "n/a" if x is None else f"{x:.2g}"
+
+
+def _milli(x):
+    return None if x is None else 1e3 * x
 
 
 def _g(x) -> str:

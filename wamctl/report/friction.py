@@ -207,7 +207,11 @@ def friction_document(rd, ident: FrictionIdentification, out_dir: Path, title: s
     t41 = parameter_table(ident)
     doc.table("friction_parameters", t41, "chosen model per joint; Fc (N m) as magnitudes, sigma2 (N m s/rad); "
               "*_std: standard errors from the fit's Jacobian. Written to friction_model.yaml.")
-    doc.data["friction_model"] = ident.model.to_dict()
+    missing = ident.not_identified()
+    if missing:
+        doc.text("Not identified, so friction_model.yaml gives no friction for them (whatever reads it treats them "
+                 "as frictionless): " + "; ".join(f"joint {j} ({why})" for j, why in missing.items()) + ".")
+    doc.data["friction_model"] = ident.model_file()[0]
     doc.data["chosen_model"] = {str(j): ji.chosen for j, ji in ident.joints.items()}
     truth = true_friction(rd.truth)
     if truth is not None:

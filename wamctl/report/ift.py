@@ -100,6 +100,79 @@ def gains_table(it: pd.DataFrame) -> pd.DataFrame:
     return pd.DataFrame(rows).set_index("joint") if rows else pd.DataFrame()
 
 
+GAINS = ("kp", "kd", "ki")
+
+
+def bounds_table(it: pd.DataFrame, spec: dict) -> pd.DataFrame:
+    """The tuned gains that ended at a bound of ``ift.bounds`` (within 0.1 %): joint, gain, tuned value, which
+    bound and its value, and the tuned value over the initial one. Empty when none did (or the spec's bounds
+    cannot be rebuilt)."""
+    from wamctl.errors import WamctlError
+    from wamctl.specs import parse_spec
+    from wamctl.specs.ift import gain_bounds
+
+    try:
+        lo, hi = gain_bounds(parse_spec(spec, "spec.yaml"))
+    except (WamctlError, ValueError, TypeError):
+        return pd.DataFrame()
+    rows = []
+    for joint, r in gains_table(it).iterrows():
+        for i, g in enumerate(GAINS):
+            v, v0 = float(r[f"{g}_tuned"]), float(r[f"{g}_initial"])
+            for side, b in (("upper", hi[joint - 1, i]), ("lower", lo[joint - 1, i])):
+                if abs(v - b) <= 1e-3 * max(abs(b), 1e-12) or v == b:
+                    rows.append({"joint": int(joint), "gain": g, "tuned": v, "bound": side, "bound_value": float(b),
+                                 "x_initial": v / v0 if v0 else np.nan})
+                    break
+    return pd.DataFrame(rows).set_index("joint") if rows else pd.DataFrame()
+
+
+def schedule_table(it: pd.DataFrame, spec: dict) -> pd.DataFrame:
+    """Per stage of ``ift.schedule``: method, gamma, and per tuned joint the iterations it gave that the plant
+    accepted (rows: stages, 1-based)."""
+    stages = ((spec.get("ift") or {}).get("schedule")) or []
+    tuned = it[it["status"] != "initial"]
+    joints = sorted(int(j) for j in it["joint"].unique())
+    rows = []
+    for k, st in enumerate(stages):
+        row = {"stage": k + 1, "method": st.get("method"), "gamma": st.get("gamma")}
+        at = tuned[tuned["stage"] == k]
+        for j in joints:
+            row[f"joint_{j}"] = int(((at["joint"] == j) & (at["status"] == "accepted")).sum())
+        row["tried"] = int(len(at))
+        rows.append(row)
+    return pd.DataFrame(rows).set_index("stage") if rows else pd.DataFrame()
+
+
+def _flag_gains_and_stages(doc: Document, it: pd.DataFrame, spec: dict) -> None:
+    """Warn about gains that ended at their bounds, and say which stages of the schedule were never used."""
+    bt = bounds_table(it, spec)
+    doc.data["gains_at_bounds"] = [{"joint": int(j), **r} for j, r in bt.reset_index().set_index("joint").iterrows()
+                                   ] if len(bt) else []
+    if len(bt):
+        doc.table("ift_gains_at_bounds", bt, "Tuned gains within 0.1 % of a bound of ift.bounds (defaults: kp and kd "
+                  "in [0.5, 4] x their start, ki in [0, ki_max_per_s x the starting kp]); x_initial = tuned / initial.")
+        parts = [f"joint {j} " + ", ".join(f"{r['gain']} {r['tuned']:.4g} ({r['bound']} bound)"
+                                          for _, r in g.iterrows())
+                 for j, g in bt.reset_index().groupby("joint")]
+        doc.warning("gains at their bounds: " + "; ".join(parts) + ". The tuning stopped at the bound, not at the best "
+                    "J: set bounds for the lab (ift.bounds: kp_max, kd_max, ki_max) and check these gains before "
+                    "using them on the arm.")
+    st = schedule_table(it, spec)
+    if len(st):
+        doc.table("ift_schedule", st, "Iterations accepted on the plant per joint for each stage of ift.schedule; "
+                  "tried: proposals made in the stage (accepted or rejected).")
+        unused = [f"{k} ({r['method']} gamma={r['gamma']:g})" for k, r in st.iterrows() if r["tried"] == 0]
+        idle = [f"{k} ({r['method']} gamma={r['gamma']:g})" for k, r in st.iterrows()
+                if r["tried"] > 0 and not any(r[c] for c in st.columns if c.startswith("joint_"))]
+        if unused:
+            doc.text(f"Stage{'s' if len(unused) > 1 else ''} {', '.join(unused)} of the schedule "
+                     f"{'were' if len(unused) > 1 else 'was'} never used: every joint stopped before reaching it.")
+        if idle:
+            doc.text(f"Stage{'s' if len(idle) > 1 else ''} {', '.join(idle)} gave no accepted iteration.")
+        doc.data["unused_stages"] = [int(k) for k, r in st.iterrows() if r["tried"] == 0]
+
+
 def comparison_table(run_path: Path) -> pd.DataFrame:
     """RPE (%) of the final position per joint under each strategy (ours and the thesis')."""
     out = {}
@@ -253,13 +326,16 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     t51 = table_5_1(it)
     doc.table("ift_J", t51, "J = 1/(2N) sum (y - r)^2 on the plant, rad^2, per joint and iteration; an iteration "
               "whose J did not decrease kept the previous gains (see the method table).", digits=4)
+    doc.heading("Method and step per iteration")
     doc.table("ift_methods", method_table(it), "Hessian method and step gamma that produced each iteration's gains.")
+    doc.heading("Thesis Table 5.1 (for comparison)")
     doc.table("thesis_table_5_1", THESIS_TABLE_5_1, "The thesis' Table 5.1 (real WAM, its own units) for "
               "comparison: initial PID, BFGS iteration 1, Newton-Gauss iterations 2-5.", digits=4)
     gt = gains_table(it)
     doc.heading("Gains")
     doc.table("ift_gains", gt, "Initial (PD gains, ki = kd/10) and tuned gains; J_ratio = J_tuned / J_initial.",
               digits=4)
+    _flag_gains_and_stages(doc, it, spec)
     doc.data["J"] = {str(j): {"initial": float(r.J_initial), "tuned": float(r.J_tuned)} for j, r in gt.iterrows()}
     doc.data["tuned_gains"] = {str(j): {"kp": float(r.kp_tuned), "kd": float(r.kd_tuned), "ki": float(r.ki_tuned)}
                                for j, r in gt.iterrows()}

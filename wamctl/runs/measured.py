@@ -20,7 +20,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 
 from wamctl.errors import DataFormatError
 from wamctl.model import params as P
-from wamctl.io import load_yaml
+from wamctl.io import ensure_dir, load_yaml
 from wamctl.runs.store import RunDir, open_run, read_table, write_csv
 
 log = logging.getLogger(__name__)
@@ -106,6 +106,26 @@ def _to_external(df: pd.DataFrame) -> pd.DataFrame:
     return df[list(cols)].rename(columns=cols)
 
 
+def _external_name(col: str) -> str:
+    """The measured-run format's name of an internal column (``q_1_rad`` -> ``q_1``, ``t_s`` -> ``t``)."""
+    if col == "t_s":
+        return "t"
+    for unit in ("_rad_s", "_rad", "_Nm"):
+        if col.endswith(unit):
+            return col[: -len(unit)]
+    return col
+
+
+def _separator_hint(columns) -> str:
+    """A hint when the header looks like another separator than the comma."""
+    head = ",".join(str(c) for c in columns)
+    for sep, name in ((";", "semicolons"), ("\t", "tabs"), ("|", "bars")):
+        if head.count(sep) >= 3:
+            return (f" (the header is separated by {name}: data.csv must be comma-separated, with a dot as the "
+                    "decimal mark)")
+    return ""
+
+
 def read_meta(path: Path) -> MeasuredMeta:
     mpath = path / "meta.yaml"
     if not mpath.is_file():
@@ -129,12 +149,22 @@ def validate_samples(df: pd.DataFrame, sample_rate_hz: float, source: str) -> pd
     if missing:
         ext = {c: c.rsplit("_", 1)[0] if not c.endswith("Nm") else c[:-3] for c in missing}
         shown = [("t" if c == "t_s" else ext[c]) for c in missing]
-        raise DataFormatError(f"{source}: missing column(s): {', '.join(shown)}")
+        raise DataFormatError(f"{source}: missing column(s): {', '.join(shown)}" + _separator_hint(df.columns))
     cols = required + [c for c in df.columns if c.startswith("qd_") and c not in required]
-    try:
-        df = df[cols].apply(pd.to_numeric, errors="raise").astype(float)
-    except (ValueError, TypeError) as exc:
-        raise DataFormatError(f"{source}: non-numeric value ({exc})") from None
+    df = df[cols]
+    num = df.apply(pd.to_numeric, errors="coerce")
+    bad = num.isna() & df.notna()
+    if bad.to_numpy().any():
+        row, col = map(int, np.argwhere(bad.to_numpy())[0])
+        name = _external_name(cols[col])
+        raise DataFormatError(f"{source}: data row {row + 1}, column {name}: {str(df.iat[row, col])[:40]!r} is not "
+                              "a number")
+    df = num.astype(float)
+    inf = np.isinf(df.to_numpy())
+    if inf.any():
+        row, col = map(int, np.argwhere(inf)[0])
+        raise DataFormatError(f"{source}: data row {row + 1}, column {_external_name(cols[col])}: "
+                              f"{df.iat[row, col]} is not a finite number")
     if len(df) < 10:
         raise DataFormatError(f"{source}: only {len(df)} rows; a run needs at least 10")
     nan_rows = df[required].isna().any(axis=1)
@@ -173,9 +203,12 @@ def read_measured(path: str | Path) -> RunData:
         src = path / "data.parquet"
     elif (path / "data.csv").is_file():
         try:
-            df = pd.read_csv(path / "data.csv")
-        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError) as exc:
-            raise DataFormatError(f"{path / 'data.csv'}: unreadable CSV ({exc})") from None
+            df = pd.read_csv(path / "data.csv", low_memory=False)
+        except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError) as exc:
+            msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            if isinstance(exc, UnicodeDecodeError):
+                msg = f"not UTF-8 text (byte 0x{exc.object[exc.start]:02x})"
+            raise DataFormatError(f"{path / 'data.csv'}: unreadable CSV ({msg})") from None
         src = path / "data.csv"
     else:
         raise DataFormatError(f"{path}: neither data.parquet nor data.csv")
@@ -221,8 +254,7 @@ def load_run_data(path: str | Path) -> RunData:
 def export_run(run_path: str | Path, to: str | Path, fmt: str = "parquet") -> Path:
     """Write a run directory in the measured-run format (``meta.yaml`` + ``data.parquet`` or ``data.csv``)."""
     rd = load_run_data(run_path)
-    to = Path(to)
-    to.mkdir(parents=True, exist_ok=True)
+    to = ensure_dir(to, "export directory")
     meta = rd.meta.model_dump(mode="json", exclude_none=False)
     (to / "meta.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
     ext = _to_external(rd.data)

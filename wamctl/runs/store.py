@@ -21,8 +21,11 @@ import json
 import logging
 import os
 import platform
+import signal
 import socket
 import subprocess
+from contextlib import contextmanager
+from functools import lru_cache
 from importlib import metadata
 from pathlib import Path
 
@@ -31,6 +34,7 @@ import pandas as pd
 import yaml
 
 from wamctl.errors import DataFormatError
+from wamctl.io import ensure_dir, parse_yaml, read_text
 
 log = logging.getLogger(__name__)
 
@@ -43,18 +47,26 @@ def utc_now() -> str:
     return _dt.datetime.now(_dt.timezone.utc).isoformat(timespec="milliseconds")
 
 
-def package_versions() -> dict[str, str | None]:
-    out = {}
+@lru_cache(maxsize=1)
+def _versions() -> tuple:
+    out = []
     for name in ("wamctl",) + _DEPENDENCIES:
         try:
-            out[name] = metadata.version(name)
+            out.append((name, metadata.version(name)))
         except metadata.PackageNotFoundError:
-            out[name] = None
-    return out
+            out.append((name, None))
+    return tuple(out)
 
 
+def package_versions() -> dict[str, str | None]:
+    """The versions of wamctl and its dependencies in this process (looked up once)."""
+    return dict(_versions())
+
+
+@lru_cache(maxsize=1)
 def git_revision() -> str | None:
-    """The source checkout's revision (with ``+dirty`` when it has changes), or None."""
+    """The source checkout's revision (with ``+dirty`` when it has changes), or None; looked up once per
+    process (the code running is the code loaded at its start)."""
     here = Path(__file__).resolve().parent
     try:
         rev = subprocess.run(["git", "rev-parse", "HEAD"], cwd=here, capture_output=True, text=True, timeout=5)
@@ -107,9 +119,42 @@ class TableWriter:
     def close(self) -> pd.DataFrame:
         self.flush()
         df = read_chunks(self._dir, self.columns)
-        df.to_parquet(self.run_dir / f"{self.name}.parquet", index=False)
-        write_csv(df, self.run_dir / f"{self.name}.csv")
+        write_table_pair(df, self.run_dir, self.name)
         return df
+
+
+def write_table_pair(df: pd.DataFrame, run_dir: Path, name: str) -> None:
+    """``<name>.parquet`` and ``<name>.csv`` in ``run_dir``: both or neither. Both are written to temporary
+    files first, then renamed in place with termination signals held back, so that an interrupt (Ctrl-C,
+    SIGTERM) at any moment leaves the previous pair (or none, and the chunks) rather than one without the
+    other."""
+    run_dir = Path(run_dir)
+    final = [run_dir / f"{name}.parquet", run_dir / f"{name}.csv"]
+    tmp = [p.with_name(f".{p.name}.tmp") for p in final]
+    try:
+        df.to_parquet(tmp[0], index=False)
+        write_csv(df, tmp[1])
+        with _signals_held():
+            for t, f in zip(tmp, final):
+                os.replace(t, f)
+    finally:
+        for t in tmp:
+            t.unlink(missing_ok=True)
+
+
+@contextmanager
+def _signals_held():
+    """Hold back SIGINT, SIGTERM and SIGHUP inside the block (delivered when it ends), where supported."""
+    sigs = {signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", signal.SIGTERM)}
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
+    except (AttributeError, OSError, ValueError):
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def write_csv(df: pd.DataFrame, path: Path) -> None:
@@ -129,6 +174,7 @@ def read_chunks(chunk_dir: Path, columns: list[str] | None = None) -> pd.DataFra
 
 def new_stamped_dir(out_dir: str | Path, name: str) -> Path:
     """Create and return ``<out_dir>/<UTC timestamp>-<name>`` (``-2``, ``-3``... if it already exists)."""
+    ensure_dir(out_dir, "parent directory of the run directory")
     stamp = _dt.datetime.now(_dt.timezone.utc).strftime("%Y%m%dT%H%M%S.%fZ")[:-4] + "Z"
     path = Path(out_dir) / f"{stamp}-{name}"
     n = 1
@@ -185,8 +231,7 @@ class RunDir:
 
     def write_table(self, name: str, df: pd.DataFrame) -> None:
         """A whole table at once (imported or analysed data): ``<name>.parquet`` and ``<name>.csv``."""
-        df.to_parquet(self.path / f"{name}.parquet", index=False)
-        write_csv(df, self.path / f"{name}.csv")
+        write_table_pair(df, self.path, name)
 
     def event(self, t_s: float, kind: str, joint: int | None = None, detail: str = "") -> None:
         self._events.append({"t_s": float(t_s), "kind": kind, "joint": joint, "detail": detail})
@@ -235,10 +280,16 @@ def open_run(path: str | Path) -> tuple[dict, dict]:
     if not mpath.is_file():
         raise DataFormatError(f"{path}: not a wamctl run directory (no manifest.json)")
     try:
-        manifest = json.loads(mpath.read_text())
+        manifest = json.loads(read_text(mpath, DataFormatError, what="a JSON file"))
     except json.JSONDecodeError as exc:
         raise DataFormatError(f"{mpath}: not valid JSON ({exc})") from None
-    spec = yaml.safe_load((path / "spec.yaml").read_text()) if (path / "spec.yaml").is_file() else {}
+    if not isinstance(manifest, dict):
+        raise DataFormatError(f"{mpath}: expected a JSON object")
+    spath = path / "spec.yaml"
+    spec = parse_yaml(read_text(spath, DataFormatError, what="a YAML file"), str(spath), DataFormatError) \
+        if spath.is_file() else {}
+    if not isinstance(spec, dict):
+        raise DataFormatError(f"{spath}: expected a mapping")
     return manifest, spec
 
 

@@ -5,6 +5,7 @@ arm's labels) and 0-based in arrays. Every model forbids unknown keys, so a typo
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
@@ -221,7 +222,7 @@ class ControllerSpec(Strict):
 class Common(Strict):
     name: str = Field("run", pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
-    seed: int = 0
+    seed: int = Field(0, ge=0, description="every random draw of the run comes from it (numpy needs >= 0)")
     backend: BackendSpec = SimBackendSpec()
     plant: PlantSpec = PlantSpec()
     controller: ControllerSpec = ControllerSpec()
@@ -231,15 +232,32 @@ class Common(Strict):
     @field_validator("q0_rad")
     @classmethod
     def _q0_in_limits(cls, v):
-        check_positions(np.array(v), "q0_rad")
+        check_positions(np.array(v), "")     # pydantic names the field
         return v
 
 
 def check_positions(q: np.ndarray, where: str) -> None:
-    """Raise ValueError naming the joint if any position in ``q`` ((7,) or (n, 7)) is outside the joint limits."""
+    """Raise ValueError naming the joint (after ``where``, if given) if any position in ``q`` ((7,) or (n, 7))
+    is outside the joint limits."""
     q = np.atleast_2d(q)
     bad = (q < P.Q_MIN_RAD) | (q > P.Q_MAX_RAD)
     if bad.any():
         row, j = map(int, np.argwhere(bad)[0])
-        raise ValueError(f"{where}: joint {j + 1} would reach {q[row, j]:.4f} rad, outside its limits "
-                         f"[{P.Q_MIN_RAD[j]}, {P.Q_MAX_RAD[j]}] rad")
+        raise ValueError(f"{where + ': ' if where else ''}joint {j + 1} would reach {q[row, j]:.4f} rad, outside "
+                         f"its limits [{P.Q_MIN_RAD[j]}, {P.Q_MAX_RAD[j]}] rad")
+
+
+def check_files(spec: Common, base_dir: Path | None, source: str = "spec") -> None:
+    """Raise SpecError naming the field when a friction file the spec names (``plant.friction``,
+    ``controller.friction_ff``) is missing or unreadable, so that ``validate`` and ``--dry-run`` catch what the
+    run would otherwise fail on once started. Paths are relative to ``base_dir`` (the spec's folder)."""
+    from wamctl.errors import SpecError, WamctlError
+    from wamctl.model.plant import resolve_friction
+
+    for name, value in (("plant.friction", spec.plant.friction), ("controller.friction_ff",
+                                                                  spec.controller.friction_ff)):
+        if isinstance(value, str) and value not in ("table_4_1", "none"):
+            try:
+                resolve_friction(value, base_dir)
+            except WamctlError as exc:
+                raise SpecError(f"{source}: {name}: {exc}") from None

@@ -13,7 +13,7 @@ from pydantic import Field, TypeAdapter, ValidationError
 
 from wamctl.errors import SpecError
 from wamctl.io import load_yaml, resolve_path
-from wamctl.specs.common import Common, PlantSpec
+from wamctl.specs.common import Common, PlantSpec, check_files
 from wamctl.specs.registry import KINDS, SPEC_KINDS, resolve
 
 
@@ -90,4 +90,6 @@ def load_spec(path: str | Path) -> Common:
     if isinstance(ctl, dict) and isinstance(ctl.get("declared_links"), str):
         links = load_model_links(resolve_path(ctl["declared_links"], path.parent))
         data = dict(data, controller=dict(ctl, declared_links=links))
-    return parse_spec(data, str(path))
+    spec = parse_spec(data, str(path))
+    check_files(spec, path.resolve().parent, str(path))
+    return spec

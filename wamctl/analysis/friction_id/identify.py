@@ -76,6 +76,35 @@ class FrictionIdentification:
         return {"identification": {"criterion": self.options.get("criterion", "bic"),
                                    "loss": self.options.get("loss", "linear"), "joints": out}}
 
+    def not_identified(self) -> dict[int, str]:
+        """Joints without an identified model, and why: not swept (no move of theirs in the data), or too few
+        usable constant-velocity segments to fit."""
+        in_map = {int(j) for j in self.map["joint"].unique()} if len(self.map) else set()
+        out = {}
+        for j in range(1, P.N_JOINTS + 1):
+            if j in self.joints:
+                continue
+            out[j] = ("too few usable constant-velocity segments to fit" if j in in_map else "not swept")
+        return out
+
+    def model_file(self) -> tuple[dict, str]:
+        """``friction_model.yaml`` as (mapping, header comment): the identified joints' parameters (format
+        wamctl-friction/1), their identification details, and the joints not identified with the reason. A
+        joint not identified has no parameters (not zeros): a model or feed-forward read from the file treats
+        it as frictionless, and the file says so."""
+        d = self.model.to_dict()
+        d["joints"] = {j: v for j, v in d["joints"].items() if j in self.joints}
+        d.update(self.file_extra())
+        missing = self.not_identified()
+        if missing:
+            d["not_identified"] = missing
+        header = ""
+        if missing:
+            why = "; ".join(sorted(set(missing.values())))
+            header = (f"# joints {', '.join(map(str, missing))} not identified ({why}): no friction is given for "
+                      "them,\n# and whatever reads this file treats them as frictionless.\n")
+        return d, header
+
     def to_dict(self) -> dict:
         return {"options": self.options,
                 "joints": {str(j): {"chosen": ji.chosen, "n_segments": ji.n_segments, "n_rejected": ji.n_rejected,

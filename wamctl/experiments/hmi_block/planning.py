@@ -161,6 +161,12 @@ def plan(spec: HmiBlockSpec, base_dir: Path | None = None) -> HmiPlan:
                    condition=h.condition_label())
 
 
+def _signed(x: float) -> str:
+    """``+0.50`` / ``-1.00`` / ``0.00`` (no negative zero)."""
+    r = round(float(x), 2)
+    return f"{r:+.2f}" if r else "0.00"
+
+
 def _summary(h: HmiTask, trials: list[Trial], mapping: CommandMapping, q_start: np.ndarray) -> list[str]:
     locs = h.locations or list(h.targets_m)
     z = h.z_tool_m
@@ -173,12 +179,13 @@ def _summary(h: HmiTask, trials: list[Trial], mapping: CommandMapping, q_start: 
            if h.source.kind == "virtual" else "") + ")",
         f"condition {h.condition_label()}: {h.strategy} control, filter {f.label()}, {profile.name} profile "
         f"({', '.join(f'{v:.3f}' for v in profile.speeds_m_s)} m/s)",
-        f"{len(trials)} trials ({len(locs)} spots x {h.attempts} attempts, {h.order}), time-out {h.timeout_s:g} s, "
+        f"{len(trials)} trials ({len(locs)} spots x {h.attempts} attempt{'s' if h.attempts != 1 else ''}, "
+        f"{h.order}), time-out {h.timeout_s:g} s, "
         f"hit radius {h.hit_radius_m * 1e3:.0f} mm, supervisor start: {h.start_mode()}",
         f"start cross ({h.start_m[0]:.3f}, {h.start_m[1]:.3f}) m, grasp centre at z0 = {z:.3f} m "
         f"({h.grasp_height_m:.3f} m above the table), workspace x {h.workspace.x_m}, y {h.workspace.y_m} m",
-        f"image right -> table ({mapping.right_xy[0]:+.2f}, {mapping.right_xy[1]:+.2f}), image up -> table "
-        f"({mapping.forward_xy[0]:+.2f}, {mapping.forward_xy[1]:+.2f})",
+        f"image right -> table ({_signed(mapping.right_xy[0])}, {_signed(mapping.right_xy[1])}), image up -> table "
+        f"({_signed(mapping.forward_xy[0])}, {_signed(mapping.forward_xy[1])})",
         f"start pose q = [{', '.join(f'{v:.3f}' for v in q_start)}] rad",
     ]
     summary += [f"  {loc}: ({h.targets_m[loc][0]:.3f}, {h.targets_m[loc][1]:.3f}) m, {dist[loc]:.3f} m from the "

@@ -3,7 +3,6 @@ run directory, key figures), and the attempts a lost process left behind."""
 
 from __future__ import annotations
 
-import itertools
 import json
 import logging
 import os
@@ -11,11 +10,10 @@ import socket
 import time
 from pathlib import Path
 
-import numpy as np
-
 from wamctl.errors import WamctlError
 from wamctl.experiments.runner import RunInterrupted, run_spec
 from wamctl.report import write_report
+from wamctl.report.document import key_figures
 from wamctl.runs.store import RunDir, utc_now
 from wamctl.specs import parse_spec
 
@@ -47,23 +45,6 @@ def mark_abandoned(point_dir: Path) -> list[Path]:
             RunDir(d).update_manifest(status="failed", reason=ABANDONED, end_utc=utc_now())
             out.append(d)
     return out
-
-
-def key_figures(report_data: dict, limit: int = 32) -> dict[str, float]:
-    """The numbers of a report's ``data``: scalars, and one level of mappings (``rpe_pct.1``...)."""
-    out: dict[str, float] = {}
-    for k, v in report_data.items():
-        if k in ("title", "tables"):
-            continue
-        if isinstance(v, (int, float, np.floating, np.integer)) and not isinstance(v, bool):
-            out[k] = float(v)
-        elif isinstance(v, dict):
-            for kk, vv in v.items():
-                if isinstance(vv, (int, float, np.floating, np.integer)) and not isinstance(vv, bool):
-                    out[f"{k}.{kk}"] = float(vv)
-        if len(out) >= limit:
-            break
-    return dict(itertools.islice(out.items(), limit))
 
 
 def _worker_name() -> str:

@@ -263,8 +263,15 @@ class _Session:
         self.index.write()
 
     def finish(self) -> None:
-        """Complete the session's record and the manifest's status and counts; close a cluster of our own."""
+        """Close a cluster of our own; after an interrupt, bring the index in line with the run directories;
+        complete the session's record and the manifest's status and counts."""
         wall = time.time() - self.t_start
+        owned = self.own_client is not None
+        if owned:   # first: no point runs on after this
+            close_quietly(self.own_client, self.cluster)
+            self.own_client = None
+        if self.interrupted:
+            _reconcile(self.sweep, self.index, abandon=owned)
         busy = sum(b - a for a, b in self.intervals)
         n_w = self.record.get("n_workers") or 0
         self.record.update(end_utc=utc_now(), wall_s=wall, ran=self.ran,
@@ -278,8 +285,26 @@ class _Session:
         update_manifest(self.dir, sessions=sessions, counts=counts,
                         status="completed" if finished else ("interrupted" if self.interrupted else "incomplete"),
                         end_utc=utc_now())
-        if self.own_client is not None:
-            close_quietly(self.own_client, self.cluster)
+
+
+def _reconcile(sweep: Sweep, index: SweepIndex, abandon: bool) -> None:
+    """After an interrupt: a point whose run completed (in flight when Ctrl-C came, its result never collected)
+    is completed in the index; with ``abandon`` (our own cluster is closed), attempts left ``running`` by a
+    process that is gone are marked as abandoned. The index, the counts and the message then say what the run
+    directories hold."""
+    for p in sweep.points:
+        row = index.rows[p.point_id]
+        if row["status"] == "completed":
+            continue
+        pdir = index.dir / "runs" / p.point_id
+        if abandon:
+            mark_abandoned(pdir)
+        found = _completed_run(p, pdir)
+        if found is not None:
+            index.update(_adopt(p, found, False))
+        elif row["status"] == "interrupted" and not run_dirs(pdir):
+            row["status"] = "pending"       # it never started: nothing to say it was interrupted
+    index.write()
 
 
 def _max_concurrency(intervals: list[tuple[float, float]]) -> int:

@@ -1,0 +1,178 @@
+"""The command line run in-process (``wamctl.cli.main`` with ``sys.exit`` caught), and one small run of every
+kind made through it once per test session, with what each command printed at 80 columns.
+
+Used by the terminal test (tests/commands/test_terminal.py), the browser test (tests/report/test_browser.py)
+and the fuzz test (tests/commands/test_fuzz.py). Every run is small (a few seconds of arm time); the specs are
+written here, in code.
+"""
+
+from __future__ import annotations
+
+import io
+import os
+import sys
+import time
+import traceback
+from contextlib import redirect_stderr, redirect_stdout
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import pytest
+import yaml
+
+ROOT = Path(__file__).resolve().parents[1]
+Q0 = [0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0]
+
+
+@dataclass
+class CliResult:
+    code: int
+    out: str
+    err: str
+    exc: BaseException | None = None      # an exception that escaped main(): a traceback for a user
+    tb: str = ""
+
+
+def run_cli(*args, columns: int | None = 80) -> CliResult:
+    """``wamctl ARGS`` in this process, as a terminal of ``columns`` would show it: the exit code, stdout and
+    stderr. An exception escaping ``main()`` (what a user would see as a traceback) is returned, not raised."""
+    from wamctl.cli import main
+
+    out, err = io.StringIO(), io.StringIO()
+    old_argv, old_cols = sys.argv, os.environ.get("COLUMNS")
+    sys.argv = ["wamctl", *map(str, args)]
+    if columns is not None:
+        os.environ["COLUMNS"] = str(columns)
+    code, exc, tb = 0, None, ""
+    try:
+        with redirect_stdout(out), redirect_stderr(err):
+            try:
+                main()
+            except SystemExit as e:
+                code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+            except BaseException as e:  # noqa: BLE001 - this is what the test looks for
+                code, exc, tb = 1, e, traceback.format_exc()
+    finally:
+        sys.argv = old_argv
+        if old_cols is None:
+            os.environ.pop("COLUMNS", None)
+        else:
+            os.environ["COLUMNS"] = old_cols
+    return CliResult(code, out.getvalue(), err.getvalue(), exc, tb)
+
+
+def write_yaml(path: Path, obj) -> Path:
+    path.write_text(yaml.safe_dump(obj, sort_keys=False))
+    return path
+
+
+# Small specs of every kind (what a user would write for a quick look)
+ROTATION = {"kind": "rotation", "name": "rot", "seed": 3, "plant": {"friction": "table_4_1"}, "q0_rad": Q0,
+            "rotation": {"joints": [1, 4, 7], "mode": "all_together", "hold_s": 0.3, "settle_s": 0.0}}
+FRICTION = {"kind": "friction_sweep", "name": "fs", "seed": 5,
+            "plant": {"friction": "table_4_1", "sensors": {"position_noise_rad": 2.0e-5}},
+            "sweep": {"joints": [7], "velocities_rad_s": [0.05, 0.1, 0.2, 0.5, 1.0], "travel_rad": {7: 1.0},
+                      "cruise_s": 1.0}}
+# one joint, a payload the model lacks, two iterations: the gains end at their bounds (kp 4x the start)
+IFT = {"kind": "ift", "name": "ift", "seed": 5, "controller": {"kind": "pid"}, "q0_rad": Q0,
+       "plant": {"friction": "table_4_1", "effects": {"payload": {"mass_kg": 0.3, "com_m": [0.0, 0.0, 0.05]}}},
+       "ift": {"joints": [7], "task": {"settle_s": 0.2, "hold_s": 0.5}, "max_iterations": 2,
+               "schedule": [{"method": "bfgs", "gamma": 0.5, "iterations": 1}, {"method": "gauss_newton", "gamma": 2.0},
+                            {"method": "gauss_newton", "gamma": 0.5}]}}
+HMI = {"kind": "hmi_block", "name": "hmi", "seed": 1,
+       "hmi": {"subject": {"id": "S1", "seed": 11, "skill": 0.9}, "locations": ["P1", "P4"]}}
+SWEEP = {"kind": "rotation", "name": "tiny", "seed": 0, "q0_rad": Q0,
+         "plant": {"friction": "table_4_1", "sensors": {"position_noise_rad": 1e-4}},
+         "rotation": {"joints": [1, 7], "mode": "all_together", "amplitude_rad": 0.05, "velocity_rad_s": 0.25,
+                      "tc_s": 0.1, "settle_s": 0.0, "hold_s": 0.1},
+         "vary": {"grid": {"seed": [1, 2]}}}
+
+
+@dataclass
+class SmallRuns:
+    """Run directories of every kind, the reports written, and what each command printed."""
+
+    root: Path
+    runs: dict[str, Path] = field(default_factory=dict)            # kind -> run directory
+    reports: dict[str, Path] = field(default_factory=dict)         # report name -> report.html
+    printed: dict[str, CliResult] = field(default_factory=dict)    # command label -> its result
+    seconds: dict[str, float] = field(default_factory=dict)        # command label -> wall time
+
+
+def _only_new(runs_dir: Path, before: set) -> Path:
+    new = sorted(set(runs_dir.iterdir()) - before)
+    assert len(new) == 1, new
+    return new[0]
+
+
+def make_small_runs(root: Path) -> SmallRuns:
+    s = SmallRuns(root)
+    runs = root / "runs"
+    runs.mkdir(parents=True)
+
+    def cli(label: str, *args) -> CliResult:
+        t0 = time.perf_counter()
+        r = run_cli(*args)
+        s.seconds[label] = time.perf_counter() - t0
+        assert r.exc is None, r.tb
+        assert r.code == 0, (label, r.out[-2000:], r.err[-2000:])
+        s.printed[label] = r
+        return r
+
+    def run(label: str, kind: str, cmd: str, spec: dict, *extra) -> Path:
+        before = set(runs.iterdir())
+        cli(label, cmd, write_yaml(root / f"{label}.yaml", spec), "--out", runs, *extra)
+        s.runs[kind] = _only_new(runs, before)
+        return s.runs[kind]
+
+    run("run", "rotation", "run", ROTATION)
+    run("run-seed-4", "rotation_seed_4", "run", dict(ROTATION, seed=4), "--quiet")
+    run("friction-id", "friction_sweep", "friction-id", FRICTION)
+    run("tune-ift", "ift", "tune-ift", IFT)
+    run("hmi-session", "hmi_block", "hmi-session", HMI)
+    cli("export", "export", s.runs["rotation"], "--to", root / "measured")
+    meta = yaml.safe_load((root / "measured" / "meta.yaml").read_text())   # a recording of no particular test
+    meta["experiment"]["kind"] = "free"
+    write_yaml(root / "measured" / "meta.yaml", meta)
+    before = set(runs.iterdir())
+    cli("import", "import", root / "measured", "--out", runs)
+    s.runs["measured"] = _only_new(runs, before)
+    before = set(runs.iterdir())
+    cli("diagnose", "diagnose", root / "measured", "--out", runs)
+    s.runs["diagnosis"] = _only_new(runs, before)
+    cli("bus-check", "bus-check", "--interface", "virtual", "--channel", "wamctl-terminal-test", "--simulate-pucks",
+        "--window", "0.1")
+    cli("sweep --dry-run", "sweep", write_yaml(root / "sweep.yaml", SWEEP), "--dry-run")
+    t0 = time.perf_counter()
+    s.runs["sweep"] = _sweep(root / "sweep.yaml", root / "sweeps")
+    s.seconds["sweep (library)"] = time.perf_counter() - t0
+    for k in ("rotation", "friction_sweep", "ift", "hmi_block", "diagnosis"):
+        s.reports[k] = s.runs[k] / "report.html"
+    # the reports of repeated runs, an HMI block and the imported run into one folder, with the combined report
+    cli("report", "report", s.runs["rotation"], s.runs["rotation_seed_4"], s.runs["hmi_block"], s.runs["measured"],
+        "--out", root / "reports")
+    s.reports["measured"] = root / "reports" / s.runs["measured"].name / "report.html"
+    s.reports["combined"] = root / "reports" / "combined_report.html"
+    s.reports["sweep"] = s.runs["sweep"] / "report.html"
+    csv = ROOT / "tests" / "fixtures" / "hmi" / "thesis_t6_10_subjects.csv"
+    cli("report --hmi-results", "report", "--hmi-results", csv, "--out", root / "hmi_results")
+    s.reports["hmi_results"] = root / "hmi_results" / f"{csv.stem}_report.html"
+    return s
+
+
+def _sweep(spec: Path, out: Path) -> Path:
+    """A two-point sweep on an in-process Dask client (one worker thread): its sweep directory."""
+    import distributed
+
+    from wamctl.experiments.sweep.run import run_sweep
+    from wamctl.specs.sweep import load_sweep
+
+    with distributed.Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0") as client:
+        res = run_sweep(load_sweep(spec), out, client=client)
+    assert res.ok, res.counts
+    return res.sweep_dir
+
+
+@pytest.fixture(scope="session")
+def small_runs(tmp_path_factory) -> SmallRuns:
+    return make_small_runs(tmp_path_factory.mktemp("small_runs"))
