@@ -14,7 +14,8 @@ session (what the operator does when the terminal says "Press Shift-Idle").
 
 Times count from the start of the host's position polling (the heartbeat, when the terminal would say
 "Press Shift-Activate"): the first position request after at least :data:`SESSION_GAP_S` without one. A new
-polling run (the next session on the same simulated arm) starts the script again.
+polling run (the next session on the same simulated arm) starts the script again; while the host does not poll,
+nothing happens.
 """
 
 from __future__ import annotations
@@ -100,8 +101,9 @@ class Pendant:
             self._end_at = now_s + END_DELAY_S
 
     def due(self, now_s: float) -> list[str]:
-        """The actions whose time has come (each once per session)."""
-        if self._t_start is None:
+        """The actions whose time has come (each once per session, and only while the host is polling: no
+        operator presses Shift-Activate for a program that has stopped)."""
+        if self._t_start is None or now_s - self._last_poll >= SESSION_GAP_S:
             return []
         out = []
         while self._next < len(self.events) and now_s - self._t_start >= self.events[self._next].t_s:

@@ -400,7 +400,7 @@ class PuckSimulator:
             mode = Mode.TORQUE if action == "torque" else Mode.IDLE
             now = time.time()
             for p in self._pucks.values():
-                if p.awake(now):
+                if p.awake(now) and p.puck_id not in self._silent:  # a puck off the bus misses the broadcast
                     p.props[Prop.MODE] = int(mode)
                     p.torque_units = p.props[Prop.T] = 0
             self._send(make_safety_broadcast(mode), counter="broadcasts_sent")
@@ -555,9 +555,9 @@ class PuckSimulator:
                 continue
             if prop == Prop.MODE:
                 if value != Mode.IDLE:  # only the safety module puts a puck into another mode
+                    if not self._stats.host_mode_writes_refused:
+                        logger.warning("pucks ignore MODE=%d from the host (the safety module sets MODE)", value)
                     self._count("host_mode_writes_refused")
-                    logger.warning("puck %d: ignoring MODE=%d from the host (the safety module sets MODE)",
-                                   puck.puck_id, value)
                     continue
                 if puck.props[prop] == Mode.TORQUE:
                     self.pendant.host_idled(time.monotonic())
