@@ -232,7 +232,9 @@ PENDANT = "activate@0.05,idle@end"  # the simulated operator activates at once a
 
 
 def _backend(channel: str, operator=None, **kw) -> CanBackend:
+    """A backend with link tolerances for a loaded machine (replies up to 50 ms late, 25 cycles held over)."""
     settings = kw.pop("session", SessionSettings(activation_timeout_s=10.0, idle_wait_s=5.0))
+    kw = {"reply_timeout_s": 0.05, "watchdog_cycles": 25, **kw}
     return CanBackend("virtual", channel, 1_000_000, q0_rad=Q0, session=settings,
                       operator=operator or ScriptedOperator(), **kw)
 
