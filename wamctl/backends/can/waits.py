@@ -142,8 +142,8 @@ class SessionWaits:
             self.operator.say(text)
             deadline = time.monotonic() + wait
             every = int(COUNTDOWN_EVERY_S / self.control_period_s)
-            try:
-                while self.monitor.active and time.monotonic() < deadline:
+            try:  # (a safety module that stops answering ends the wait: the link is gone)
+                while self.monitor.active and not self.monitor.silent() and time.monotonic() < deadline:
                     self._beat()
                     if self._tick % every == 0:
                         self.operator.countdown(text, deadline - time.monotonic())
