@@ -31,7 +31,7 @@ from wamctl.backends.can.session import SessionSettings
 from wamctl.backends.can.sim.pucks import StaticPlant
 from wamctl.backends.can.sim.simulator import PuckSimulator
 from wamctl.backends.can.timing import LoopTiming
-from wamctl.errors import BackendError, SafetyLimitError, SpecError
+from wamctl.errors import BackendError, SpecError
 from wamctl.experiments.runner import run_spec
 from wamctl.model.transmission import J2MP, M2JP
 from wamctl.runs.store import open_run, read_events, read_table

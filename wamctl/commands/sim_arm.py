@@ -8,7 +8,7 @@ from typing import Annotated
 import typer
 
 from wamctl.commands.bus import BusOptionOpt, parse_bus_options
-from wamctl.commands.common import console, emit_json
+from wamctl.commands.common import console, emit_json, err_console
 
 
 def sim_arm_cmd(
@@ -52,11 +52,11 @@ def sim_arm_cmd(
     options = ArmOptions(pose=pose, zeroed=zeroed, awake=awake, pendant=pendant, joint_encoders=joint_encoders,
                          gimbals=gimbals, upper_group=upper_group, heartbeat_timeout_s=heartbeat_timeout)
 
-    def ready(text: str) -> None:
-        console.print(f"[green]serving[/] {text} (Ctrl-C to stop)", highlight=False)
+    def ready(text: str) -> None:  # on stderr, one line (stdout is the JSON's with --json)
+        err_console.print(f"[green]serving[/] {text} (Ctrl-C to stop)", highlight=False, soft_wrap=True)
 
     seen = serve_simulated_arm(interface, channel, bitrate, bus_options=parse_bus_options(bus_option), spec=s,
-                               base_dir=base, options=options, on_ready=None if json else ready)
+                               base_dir=base, options=options, on_ready=ready)
     if json:
         emit_json(seen)
     else:
