@@ -30,6 +30,7 @@ def progress_bar(description: str, enabled: bool = True):
 
         def update(done: int, total: int, label: str | None = None):
             prog.update(task, completed=done, total=total, **({"description": label} if label else {}))
+        update.progress = prog  # lets a terminal prompt pause the bar
         yield update
 
 
@@ -43,6 +44,8 @@ OutOpt = Annotated[Path | None, typer.Option("--out", help="Parent directory of 
                                                 "(default: the spec's out_dir, normally runs/).")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no tables.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (for scripts).")]
+YesOpt = Annotated[bool, typer.Option("--yes", "-y", help="Real arm: answer the session's questions with yes (the "
+                                      "arm is at its home pose for zeroing); Shift-Activate stays the operator's.")]
 
 
 def print_document_tables(doc) -> None:
@@ -63,7 +66,7 @@ def print_document_tables(doc) -> None:
 
 
 def run_and_report(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as_json: bool,
-                   expect_kind: str | None = None, files=None) -> None:
+                   expect_kind: str | None = None, files=None, yes: bool = False) -> None:
     """Shared by `run` and the per-kind commands (`friction-id`, `tune-ift`, `hmi-session`).
 
     ``files(run_path) -> {name: path}`` names products of the run to show (e.g. the friction model file)."""
@@ -85,7 +88,12 @@ def run_and_report(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool
                 console.print(f"[green]ok[/] {c}")
             console.print("dry run: nothing moved")
         return
-    with progress_bar(f"{spec.kind} {spec.name}", enabled=not (quiet or as_json)) as progress:
+    from wamctl.backends.can.operator import use_operator
+    from wamctl.commands.terminal_operator import TerminalOperator
+
+    label = f"{spec.kind} {spec.name}"
+    with progress_bar(label, enabled=not (quiet or as_json)) as progress, \
+            use_operator(TerminalOperator(yes=yes, progress=progress, label=label)):  # the CAN session's operator
         outcome = run_spec(spec, base, out, progress, make_report=False)
     show_outcome(outcome, quiet, as_json, files(outcome.path) if files else None)
 
