@@ -45,34 +45,27 @@ import numpy as np
 
 from wamctl.backends.base import ArmBackend, SafetyLimits
 from wamctl.backends.can.bus_tools import (
-    ALL_WAM_PUCKS,
     PROBE_TIMEOUT_S,
     TX_TIMEOUT_S,
     open_bus,
     read_property,
-    recv_until,
 )
+from wamctl.backends.can.link import Link
 from wamctl.backends.can.monitor import SafetyMonitor, stop_reason
 from wamctl.backends.can.operator import Operator, current_operator
 from wamctl.backends.can.protocol.addressing import (
     FEEDBACK_OTHER,
-    FEEDBACK_OTHER_TARGET,
     FEEDBACK_POSITION,
-    FEEDBACK_POSITION_TARGET,
     GROUP_WAM,
-    GROUP_WHOLE_BUS,
-    MAX_CAN_ID,
     N_JOINTS,
     SAFETY_PUCK_ID,
     TO_MASK,
     TORQUE_GROUPS,
     WAM_PUCK_IDS,
-    BusId,
     PuckFrameError,
-    decode_bus_id,
 )
-from wamctl.backends.can.protocol.positions import make_position_request, parse_position_reply
-from wamctl.backends.can.protocol.properties import CTS_DEFAULT, Mode, Prop, make_set_property, parse_property_reply
+from wamctl.backends.can.protocol.positions import make_position_request
+from wamctl.backends.can.protocol.properties import CTS_DEFAULT, Mode, Prop, make_set_property
 from wamctl.backends.can.protocol.safety import SafetyMode, SafetyProp, decode_pen
 from wamctl.backends.can.protocol.torques import (
     IPNM_DEFAULT,
@@ -82,11 +75,11 @@ from wamctl.backends.can.protocol.torques import (
 )
 from wamctl.backends.can.session import SessionSettings, StartState, start_session
 from wamctl.backends.can.simulated_arm import SimulatedArm, build_simulated_arm, inject_fault
-from wamctl.backends.can.timing import LoopTiming, sleep_until
+from wamctl.backends.can.timing import LoopTiming, RealtimeSection, sleep_until
 from wamctl.backends.can.waits import SessionWaits
-from wamctl.errors import BackendError, SafetyLimitError
+from wamctl.errors import BackendError
 from wamctl.model import params as P
-from wamctl.model.transmission import J2MP, counts_to_joint_rad, load_kernels
+from wamctl.model.transmission import J2MP, load_kernels
 
 logger = logging.getLogger(__name__)
 
@@ -98,7 +91,7 @@ POLL_WAIT_CYCLES = 5  # the safety module every 10 ms while waiting for Shift-Ac
 DEFAULT_PENDANT = "activate@0.2,idle@end"  # in-process simulated operator
 
 
-class CanBackend(SessionWaits, ArmBackend):
+class CanBackend(SessionWaits, Link, ArmBackend):
     """The WAM over CAN (see the module docstring).
 
     Parameters
@@ -131,6 +124,11 @@ class CanBackend(SessionWaits, ArmBackend):
         The simulated pendant's script (:mod:`.sim.pendant`).
     seed : int, optional
         Seed of the simulated pucks' draws.
+    realtime : bool
+        From the heartbeat on: the garbage collector frozen and off, SCHED_FIFO (priority 50) if permitted
+        (:class:`~.timing.RealtimeSection`). Off for simulated pucks in this process (they need the CPU).
+    cpu : int, optional
+        Pin the loop's thread to this CPU.
     """
 
     name = "can"
@@ -140,7 +138,7 @@ class CanBackend(SessionWaits, ArmBackend):
                  session: SessionSettings | None = None, operator: Operator | None = None,
                  bus_options: dict | None = None, simulated_arm: SimulatedArm | None = None,
                  sim_cts: int = CTS_DEFAULT, simulated_fault=None, simulated_pendant: str = DEFAULT_PENDANT,
-                 seed: int | None = None) -> None:
+                 seed: int | None = None, realtime: bool = True, cpu: int | None = None) -> None:
         super().__init__(limits)
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
         self.bus_options = dict(bus_options or {})
@@ -156,6 +154,8 @@ class CanBackend(SessionWaits, ArmBackend):
             raise BackendError("a simulated fault needs the simulated pucks")
         self._sim_cts = int(sim_cts)
         self._seed = seed
+        self._realtime = RealtimeSection(fifo=realtime and simulated_arm is None, cpu=cpu)
+        self._rt_entered = False
         self.simulator = None
         self._bus: can.BusABC | None = None
         self.pucks: dict = {}
@@ -169,6 +169,9 @@ class CanBackend(SessionWaits, ArmBackend):
         self._counts = np.zeros(P.N_JOINTS)
         self._q = np.zeros(P.N_JOINTS)
         self._zero_tau = np.zeros(P.N_JOINTS)
+        self._torque_msgs: list[can.Message] = []  # one per torque group, their data rewritten every cycle
+        self._got = 0
+        self._garbage_seen: str | None = None
         # loop state: _tick counts every 2 ms cycle of the session, _cycle those of the run
         self._tick = 0
         self._cycle = 0
@@ -207,7 +210,7 @@ class CanBackend(SessionWaits, ArmBackend):
             zeroing_confirmed=b.zeroing_confirmed, velocity_limit_m_s=b.velocity_limit_m_s,
             torque_limit_Nm=b.torque_limit_Nm, start_tolerance_rad=b.start_tolerance_rad)
         return cls(b.interface, b.channel, b.bitrate, q0_rad=q0_rad, watchdog_cycles=b.watchdog_cycles,
-                   reply_timeout_s=b.reply_timeout_s, session=settings, bus_options=b.bus_options,
+                   reply_timeout_s=b.reply_timeout_s, session=settings, bus_options=dict(b.bus_options),
                    simulated_arm=arm, sim_cts=cts, simulated_fault=b.simulated_fault,
                    simulated_pendant=b.simulated_pendant, seed=spec.seed)
 
@@ -300,6 +303,9 @@ class CanBackend(SessionWaits, ArmBackend):
             try:
                 self.start = start_session(self._bus, self._tx, self.operator, self.settings)
                 self._configure()
+                self._realtime.enter()
+                self._rt_entered = True
+                self.session_log["realtime"] = dict(self._realtime.granted)
                 self.phase = "waiting"
                 self._wait_for_start_pose()
                 self._wait_for_activation()
@@ -321,6 +327,8 @@ class CanBackend(SessionWaits, ArmBackend):
         slots = torque_slot_of_puck({i: found[i].pidx for i in WAM_PUCK_IDS})
         self._slots = [(g, [p - 1 for p in members], [slots[p][1] for p in members])
                        for g, members in TORQUE_GROUPS.items()]
+        self._torque_msgs = [can.Message(arbitration_id=g, data=bytearray(8), is_extended_id=False)
+                             for g in TORQUE_GROUPS]
 
     def _beat(self) -> np.ndarray:
         """One heartbeat cycle outside the run: positions, zero torque, the monitor's poll, the wait."""
@@ -336,6 +344,9 @@ class CanBackend(SessionWaits, ArmBackend):
                 self._finish_session()
         finally:
             self.phase = "closed"
+            if self._rt_entered:
+                self._realtime.exit()
+                self._rt_entered = False
             if self._bus is not None:
                 try:
                     self._bus.shutdown()
@@ -379,8 +390,9 @@ class CanBackend(SessionWaits, ArmBackend):
 
     def _tx_torque_units(self, tau_Nm: np.ndarray) -> None:
         units = joint_torque_to_puck_units(tau_Nm, self._ipnm, J2MP)
-        for group, idx, pidx in self._slots:
-            self._tx(can.Message(arbitration_id=group, data=pack_torques(units[idx], pidx), is_extended_id=False))
+        for msg, (_group, idx, pidx) in zip(self._torque_msgs, self._slots):
+            msg.data[:] = pack_torques(units[idx], pidx)  # the interfaces copy or serialise what they send
+            self._tx(msg)
 
     def _send_torques(self, tau_Nm: np.ndarray) -> None:
         if self._bus is None:
@@ -397,33 +409,6 @@ class CanBackend(SessionWaits, ArmBackend):
             self._trip(f"CAN transmit error: {exc}", BackendError)
 
     # ---------------------------------------------------------------- receive
-    def _decode(self, msg: can.Message) -> BusId | None:
-        """The id of a reply from a WAM puck or the safety module, or None (counted) for anything else."""
-        self._stats["frames_received"] += 1
-        if msg.is_error_frame:
-            self._stats["error_frames"] += 1
-            return None
-        if msg.is_extended_id or msg.is_remote_frame or msg.arbitration_id > MAX_CAN_ID:
-            self._stats["foreign_frames"] += 1
-            return None
-        bid = decode_bus_id(msg.arbitration_id)
-        if bid.sender == SAFETY_PUCK_ID and bid.is_group and bid.target == GROUP_WHOLE_BUS & 0x1F:
-            self._stats["safety_broadcasts"] += 1  # 0x540: libbarrett discards them too
-            return None
-        if bid.is_group and bid.target == FEEDBACK_OTHER_TARGET and bid.sender in (*WAM_PUCK_IDS, SAFETY_PUCK_ID):
-            return bid
-        if bid.is_group and bid.target == FEEDBACK_POSITION_TARGET and bid.sender in WAM_PUCK_IDS:
-            return bid
-        self._stats["foreign_frames"] += 1
-        return None
-
-    def _check_frame(self, msg: can.Message, bid: BusId) -> tuple[int, int] | None:
-        """A position reply's (puck, counts); None for a property reply (handed to the monitor)."""
-        if bid.target == FEEDBACK_POSITION_TARGET:
-            return parse_position_reply(msg)
-        self.monitor.on_reply(parse_property_reply(msg))
-        return None
-
     def _read_positions(self) -> np.ndarray:
         if self._bus is None:
             raise BackendError("CAN backend is not open")
@@ -452,85 +437,6 @@ class CanBackend(SessionWaits, ArmBackend):
         except (can.CanError, PuckFrameError):
             pen_state = self.monitor.pen
         return stop_reason(self.monitor.module_mode, pen_state, self.start.limits if self.start else {})
-
-    def _poll(self) -> np.ndarray:
-        """Request the positions and collect the replies (and the monitor's), with the link watchdog."""
-        bus = self._bus
-        garbage: str | None = None
-        while (msg := bus.recv(timeout=0.0)) is not None:  # replies that came after the last timeout
-            bid = self._decode(msg)
-            if bid is None:
-                continue
-            try:
-                if self._check_frame(msg, bid) is not None:
-                    self._stats["late_replies"] += 1
-            except PuckFrameError as exc:
-                garbage = garbage or str(exc)
-        if garbage is not None:
-            self._garbage(garbage)
-        try:
-            self._tx(self._request)
-        except can.CanError as exc:
-            self._trip(f"CAN transmit error: {exc}", BackendError)
-        got = 0
-        deadline = time.perf_counter() + self.reply_timeout_s
-
-        def handle(msg: can.Message) -> bool:
-            nonlocal got, garbage
-            bid = self._decode(msg)
-            if bid is None:
-                return False
-            try:
-                reply = self._check_frame(msg, bid)
-            except PuckFrameError as exc:
-                garbage = str(exc)
-                return True
-            if reply is not None:
-                puck, counts = reply
-                self._counts[puck - 1] = counts
-                got |= 1 << (puck - 1)
-            return got == ALL_WAM_PUCKS
-
-        recv_until(bus, deadline, handle)
-        if garbage is not None:
-            self._garbage(garbage)
-        if got != ALL_WAM_PUCKS:
-            self._missing_replies([i for i in WAM_PUCK_IDS if not got & (1 << (i - 1))])
-        else:
-            if self._bad_run_start is not None:
-                self._event("link", f"cycle {self._cycle}: replies back after {self._bad_cycles} bad cycles")
-            self._bad_cycles = 0
-            self._bad_run_start = None
-        self._q[:] = counts_to_joint_rad(self._counts, self._cts, J2MP)
-        return self._q
-
-    def _missing_replies(self, missing: list[int]) -> None:
-        self._stats["missed_reply_cycles"] += 1
-        self._bad_cycles += 1
-        if self._bad_run_start is None:
-            self._bad_run_start = self._cycle
-            self._event("link", f"cycle {self._cycle}: no position reply from pucks {missing} within "
-                                f"{self.reply_timeout_s * 1e3:.1f} ms")
-            if self.phase != "closing":  # an E-stop silences the pucks: ask the safety module at once
-                try:
-                    for m in self.monitor.requests(pucks=False):
-                        self._tx(m)
-                except can.CanError:
-                    pass
-        if self._bad_cycles > self.watchdog_cycles and self.phase != "closing":
-            if self.monitor.module_mode == SafetyMode.ESTOP:
-                self._trip(stop_reason(SafetyMode.ESTOP, None, {})[0], SafetyLimitError)
-            self._trip(f"CAN link watchdog: position replies from pucks {missing} missing or late for "
-                       f"{self._bad_cycles} consecutive cycles (more than watchdog_cycles = "
-                       f"{self.watchdog_cycles})", SafetyLimitError)
-
-    def _garbage(self, detail: str) -> None:
-        self._stats["garbage_frames"] += 1
-        if self.phase == "closing":
-            return
-        if self._bad_run_start is None:
-            self._bad_run_start = self._cycle
-        self._trip(f"CAN link watchdog: malformed frame from a puck ({detail})", SafetyLimitError)
 
     # ---------------------------------------------------------------- watchdog
     def _trip(self, reason: str, exc_type: type[BaseException]) -> None:
