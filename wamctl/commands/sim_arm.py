@@ -38,6 +38,9 @@ def sim_arm_cmd(
                                              "Barrett's 2008 manual: the session must refuse it).")] = 4,
     heartbeat_timeout: Annotated[float, typer.Option("--heartbeat-timeout", min=0.01, help="Seconds without "
                                                      "position polling before the safety module faults.")] = 0.5,
+    realtime: Annotated[bool, typer.Option("--realtime/--no-realtime", help="SCHED_FIFO for the simulator's thread "
+                                           "when permitted, no garbage-collection pauses (pucks answer within "
+                                           "microseconds).")] = True,
     json: Annotated[bool, typer.Option("--json", help="At exit, print what the arm saw as JSON.")] = False,
 ):
     """Serve a simulated WAM (motor pucks 1-7, the safety module and a scripted pendant) on a CAN bus until Ctrl-C,
@@ -50,7 +53,8 @@ def sim_arm_cmd(
         from wamctl.specs import load_spec
         s, base = load_spec(spec), spec.resolve().parent
     options = ArmOptions(pose=pose, zeroed=zeroed, awake=awake, pendant=pendant, joint_encoders=joint_encoders,
-                         gimbals=gimbals, upper_group=upper_group, heartbeat_timeout_s=heartbeat_timeout)
+                         gimbals=gimbals, upper_group=upper_group, heartbeat_timeout_s=heartbeat_timeout,
+                         realtime=realtime)
 
     def ready(text: str) -> None:  # on stderr, one line (stdout is the JSON's with --json)
         err_console.print(f"[green]serving[/] {text} (Ctrl-C to stop)", highlight=False, soft_wrap=True)

@@ -89,6 +89,7 @@ MAX_OVERRUN_EVENTS = 20  # overruns recorded one by one as events; the rest only
 POLL_RUN_CYCLES = 25  # the safety module and the pucks' MODE every 50 ms during the run
 POLL_WAIT_CYCLES = 5  # the safety module every 10 ms while waiting for Shift-Activate / Shift-Idle
 DEFAULT_PENDANT = "activate@0.2,idle@end"  # in-process simulated operator
+FIRST_READ_TIMEOUT_S = 1.0  # libbarrett CommunicationsBus::TIMEOUT
 
 
 class CanBackend(SessionWaits, Link, ArmBackend):
@@ -306,6 +307,7 @@ class CanBackend(SessionWaits, Link, ArmBackend):
                 self._realtime.enter()
                 self._rt_entered = True
                 self.session_log["realtime"] = dict(self._realtime.granted)
+                self._first_read()
                 self.phase = "waiting"
                 self._wait_for_start_pose()
                 self._wait_for_activation()
@@ -329,6 +331,18 @@ class CanBackend(SessionWaits, Link, ArmBackend):
                        for g, members in TORQUE_GROUPS.items()]
         self._torque_msgs = [can.Message(arbitration_id=g, data=bytearray(8), is_extended_id=False)
                              for g in TORQUE_GROUPS]
+
+    def _first_read(self) -> None:
+        """One position request answered by all seven pucks within 1 s before the 500 Hz polling starts
+        (libbarrett's first read, with its blocking receive's 1 s timeout)."""
+        saved = self.reply_timeout_s
+        self.reply_timeout_s = FIRST_READ_TIMEOUT_S
+        try:
+            self._poll()
+        finally:
+            self.reply_timeout_s = saved
+        if self._bad_cycles:
+            raise BackendError(f"pucks did not answer the first position request within {FIRST_READ_TIMEOUT_S} s")
 
     def _beat(self) -> np.ndarray:
         """One heartbeat cycle outside the run: positions, zero torque, the monitor's poll, the wait."""

@@ -153,6 +153,12 @@ def build_simulated_arm(plant_spec, base_dir: Path | None, q0_rad, rng: np.rando
     from wamctl.model.plant import Plant
 
     plant = Plant(plant_spec, base_dir)
+    # one physics step of a throwaway copy now (its own plant: effects keep state), not at the run's first cycle
+    warm = SimBackend(Plant(plant_spec, base_dir), q0_rad, np.random.default_rng(0), physics_substeps,
+                      limits=open_limits())
+    warm.open()
+    warm.command_torques(np.zeros(P.N_JOINTS))
+    warm.wait_next_cycle()
 
     def rebuild(q_rad):
         return SimBackend(plant, q_rad, rng, physics_substeps, limits=open_limits())

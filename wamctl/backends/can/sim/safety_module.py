@@ -229,8 +229,11 @@ class SimulatedSafetyModule:
         return self._fault(param, now, "injected")
 
     def position_sample(self, q_rad: np.ndarray, now: float) -> str | None:
-        """The module heard the position replies of one request (joint angles from the reported counts)."""
+        """The module heard the position replies of one request (joint angles from the reported counts); the
+        speed is watched while active."""
         self._last_reply_t = now
+        if self.mode != SafetyMode.ACTIVE and self._velocity_idle_t is None:
+            return None
         while self._samples and now - self._samples[0][0] > STALE_SAMPLE_S:
             self._samples.popleft()
         elbow, end = elbow_and_end_point_m(q_rad)
@@ -240,7 +243,7 @@ class SimulatedSafetyModule:
             return None
         speed = max(np.linalg.norm(elbow - e0), np.linalg.norm(end - p0)) / (now - t0)
         self.last_speed_m_s = float(speed)
-        if self.mode != SafetyMode.ACTIVE:
+        if self.mode != SafetyMode.ACTIVE:  # after a velocity fault: watched for the E-stop that may follow
             return None
         vl1, vl2 = self.props[SafetyProp.VL1], self.props[SafetyProp.VL2]
         if vl2 > 0 and speed > velocity_limit_m_s(vl2):

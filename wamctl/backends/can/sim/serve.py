@@ -48,6 +48,8 @@ class ArmOptions:
     firmware : int or None
         VERS of the motor pucks (None: the simulator's).
     heartbeat_timeout_s : float
+    realtime : bool
+        The simulator's thread gets SCHED_FIFO (when permitted) and no garbage collection pauses.
     seed : int or None
         Encoder offsets (default: the spec's seed).
     """
@@ -62,6 +64,7 @@ class ArmOptions:
     firmware: int | None = None
     heartbeat_timeout_s: float = 0.5
     seed: int | None = None
+    realtime: bool = True
 
 
 def _check_bus_is_free(bus) -> None:
@@ -110,7 +113,7 @@ def serve_simulated_arm(interface: str, channel: str, bitrate: int = 1_000_000, 
         _check_bus_is_free(bus)
         sim = PuckSimulator(
             arm, bus=bus, cts=cts, start_awake=o.awake, zeroed=o.zeroed, joint_encoders=o.joint_encoders,
-            pendant=o.pendant, start_pose_rad=q0, heartbeat_timeout_s=o.heartbeat_timeout_s,
+            pendant=o.pendant, start_pose_rad=q0, heartbeat_timeout_s=o.heartbeat_timeout_s, realtime=o.realtime,
             seed=spec.seed if o.seed is None else o.seed,
             groups=None if o.upper_group == 4 else {p: (FACTORY_GROUPS[p][0], FACTORY_GROUPS[p][1], o.upper_group)
                                                     for p in (5, 6, 7)},
@@ -127,8 +130,7 @@ def serve_simulated_arm(interface: str, channel: str, bitrate: int = 1_000_000, 
                          f"{'zeroed' if o.zeroed else 'not zeroed'}, at its {o.pose} pose, CTS {cts}, pendant "
                          f"{sim.pendant}")
             try:
-                while not stop.wait(0.2):
-                    pass
+                stop.wait()  # (interrupted by Ctrl-C; SIGTERM sets it)
             except KeyboardInterrupt:
                 pass
             finally:

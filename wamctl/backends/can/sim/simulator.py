@@ -71,6 +71,7 @@ from wamctl.backends.can.protocol.torques import (
 from wamctl.backends.can.sim.pendant import Pendant
 from wamctl.backends.can.sim.pucks import JOINT_ENCODER_COUNTS, SIM_FIRMWARE_VERSION, MotorPuck, motor_puck
 from wamctl.backends.can.sim.safety_module import SIM_SAFETY_FIRMWARE_VERSION, SimulatedSafetyModule
+from wamctl.backends.can.timing import RealtimeSection
 from wamctl.model.transmission import J2MP, counts_to_joint_rad, joint_rad_to_counts, load_kernels
 
 logger = logging.getLogger(__name__)
@@ -154,6 +155,10 @@ class PuckSimulator:
         Encoder offsets and fault draws.
     poll_timeout_s : float
         Receive timeout of the thread (bounds the pendant's and the heartbeat's time resolution).
+    realtime : bool
+        Give the thread what a Python real-time thread can have (pucks answer within microseconds; a simulated
+        arm in a process of its own, ``wamctl sim-arm``, should come close): the garbage collector off and
+        SCHED_FIFO when permitted (:class:`~wamctl.backends.can.timing.RealtimeSection`).
     """
 
     def __init__(self, plant, *, bus: can.BusABC | None = None, channel: str = "wam-test",
@@ -165,7 +170,7 @@ class PuckSimulator:
                  zeroed: bool = True, wake_s: float = WAKE_S, joint_encoders: bool = False,
                  safety_module: bool = True, safety_mode: str = "idle", heartbeat_timeout_s: float = 0.5,
                  pendant: str = "never", start_pose_rad=None, j2mp: np.ndarray = J2MP, seed: int | None = None,
-                 poll_timeout_s: float = 0.005) -> None:
+                 poll_timeout_s: float = 0.005, realtime: bool = False) -> None:
         self._plant = plant
         self._j2mp = np.asarray(j2mp, dtype=float)
         self._cts = np.broadcast_to(np.asarray(cts, dtype=np.int64), (N_JOINTS,)).copy()
@@ -199,6 +204,8 @@ class PuckSimulator:
                                                                    **(bus_options or {})})
         self._bus = bus
         self._poll_timeout_s = float(poll_timeout_s)
+        self._realtime = realtime
+        self.realtime_granted: dict | None = None
         self._lock = threading.RLock()
         self._stats = SimStats()
         self._stop = threading.Event()
@@ -355,11 +362,21 @@ class PuckSimulator:
     def describe(self) -> dict:
         with self._lock:
             return {"stats": dataclasses.asdict(self._stats), "pendant": str(self.pendant),
+                    "realtime": self.realtime_granted,
                     "safety_module": None if self.safety is None else self.safety.describe(),
                     "bus_off": list(self.bus_off_reasons[-10:])}
 
     # ------------------------------------------------------------------ thread
     def _run(self) -> None:
+        rt = RealtimeSection(fifo=True).enter() if self._realtime else None
+        self.realtime_granted = None if rt is None else dict(rt.granted)
+        try:
+            self._serve()
+        finally:
+            if rt is not None:
+                rt.exit()
+
+    def _serve(self) -> None:
         while not self._stop.is_set():
             try:
                 msg = self._bus.recv(timeout=self._poll_timeout_s)
@@ -383,8 +400,8 @@ class PuckSimulator:
                     self._count("frames_handled")
 
     def _count(self, name: str, n: int = 1) -> None:
-        with self._lock:
-            setattr(self._stats, name, getattr(self._stats, name) + n)
+        with self._lock:  # (re-entrant: the thread holds it while it handles a frame)
+            self._stats.__dict__[name] += n
 
     def _tick(self, now: float) -> None:
         for action in self.pendant.due(now):
