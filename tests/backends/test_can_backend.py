@@ -362,6 +362,8 @@ def test_bus_load_arithmetic():
     assert frame_bits(0) == 47 and frame_bits(8) == 111
     assert frame_bits(8, stuffing=True) == 111 + (34 + 64 - 1) // 4
     assert loop_bus_load_pct(1_000_000) == pytest.approx((55 + 7 * 71 + 2 * 111) * 500 / 1e6 * 100)
+    # the README's 0.6 ms of bus time for a request and seven replies at 1 Mbit/s (Barrett: 75 us a frame)
+    assert (frame_bits(1) + 7 * frame_bits(3)) / 1e6 == pytest.approx(0.6e-3, rel=0.1)
 
 
 # ------------------------------------------------------------------------------------------ (c) bus-check
@@ -432,26 +434,77 @@ def test_bus_check_on_an_empty_bus_is_an_error(channel):
 
 
 # ------------------------------------------------------------------------------------------ hardware
+# Opt-in (pytest -m hardware -s), in the order of the README's "First session on the real arm", on a powered WAM
+# on WAMCTL_CAN_INTERFACE / WAMCTL_CAN_CHANNEL with the safety module idle. The tests print what the operator must
+# do; WAMCTL_HW_AT_HOME=1 confirms in advance that the arm is at its home pose (for zeroing), WAMCTL_HW_MOVE=1
+# allows the short slow move.
 
 HW_INTERFACE = os.environ.get("WAMCTL_CAN_INTERFACE", "socketcan")
 HW_CHANNEL = os.environ.get("WAMCTL_CAN_CHANNEL", "can0")
+HW_AT_HOME = os.environ.get("WAMCTL_HW_AT_HOME") == "1"
+
+
+class PrintOperator(ScriptedOperator):
+    """The hardware tests' operator: prints what the session says (run pytest with -s)."""
+
+    def say(self, text):
+        super().say(text)
+        print(f">>> {text}", flush=True)
+
+    def countdown(self, text, remaining_s):
+        if int(remaining_s) % 10 == 0:
+            print(f"    {text}: {remaining_s:.0f} s", flush=True)
+
+
+def _hw_backend(**settings) -> CanBackend:
+    s = SessionSettings(**{"zeroing_confirmed": HW_AT_HOME, "idle_wait_s": 30.0, **settings})
+    return CanBackend(HW_INTERFACE, HW_CHANNEL, q0_rad=None, session=s, operator=PrintOperator())
 
 
 @pytest.mark.hardware
-def test_hardware_bus_check_finds_the_wam():
-    """Opt-in (pytest -m hardware): a powered WAM on WAMCTL_CAN_INTERFACE / WAMCTL_CAN_CHANNEL."""
-    from wamctl.backends.can.bus_tools import bus_check
+def test_hardware_1_bus_check_shows_the_safety_module_and_a_wam7_with_wrist():
+    """Step 1: the safety module answers, the pucks are a 7-DOF WAM with wrist in groups 1/2/4."""
+    from wamctl.backends.can.bus_check import bus_check
     r = bus_check(HW_INTERFACE, HW_CHANNEL, window_s=1.0, poll_hz=500.0)
-    assert r["missing_wam_pucks"] == [] and r["problems"] == []
+    assert r["safety_module"] is not None and r["safety_module"]["firmware_ok"]
+    assert r["missing_wam_pucks"] == [] and r["problems"] == [], r["problems"]
+    assert [p["poles"] for p in r["pucks"] if p["puck_id"] == 7] == [6]
     assert r["load"]["complete_polls"] > 0
 
 
 @pytest.mark.hardware
-def test_hardware_open_and_close_leave_the_pucks_idle():
-    """Opt-in: probing and closing never enable torque (the arm may rest anywhere: no start check)."""
-    b = CanBackend(HW_INTERFACE, HW_CHANNEL, q0_rad=None)
-    with b:
-        assert sorted(b.pucks) == list(range(1, 8))
-        q = b.read_positions()
-        assert np.isfinite(q).all()
+def test_hardware_2_nobody_activates_nothing_is_applied():
+    """Step 2 (do NOT press Shift-Activate): the session starts (zeroing if needed, confirmed by WAMCTL_HW_AT_HOME),
+    polls with zero torque, and ends after the timeout with the pucks idle."""
+    b = _hw_backend(activation_timeout_s=5.0)
+    with pytest.raises(BackendError, match="Shift-Activate was not pressed within 5 s: nothing was applied"):
+        b.open()
     assert b.idle_confirmed == list(range(1, 8))
+    assert b.start is not None and b.start.safety.zeroed
+
+
+@pytest.mark.hardware
+def test_hardware_3_shift_activate_then_shift_idle():
+    """Step 3 (hold the arm): press Shift-Activate when asked; the session confirms every puck in TORQUE (set by the
+    safety module, never by wamctl), then idles the pucks at once and waits for your Shift-Idle."""
+    b = _hw_backend(activation_timeout_s=60.0)
+    with b:
+        assert b.torque_mode_confirmed
+    assert b.idle_confirmed == list(range(1, 8))
+    assert "safety module: Shift-idle" in b.session_log["left"]
+
+
+@pytest.mark.hardware
+@pytest.mark.skipif(os.environ.get("WAMCTL_HW_MOVE") != "1", reason="set WAMCTL_HW_MOVE=1 to move the arm")
+def test_hardware_4_short_slow_move(runs_dir):
+    """Step 4: the elbow (joint 4) 0.1 rad and back at 0.05 rad/s under PD + gravity, from (0, 0, 0, 1.57, 0, 0, 0):
+    put the arm there when asked, then Shift-Activate."""
+    spec = parse_spec(rotation_spec(
+        name="hw-first-move", rotation={"joints": [4], "mode": "one_at_a_time", "amplitude_rad": 0.1,
+                                        "velocity_rad_s": 0.05, "settle_s": 0.5, "hold_s": 1.0},
+        backend={"kind": "can", "interface": HW_INTERFACE, "channel": HW_CHANNEL, "zeroing_confirmed": HW_AT_HOME,
+                 "idle_wait_s": 30.0}))
+    from wamctl.backends.can.operator import use_operator
+    with use_operator(PrintOperator()):
+        outcome = run_spec(spec, None, runs_dir, make_report=True)
+    assert outcome.status == "completed", outcome.reason
