@@ -327,6 +327,12 @@ def test_spec_rules_for_simulated_pucks():
     spec = load_spec("configs/rotation_can_sim.yaml")
     assert spec.backend.kind == "can" and spec.backend.simulate_pucks and spec.backend.interface == "virtual"
     assert 1 <= len(spec.rotation.joints) <= 2
+    udp = load_spec("configs/rotation_can_udp.yaml")
+    assert udp.backend.interface == "udp_multicast" and udp.backend.bus_options == {"port": 43113}
+    assert not udp.backend.simulate_pucks
+    with pytest.raises(SpecError, match="simulated_pendant"):
+        parse_spec(rotation_spec(backend={"kind": "can", "interface": "virtual", "simulate_pucks": True,
+                                          "simulated_pendant": "activate@soon"}))
 
 
 # ------------------------------------------------------------------------------------------ timing
