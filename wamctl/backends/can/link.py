@@ -84,6 +84,11 @@ class Link:
         t_sent = time.perf_counter()
         self._got, self._garbage_seen = 0, None
         recv_until(bus, t_sent + self.reply_timeout_s, self._on_frame)
+        # a host descheduled past the deadline still reads what arrived meanwhile: only replies that are not there
+        # count as missing (a stall of the host is an overrun, not a link fault)
+        while self._got != ALL_WAM_PUCKS and self._garbage_seen is None \
+                and (msg := bus.recv(timeout=0.0)) is not None:
+            self._on_frame(msg)
         if self._garbage_seen is not None:
             self._garbage(self._garbage_seen)
         if self._got != ALL_WAM_PUCKS:
