@@ -330,6 +330,9 @@ def test_spec_rules_for_simulated_pucks():
     udp = load_spec("configs/rotation_can_udp.yaml")
     assert udp.backend.interface == "udp_multicast" and udp.backend.bus_options == {"port": 43113}
     assert not udp.backend.simulate_pucks
+    for v in (0.0, 1.5):  # a spec may lower the safety module's velocity fault, not switch it off or raise it
+        with pytest.raises(SpecError, match="velocity_limit_m_s"):
+            parse_spec(rotation_spec(backend={"kind": "can", "velocity_limit_m_s": v}))
     with pytest.raises(SpecError, match="simulated_pendant"):
         parse_spec(rotation_spec(backend={"kind": "can", "interface": "virtual", "simulate_pucks": True,
                                           "simulated_pendant": "activate@soon"}))

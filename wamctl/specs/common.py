@@ -66,10 +66,11 @@ class CanBackendSpec(Strict):
     activation_timeout_s: float = Field(60.0, gt=0.0, le=3600.0,
                                         description="wait for Shift-Idle, the start pose and Shift-Activate")
     idle_wait_s: float = Field(10.0, ge=0.0, le=600.0, description="after the run, wait for Shift-Idle")
-    velocity_limit_m_s: float | None = Field(None, ge=0.0, le=2.0, description="safety module VL2 (VL1 = 0.9 "
-                                             "VL2); default: reload the module's EEPROM limits")
-    torque_limit_Nm: float | None = Field(None, gt=0.0, le=3.0, description="safety module TL2 in motor N m at "
-                                          "IPNM 2700 (TL1 = 0.9 TL2); default: the module's EEPROM limits")
+    # a spec may lower the safety module's limits, never raise them above Barrett's defaults or switch them off
+    velocity_limit_m_s: float | None = Field(None, gt=0.0, le=1.0, description="safety module VL2 (VL1 = 0.9 "
+                                             "VL2), at most Barrett's 1.0 m/s; default: the module's EEPROM limits")
+    torque_limit_Nm: float | None = Field(None, gt=0.0, le=1.92, description="safety module TL2 in motor N m at "
+                                          "IPNM 2700 (TL1 = 0.9 TL2), at most Barrett's 5204 units; default: EEPROM")
     simulated_pendant: str = Field("activate@0.2,idle@end", pattern=_PENDANT_SCRIPT,
                                    description="simulate_pucks: the pendant's script, e.g. activate@0.2,idle@end")
 
