@@ -118,7 +118,7 @@ def run_one(bus: str, args) -> dict:
         load_after = os.getloadavg()
         arm = None
         if proc is not None:
-            proc.send_signal(signal.SIGINT)
+            proc.send_signal(signal.SIGTERM)  # (SIGINT may be ignored in a background job)
             out, _ = proc.communicate(timeout=60)
             seen = json.loads(out) if out.strip() else {}
             arm = {"stats": seen.get("stats"), "realtime": seen.get("realtime")}

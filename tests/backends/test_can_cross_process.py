@@ -52,7 +52,8 @@ def udp():
 
 
 class SimArm:
-    """``wamctl sim-arm`` in a subprocess: started, waited for ("serving"), stopped with Ctrl-C (SIGINT)."""
+    """``wamctl sim-arm`` in a subprocess: started, waited for ("serving"), stopped with SIGTERM (SIGINT is ignored
+    by processes started from a background job)."""
 
     def __init__(self, group: str, port: int, *args: str) -> None:
         cmd = [sys.executable, "-m", "wamctl.cli", "sim-arm", "--interface", "udp_multicast", "--channel", group,
@@ -67,7 +68,7 @@ class SimArm:
             raise RuntimeError(f"sim-arm did not start: {line}{self.proc.stderr.read()}")
 
     def stop(self) -> dict:
-        self.proc.send_signal(signal.SIGINT)
+        self.proc.send_signal(signal.SIGTERM)
         out, err = self.proc.communicate(timeout=60)
         assert self.proc.returncode == 0, err
         self.seen = json.loads(out)

@@ -379,7 +379,7 @@ class CanBackend(SessionWaits, Link, ArmBackend):
             except can.CanError as exc:
                 logger.error("setting the pucks IDLE failed (attempt %d): %s", attempt + 1, exc)
         try:
-            modes = read_property(self._bus, WAM_PUCK_IDS, Prop.MODE, PROBE_TIMEOUT_S, retries=0, send=self._tx)
+            modes = read_property(self._bus, WAM_PUCK_IDS, Prop.MODE, PROBE_TIMEOUT_S, retries=1, send=self._tx)
         except can.CanError as exc:
             logger.error("reading MODE back failed: %s", exc)
             modes = {}
