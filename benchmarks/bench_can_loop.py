@@ -10,7 +10,10 @@ missing reply, whether the link watchdog tripped (with the arm's defaults: 3 cyc
 the loop was given (garbage collector frozen, SCHED_FIFO, affinity) and the machine's load average.
 
     python benchmarks/bench_can_loop.py [--duration 60] [--bus udp|virtual|both] [--reply-timeout 0.0015]
-        [--watchdog 3] [--cpu N] [--no-realtime] [--json results.json]
+        [--watchdog 3] [--cpu N] [--no-realtime] [--bare 15] [--json results.json]
+
+First, for reference, the bare 500 Hz wait (nothing in the cycle) for ``--bare`` seconds: what the machine alone
+allows a (SCHED_FIFO) Python thread.
 
 The figures depend on the machine and its load (this is not a real-time kernel); nothing is asserted. Goal (issue
 14): p99 jitter < 0.5 ms and no watchdog trip in 60 s.
@@ -128,6 +131,22 @@ def run_one(bus: str, args) -> dict:
             "arm": arm}
 
 
+def bare_loop(duration_s: float, realtime: bool) -> dict:
+    """The same 500 Hz wait with nothing else in the cycle (no bus, no control): what the machine alone allows."""
+    from wamctl.backends.can.timing import RealtimeSection, sleep_until
+    rt = RealtimeSection(fifo=realtime).enter()
+    try:
+        t0 = time.perf_counter()
+        late = np.array([sleep_until(t0 + k * 0.002) - (t0 + k * 0.002)
+                         for k in range(1, int(duration_s / 0.002) + 1)])
+    finally:
+        rt.exit()
+    return {"wake_late_p50_s": float(np.percentile(late, 50)), "wake_late_p99_s": float(np.percentile(late, 99)),
+            "wake_late_p999_s": float(np.percentile(late, 99.9)), "wake_late_max_s": float(late.max()),
+            "over_1ms": int((late > 1e-3).sum()), "n": int(late.size), "given": rt.granted,
+            "load": os.getloadavg()}
+
+
 def ms(x) -> str:
     return "   n/a   " if x is None else f"{x * 1e3:7.3f} ms"
 
@@ -168,12 +187,20 @@ def main() -> None:
     ap.add_argument("--cpu", type=int, default=None, help="pin the loop's thread to this CPU")
     ap.add_argument("--no-realtime", dest="realtime", action="store_false", help="no SCHED_FIFO (udp)")
     ap.add_argument("--json", type=Path, default=None, help="also write the results here")
+    ap.add_argument("--bare", type=float, default=15.0, help="seconds of the bare 500 Hz wait first (0: none)")
     args = ap.parse_args()
+    bare = bare_loop(args.bare, args.realtime) if args.bare > 0 else None
     results = [run_one(b, args) for b in (("udp", "virtual") if args.bus == "both" else (args.bus,))]
+    if bare is not None:
+        print(f"\n== the bare 500 Hz wait, {bare['n']} cycles, {bare['given']}: wake-up late p50 "
+              f"{ms(bare['wake_late_p50_s'])}, p99 {ms(bare['wake_late_p99_s'])}, "
+              f"p99.9 {ms(bare['wake_late_p999_s'])}, "
+              f"max {ms(bare['wake_late_max_s'])}; {bare['over_1ms']} wake-ups more than 1 ms late (load "
+              + " / ".join(f"{x:.2f}" for x in bare["load"]) + ")")
     for r in results:
         show(r)
     if args.json:
-        args.json.write_text(json.dumps(results, indent=2, default=str))
+        args.json.write_text(json.dumps({"bare": bare, "runs": results}, indent=2, default=str))
 
 
 if __name__ == "__main__":
