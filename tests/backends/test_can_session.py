@@ -177,6 +177,32 @@ def test_zeroing_declined_changes_nothing(channel):
     assert not any(s.any() for _, s in torque_frames(frames))
 
 
+def test_shift_activate_before_the_start_pose_goes_back_to_idle(channel):
+    """The operator activates while the arm is still away from the start pose: wamctl asks the pucks and the safety
+    module to go idle (nothing applied), waits for the arm, and starts only after a second Shift-Activate."""
+    plant = StaticPlant(Q0 + np.array([0, 0.3, 0, 0, 0, 0, 0]))
+    monitor = can.Bus(interface="virtual", channel=channel)
+    try:
+        with PuckSimulator(plant, channel=channel, start_pose_rad=Q0,
+                           pendant="activate@0.1,move@0.4,activate@0.7,idle@end") as sim:
+            op = ScriptedOperator()
+            with CanBackend("virtual", channel, q0_rad=Q0, operator=op, reply_timeout_s=0.05, watchdog_cycles=25,
+                            session=SessionSettings(activation_timeout_s=10.0, idle_wait_s=5.0)) as b:
+                assert b.torque_mode_confirmed
+                q = b.read_positions()
+            log = [m for _, m in sim.safety.log]
+        frames = drain(monitor)
+    finally:
+        monitor.shutdown()
+    assert any("Shift-Activate came before the arm was at the run's start pose" in s for s in op.said)
+    assert (SAFETY_PUCK_ID, int(SafetyMode.IDLE)) in host_mode_writes(frames)
+    assert log.count("Shift-activate: Shift-Activate") == 2 and "Shift-idle: set to idle by the host" in log
+    back_to_idle = max(i for i, _, _ in host_sets(frames, Prop.MODE, SAFETY_PUCK_ID))
+    active_again = back_to_idle + all_pucks_torque_index(frames[back_to_idle:])
+    assert not any(s.any() for i, s in torque_frames(frames) if i < active_again)
+    np.testing.assert_array_less(np.abs(q - Q0), joint_rad_per_count(4096) + 1e-12)
+
+
 # ------------------------------------------------------------------------------ nobody activates
 
 def test_operator_who_never_activates_gets_a_clean_timeout(runs_dir, channel, tmp_path):

@@ -45,8 +45,13 @@ class SessionWaits:
         deadline = t_start + self.settings.activation_timeout_s
         said = False
         while True:
+            if self.monitor.module_mode == SafetyMode.ESTOP:
+                raise SafetyLimitError("E-stop on the pendant while waiting for the start pose: nothing was applied")
             dev = np.abs(q - self.q0_rad)
-            if (dev <= self.settings.start_tolerance_rad).all():
+            if self.monitor.active:  # activated too early: the arm must not hang on zero torque
+                self._back_to_idle("Shift-Activate came before the arm was at the run's start pose: back to idle "
+                                   "(nothing was applied); put the arm there first")
+            elif (dev <= self.settings.start_tolerance_rad).all():
                 break
             j = int(np.argmax(dev))
             text = (f"Move the arm by hand to the run's start pose: joint {j + 1} is at {q[j]:.3f} rad, the run "
@@ -85,12 +90,14 @@ class SessionWaits:
                 raise BackendError(m.silent())
             if m.module_mode == SafetyMode.ESTOP:
                 raise SafetyLimitError("E-stop on the pendant while waiting for Shift-Activate: nothing was applied")
+            off_pose = self.q0_rad is not None and (np.abs(q - self.q0_rad) > self.settings.start_tolerance_rad).any()
             if m.active:
                 active_since = active_since or now
-                if self.q0_rad is not None and (np.abs(q - self.q0_rad) > self.settings.start_tolerance_rad).any():
-                    self._refuse_activation("the arm was not at the run's start pose when Shift-Activate was "
-                                            "pressed: nothing was applied")
-                if m.all_pucks_torque():
+                if off_pose:
+                    active_since = None
+                    self._back_to_idle("the arm was not at the run's start pose when Shift-Activate was pressed: "
+                                       "back to idle (nothing was applied); put it back, then Shift-Activate")
+                elif m.all_pucks_torque():
                     break
                 if now - active_since > TORQUE_CONFIRM_S:
                     missing = [i for i in WAM_PUCK_IDS if m.puck_modes.get(i) != Mode.TORQUE]
@@ -98,6 +105,9 @@ class SessionWaits:
                                             f"within {TORQUE_CONFIRM_S} s: nothing was applied")
             else:
                 active_since = None
+                if off_pose and "pose" not in told:
+                    told.add("pose")
+                    self.operator.say("The arm has left the run's start pose: put it back before Shift-Activate")
                 for f in (m.pen.faults() if m.pen is not None else []):
                     if f not in told:
                         told.add(f)
@@ -115,6 +125,19 @@ class SessionWaits:
         self.session_log["heartbeat_cycles_before_run"] = self._tick
         self.operator.say("Active: every puck reports TORQUE; the run starts.")
         logger.info("pucks 1-7 in TORQUE mode after Shift-Activate")
+
+    def _back_to_idle(self, text: str) -> None:
+        """Pucks and safety module asked to go idle (the safe direction), the operator told; the wait goes on."""
+        try:
+            self._tx(make_set_property(GROUP_WAM, Prop.MODE, Mode.IDLE))
+            self._tx(make_set_property(SAFETY_PUCK_ID, SafetyProp.MODE, SafetyMode.IDLE))
+        except can.CanError as exc:
+            raise BackendError(f"CAN transmit error going back to idle: {exc}") from None
+        self.monitor.module_mode = None  # the next poll says where it is
+        now = time.monotonic()
+        if now - getattr(self, "_idle_told_t", -np.inf) > 2.0:  # not every 10 ms if the module stays active
+            self._idle_told_t = now
+            self.operator.say(text + " (press Shift-Idle if the pendant still shows active)")
 
     def _refuse_activation(self, reason: str) -> None:
         """Back to idle (pucks and safety module: the safe direction) and stop."""
