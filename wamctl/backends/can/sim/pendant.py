@@ -10,7 +10,8 @@ A script is a comma-separated list of ``action@t_s`` (or ``never``: the operator
 Actions: ``activate`` (Shift-Activate), ``idle`` (Shift-Idle; after an E-stop it also releases the button),
 ``estop`` (press the E-stop) and ``move`` (the simulated operator moves the idle arm to its start pose).
 ``idle@end`` is Shift-Idle :data:`END_DELAY_S` after the host has put the pucks IDLE at the end of its
-session (what the operator does when the terminal says "Press Shift-Idle").
+session (what the operator does when the terminal says "Press Shift-Idle"). A scripted ``activate`` while the
+safety module shows a fault is preceded by Shift-Idle, as the terminal tells the operator to do.
 
 Times count from the start of the host's position polling (the heartbeat, when the terminal would say
 "Press Shift-Activate"): the first position request after at least :data:`SESSION_GAP_S` without one. A new
@@ -95,6 +96,10 @@ class Pendant:
             self.sessions += 1
         self._last_poll = now_s
 
+    def activated(self) -> None:
+        """The module went active: the next time the host idles the pucks, ``idle@end`` follows again."""
+        self._end_at = None
+
     def host_idled(self, now_s: float) -> None:
         """The host put the pucks IDLE (the end of its session): ``idle@end`` follows."""
         if self._end_at is None and any(math.isinf(e.t_s) for e in self.events):
@@ -111,5 +116,5 @@ class Pendant:
             self._next += 1
         if self._end_at is not None and now_s >= self._end_at:
             out.append("idle")
-            self._end_at = math.inf  # once per session
+            self._end_at = math.inf  # once per activation
         return out

@@ -277,8 +277,9 @@ class PuckSimulator(FaultInjection):
                     and not any(p.props[Prop.MODE] == Mode.TORQUE for p in self._pucks.values()):
                 self._plant.place(self._start_pose)
             return
-        if self.safety is not None:
-            self._apply(self.safety.press(action, now, self._pucks_ready))
+        if self.safety is None:
+            return
+        self._apply(self.safety.press(action, now, self._pucks_ready))
 
     def safety_fault(self, param: str) -> None:
         """The safety module sees a ``param`` fault now (``velocity``, ``torque``, ``heartbeat``, ``voltage``)."""
@@ -362,6 +363,9 @@ class PuckSimulator(FaultInjection):
 
     def _tick(self, now: float) -> None:
         for action in self.pendant.due(now):
+            if action == "activate" and self.safety is not None and self.safety.latched \
+                    and self.safety.mode == SafetyMode.IDLE:
+                self._operator("idle", now)  # the scripted operator does as the host says: Shift-Idle first
             self._operator(action, now)
         if self.safety is not None:
             self._apply(self.safety.tick(now))
@@ -370,6 +374,8 @@ class PuckSimulator(FaultInjection):
         """Make the pucks follow the safety module."""
         if action is None:
             return
+        if action == "torque":
+            self.pendant.activated()
         if action in ("torque", "idle"):
             mode = Mode.TORQUE if action == "torque" else Mode.IDLE
             now = time.time()
