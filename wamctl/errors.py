@@ -22,5 +22,10 @@ class BackendError(WamctlError):
     """A device could not be reached or misbehaved (CAN bus, serial port)."""
 
 
+class ConfigurationRefused(BackendError):
+    """The device on the bus is not one wamctl's model describes (firmware, puck roles, groups, POLES): refused
+    before anything moved. Like a bad spec, a run refused this way exits with code 2 (not 1, a run that failed)."""
+
+
 class SafetyLimitError(WamctlError):
     """A setpoint or a measured state would break a safety limit (torque, position, velocity, watchdog)."""

@@ -21,14 +21,17 @@ from typer.testing import CliRunner
 
 from wamctl.analysis.rotation import rotation_metrics
 from wamctl.backends.can.backend import CanBackend
-from wamctl.backends.can.bus_tools import frame_bits, loop_bus_load_pct
+from wamctl.backends.can.bus_check import frame_bits, loop_bus_load_pct
+from wamctl.backends.can.operator import ScriptedOperator
 from wamctl.backends.can.protocol.addressing import GROUP_WAM, TORQUE_GROUPS
 from wamctl.backends.can.protocol.positions import make_position_request
 from wamctl.backends.can.protocol.properties import CTS_DEFAULT, Mode, Prop, Status, make_set_property
 from wamctl.backends.can.protocol.torques import PACKED_TORQUE_HEADER, unpack_torques
-from wamctl.backends.can.puck_sim import PuckSimulator, StaticPlant
+from wamctl.backends.can.session import SessionSettings
+from wamctl.backends.can.sim.pucks import StaticPlant
+from wamctl.backends.can.sim.simulator import PuckSimulator
 from wamctl.backends.can.timing import LoopTiming
-from wamctl.errors import BackendError, SafetyLimitError, SpecError
+from wamctl.errors import BackendError, SpecError
 from wamctl.experiments.runner import run_spec
 from wamctl.model.transmission import J2MP, M2JP
 from wamctl.runs.store import open_run, read_events, read_table
@@ -65,26 +68,20 @@ def drain(bus: can.BusABC) -> list[can.Message]:
 def wire_cycles(frames: list[can.Message]):
     """Read the control loop off the wire.
 
-    Returns ``requests`` (frame index of each position request of the loop: cycle k starts at
-    ``requests[k]``), ``torques`` ((cycle, slots, frame index) of every packed-torque frame of the loop)
-    and ``idles`` ((cycle, frame index) of every MODE=IDLE set to the whole WAM). Cycle 0 is the cycle
-    whose torque command came with the first MODE=TORQUE set.
+    Returns ``requests`` (frame index of each position request of the run: cycle k starts at ``requests[k]``),
+    ``torques`` ((cycle, slots, frame index) of every packed-torque frame of the run) and ``idles`` ((cycle,
+    frame index) of every MODE=IDLE set to the whole WAM after the run started). Cycle 0 is the cycle of the
+    first non-zero torque frame (the controller's first command; before it, the heartbeat sends zeros).
     """
-    torque_on = bytes(make_set_property(GROUP_WAM, Prop.MODE, Mode.TORQUE).data)
     idle = bytes(make_set_property(GROUP_WAM, Prop.MODE, Mode.IDLE).data)
     request = bytes(make_position_request().data)
-    cycle, started = -1, False
+    first = next(i for i, m in enumerate(frames) if m.arbitration_id in TORQUE_GROUP_IDS
+                 and bytes(m.data)[:1] == bytes([PACKED_TORQUE_HEADER]) and unpack_torques(m.data).any())
+    start = max(i for i, m in enumerate(frames[:first]) if m.arbitration_id == GROUP_WAM and bytes(m.data) == request)
+    cycle = -1
     requests, torques, idles = [], [], []
-    for i, m in enumerate(frames):
-        data = bytes(m.data)
-        if m.arbitration_id == GROUP_WAM and data == torque_on and not started:
-            started = True
-            cycle = 0  # the TORQUE set and the first torque frames belong to cycle 0 (after its request)
-            continue
-        if not started:
-            if m.arbitration_id == GROUP_WAM and data == request:
-                requests[:] = [i]  # the latest request before TORQUE mode is cycle 0's
-            continue
+    for i in range(start, len(frames)):
+        m, data = frames[i], bytes(frames[i].data)
         if m.arbitration_id == GROUP_WAM and data == request:
             cycle += 1
             requests.append(i)
@@ -231,14 +228,23 @@ def test_dropped_replies_within_the_tolerance_are_held_over(runs_dir, channel):
 
 # ------------------------------------------------------------------------------------------ start-up
 
-def _backend(channel: str, **kw) -> CanBackend:
-    return CanBackend("virtual", channel, 1_000_000, q0_rad=Q0, **kw)
+PENDANT = "activate@0.05,idle@end"  # the simulated operator activates at once and idles when told
+
+
+def _backend(channel: str, operator=None, **kw) -> CanBackend:
+    """A backend with link tolerances for a loaded machine (replies up to 50 ms late, 25 cycles held over)."""
+    settings = kw.pop("session", SessionSettings(activation_timeout_s=10.0, idle_wait_s=5.0))
+    kw = {"reply_timeout_s": 0.05, "watchdog_cycles": 25, **kw}
+    return CanBackend("virtual", channel, 1_000_000, q0_rad=Q0, session=settings,
+                      operator=operator or ScriptedOperator(), **kw)
 
 
 def test_backend_conversions_through_the_pucks(channel):
     plant = StaticPlant(Q0 + np.array([0.01, -0.02, 0.03, 0.04, -0.045, 0.035, -0.025]))
-    with PuckSimulator(plant, channel=channel, cts=40960, ipnm=[2700, 2700, 2700, 2700, 3000, 3000, 4000]) as sim:
+    with PuckSimulator(plant, channel=channel, cts=40960, ipnm=[2700, 2700, 2700, 2700, 3000, 3000, 4000],
+                       pendant=PENDANT) as sim:
         with _backend(channel, reply_timeout_s=0.05) as b:
+            assert set(sim.modes().values()) == {int(Mode.TORQUE)}  # activated on the pendant
             q = b.read_positions()
             half_count_rad = np.abs(M2JP) @ np.full(7, 0.5 * 2 * np.pi / 40960)
             np.testing.assert_array_less(np.abs(q - plant.q_rad), half_count_rad + 1e-12)
@@ -252,7 +258,6 @@ def test_backend_conversions_through_the_pucks(channel):
             # puck-unit rounding: half a unit per motor, through J2MP^T
             bound = np.abs(J2MP.T) @ (0.5 / np.array([2700, 2700, 2700, 2700, 3000, 3000, 4000]))
             np.testing.assert_array_less(np.abs(plant.tau_Nm - tau), bound + 1e-12)
-            assert set(sim.modes().values()) == {int(Mode.TORQUE)}
             # saturated at the WAM limits before conversion
             np.testing.assert_array_equal(b.command_torques(np.full(7, 100.0)), b.limits.tau_max_Nm)
             b.wait_next_cycle()
@@ -264,14 +269,17 @@ def test_backend_conversions_through_the_pucks(channel):
 
 
 def test_backend_wakes_sleeping_pucks(channel):
-    with PuckSimulator(StaticPlant(Q0), channel=channel, start_awake=False, wake_delay_s=0.05) as sim:
+    with PuckSimulator(StaticPlant(Q0), channel=channel, start_awake=False, wake_s=0.05, pendant=PENDANT) as sim:
         with _backend(channel) as b:
             assert {i: info.stat for i, info in b.pucks.items()} == {i: int(Status.READY) for i in range(1, 8)}
         assert sim.property_value(1, Prop.STAT) == Status.READY
+        assert sim.stats.bus_off_events == 0
 
 
-@pytest.mark.parametrize("problem", ["missing_puck", "old_firmware", "not_at_q0", "bad_pidx", "no_bus"])
+@pytest.mark.parametrize("problem", ["missing_puck", "old_firmware", "not_at_q0", "bad_pidx", "no_bus",
+                                     "no_safety_module", "gimbals", "group_5"])
 def test_backend_refuses_to_start(channel, problem):
+    """Each refusal names what is wrong; nothing is left running and the pucks never leave IDLE."""
     kwargs: dict = {}
     q_plant = Q0
     if problem == "old_firmware":
@@ -280,46 +288,34 @@ def test_backend_refuses_to_start(channel, problem):
         q_plant = Q0 + np.array([0, 0.2, 0, 0, 0, 0, 0])
     if problem == "bad_pidx":
         kwargs["pidx"] = {1: 1, 2: 1, 3: 3, 4: 4, 5: 1, 6: 2, 7: 3}
+    if problem == "no_safety_module":
+        kwargs["safety_module"] = False
+    if problem == "gimbals":
+        kwargs["poles"] = {7: 8}
+    if problem == "group_5":  # Barrett's 2008 manual: pucks 5-7 in groups 0, 2, 5
+        kwargs["groups"] = dict.fromkeys((5, 6, 7), (0, 2, 5))
     if problem == "no_bus":
-        with pytest.raises(BackendError, match="did not answer"):
+        with pytest.raises(BackendError, match="no safety module"):
             _backend(channel).open()
         return
-    with PuckSimulator(StaticPlant(q_plant), channel=channel, **kwargs) as sim:
+    with PuckSimulator(StaticPlant(q_plant), channel=channel, pendant=PENDANT, **kwargs) as sim:
         if problem == "missing_puck":
             sim.set_silent(5)
-        expected = {"missing_puck": (BackendError, r"\[5\] did not answer"),
-                    "old_firmware": (BackendError, "firmware VERS=60"),
-                    "not_at_q0": (SafetyLimitError, "joint 2"),
-                    "bad_pidx": (BackendError, "PIDX=1")}[problem]
-        b = _backend(channel)
-        with pytest.raises(expected[0], match=expected[1]):
+        expected = {"missing_puck": r"\[5\] did not answer",
+                    "old_firmware": "firmware VERS=60 is older than 65",
+                    "not_at_q0": "did not reach the run's start pose .*joint 2 reads 0.2000 rad",
+                    "bad_pidx": "PIDX=1",
+                    "no_safety_module": "no safety module",
+                    "gimbals": "puck 7 reports POLES=8: a WAM with gimbals",
+                    "group_5": "puck 5 is in groups 0/2/5 .*not in group 4"}[problem]
+        settings = SessionSettings(activation_timeout_s=0.3, idle_wait_s=0.0)
+        b = _backend(channel, session=settings)
+        with pytest.raises(BackendError, match=expected) as err:
             b.__enter__()
-        # nothing left running, and the pucks never left IDLE
+        assert "change q0_rad" not in str(err.value)
         assert set(sim.modes().values()) == {int(Mode.IDLE)}
-        assert b._bus is None
-
-
-def test_pucks_refusing_torque_mode_trip_the_loop(channel):
-    """A puck that does not enter TORQUE mode (the WAM not activated) stops the run within the tolerance."""
-    plant = StaticPlant(Q0)
-    with PuckSimulator(plant, channel=channel) as sim:
-        sim._pucks[6].props[Prop.MODE] = Mode.IDLE
-        original = sim._on_set
-
-        def refuse_torque(pucks, prop, value):  # puck 6 ignores MODE=TORQUE, like an inactive arm
-            if prop == Prop.MODE and value == Mode.TORQUE:
-                pucks = [p for p in pucks if p.puck_id != 6]
-            original(pucks, prop, value)
-
-        sim._on_set = refuse_torque
-        with _backend(channel, reply_timeout_s=0.05, watchdog_cycles=3) as b:
-            with pytest.raises(BackendError, match=r"pucks \[6\] report MODE"):
-                for _ in range(10):
-                    b.read_positions()
-                    b.command_torques(np.zeros(7))
-                    b.wait_next_cycle()
-            assert b.trip_reason is not None
         assert not sim.puck_torque_units().any()
+        assert b._bus is None
 
 
 def test_spec_rules_for_simulated_pucks():
@@ -331,12 +327,21 @@ def test_spec_rules_for_simulated_pucks():
     spec = load_spec("configs/rotation_can_sim.yaml")
     assert spec.backend.kind == "can" and spec.backend.simulate_pucks and spec.backend.interface == "virtual"
     assert 1 <= len(spec.rotation.joints) <= 2
+    udp = load_spec("configs/rotation_can_udp.yaml")
+    assert udp.backend.interface == "udp_multicast" and udp.backend.bus_options == {"port": 43113}
+    assert not udp.backend.simulate_pucks
+    for v in (0.0, 1.5):  # a spec may lower the safety module's velocity fault, not switch it off or raise it
+        with pytest.raises(SpecError, match="velocity_limit_m_s"):
+            parse_spec(rotation_spec(backend={"kind": "can", "velocity_limit_m_s": v}))
+    with pytest.raises(SpecError, match="simulated_pendant"):
+        parse_spec(rotation_spec(backend={"kind": "can", "interface": "virtual", "simulate_pucks": True,
+                                          "simulated_pendant": "activate@soon"}))
 
 
 # ------------------------------------------------------------------------------------------ timing
 
 def test_overruns_are_counted_and_skip_past_release_points(channel):
-    with PuckSimulator(StaticPlant(Q0), channel=channel):
+    with PuckSimulator(StaticPlant(Q0), channel=channel, pendant=PENDANT):
         with _backend(channel, reply_timeout_s=0.05, watchdog_cycles=50) as b:
             b.read_positions()
             b.command_torques(np.zeros(7))
@@ -366,6 +371,8 @@ def test_bus_load_arithmetic():
     assert frame_bits(0) == 47 and frame_bits(8) == 111
     assert frame_bits(8, stuffing=True) == 111 + (34 + 64 - 1) // 4
     assert loop_bus_load_pct(1_000_000) == pytest.approx((55 + 7 * 71 + 2 * 111) * 500 / 1e6 * 100)
+    # the README's 0.6 ms of bus time for a request and seven replies at 1 Mbit/s (Barrett: 75 us a frame)
+    assert (frame_bits(1) + 7 * frame_bits(3)) / 1e6 == pytest.approx(0.6e-3, rel=0.1)
 
 
 # ------------------------------------------------------------------------------------------ (c) bus-check
@@ -377,7 +384,9 @@ def cli():
     return lambda *args: CliRunner().invoke(app, list(args))
 
 
-def test_bus_check_lists_the_seven_pucks(cli, channel):
+def test_bus_check_shows_safety_module_zeroing_groups_and_poles(cli, channel):
+    """bus-check on a simulated WAM just powered up: the safety module idle and not zeroed, its limits; every
+    puck woken (libbarrett's pacing), its groups and POLES; the table on the terminal says the same."""
     res = cli("bus-check", "--interface", "virtual", "--channel", channel, "--simulate-pucks", "--json",
               "--window", "0.3", "--poll")
     assert res.exit_code == 0, res.output
@@ -385,12 +394,36 @@ def test_bus_check_lists_the_seven_pucks(cli, channel):
     assert [p["puck_id"] for p in r["pucks"]] == list(range(1, 8))
     assert all(p["kind"] == "wam motor" and p["stat_name"] == "READY" and p["firmware_ok"] for p in r["pucks"])
     assert [p["pidx"] for p in r["pucks"]] == [1, 2, 3, 4, 1, 2, 3]
+    assert [p["groups"] for p in r["pucks"]] == [[0, 1, 4]] * 4 + [[0, 2, 4]] * 3
+    assert [p["poles"] for p in r["pucks"]] == [12, 12, 12, 12, 8, 8, 6]
     assert {p["cts"] for p in r["pucks"]} == {CTS_DEFAULT} and {p["ipnm"] for p in r["pucks"]} == {2700}
+    sm = r["safety_module"]
+    assert sm["mode_name"] == "Shift-idle" and sm["zeroed"] is False and sm["groups"] == [1, 2, 3]
+    assert sm["limits"] == {"VL1": 2048, "VL2": 4096, "TL1": 4731, "TL2": 5204}
+    assert sm["velocity_limits_m_s"] == {"VL1": 0.5, "VL2": 1.0}
+    assert sm["pendant"]["faults"] == []
     assert r["problems"] == [] and r["missing_wam_pucks"] == []
     load = r["load"]
     assert load["polls"] > 0 and load["frames"] >= load["polls"]  # our requests at least
     assert load["load_pct"] == pytest.approx(100 * load["bits_per_s"] / 1_000_000)
     assert load["load_pct_worst"] > load["load_pct"] > 0
+    text = cli("bus-check", "--interface", "virtual", "--channel", channel + "-t", "--simulate-pucks",
+               "--window", "0.05").stdout
+    for words in ("safety module (node 10)", "Shift-idle", "not zeroed", "fault 1.00 m/s", "0/1/4", "0/2/4",
+                  "POLES"):
+        assert words in " ".join(text.split()), words
+
+
+@pytest.mark.parametrize("arm, problem", [
+    ({"poles": {7: 8}}, "puck 7 reports POLES=8: a WAM with gimbals"),
+    ({"groups": dict.fromkeys((5, 6, 7), (0, 2, 5))}, "puck 5 is in groups 0/2/5"),
+    ({"safety_module": False}, "no safety module"),
+])
+def test_bus_check_names_what_the_model_does_not_describe(cli, channel, arm, problem):
+    with PuckSimulator(StaticPlant(Q0), channel=channel, **arm):
+        res = cli("bus-check", "--interface", "virtual", "--channel", channel, "--json", "--window", "0.05")
+    assert res.exit_code == 1
+    assert any(problem in p for p in json.loads(res.stdout)["problems"]), res.stdout
 
 
 def test_bus_check_reports_a_missing_puck(cli, channel):
@@ -404,32 +437,83 @@ def test_bus_check_reports_a_missing_puck(cli, channel):
 
 
 def test_bus_check_on_an_empty_bus_is_an_error(channel):
-    from wamctl.backends.can.bus_tools import bus_check
+    from wamctl.backends.can.bus_check import bus_check
     with pytest.raises(BackendError, match="no puck answered"):
         bus_check("virtual", channel, window_s=0.05)
 
 
 # ------------------------------------------------------------------------------------------ hardware
+# Opt-in (pytest -m hardware -s), in the order of the README's "First session on the real arm", on a powered WAM
+# on WAMCTL_CAN_INTERFACE / WAMCTL_CAN_CHANNEL with the safety module idle. The tests print what the operator must
+# do; WAMCTL_HW_AT_HOME=1 confirms in advance that the arm is at its home pose (for zeroing), WAMCTL_HW_MOVE=1
+# allows the short slow move.
 
 HW_INTERFACE = os.environ.get("WAMCTL_CAN_INTERFACE", "socketcan")
 HW_CHANNEL = os.environ.get("WAMCTL_CAN_CHANNEL", "can0")
+HW_AT_HOME = os.environ.get("WAMCTL_HW_AT_HOME") == "1"
+
+
+class PrintOperator(ScriptedOperator):
+    """The hardware tests' operator: prints what the session says (run pytest with -s)."""
+
+    def say(self, text):
+        super().say(text)
+        print(f">>> {text}", flush=True)
+
+    def countdown(self, text, remaining_s):
+        if int(remaining_s) % 10 == 0:
+            print(f"    {text}: {remaining_s:.0f} s", flush=True)
+
+
+def _hw_backend(**settings) -> CanBackend:
+    s = SessionSettings(**{"zeroing_confirmed": HW_AT_HOME, "idle_wait_s": 30.0, **settings})
+    return CanBackend(HW_INTERFACE, HW_CHANNEL, q0_rad=None, session=s, operator=PrintOperator())
 
 
 @pytest.mark.hardware
-def test_hardware_bus_check_finds_the_wam():
-    """Opt-in (pytest -m hardware): a powered WAM on WAMCTL_CAN_INTERFACE / WAMCTL_CAN_CHANNEL."""
-    from wamctl.backends.can.bus_tools import bus_check
+def test_hardware_1_bus_check_shows_the_safety_module_and_a_wam7_with_wrist():
+    """Step 1: the safety module answers, the pucks are a 7-DOF WAM with wrist in groups 1/2/4."""
+    from wamctl.backends.can.bus_check import bus_check
     r = bus_check(HW_INTERFACE, HW_CHANNEL, window_s=1.0, poll_hz=500.0)
-    assert r["missing_wam_pucks"] == [] and r["problems"] == []
+    assert r["safety_module"] is not None and r["safety_module"]["firmware_ok"]
+    assert r["missing_wam_pucks"] == [] and r["problems"] == [], r["problems"]
+    assert [p["poles"] for p in r["pucks"] if p["puck_id"] == 7] == [6]
     assert r["load"]["complete_polls"] > 0
 
 
 @pytest.mark.hardware
-def test_hardware_open_and_close_leave_the_pucks_idle():
-    """Opt-in: probing and closing never enable torque (the arm may rest anywhere: no start check)."""
-    b = CanBackend(HW_INTERFACE, HW_CHANNEL, q0_rad=None)
-    with b:
-        assert sorted(b.pucks) == list(range(1, 8))
-        q = b.read_positions()
-        assert np.isfinite(q).all()
+def test_hardware_2_nobody_activates_nothing_is_applied():
+    """Step 2 (do NOT press Shift-Activate): the session starts (zeroing if needed, confirmed by WAMCTL_HW_AT_HOME),
+    polls with zero torque, and ends after the timeout with the pucks idle."""
+    b = _hw_backend(activation_timeout_s=5.0)
+    with pytest.raises(BackendError, match="Shift-Activate was not pressed within 5 s: nothing was applied"):
+        b.open()
     assert b.idle_confirmed == list(range(1, 8))
+    assert b.start is not None and b.start.safety.zeroed
+
+
+@pytest.mark.hardware
+def test_hardware_3_shift_activate_then_shift_idle():
+    """Step 3 (hold the arm): press Shift-Activate when asked; the session confirms every puck in TORQUE (set by the
+    safety module, never by wamctl), then idles the pucks at once and waits for your Shift-Idle."""
+    b = _hw_backend(activation_timeout_s=60.0)
+    with b:
+        assert b.torque_mode_confirmed
+    assert b.idle_confirmed == list(range(1, 8))
+    assert "safety module: Shift-idle" in b.session_log["left"]
+
+
+@pytest.mark.hardware
+@pytest.mark.skipif(os.environ.get("WAMCTL_HW_MOVE") != "1", reason="set WAMCTL_HW_MOVE=1 to move the arm")
+def test_hardware_4_short_slow_move(runs_dir):
+    """Step 4: the elbow (joint 4) 0.1 rad and back at 0.05 rad/s under PD + gravity, from (0, 0, 0, 1.57, 0, 0, 0):
+    put the arm there when asked, then Shift-Activate."""
+    spec = parse_spec(rotation_spec(
+        name="hw-first-move", rotation={"joints": [4], "mode": "one_at_a_time", "amplitude_rad": 0.1,
+                                        "velocity_rad_s": 0.05, "settle_s": 0.5, "hold_s": 1.0},
+        backend={"kind": "can", "interface": HW_INTERFACE, "channel": HW_CHANNEL, "zeroing_confirmed": HW_AT_HOME,
+                 "idle_wait_s": 30.0}))
+    from wamctl.backends.can.operator import use_operator
+    with use_operator(PrintOperator()):
+        outcome = run_spec(spec, None, runs_dir, make_report=True)
+    assert outcome.status == "completed", outcome.reason

@@ -49,6 +49,7 @@ from wamctl.backends.can.protocol.properties import (
     parse_host_property_message,
     parse_property_reply,
 )
+from wamctl.backends.can.protocol.safety import SAFETY_BROADCAST_ID
 from wamctl.backends.can.protocol.torques import (
     IPNM_DEFAULT,
     MAX_PUCK_TORQUE,
@@ -59,7 +60,8 @@ from wamctl.backends.can.protocol.torques import (
     puck_units_to_motor_Nm,
     unpack_torques,
 )
-from wamctl.backends.can.puck_sim import PlantAdapter, PuckSimulator, StaticPlant
+from wamctl.backends.can.sim.pucks import PlantAdapter, StaticPlant
+from wamctl.backends.can.sim.simulator import PuckSimulator
 from wamctl.errors import BackendError
 from wamctl.model.transmission import (
     J2MP,
@@ -151,10 +153,17 @@ def test_property_reply_16bit_and_malformed() -> None:
     assert issubclass(PuckFrameError, BackendError)
 
 
-def test_firmware_check() -> None:
-    check_firmware_version(1, MIN_FIRMWARE_VERSION)
-    with pytest.raises(BackendError, match="puck 3"):
+def test_firmware_check_names_the_ids_of_older_firmware() -> None:
+    # libbarrett property_list.cpp: VERS 65 on names CTS 68, IPNM 86, PIDX 70, POLES 90; VERS 64: 66, 83, 68, 87
+    assert MIN_FIRMWARE_VERSION == 65
+    check_firmware_version(1, 65)
+    assert (Prop.CTS, Prop.IPNM, Prop.PIDX, Prop.POLES, Prop.GRPA, Prop.GRPC) == (68, 86, 70, 90, 26, 28)
+    with pytest.raises(BackendError, match=r"puck 3: firmware VERS=64 .*CTS 66, IPNM 83, PIDX 68, POLES 87"):
+        check_firmware_version(3, 64)
+    with pytest.raises(BackendError, match=r"VERS=62 .*CTS 65, IPNM 83, PIDX 67"):
         check_firmware_version(3, 62)
+    with pytest.raises(BackendError, match="below VERS 61 every property id differs"):
+        check_firmware_version(3, 50)
 
 
 # ------------------------------------------------------------------------------------------ 22-bit positions
@@ -379,13 +388,15 @@ def host(channel: str):
 
 
 def recv_until(bus: can.BusABC, n: int, timeout_s: float = RECV_TIMEOUT_S) -> list[can.Message]:
-    """Receive up to ``n`` frames, giving up ``timeout_s`` after the last one arrived."""
+    """Receive up to ``n`` frames, giving up ``timeout_s`` after the last one arrived; the safety module's
+    broadcasts (0x540) are skipped, as libbarrett does."""
     out: list[can.Message] = []
     while len(out) < n:
         msg = bus.recv(timeout=timeout_s)
         if msg is None:
             break
-        out.append(msg)
+        if msg.arbitration_id != SAFETY_BROADCAST_ID:
+            out.append(msg)
     return out
 
 
@@ -434,11 +445,14 @@ def test_probe_properties(channel: str, host: can.BusABC) -> None:
         host.send(make_get_property(GROUP_WAM, Prop.IPNM))
         replies = [parse_property_reply(m) for m in recv_until(host, 7)]
         assert sorted(r.puck_id for r in replies) == list(WAM_PUCK_IDS)
-        # MODE set to the whole WAM, read back
+        # MODE=TORQUE from the host is ignored (only the safety module sets it), and counted
         host.send(make_set_property(GROUP_WAM, Prop.MODE, Mode.TORQUE))
-        assert wait_for(lambda: set(sim.modes().values()) == {Mode.TORQUE})
+        assert wait_for(lambda: sim.stats.host_mode_writes_refused == 7)
+        assert set(sim.modes().values()) == {Mode.IDLE}
+        # Shift-Activate on the pendant: the safety module puts every puck into TORQUE
+        sim.press("activate")
+        assert set(sim.modes().values()) == {Mode.TORQUE}
         assert get_property(host, 6, Prop.MODE) == Mode.TORQUE
-        assert sim.stats.property_sets == 1
 
 
 def test_position_request_round_trip(channel: str, host: can.BusABC) -> None:
@@ -481,8 +495,8 @@ def test_torque_frames_reach_the_right_joints(channel: str, host: can.BusABC) ->
         assert wait_for(lambda: sim.stats.torque_frames == 2)
         assert np.all(sim.puck_torque_units() == 0) and np.all(plant.tau_Nm == 0)
 
-        host.send(make_set_property(GROUP_WAM, Prop.MODE, Mode.TORQUE))
-        assert wait_for(lambda: set(sim.modes().values()) == {Mode.TORQUE})
+        sim.press("activate")
+        assert set(sim.modes().values()) == {Mode.TORQUE}
         units = joint_torque_to_puck_units(tau)
         for frame in make_torque_frames(units):
             host.send(frame)
@@ -514,8 +528,8 @@ def test_torque_slots_follow_pidx(channel: str, host: can.BusABC) -> None:
     with PuckSimulator(StaticPlant(), channel=channel, pidx=pidx) as sim:
         probed = {p: get_property(host, p, Prop.PIDX) for p in WAM_PUCK_IDS}
         assert probed == pidx
-        host.send(make_set_property(GROUP_WAM, Prop.MODE, Mode.TORQUE))
-        assert wait_for(lambda: set(sim.modes().values()) == {Mode.TORQUE})
+        sim.press("activate")
+        assert set(sim.modes().values()) == {Mode.TORQUE}
         units = np.array([100, 200, 300, 400, 500, 600, 700])
         for frame in make_torque_frames(units, probed):
             host.send(frame)
@@ -526,16 +540,20 @@ def test_torque_slots_follow_pidx(channel: str, host: can.BusABC) -> None:
 
 
 def test_wake_from_monitor(channel: str, host: can.BusABC) -> None:
-    with PuckSimulator(StaticPlant(), channel=channel, start_awake=False):
+    """Woken as libbarrett does (10 ms apart, then silence longer than the wake window), the pucks answer."""
+    with PuckSimulator(StaticPlant(), channel=channel, start_awake=False, wake_s=0.1) as sim:
         assert get_property(host, 1, Prop.STAT) == Status.RESET
         assert get_property(host, 1, Prop.VERS) is not None  # the monitor answers VERS
         assert get_property(host, 1, Prop.MODE) is None  # but not motor properties
         assert read_positions(host) == {}
         for puck in WAM_PUCK_IDS:
             host.send(make_set_property(puck, Prop.STAT, Status.READY))
-        assert wait_for(lambda: get_property(host, 7, Prop.STAT) == Status.READY)
+            time.sleep(0.011)
+        time.sleep(0.15)
+        assert get_property(host, 7, Prop.STAT) == Status.READY
         assert get_property(host, 1, Prop.MODE) == Mode.IDLE
         assert len(read_positions(host)) == 7
+        assert sim.stats.bus_off_events == 0
 
 
 # ------------------------------------------------------------------------------------------ faults
@@ -617,8 +635,9 @@ def test_fault_stop_answering(channel: str, host: can.BusABC) -> None:
         sim.stop_answering()
         assert read_positions(host) == {}
         # commands are still obeyed while silent on the bus
-        host.send(make_set_property(GROUP_WAM, Prop.MODE, Mode.TORQUE))
-        assert wait_for(lambda: set(sim.modes().values()) == {Mode.TORQUE})
+        sim.press("activate")
+        host.send(make_set_property(GROUP_WAM, Prop.MODE, Mode.IDLE))
+        assert wait_for(lambda: set(sim.modes().values()) == {Mode.IDLE})
         sim.resume_answering()
         assert len(read_positions(host)) == 7
 
@@ -676,15 +695,13 @@ def test_position_round_trip_over_the_bus_property(q: np.ndarray) -> None:
     assert np.all(np.abs(err) <= 0.5 + 1e-6)
 
 
-def test_all_pucks_in_a_cycle_latency(channel: str, host: can.BusABC) -> None:
-    """A 500 Hz cycle's traffic (request, 7 replies, 2 torque frames) round-trips quickly."""
+def test_all_pucks_answer_every_cycle(channel: str, host: can.BusABC) -> None:
+    """200 cycles of a 500 Hz cycle's traffic (request, 7 replies, 2 torque frames): every reply arrives (the
+    time it takes is benchmarks/bench_can_loop.py's business)."""
     with PuckSimulator(StaticPlant(Q_TEST), channel=channel) as sim:
         frames = make_torque_frames(np.zeros(7))
-        t0 = time.perf_counter()
         for _ in itertools.repeat(None, 200):
             assert len(read_positions(host)) == 7
             for frame in frames:
                 host.send(frame)
-        per_cycle_s = (time.perf_counter() - t0) / 200
         assert wait_for(lambda: sim.stats.torque_frames == 400)
-    assert per_cycle_s < 0.02  # generous: CI machines vary; the benchmark measures the real figure

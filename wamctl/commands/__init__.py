@@ -8,4 +8,4 @@ CLI, and tests never take library code from here.
 
 # command modules, in the order their commands appear in ``wamctl --help``
 COMMAND_MODULES = ("data", "report", "run", "friction", "diagnose", "identify", "ift", "hmi", "gaze", "bus",
-                   "sweep")
+                   "sim_arm", "sweep")

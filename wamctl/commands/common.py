@@ -56,6 +56,7 @@ def progress_bar(description: str, enabled: bool = True):
 
         def update(done: int, total: int, label: str | None = None):
             prog.update(task, completed=done, total=total, **({"description": label} if label else {}))
+        update.progress = prog  # lets a terminal prompt pause the bar
         yield update
 
 
@@ -69,6 +70,8 @@ OutOpt = Annotated[Path | None, typer.Option("--out", help="Parent directory of 
                                                 "(default: the spec's out_dir, normally runs/).")]
 QuietOpt = Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no tables.")]
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (for scripts).")]
+YesOpt = Annotated[bool, typer.Option("--yes", "-y", help="Real arm: answer the session's questions with yes (the "
+                                      "arm is at its home pose for zeroing); Shift-Activate stays the operator's.")]
 
 
 def print_document_tables(doc, out: Console | None = None) -> None:
@@ -185,7 +188,7 @@ def pack_columns(widths: list[int], is_key: list[bool], total: int) -> list[list
 
 
 def run_and_report(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as_json: bool,
-                   expect_kind: str | None = None, files=None) -> None:
+                   expect_kind: str | None = None, files=None, yes: bool = False) -> None:
     """Shared by `run` and the per-kind commands (`friction-id`, `tune-ift`, `hmi-session`).
 
     ``files(run_path) -> {name: path}`` names products of the run to show (e.g. the friction model file)."""
@@ -207,14 +210,19 @@ def run_and_report(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool
                 console.print(f"[green]ok[/] {c}")
             console.print("dry run: nothing moved")
         return
-    with progress_bar(f"{spec.kind} {spec.name}", enabled=not (quiet or as_json)) as progress:
+    from wamctl.backends.can.operator import use_operator
+    from wamctl.commands.terminal_operator import TerminalOperator
+
+    label = f"{spec.kind} {spec.name}"
+    with progress_bar(label, enabled=not (quiet or as_json)) as progress, \
+            use_operator(TerminalOperator(yes=yes, progress=progress, label=label)):  # the CAN session's operator
         outcome = run_spec(spec, base, out, progress, make_report=False)
     show_outcome(outcome, quiet, as_json, files(outcome.path) if files else None)
 
 
 def show_outcome(outcome, quiet: bool, as_json: bool, files: dict | None = None) -> None:
     """A finished run on the terminal: write its report, print its tables (or a JSON summary) and the status;
-    exit code 1 unless it completed."""
+    exit code 0 when it completed, 2 when it was refused before anything moved, else 1."""
     from wamctl.report import write_report
 
     doc = write_report(outcome.path) if outcome.status == "completed" else None
@@ -232,4 +240,4 @@ def show_outcome(outcome, quiet: bool, as_json: bool, files: dict | None = None)
         (console if outcome.status == "completed" else err_console).print("\n".join(lines), highlight=False,
                                                                           soft_wrap=True)
     if outcome.status != "completed":
-        raise typer.Exit(1)
+        raise typer.Exit(outcome.exit_code or 1)

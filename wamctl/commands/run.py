@@ -6,20 +6,20 @@ from typing import Annotated
 
 import typer
 
-from wamctl.commands.common import JsonOpt, OutOpt, QuietOpt, SpecArg, console, emit_json, run_and_report
+from wamctl.commands.common import JsonOpt, OutOpt, QuietOpt, SpecArg, YesOpt, console, emit_json, run_and_report
 
 
 def run(spec: SpecArg, out: OutOpt = None,
         dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan and check every setpoint "
                                               "against the limits; move nothing.")] = False,
-        quiet: QuietOpt = False, json: JsonOpt = False):
+        quiet: QuietOpt = False, json: JsonOpt = False, yes: YesOpt = False):
     """Run any experiment spec (rotation, friction_sweep, ift, hmi_block) into a new run directory, then report.
 
     The run directory (runs/<UTC time>-<name>/) holds the resolved spec, a manifest (seed, versions, git
     revision, backend, status), the data as Parquet and CSV, events, and the report. Exit code 0 when the run
     completed, 1 when it failed (safety limit, device), 2 for a bad spec, 130 when interrupted.
     """
-    run_and_report(spec, out, dry_run, quiet, json)
+    run_and_report(spec, out, dry_run, quiet, json, yes=yes)
 
 
 def validate(spec: SpecArg,

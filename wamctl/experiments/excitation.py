@@ -143,9 +143,9 @@ def execute(spec: ExcitationSpec, plan: ExcitationPlan, run: RunDir, progress=No
     run.write_json("excitation.json", {"trajectory": plan.trajectory.to_dict(),
                                        "q0_rad": [float(v) for v in plan.trajectory.q0_rad],
                                        "limits_used": _use_dict(plan.limit_use)})
+    controller = make_joint_controller(spec, plan.feedforward_Nm)  # built before the arm is live (no heartbeat gap)
     with make_backend(spec, base_dir) as backend:
-        run.update_manifest(backend=backend.describe())
-        closed_loop_stage(backend, make_joint_controller(spec, plan.feedforward_Nm), plan.reference, run, progress)
+        closed_loop_stage(backend, controller, plan.reference, run, progress)
 
 
 def _use_dict(use: LimitUse) -> dict:

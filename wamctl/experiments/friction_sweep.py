@@ -108,18 +108,18 @@ def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, bas
             return None
         return lambda done, total, _l=None: progress(offset + done, n_total + n_val, label)
 
+    controller = make_joint_controller(spec, plan.feedforward_Nm)  # built before the arm is live
     with make_backend(spec, base_dir) as backend:
-        run.update_manifest(backend=backend.describe())
-        closed_loop_stage(backend, make_joint_controller(spec, plan.feedforward_Nm), ref, run,
-                          sub_progress(0, "friction sweep"))
+        closed_loop_stage(backend, controller, ref, run, sub_progress(0, "friction sweep"))
     result = identify(load_run_data(run.path), spec.identification.model_dump(),
                       dynamics=declared_dynamics(spec, base_dir))
     write_identification(run.path, result)
     offset = n_total
     for kind, rspec in val_specs.items():
         rp = _rotation_plan(rspec, base_dir)
+        controller = make_joint_controller(rspec, rp.feedforward_Nm)
         with make_backend(rspec, base_dir, seed=spec.seed + 1) as backend:
-            closed_loop_stage(backend, make_joint_controller(rspec, rp.feedforward_Nm), rp.reference, run,
+            closed_loop_stage(backend, controller, rp.reference, run,
                               sub_progress(offset, f"rotation test {kind}"), table=VALIDATION_TABLES[kind])
         offset += len(rp.reference)
 

@@ -39,6 +39,6 @@ def plan(spec: RotationSpec, base_dir: Path | None = None) -> Plan:
 def execute(spec: RotationSpec, plan: Plan, run: RunDir, progress=None, base_dir: Path | None = None) -> None:
     for i, label in plan.reference.segments:
         run.event(plan.reference.t_s[i], "segment", None, label)
+    controller = make_joint_controller(spec, plan.feedforward_Nm)  # built before the arm is live (no heartbeat gap)
     with make_backend(spec, base_dir) as backend:
-        run.update_manifest(backend=backend.describe())
-        closed_loop_stage(backend, make_joint_controller(spec, plan.feedforward_Nm), plan.reference, run, progress)
+        closed_loop_stage(backend, controller, plan.reference, run, progress)

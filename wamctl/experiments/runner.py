@@ -12,7 +12,7 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 
-from wamctl.errors import SafetyLimitError, WamctlError
+from wamctl.errors import ConfigurationRefused, SafetyLimitError, WamctlError
 from wamctl.report import write_report
 from wamctl.runs.store import RunDir
 from wamctl.specs import Common
@@ -36,6 +36,9 @@ class RunOutcome:
     path: Path
     status: str
     reason: str | None
+    exit_code: int = 0
+    """0 completed; 2 refused before anything moved (a configuration the model does not describe, like a bad
+    spec); 1 any other failure."""
 
 
 @contextmanager
@@ -62,16 +65,16 @@ def record_outcome(run: RunDir, body, resume_hint: bool = False) -> RunOutcome:
 
     Raises RunInterrupted when interrupted (the data so far are on disk); programming errors propagate after
     the run is marked failed."""
-    status, reason = "completed", None
+    status, reason, exit_code = "completed", None, 0
     with signals_as_interrupt():
         try:
             body()
         except KeyboardInterrupt as exc:
             status, reason = "interrupted", f"stopped by {exc.args[0] if exc.args else 'Ctrl-C'}"
         except SafetyLimitError as exc:
-            status, reason = "failed", f"safety limit: {exc}"
+            status, reason, exit_code = "failed", f"safety limit: {exc}", 1
         except WamctlError as exc:
-            status, reason = "failed", str(exc)
+            status, reason, exit_code = "failed", str(exc), 2 if isinstance(exc, ConfigurationRefused) else 1
         except BaseException as exc:
             run.finish("failed", f"{type(exc).__name__}: {exc}")
             raise
@@ -79,7 +82,7 @@ def record_outcome(run: RunDir, body, resume_hint: bool = False) -> RunOutcome:
     if status == "interrupted":
         hint = f"; continue with --resume {run.path}" if resume_hint else ""
         raise RunInterrupted(f"{run.path}: interrupted ({reason}); the data recorded so far are readable{hint}")
-    return RunOutcome(run.path, status, reason)
+    return RunOutcome(run.path, status, reason, exit_code)
 
 
 def plan_only(spec: Common, base_dir: Path | None = None) -> tuple[list[str], list[str]]:

@@ -32,13 +32,18 @@ class SimulatedFault(Strict):
     of the CAN link watchdog. ``drop_replies``: replies lost with ``probability``; ``silent_puck``: ``puck``
     neither answers nor obeys; ``garbage_replies``: replies replaced by malformed frames with ``probability``;
     ``garbage_frames``: ``count`` malformed frames sent at once; ``stop_answering``: no puck answers;
-    ``bus_error``: the host's next ``count`` transmissions fail with ``can.CanError``."""
+    ``bus_error``: the host's next ``count`` transmissions fail with ``can.CanError``; ``shift_idle``,
+    ``estop``: the operator presses them on the pendant; ``velocity_fault``: the safety module trips VL2."""
     kind: Literal["drop_replies", "silent_puck", "garbage_replies", "garbage_frames", "stop_answering",
-                  "bus_error"]
+                  "bus_error", "shift_idle", "estop", "velocity_fault"]
     at_cycle: int = Field(250, ge=0, description="control cycle (0 = first) at which the fault starts")
     puck: Joint = Field(7, description="silent_puck: the puck (1..7)")
     probability: float = Field(1.0, gt=0.0, le=1.0)
     count: int = Field(1, ge=1, le=1000)
+
+
+_PENDANT_ITEM = r"(activate|idle|estop|move)@[0-9]+(\.[0-9]*)?|idle@end"
+_PENDANT_SCRIPT = rf"^(never|({_PENDANT_ITEM})(,({_PENDANT_ITEM}))*)$"  # wamctl.backends.can.sim.pendant
 
 
 class CanBackendSpec(Strict):
@@ -55,6 +60,20 @@ class CanBackendSpec(Strict):
                                        description="largest |q - q0_rad| accepted at start-up, per joint")
     physics_substeps: int = Field(2, ge=1, le=50, description="simulate_pucks: physics steps per control period")
     simulated_fault: SimulatedFault | None = Field(None, description="simulate_pucks: inject a link fault")
+    # the session the safety system expects (issue 14)
+    bus_options: dict[str, str | int | float | bool] = Field(
+        default_factory=dict, description="further python-can Bus arguments, e.g. {port: 43113} for udp_multicast")
+    zeroing_confirmed: bool = Field(False, description="the arm is at its home pose: zero it without asking (--yes)")
+    activation_timeout_s: float = Field(60.0, gt=0.0, le=3600.0,
+                                        description="wait for Shift-Idle, the start pose and Shift-Activate")
+    idle_wait_s: float = Field(10.0, ge=0.0, le=600.0, description="after the run, wait for Shift-Idle")
+    # a spec may lower the safety module's limits, never raise them above Barrett's defaults or switch them off
+    velocity_limit_m_s: float | None = Field(None, gt=0.0, le=1.0, description="safety module VL2 (VL1 = 0.9 "
+                                             "VL2), at most Barrett's 1.0 m/s; default: the module's EEPROM limits")
+    torque_limit_Nm: float | None = Field(None, gt=0.0, le=1.92, description="safety module TL2 in motor N m at "
+                                          "IPNM 2700 (TL1 = 0.9 TL2), at most Barrett's 5204 units; default: EEPROM")
+    simulated_pendant: str = Field("activate@0.2,idle@end", pattern=_PENDANT_SCRIPT,
+                                   description="simulate_pucks: the pendant's script, e.g. activate@0.2,idle@end")
 
     @model_validator(mode="after")
     def _fault_needs_simulation(self):

@@ -1,46 +1,40 @@
-"""The real arm over CAN: a backend speaking the Barrett puck protocol through python-can.
+"""The real arm over CAN: a backend speaking the Barrett puck protocol through python-can, in a session the way
+Barrett's safety system expects it (libbarrett's order; see :mod:`.session` for the start).
 
-:class:`CanBackend` implements the backend protocol of :class:`~wamctl.backends.base.ArmBackend` (the same
-as the simulator's), so the same specs, run directories and reports work on the arm:
+:class:`CanBackend` implements the backend protocol of :class:`~wamctl.backends.base.ArmBackend`:
 
-- ``_open``: open ``can.Bus(interface=..., channel=..., bitrate=...)`` (python-can imports the vendor driver
-  of the chosen interface only), probe pucks 1..7 (a get of STAT each), wake those in the monitor
-  (STAT=READY), read VERS (firmware check), ROLE, CTS, IPNM and PIDX, read the positions and check them
-  against the spec's start configuration. The pucks stay idle until the first torque command, which is
-  preceded by MODE=TORQUE (so there is no moment of zero torque in TORQUE mode while the caller gets ready)
-  and followed by a get of MODE, whose replies the next cycles check (a puck not in TORQUE mode trips).
-- ``_read_positions``: one get of P to the whole-WAM group (0x404), the seven 22-bit replies decoded to motor
-  counts, turned into joint angles through ``J2MP`` and each puck's CTS.
-- ``_send_torques``: joint torques -> motor torques (``J2MP^-T``) -> puck units (IPNM) -> the two packed
-  14-bit frames (0x401 pucks 1-4, 0x402 pucks 5-7, slots by PIDX).
-- ``_wait_next_cycle``: 500 Hz on absolute deadlines ``t0 + k T`` (``time.perf_counter``, monotonic): sleep
-  to just before the deadline, then yield until it; a cycle that ends after its deadline is an *overrun*
-  (counted; release points already in the past are skipped, so the loop neither drifts nor bursts).
-- ``_close``: zero torque (by the base), pucks to IDLE (read back), bus shut down.
+- ``_open``: open the bus; the start of the session (:func:`~.session.start_session`: safety module, limits,
+  Shift-Idle, wake with libbarrett's pacing, the arm's configuration, zeroing after confirmation); then the
+  heartbeat: positions polled at 500 Hz with zero torque (the polling is what the safety module watches);
+  the operator is asked to put the arm at the spec's start pose, then to press Shift-Activate (countdowns,
+  timeouts). wamctl never sets MODE=TORQUE: it waits until the safety module reports active and every puck
+  reports TORQUE, then hands over to the run. A timeout ends the session with nothing applied.
+- ``_read_positions``: one get of P to the whole-WAM group (0x404), the replies decoded to motor counts (3 or
+  6 bytes), turned into joint angles through ``J2MP`` and each puck's CTS; replies of the safety monitor
+  (:mod:`.monitor`) read on the way.
+- ``_send_torques``: joint torques -> motor torques (``J2MP^-T``) -> puck units (IPNM) -> the two packed 14-bit
+  frames (0x401 pucks 1-4, 0x402 pucks 5-7, slots by PIDX).
+- ``_wait_next_cycle``: every 25 cycles (50 ms) the safety module's PEN and MODE and the pucks' MODE are asked
+  for; then the wait for the next release point ``t0 + k T`` (:mod:`.timing`).
+- ``_close``: zero torque (the base), MODE=IDLE to the WAM (read back), the heartbeat goes on while the
+  operator is asked to press Shift-Idle, then the report of the state the arm is left in.
 
-Link watchdog (on top of the base's saturation, position limits and velocity fault): position replies
-missing or later than ``reply_timeout_s`` for more than ``watchdog_cycles`` consecutive cycles, a malformed
-("garbage") frame from a WAM puck, or a transmit error (``can.CanError``) zero the torques, put the pucks
-in IDLE and raise :class:`~wamctl.errors.SafetyLimitError` (link faults) or
-:class:`~wamctl.errors.BackendError` (transmit errors): the runner ends the run as failed with the reason,
-keeping every sample recorded so far. While replies are missing (up to the tolerance) the last positions
-received are held. Loop statistics (overruns, period jitter, late replies) and the watchdog's verdict are
-in :meth:`CanBackend.describe`; events (overruns, faults) in :meth:`CanBackend.drain_events`.
+Stops: the safety module leaving active (Shift-Idle: the run is *interrupted*; E-stop, velocity, torque or
+heartbeat fault: *failed*, the reason in words), a puck leaving TORQUE, the module falling silent, position
+replies missing or late for more than ``watchdog_cycles`` cycles, a malformed frame from a puck, or a transmit
+error: zero torque at once, pucks IDLE, the reason raised (:class:`~wamctl.errors.SafetyLimitError`,
+:class:`~wamctl.errors.BackendError` or :class:`~.monitor.PendantStop`); the runner keeps every sample.
 
-Simulated pucks (``simulate_pucks: true``, virtual bus only) and injected faults (``backend.simulated_fault``):
-see :mod:`wamctl.backends.can.simulated_arm`.
+Defaults for a lab PC without a real-time kernel (see the README): ``reply_timeout_s`` 1.5 ms = the bus time
+of the request and seven replies (75 us each, Barrett's CAN timing: 0.6 ms) plus 0.9 ms for the host's
+scheduling jitter; ``watchdog_cycles`` 3 (6 ms without a complete set of replies).
 
-Limits: torque frames get no reply, so a torque frame lost on the way (SocketCAN can drop transmit frames
-silently) is noticed only through the position replies; and a puck that neither answers nor listens cannot
-be commanded at all: the host sends zero torque and IDLE, the other pucks obey, that puck keeps its last
-command (the WAM's safety module is the backstop).
-
+Simulated pucks (``simulate_pucks: true``, virtual bus only), injected faults: :mod:`.simulated_arm`.
 Conventions: pucks 1..7 on the bus, arrays 0..6; SI units in names; the host is node 0.
 """
 
 from __future__ import annotations
 
-import dataclasses
 import logging
 import time
 from pathlib import Path
@@ -51,60 +45,54 @@ import numpy as np
 
 from wamctl.backends.base import ArmBackend, SafetyLimits
 from wamctl.backends.can.bus_tools import (
-    ALL_WAM_PUCKS,
     PROBE_TIMEOUT_S,
     TX_TIMEOUT_S,
-    PuckInfo,
-    check_motor_pucks,
     open_bus,
-    probe_pucks,
     read_property,
-    recv_until,
 )
+from wamctl.backends.can.link import Link
+from wamctl.backends.can.monitor import SafetyMonitor, stop_reason
+from wamctl.backends.can.operator import Operator, current_operator
 from wamctl.backends.can.protocol.addressing import (
     FEEDBACK_OTHER,
-    FEEDBACK_OTHER_TARGET,
     FEEDBACK_POSITION,
-    FEEDBACK_POSITION_TARGET,
     GROUP_WAM,
-    MAX_CAN_ID,
     N_JOINTS,
+    SAFETY_PUCK_ID,
     TO_MASK,
     TORQUE_GROUPS,
     WAM_PUCK_IDS,
-    BusId,
     PuckFrameError,
-    decode_bus_id,
 )
-from wamctl.backends.can.protocol.positions import make_position_request, parse_position_reply
-from wamctl.backends.can.protocol.properties import (
-    CTS_DEFAULT,
-    Mode,
-    Prop,
-    make_get_property,
-    make_set_property,
-    parse_property_reply,
-)
+from wamctl.backends.can.protocol.positions import make_position_request
+from wamctl.backends.can.protocol.properties import CTS_DEFAULT, Mode, Prop, make_set_property
+from wamctl.backends.can.protocol.safety import SafetyMode, SafetyProp, decode_pen
 from wamctl.backends.can.protocol.torques import (
     IPNM_DEFAULT,
     joint_torque_to_puck_units,
     pack_torques,
     torque_slot_of_puck,
 )
+from wamctl.backends.can.session import SessionSettings, StartState, start_session
 from wamctl.backends.can.simulated_arm import SimulatedArm, build_simulated_arm, inject_fault
-from wamctl.backends.can.timing import LoopTiming, sleep_until
-from wamctl.errors import BackendError, SafetyLimitError
+from wamctl.backends.can.timing import LoopTiming, RealtimeSection, sleep_until
+from wamctl.backends.can.waits import SessionWaits
+from wamctl.errors import BackendError
 from wamctl.model import params as P
-from wamctl.model.transmission import J2MP, counts_to_joint_rad, load_kernels
+from wamctl.model.transmission import J2MP, load_kernels
 
 logger = logging.getLogger(__name__)
 
 __all__ = ["CanBackend"]
 
 MAX_OVERRUN_EVENTS = 20  # overruns recorded one by one as events; the rest only counted
+POLL_RUN_CYCLES = 25  # the safety module and the pucks' MODE every 50 ms during the run
+POLL_WAIT_CYCLES = 5  # the safety module every 10 ms while waiting for Shift-Activate / Shift-Idle
+DEFAULT_PENDANT = "activate@0.2,idle@end"  # in-process simulated operator
+FIRST_READ_TIMEOUT_S = 1.0  # libbarrett CommunicationsBus::TIMEOUT
 
 
-class CanBackend(ArmBackend):
+class CanBackend(SessionWaits, Link, ArmBackend):
     """The WAM over CAN (see the module docstring).
 
     Parameters
@@ -113,61 +101,93 @@ class CanBackend(ArmBackend):
         python-can interface and channel.
     bitrate : int
         Bit/s.
-    q0_rad : array_like, shape (7,)
-        Where the arm must be at start-up (within ``start_tolerance_rad`` per joint).
+    q0_rad : array_like, shape (7,), optional
+        The run's start pose: the operator is asked to put the arm there (within the session's
+        ``start_tolerance_rad``) before Shift-Activate. None: no start pose (tools, hardware checks).
     watchdog_cycles : int
         Consecutive cycles with missing or late position replies tolerated; one more trips the watchdog.
     reply_timeout_s : float
         Wait for the seven position replies of a cycle.
-    start_tolerance_rad : float
-        Largest accepted ``|q - q0|`` at start-up.
     limits : SafetyLimits, optional
+    session : SessionSettings, optional
+        Timeouts, zeroing confirmation, the safety module's limits, the start tolerance.
+    operator : Operator, optional
+        Who is told and asked (default: :func:`~.operator.current_operator`).
+    bus_options : dict, optional
+        Further :class:`can.Bus` arguments (e.g. ``port`` of ``udp_multicast``).
     simulated_arm : SimulatedArm, optional
         Run simulated pucks driven by this arm on the (virtual) channel.
     sim_cts : int
         CTS of the simulated pucks.
     simulated_fault : wamctl.specs.SimulatedFault, optional
         A fault to inject at a given cycle (simulated pucks only).
+    simulated_pendant : str
+        The simulated pendant's script (:mod:`.sim.pendant`).
     seed : int, optional
-        Seed of the simulated pucks' fault draws.
+        Seed of the simulated pucks' draws.
+    realtime : bool
+        From the heartbeat on: the garbage collector frozen and off, SCHED_FIFO (priority 50) if permitted
+        (:class:`~.timing.RealtimeSection`). Off for simulated pucks in this process (they need the CPU).
+    cpu : int, optional
+        Pin the loop's thread to this CPU.
     """
 
     name = "can"
 
     def __init__(self, interface: str, channel: str, bitrate: int = 1_000_000, *, q0_rad=None,
-                 watchdog_cycles: int = 3, reply_timeout_s: float = 0.0015, start_tolerance_rad: float = 0.05,
-                 limits: SafetyLimits | None = None, simulated_arm: SimulatedArm | None = None,
-                 sim_cts: int = CTS_DEFAULT, simulated_fault=None, seed: int | None = None) -> None:
+                 watchdog_cycles: int = 3, reply_timeout_s: float = 0.0015, limits: SafetyLimits | None = None,
+                 session: SessionSettings | None = None, operator: Operator | None = None,
+                 bus_options: dict | None = None, simulated_arm: SimulatedArm | None = None,
+                 sim_cts: int = CTS_DEFAULT, simulated_fault=None, simulated_pendant: str = DEFAULT_PENDANT,
+                 seed: int | None = None, realtime: bool = True, cpu: int | None = None) -> None:
         super().__init__(limits)
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
+        self.bus_options = dict(bus_options or {})
         self.q0_rad = None if q0_rad is None else np.asarray(q0_rad, float).copy()
         self.watchdog_cycles = int(watchdog_cycles)
         self.reply_timeout_s = float(reply_timeout_s)
-        self.start_tolerance_rad = float(start_tolerance_rad)
+        self.settings = session or SessionSettings()
+        self.operator = operator if operator is not None else current_operator(self.settings.zeroing_confirmed)
         self.simulated_arm = simulated_arm
         self.simulated_fault = simulated_fault
+        self.simulated_pendant = simulated_pendant
         if simulated_fault is not None and simulated_arm is None:
             raise BackendError("a simulated fault needs the simulated pucks")
         self._sim_cts = int(sim_cts)
         self._seed = seed
+        self._realtime = RealtimeSection(fifo=realtime and simulated_arm is None, cpu=cpu)
+        self._rt_entered = False
         self.simulator = None
         self._bus: can.BusABC | None = None
-        self.pucks: dict[int, PuckInfo] = {}
+        self.pucks: dict = {}
+        self.start: StartState | None = None
+        self.monitor = SafetyMonitor()
+        self.phase = "closed"  # start -> waiting -> run -> closing
         self._cts = np.full(P.N_JOINTS, float(CTS_DEFAULT))
         self._ipnm = np.full(P.N_JOINTS, float(IPNM_DEFAULT))
         self._slots: list[tuple[int, list[int], list[int]]] = []  # (group id, puck indices 0..6, PIDX)
         self._request = make_position_request(GROUP_WAM)
         self._counts = np.zeros(P.N_JOINTS)
         self._q = np.zeros(P.N_JOINTS)
-        # loop state
+        self._zero_tau = np.zeros(P.N_JOINTS)
+        self._torque_msgs: list[can.Message] = []  # one per torque group, their data rewritten every cycle
+        self._got = 0
+        self._garbage_seen: str | None = None
+        # loop state: _tick counts every 2 ms cycle of the session, _cycle those of the run
+        self._tick = 0
         self._cycle = 0
-        self._t0: float | None = None
+        self._t0: float | None = None  # the schedule: release point k is t0 + (k + skipped) T
+        self._k = 0
+        self._skipped = 0
         self.timing = LoopTiming(self.control_period_s)
+        self.heartbeat_timing = LoopTiming(self.control_period_s)
         self._bad_cycles = 0
         self._bad_run_start: int | None = None
         self._events: list[tuple[float, str, int | None, str]] = []
         self._stats = {"frames_sent": 0, "frames_received": 0, "late_replies": 0, "missed_reply_cycles": 0,
-                       "foreign_frames": 0, "error_frames": 0, "garbage_frames": 0, "tx_errors": 0}
+                       "foreign_frames": 0, "error_frames": 0, "garbage_frames": 0, "tx_errors": 0,
+                       "safety_broadcasts": 0}
+        self.session_log: dict[str, Any] = {}
         # watchdog
         self.trip_reason: str | None = None
         self.trip_cycle: int | None = None
@@ -176,72 +196,68 @@ class CanBackend(ArmBackend):
         self.idle_confirmed: list[int] = []
         self._tx_failures_pending = 0
         self._fault_injected_cycle: int | None = None
-        # TORQUE mode: set with the first torque command, confirmed by the pucks' MODE replies
-        self._mode_sent_cycle: int | None = None
-        self._mode_replies: dict[int, int] = {}
         self.torque_mode_confirmed = False
 
     # ---------------------------------------------------------------- construction
     @classmethod
     def from_spec(cls, spec, base_dir: Path | None, q0_rad, rng: np.random.Generator) -> CanBackend:
-        """The backend a spec's ``backend: {kind: can, ...}`` describes (with simulated pucks if asked).
-
-        Parameters
-        ----------
-        spec : wamctl.specs.Common
-            Its ``backend`` is a :class:`~wamctl.specs.CanBackendSpec`; ``plant`` is used only with
-            ``simulate_pucks``.
-        base_dir : Path or None
-            Directory relative paths in the spec are resolved against.
-        q0_rad : array_like, shape (7,)
-            Start configuration.
-        rng : numpy.random.Generator
-            The simulated arm's random draws.
-        """
+        """The backend a spec's ``backend: {kind: can, ...}`` describes (with simulated pucks if asked)."""
         b = spec.backend
         arm, cts = None, CTS_DEFAULT
         if b.simulate_pucks:
             arm, cts = build_simulated_arm(spec.plant, base_dir, q0_rad, rng, b.physics_substeps)
+        settings = SessionSettings(
+            activation_timeout_s=b.activation_timeout_s, idle_wait_s=b.idle_wait_s,
+            zeroing_confirmed=b.zeroing_confirmed, velocity_limit_m_s=b.velocity_limit_m_s,
+            torque_limit_Nm=b.torque_limit_Nm, start_tolerance_rad=b.start_tolerance_rad)
         return cls(b.interface, b.channel, b.bitrate, q0_rad=q0_rad, watchdog_cycles=b.watchdog_cycles,
-                   reply_timeout_s=b.reply_timeout_s, start_tolerance_rad=b.start_tolerance_rad,
-                   simulated_arm=arm, sim_cts=cts, simulated_fault=b.simulated_fault, seed=spec.seed)
+                   reply_timeout_s=b.reply_timeout_s, session=settings, bus_options=dict(b.bus_options),
+                   simulated_arm=arm, sim_cts=cts, simulated_fault=b.simulated_fault,
+                   simulated_pendant=b.simulated_pendant, seed=spec.seed)
 
     # ---------------------------------------------------------------- properties
     @property
     def time_s(self) -> float:
-        """Nominal loop time: cycles since the first position read times the control period."""
+        """Nominal loop time: cycles of the run times the control period."""
         return self._cycle * self.control_period_s
 
     @property
     def cycle(self) -> int:
-        """Index of the current control cycle (0 = the first position read)."""
+        """Index of the current control cycle of the run (0 = the first position read after activation)."""
         return self._cycle
 
     def describe(self) -> dict:
-        """Interface, pucks, loop statistics (overruns, jitter), link counters and the watchdog's verdict.
+        """Interface, pucks, safety module, session, loop statistics, link counters and the watchdog's verdict.
 
-        With simulated pucks, first waits (up to a second) until they have handled every frame sent, so
-        their state (modes, torques) is the consequence of everything the host did."""
+        With simulated pucks, first waits (up to a second) until they have handled every frame sent."""
         self._sync_simulator()
+        w = {"tripped": self.trip_reason is not None, "reason": self.trip_reason,
+             "fault_onset_cycle": self.fault_onset_cycle, "trip_cycle": self.trip_cycle,
+             "zero_torque_cycle": self.zero_torque_cycle,
+             "cycles_to_zero_torque": (None if self.zero_torque_cycle is None or self.fault_onset_cycle is None
+                                       else self.zero_torque_cycle - self.fault_onset_cycle),
+             "idle_confirmed_pucks": list(self.idle_confirmed)}
         d: dict[str, Any] = {
             "name": self.name, "interface": self.interface, "channel": self.channel, "bitrate": self.bitrate,
             "simulated_pucks": self.simulated_arm is not None, "watchdog_cycles": self.watchdog_cycles,
             "reply_timeout_s": self.reply_timeout_s, "torque_mode_confirmed": self.torque_mode_confirmed,
-            "pucks": {str(i): {"vers": info.vers, "cts": info.cts, "ipnm": info.ipnm, "pidx": info.pidx,
-                               "sn": info.sn} for i, info in self.pucks.items()},
-            "loop": {**self.timing.summary(), "cycles": self._cycle}, "link": dict(self._stats),
-            "watchdog": {"tripped": self.trip_reason is not None, "reason": self.trip_reason,
-                         "fault_onset_cycle": self.fault_onset_cycle, "trip_cycle": self.trip_cycle,
-                         "zero_torque_cycle": self.zero_torque_cycle,
-                         "cycles_to_zero_torque": (None if self.zero_torque_cycle is None
-                                                   or self.fault_onset_cycle is None
-                                                   else self.zero_torque_cycle - self.fault_onset_cycle),
-                         "idle_confirmed_pucks": list(self.idle_confirmed)},
+            "phase": self.phase,
+            "pucks": {str(i): {k: info.to_dict()[k] for k in ("vers", "cts", "ipnm", "pidx", "poles", "groups",
+                                                               "sn", "joint_encoder")}
+                      for i, info in self.pucks.items()},
+            "safety_module": None if self.start is None else {**self.start.safety.to_dict(),
+                                                               "limits": self.start.limits},
+            "session": {**self.session_log, "zeroed_now": bool(self.start and self.start.zeroed_now),
+                        "zero_counts": None if self.start is None else self.start.zero_counts,
+                        "heartbeat": self.heartbeat_timing.summary(), "monitor": self.monitor.describe()},
+            "loop": {**self.timing.summary(), "cycles": self._cycle}, "link": dict(self._stats), "watchdog": w,
         }
         if self.simulated_arm is not None:
             sim: dict[str, Any] = {"arm": self.simulated_arm.describe()}
             if self.simulator is not None:
-                sim["stats"] = dataclasses.asdict(self.simulator.stats)
+                sd = self.simulator.describe()
+                sim["stats"] = sd["stats"]
+                sim["safety_module"] = sd["safety_module"]
                 sim["puck_torque_units"] = self.simulator.puck_torque_units().tolist()
                 sim["modes"] = {str(k): int(v) for k, v in self.simulator.modes().items()}
             if self.simulated_fault is not None:
@@ -258,8 +274,7 @@ class CanBackend(ArmBackend):
             time.sleep(0.001)
 
     def drain_events(self) -> list[tuple[float, str, int | None, str]]:
-        """Events since the last call, ``(t_s, kind, joint, detail)`` with loop time ``t_s``; an overrun
-        summary is appended when overruns were not all recorded one by one."""
+        """Events since the last call, ``(t_s, kind, joint, detail)`` with loop time ``t_s``."""
         out, self._events = self._events, []
         if self.timing.overruns > MAX_OVERRUN_EVENTS:
             out.append((self.time_s, "overrun", None, f"{self.timing.overruns} overruns in total "
@@ -270,86 +285,82 @@ class CanBackend(ArmBackend):
         c = self._cycle if cycle is None else cycle
         self._events.append((c * self.control_period_s, kind, joint, detail))
 
-    # ---------------------------------------------------------------- open / close
+    # ---------------------------------------------------------------- open
     def _open(self) -> None:
         load_kernels()   # the loop converts counts every cycle: compile/load before the first deadline
         try:
             if self.simulated_arm is not None:
-                from wamctl.backends.can.puck_sim import PuckSimulator
+                from wamctl.backends.can.sim.simulator import PuckSimulator
                 self.simulator = PuckSimulator(self.simulated_arm, channel=self.channel, interface=self.interface,
-                                               cts=self._sim_cts, seed=self._seed)
+                                               cts=self._sim_cts, seed=self._seed, pendant=self.simulated_pendant,
+                                               start_pose_rad=self.q0_rad)
                 self.simulated_arm.attach(self.simulator)
                 self.simulator.start()
             filters = [{"can_id": FEEDBACK_POSITION, "can_mask": TO_MASK, "extended": False},
                        {"can_id": FEEDBACK_OTHER, "can_mask": TO_MASK, "extended": False}]
-            self._bus = open_bus(self.interface, self.channel, self.bitrate, can_filters=filters)
+            self._bus = open_bus(self.interface, self.channel, self.bitrate, can_filters=filters,
+                                 **self.bus_options)
+            self.phase = "start"
             try:
-                self._start_pucks()
+                self.start = start_session(self._bus, self._tx, self.operator, self.settings)
+                self._configure()
+                self._realtime.enter()
+                self._rt_entered = True
+                self.session_log["realtime"] = dict(self._realtime.granted)
+                self._first_read()
+                self.phase = "waiting"
+                self._wait_for_start_pose()
+                self._wait_for_activation()
             except can.CanError as exc:
                 raise BackendError(f"CAN error during start-up: {exc}") from None
         except BaseException:
-            self._release(idle=self._bus is not None)
+            self._close()
             raise
+        self.phase = "run"
+        self._t0 = None  # the run's schedule starts at its first read
+        self._cycle = 0
+        self._bad_cycles, self._bad_run_start = 0, None
 
-    def _start_pucks(self) -> None:
-        bus = self._bus
-        assert bus is not None
-        found = probe_pucks(bus, WAM_PUCK_IDS, wake=True, send=self._tx)
-        missing = [i for i in WAM_PUCK_IDS if i not in found]
-        if missing:
-            raise BackendError(f"WAM pucks {missing} did not answer on {self.interface} channel "
-                               f"{self.channel!r} (power, cabling, termination?)")
-        check_motor_pucks(found)
+    def _configure(self) -> None:
+        found = self.start.pucks
         self.pucks = found
         self._cts = np.array([found[i].cts for i in WAM_PUCK_IDS], float)
         self._ipnm = np.array([found[i].ipnm for i in WAM_PUCK_IDS], float)
         slots = torque_slot_of_puck({i: found[i].pidx for i in WAM_PUCK_IDS})
         self._slots = [(g, [p - 1 for p in members], [slots[p][1] for p in members])
                        for g, members in TORQUE_GROUPS.items()]
-        logger.info("pucks 1-7: VERS %s, CTS %s, IPNM %s", [found[i].vers for i in WAM_PUCK_IDS],
-                    self._cts.astype(int).tolist(), self._ipnm.astype(int).tolist())
-        # where is the arm? (pucks still idle: nothing moves)
-        counts = self._poll_positions_once(PROBE_TIMEOUT_S)
-        if counts is None:
-            raise BackendError("no complete set of position replies at start-up")
-        self._counts[:] = counts
-        q = counts_to_joint_rad(self._counts, self._cts, J2MP)
-        if self.q0_rad is not None:
-            dev = np.abs(q - self.q0_rad)
-            if (dev > self.start_tolerance_rad).any():
-                j = int(np.argmax(dev))
-                raise SafetyLimitError(f"the arm is at joint {j + 1} = {q[j]:.4f} rad but the spec starts at "
-                                       f"{self.q0_rad[j]:.4f} rad (tolerance {self.start_tolerance_rad} rad): "
-                                       f"move the arm to q0_rad or change q0_rad")
-        self._q[:] = q
-        logger.info("pucks found and idle; TORQUE mode comes with the first torque command")
+        self._torque_msgs = [can.Message(arbitration_id=g, data=bytearray(8), is_extended_id=False)
+                             for g in TORQUE_GROUPS]
 
-    def _poll_positions_once(self, timeout_s: float) -> np.ndarray | None:
-        counts = np.zeros(P.N_JOINTS)
-        got = 0
-        self._tx(self._request)
-
-        def handle(msg: can.Message) -> bool:
-            nonlocal got
-            bid = self._decode(msg)
-            if bid is not None and bid.target == FEEDBACK_POSITION_TARGET:
-                puck, c = parse_position_reply(msg)
-                counts[puck - 1] = c
-                got |= 1 << (puck - 1)
-            return got == ALL_WAM_PUCKS
-
-        recv_until(self._bus, time.perf_counter() + timeout_s, handle)
-        return counts if got == ALL_WAM_PUCKS else None
-
-    def _close(self) -> None:
-        self._release(idle=True)
-
-    def _release(self, idle: bool) -> None:
-        """Pucks to IDLE (best effort, read back), then the bus and the simulated pucks shut down."""
+    def _first_read(self) -> None:
+        """One position request answered by all seven pucks within 1 s before the 500 Hz polling starts
+        (libbarrett's first read, with its blocking receive's 1 s timeout)."""
+        saved = self.reply_timeout_s
+        self.reply_timeout_s = FIRST_READ_TIMEOUT_S
         try:
-            if idle and self._bus is not None:
-                self._idle_pucks()
+            self._poll()
         finally:
+            self.reply_timeout_s = saved
+        if self._bad_cycles:
+            raise BackendError(f"pucks did not answer the first position request within {FIRST_READ_TIMEOUT_S} s")
+
+    def _beat(self) -> np.ndarray:
+        """One heartbeat cycle outside the run: positions, zero torque, the monitor's poll, the wait."""
+        q = self._poll()
+        self._tx_torque_units(self._zero_tau)
+        self._end_cycle(POLL_WAIT_CYCLES, pucks=self.monitor.active)
+        return q
+
+    # ---------------------------------------------------------------- close
+    def _close(self) -> None:
+        try:
+            if self._bus is not None and self.phase in ("waiting", "run"):
+                self._finish_session()
+        finally:
+            self.phase = "closed"
+            if self._rt_entered:
+                self._realtime.exit()
+                self._rt_entered = False
             if self._bus is not None:
                 try:
                     self._bus.shutdown()
@@ -368,8 +379,7 @@ class CanBackend(ArmBackend):
             except can.CanError as exc:
                 logger.error("setting the pucks IDLE failed (attempt %d): %s", attempt + 1, exc)
         try:
-            modes = read_property(self._bus, WAM_PUCK_IDS, Prop.MODE, PROBE_TIMEOUT_S, retries=0,
-                                  send=self._tx)
+            modes = read_property(self._bus, WAM_PUCK_IDS, Prop.MODE, PROBE_TIMEOUT_S, retries=1, send=self._tx)
         except can.CanError as exc:
             logger.error("reading MODE back failed: %s", exc)
             modes = {}
@@ -394,158 +404,56 @@ class CanBackend(ArmBackend):
 
     def _tx_torque_units(self, tau_Nm: np.ndarray) -> None:
         units = joint_torque_to_puck_units(tau_Nm, self._ipnm, J2MP)
-        for group, idx, pidx in self._slots:
-            payload = pack_torques(units[idx], pidx)
-            self._tx(can.Message(arbitration_id=group, data=payload, is_extended_id=False))
+        for msg, (_group, idx, pidx) in zip(self._torque_msgs, self._slots):
+            msg.data[:] = pack_torques(units[idx], pidx)  # the interfaces copy or serialise what they send
+            self._tx(msg)
 
     def _send_torques(self, tau_Nm: np.ndarray) -> None:
         if self._bus is None:
             return
-        if self._closed or self.trip_reason is not None:  # shutting down: best effort, never raise
+        if self._closed or self.trip_reason is not None or self.phase != "run":  # best effort, never raise
             try:
-                self._tx_torque_units(np.zeros(P.N_JOINTS))
+                self._tx_torque_units(self._zero_tau)
             except can.CanError as exc:
-                logger.error("sending zero torque at shutdown failed: %s", exc)
+                logger.error("sending zero torque failed: %s", exc)
             return
         try:
-            if self._mode_sent_cycle is None:
-                # TORQUE mode right before the first command (no moment of zero torque in TORQUE mode), read
-                # back asynchronously: the replies are checked by the next cycles' reads
-                self._tx(make_set_property(GROUP_WAM, Prop.MODE, Mode.TORQUE))
-                self._mode_sent_cycle = self._cycle
-                self._tx_torque_units(tau_Nm)
-                self._tx(make_get_property(GROUP_WAM, Prop.MODE))
-            else:
-                self._tx_torque_units(tau_Nm)
+            self._tx_torque_units(tau_Nm)
         except can.CanError as exc:
             self._trip(f"CAN transmit error: {exc}", BackendError)
 
-    def _check_torque_mode(self) -> None:
-        """Trip if a puck reported another MODE than TORQUE, or not all did in time."""
-        if self._mode_sent_cycle is None or self.torque_mode_confirmed:
-            return
-        wrong = {i: m for i, m in self._mode_replies.items() if m != Mode.TORQUE}
-        if wrong:
-            self._trip(f"pucks {sorted(wrong)} report MODE {sorted(set(wrong.values()))} instead of TORQUE "
-                       f"({int(Mode.TORQUE)}): is the WAM activated (Shift+Activate on the pendant)?",
-                       BackendError)
-        if len(self._mode_replies) == N_JOINTS:
-            self.torque_mode_confirmed = True
-            self._event("torque_mode", f"pucks 1-7 confirmed in TORQUE mode (cycle {self._cycle})")
-            logger.info("pucks 1-7 in TORQUE mode")
-        elif self._cycle - self._mode_sent_cycle > self.watchdog_cycles + 1:
-            missing = [i for i in WAM_PUCK_IDS if i not in self._mode_replies]
-            self._trip(f"pucks {missing} did not confirm TORQUE mode within {self._cycle - self._mode_sent_cycle} "
-                       "cycles", BackendError)
-
     # ---------------------------------------------------------------- receive
-    def _decode(self, msg: can.Message) -> BusId | None:
-        """The id of a frame from a WAM puck to a feedback group, or None (counted) for anything else."""
-        self._stats["frames_received"] += 1
-        if msg.is_error_frame:
-            self._stats["error_frames"] += 1
-            return None
-        if msg.is_extended_id or msg.is_remote_frame or msg.arbitration_id > MAX_CAN_ID:
-            self._stats["foreign_frames"] += 1
-            return None
-        bid = decode_bus_id(msg.arbitration_id)
-        if not (bid.is_group and bid.sender in WAM_PUCK_IDS
-                and bid.target in (FEEDBACK_POSITION_TARGET, FEEDBACK_OTHER_TARGET)):
-            self._stats["foreign_frames"] += 1
-            return None
-        return bid
-
-    def _check_frame(self, msg: can.Message, bid: BusId) -> tuple[int, int] | None:
-        """A position reply's (puck, counts); None for a property reply; PuckFrameError if malformed."""
-        if bid.target == FEEDBACK_POSITION_TARGET:
-            return parse_position_reply(msg)
-        reply = parse_property_reply(msg)
-        if reply.prop == Prop.MODE and self._mode_sent_cycle is not None and not self.torque_mode_confirmed:
-            self._mode_replies[reply.puck_id] = reply.value
-        return None
-
     def _read_positions(self) -> np.ndarray:
-        bus = self._bus
-        if bus is None:
+        if self._bus is None:
             raise BackendError("CAN backend is not open")
         if self._t0 is None:
             now = time.perf_counter()
-            self._t0 = now
+            self._t0, self._k, self._skipped = now, 0, 0
             self.timing.cycle_started(now, 0.0)
         if self.simulated_fault is not None and self._fault_injected_cycle is None \
                 and self._cycle >= self.simulated_fault.at_cycle:
             self._inject_fault()
-        garbage: str | None = None
-        # stale frames: replies that came after the previous cycle's timeout
-        while True:
-            msg = bus.recv(timeout=0.0)
-            if msg is None:
-                break
-            bid = self._decode(msg)
-            if bid is None:
-                continue
-            try:
-                if self._check_frame(msg, bid) is not None:
-                    self._stats["late_replies"] += 1
-            except PuckFrameError as exc:
-                garbage = garbage or str(exc)
-        if garbage is not None:
-            self._garbage(garbage)
+        q = self._poll()
+        stop = self.monitor.run_stop(self.start.limits if self.start else {})
+        if stop is not None:
+            reason, exc_type = stop
+            if exc_type is not BackendError and self.monitor.module_mode != SafetyMode.ESTOP:
+                reason, exc_type = self._confirmed_stop_reason()
+            self._trip(reason, exc_type)
+        return q
+
+    def _confirmed_stop_reason(self) -> tuple[str, type]:
+        """The pendant read once more: a fault shows there a moment after the mode changes."""
         try:
-            self._tx(self._request)
-        except can.CanError as exc:
-            self._trip(f"CAN transmit error: {exc}", BackendError)
-        got = 0
-        deadline = time.perf_counter() + self.reply_timeout_s
-
-        def handle(msg: can.Message) -> bool:
-            nonlocal got, garbage
-            bid = self._decode(msg)
-            if bid is None:
-                return False
-            try:
-                reply = self._check_frame(msg, bid)
-            except PuckFrameError as exc:
-                garbage = str(exc)
-                return True
-            if reply is not None:
-                puck, counts = reply
-                self._counts[puck - 1] = counts
-                got |= 1 << (puck - 1)
-            return got == ALL_WAM_PUCKS
-
-        recv_until(bus, deadline, handle)
-        if garbage is not None:
-            self._garbage(garbage)
-        if got != ALL_WAM_PUCKS:
-            missing = [i for i in WAM_PUCK_IDS if not got & (1 << (i - 1))]
-            self._stats["missed_reply_cycles"] += 1
-            self._bad_cycles += 1
-            if self._bad_run_start is None:
-                self._bad_run_start = self._cycle
-                self._event("link", f"cycle {self._cycle}: no position reply from pucks {missing} within "
-                                    f"{self.reply_timeout_s * 1e3:.1f} ms")
-            if self._bad_cycles > self.watchdog_cycles:
-                self._trip(f"CAN link watchdog: position replies from pucks {missing} missing or late for "
-                           f"{self._bad_cycles} consecutive cycles (more than watchdog_cycles = "
-                           f"{self.watchdog_cycles})", SafetyLimitError)
-        else:
-            if self._bad_run_start is not None:
-                self._event("link", f"cycle {self._cycle}: replies back after {self._bad_cycles} bad cycles")
-            self._bad_cycles = 0
-            self._bad_run_start = None
-        self._check_torque_mode()
-        self._q[:] = counts_to_joint_rad(self._counts, self._cts, J2MP)
-        return self._q
-
-    def _garbage(self, detail: str) -> None:
-        self._stats["garbage_frames"] += 1
-        if self._bad_run_start is None:
-            self._bad_run_start = self._cycle
-        self._trip(f"CAN link watchdog: malformed frame from a puck ({detail})", SafetyLimitError)
+            pen = read_property(self._bus, [SAFETY_PUCK_ID], SafetyProp.PEN, PROBE_TIMEOUT_S, retries=0,
+                                send=self._tx).get(SAFETY_PUCK_ID)
+            pen_state = decode_pen(pen) if pen is not None else self.monitor.pen
+        except (can.CanError, PuckFrameError):
+            pen_state = self.monitor.pen
+        return stop_reason(self.monitor.module_mode, pen_state, self.start.limits if self.start else {})
 
     # ---------------------------------------------------------------- watchdog
-    def _trip(self, reason: str, exc_type: type[Exception]) -> None:
+    def _trip(self, reason: str, exc_type: type[BaseException]) -> None:
         """Zero torque, pucks to IDLE, remember why, raise ``exc_type(reason)``."""
         if self.trip_reason is None:
             self.trip_reason = reason
@@ -555,7 +463,7 @@ class CanBackend(ArmBackend):
             self._tau_applied[:] = 0.0
             for attempt in range(3):
                 try:
-                    self._tx_torque_units(np.zeros(P.N_JOINTS))
+                    self._tx_torque_units(self._zero_tau)
                     self.zero_torque_cycle = self._cycle
                     break
                 except can.CanError as exc:
@@ -576,23 +484,40 @@ class CanBackend(ArmBackend):
 
     # ---------------------------------------------------------------- timing
     def _wait_next_cycle(self) -> None:
+        self._end_cycle(POLL_RUN_CYCLES, pucks=True)
+
+    def _end_cycle(self, poll_every: int, pucks: bool) -> None:
+        """The monitor's poll when due, then the wait for the next release point (absolute deadlines)."""
+        if self._tick % poll_every == 0:
+            try:
+                for m in self.monitor.requests(pucks=pucks):
+                    self._tx(m)
+            except can.CanError as exc:
+                if self.phase == "run":
+                    self._trip(f"CAN transmit error: {exc}", BackendError)
+                if self.phase != "closing":
+                    raise BackendError(f"CAN transmit error: {exc}") from None
+        timing = self.timing if self.phase == "run" else self.heartbeat_timing
         T = self.control_period_s
         now = time.perf_counter()
         if self._t0 is None:
-            self._t0 = now
-            self.timing.cycle_started(now, 0.0)
-        self.timing.cycle_ended(now)
-        self._cycle += 1
-        k = self._cycle + self.timing.skipped_periods
-        deadline = self._t0 + k * T
+            self._t0, self._k, self._skipped = now, 0, 0
+            timing.cycle_started(now, 0.0)
+        timing.cycle_ended(now)
+        self._tick += 1
+        self._k += 1
+        if self.phase == "run":
+            self._cycle += 1
+        deadline = self._t0 + (self._k + self._skipped) * T
         if now > deadline:
             late = now - deadline
             skipped = int(late // T)
-            self.timing.overrun(late, skipped)
-            if self.timing.overruns <= MAX_OVERRUN_EVENTS:
+            self._skipped += skipped
+            timing.overrun(late, skipped)
+            if self.phase == "run" and timing.overruns <= MAX_OVERRUN_EVENTS:
                 self._event("overrun", f"cycle {self._cycle - 1} ended {late * 1e3:.2f} ms after its deadline"
                             + (f"; {skipped} release points skipped" if skipped else ""), cycle=self._cycle - 1)
-            self.timing.cycle_started(now, late - skipped * T)
+            timing.cycle_started(now, late - skipped * T)
             return
         now = sleep_until(deadline)
-        self.timing.cycle_started(now, now - deadline)
+        timing.cycle_started(now, now - deadline)

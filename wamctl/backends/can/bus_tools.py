@@ -1,29 +1,23 @@
 """Bus tools shared by the CAN backend and ``wamctl bus-check``: open a bus, read a property from several
-pucks, find and wake the pucks, and measure the bus load.
+nodes, find the pucks, wake them as libbarrett does, and read what the session needs from the motor pucks
+(:class:`PuckInfo`) and the safety module (:class:`SafetyInfo`).
 
-:func:`bus_check` is what ``wamctl bus-check`` reports: the nodes that answer (:class:`PuckInfo`), what is
-wrong with them, and the load on the bus (:func:`measure_bus_load`; :func:`loop_bus_load_pct` is the
-500 Hz control loop's estimate). Everything here is synchronous: it sends, then receives until the replies
-are in or a timeout passes.
+Everything here is synchronous: it sends, then receives until the replies are in or a timeout passes.
 """
 
 from __future__ import annotations
 
 import dataclasses
 import logging
-import math
 import time
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from typing import Any
 
 import can
-import numpy as np
 
 from wamctl.backends.can.protocol.addressing import (
     FEEDBACK_OTHER_TARGET,
-    FEEDBACK_POSITION_TARGET,
     FORCE_TORQUE_PUCK_ID,
-    GROUP_WAM,
     HAND_PUCK_IDS,
     MAX_CAN_ID,
     N_JOINTS,
@@ -32,9 +26,13 @@ from wamctl.backends.can.protocol.addressing import (
     PuckFrameError,
     decode_bus_id,
 )
-from wamctl.backends.can.protocol.positions import make_position_request
+from wamctl.backends.can.protocol.configuration import configuration_problems
 from wamctl.backends.can.protocol.properties import (
     MIN_FIRMWARE_VERSION,
+    ROLE_MASK,
+    ROLE_OPTICAL_ENC_ON_ENC,
+    ROLE_SAFETY,
+    ROLE_TATER,
     Mode,
     Prop,
     PropertyReply,
@@ -44,9 +42,14 @@ from wamctl.backends.can.protocol.properties import (
     make_set_property,
     parse_property_reply,
 )
-from wamctl.backends.can.protocol.torques import torque_slot_of_puck
-from wamctl.errors import BackendError
-from wamctl.model import params as P
+from wamctl.backends.can.protocol.safety import (
+    SAFETY_MIN_FIRMWARE_VERSION,
+    SafetyMode,
+    SafetyProp,
+    decode_pen,
+    velocity_limit_m_s,
+)
+from wamctl.errors import BackendError, ConfigurationRefused
 
 logger = logging.getLogger(__name__)
 
@@ -54,25 +57,33 @@ __all__ = [
     "ALL_WAM_PUCKS",
     "PROBE_TIMEOUT_S",
     "PuckInfo",
+    "SafetyInfo",
     "TX_TIMEOUT_S",
-    "WAKE_TIMEOUT_S",
-    "bus_check",
+    "TURN_OFF_TIME_S",
+    "WAKE_CHECK_S",
+    "WAKE_UP_TIME_S",
     "check_motor_pucks",
-    "frame_bits",
-    "loop_bus_load_pct",
-    "measure_bus_load",
     "open_bus",
     "probe_pucks",
     "read_property",
+    "read_safety_module",
     "recv_until",
+    "wake_pucks",
 ]
 
 PROBE_TIMEOUT_S = 0.05  # wait for property replies at start-up (a puck answers in well under 1 ms)
-WAKE_TIMEOUT_S = 3.0  # a puck leaving the monitor takes a few hundred ms (libbarrett waits ~1 s)
 TX_TIMEOUT_S = 0.005  # a send blocked longer (transmit queue full: bus-off, no ACK) is a transmit error
+# libbarrett Puck::wake (puck.h, puck.cpp): STAT=READY to one puck at a time, TURN_OFF_TIME apart ("talking on
+# the CANbus when a transceiver goes offline can also cause bus-off"), then WAKE_UP_TIME of silence, then a get
+# of STAT per puck with a 50 ms wait ("pucks can take longer to respond when in the process of waking up").
+TURN_OFF_TIME_S = 0.01
+WAKE_UP_TIME_S = 1.0
+WAKE_CHECK_S = 0.05
 ALL_WAM_PUCKS = (1 << N_JOINTS) - 1  # bit i - 1 set: puck i answered
 _NODE_KINDS = {**dict.fromkeys(WAM_PUCK_IDS, "wam motor"), FORCE_TORQUE_PUCK_ID: "force-torque sensor",
                SAFETY_PUCK_ID: "safety module", **dict.fromkeys(HAND_PUCK_IDS, "hand")}
+
+Send = Callable[[can.Message], None]
 
 
 def open_bus(interface: str, channel: str, bitrate: int, **kwargs: Any) -> can.BusABC:
@@ -81,19 +92,15 @@ def open_bus(interface: str, channel: str, bitrate: int, **kwargs: Any) -> can.B
     Parameters
     ----------
     interface, channel : str
-        python-can interface (``socketcan``, ``pcan``, ``virtual``, ...) and channel.
+        python-can interface (``socketcan``, ``pcan``, ``virtual``, ``udp_multicast``, ...) and channel.
     bitrate : int
         Bit/s (ignored by interfaces configured outside the process, e.g. SocketCAN, and by ``virtual``).
     **kwargs
-        Passed to :class:`can.Bus` (e.g. ``can_filters``).
-
-    Returns
-    -------
-    can.BusABC
+        Passed to :class:`can.Bus` (e.g. ``can_filters``, ``port``).
     """
     try:
         return can.Bus(interface=interface, channel=channel, bitrate=bitrate, **kwargs)
-    except (can.CanError, OSError, ImportError, ValueError, NotImplementedError) as exc:
+    except (can.CanError, OSError, ImportError, ValueError, NotImplementedError, TypeError) as exc:
         raise BackendError(f"cannot open CAN interface {interface!r} channel {channel!r}: {exc}") from None
 
 
@@ -123,34 +130,26 @@ def _as_property_reply(msg: can.Message) -> PropertyReply | None:
         return None
 
 
-def read_property(bus: can.BusABC, ids: Iterable[int], prop: int, timeout_s: float = PROBE_TIMEOUT_S,
-                  retries: int = 1, send=None) -> dict[int, int]:
-    """Get one property from several pucks (one get each), collecting the replies.
+def _default_send(bus: can.BusABC) -> Send:
+    return lambda msg: bus.send(msg, timeout=TX_TIMEOUT_S)
 
-    Parameters
-    ----------
-    bus : can.BusABC
-    ids : iterable of int
-        Node ids to ask.
-    prop : int
-        Property id (:class:`~wamctl.backends.can.protocol.properties.Prop`).
-    timeout_s : float
-        Wait for the replies, per attempt.
-    retries : int
-        Further attempts for the pucks that did not answer.
-    send : callable, optional
-        ``send(msg)`` used to transmit (default ``bus.send`` with a short timeout).
+
+def read_property(bus: can.BusABC, ids: Iterable[int], prop: int, timeout_s: float = PROBE_TIMEOUT_S,
+                  retries: int = 1, send: Send | None = None) -> dict[int, int]:
+    """Get one property from several nodes (one get each), collecting the replies.
+
+    Frames already waiting when it is called are discarded first (replies to earlier requests must not pass
+    for answers).
 
     Returns
     -------
     dict of int to int
-        Value per puck that answered (pucks that did not are absent). Frames already waiting when it is
-        called are discarded first.
+        Value per node that answered (nodes that did not are absent).
     """
     wanted = list(dict.fromkeys(int(i) for i in ids))
-    send = send or (lambda msg: bus.send(msg, timeout=TX_TIMEOUT_S))
+    send = send or _default_send(bus)
     out: dict[int, int] = {}
-    while bus.recv(timeout=0.0) is not None:  # replies to earlier requests must not pass for answers
+    while bus.recv(timeout=0.0) is not None:
         pass
     for _ in range(1 + max(0, retries)):
         todo = [i for i in wanted if i not in out]
@@ -169,6 +168,18 @@ def read_property(bus: can.BusABC, ids: Iterable[int], prop: int, timeout_s: flo
     return out
 
 
+def set_and_confirm(bus: can.BusABC, node: int, prop: int, value: int, send: Send | None = None,
+                    timeout_s: float = PROBE_TIMEOUT_S) -> None:
+    """A set followed by a get of STAT that must be answered (libbarrett's blocking ``setProperty``: "so we
+    don't overflow the Puck's receive buffer"); raises :class:`BackendError` if the node does not answer."""
+    send = send or _default_send(bus)
+    send(make_set_property(node, prop, value))
+    if node not in read_property(bus, [node], Prop.STAT, timeout_s, retries=1, send=send):
+        raise BackendError(f"node {node} did not answer after a set of property {prop}")
+
+
+# ------------------------------------------------------------------------------------------- motor pucks
+
 @dataclasses.dataclass
 class PuckInfo:
     """What start-up (and ``bus-check``) learns about one node.
@@ -177,11 +188,13 @@ class PuckInfo:
     ----------
     puck_id : int
     stat : int
-        STAT when found (0 monitor, 2 ready).
+        STAT (0 monitor, 2 ready).
     vers, role, sn : int or None
         Firmware version, role, serial number.
-    cts, ipnm, pidx, mode : int or None
-        Motor pucks (1..7) with supported firmware only.
+    cts, ipnm, pidx, poles, mode : int or None
+        Motor pucks (1..7) awake with supported firmware only.
+    groups : (int, int, int) or None
+        GRPA, GRPB, GRPC (motor pucks awake with supported firmware).
     """
 
     puck_id: int
@@ -192,7 +205,9 @@ class PuckInfo:
     cts: int | None = None
     ipnm: int | None = None
     pidx: int | None = None
+    poles: int | None = None
     mode: int | None = None
+    groups: tuple[int, int, int] | None = None
 
     @property
     def kind(self) -> str:
@@ -203,12 +218,17 @@ class PuckInfo:
         """Whether a motor puck's firmware uses the property ids of :class:`~.protocol.properties.Prop`."""
         return self.vers is not None and self.vers >= MIN_FIRMWARE_VERSION
 
+    @property
+    def joint_encoder(self) -> bool:
+        """The puck reports a joint encoder (6-byte position replies)."""
+        return self.role is not None and bool(self.role & ROLE_OPTICAL_ENC_ON_ENC)
+
     def to_dict(self) -> dict:
         d = dataclasses.asdict(self)
         d.update(kind=self.kind, stat_name=_enum_name(Status, self.stat),
                  mode_name=None if self.mode is None else _enum_name(Mode, self.mode))
         if self.puck_id in WAM_PUCK_IDS:
-            d["firmware_ok"] = self.firmware_ok
+            d.update(firmware_ok=self.firmware_ok, joint_encoder=self.joint_encoder)
         return d
 
 
@@ -220,258 +240,194 @@ def _enum_name(enum_cls, value: int | None) -> str | None:
 
 
 def check_motor_pucks(found: dict[int, PuckInfo]) -> None:
-    """Refuse pucks the backend cannot drive.
-
-    Parameters
-    ----------
-    found : dict of int to PuckInfo
-        What :func:`probe_pucks` found.
+    """Refuse pucks 1-7 the backend cannot drive or the model does not describe.
 
     Raises
     ------
     BackendError
-        If a puck did not wake, has firmware older than :data:`~.properties.MIN_FIRMWARE_VERSION`, is not a
-        motor puck, did not report CTS, IPNM or PIDX, or reports a CTS or IPNM that is not positive.
+        If a puck did not wake, has firmware older than :data:`~.properties.MIN_FIRMWARE_VERSION` (naming the
+        ids it uses), is not a motor puck, did not report CTS, IPNM or PIDX, reports a CTS or IPNM that is not
+        positive, or the arm is not a wam7 with wrist in groups 1/2/4 (gimbals, pucks 5-7 in group 5, ...).
     """
     for i, info in found.items():
         if info.stat != Status.READY:
             raise BackendError(f"puck {i} did not wake up (STAT={info.stat})")
         check_firmware_version(i, info.vers if info.vers is not None else -1)
-        if info.role is not None and (info.role & 0x1F) != 0:
-            raise BackendError(f"puck {i}: ROLE={info.role} is not a motor puck")
+        if info.role is not None and (info.role & ROLE_MASK) != ROLE_TATER:
+            raise ConfigurationRefused(f"puck {i}: ROLE={info.role} is not a WAM motor puck (low five bits 0)")
         for name in ("cts", "ipnm", "pidx"):
             if getattr(info, name) is None:
                 raise BackendError(f"puck {i} did not report {name.upper()}")
         if info.cts <= 0 or info.ipnm <= 0:
             raise BackendError(f"puck {i}: CTS={info.cts}, IPNM={info.ipnm} must be positive")
+    problems = configuration_problems({i: p.groups for i, p in found.items() if p.groups is not None},
+                                      {i: p.poles for i, p in found.items() if p.poles is not None})
+    if problems:
+        raise ConfigurationRefused("the arm is not the one wamctl's model describes: " + "; ".join(problems))
+
+
+def wake_pucks(bus: can.BusABC, ids: Iterable[int], send: Send | None = None,
+               sleep: Callable[[float], None] = time.sleep) -> None:
+    """Wake pucks in the monitor as libbarrett's ``Puck::wake`` does.
+
+    STAT=READY to each puck, one at a time, :data:`TURN_OFF_TIME_S` apart; then :data:`WAKE_UP_TIME_S` during
+    which nothing at all is sent (a frame while a transceiver comes back can put the host bus-off); then per
+    puck a get of STAT answered within :data:`WAKE_CHECK_S` with READY.
+
+    Raises
+    ------
+    BackendError
+        Naming the puck that did not wake (libbarrett's "Failed to wake Puck").
+    """
+    ids = list(ids)
+    if not ids:
+        return
+    send = send or _default_send(bus)
+    logger.info("waking pucks %s (%.0f ms apart, then %.1f s of silence)", ids, TURN_OFF_TIME_S * 1e3,
+                WAKE_UP_TIME_S)
+    for i in ids:
+        send(make_set_property(i, Prop.STAT, Status.READY))
+        sleep(TURN_OFF_TIME_S)
+    sleep(WAKE_UP_TIME_S)
+    for i in ids:
+        stat = read_property(bus, [i], Prop.STAT, WAKE_CHECK_S, retries=0, send=send).get(i)
+        if stat is None:
+            raise BackendError(f"puck {i} did not answer after waking ({WAKE_UP_TIME_S:.2f} s): is the bus quiet "
+                               "(talking while pucks wake can put the host bus-off) and the puck powered?")
+        if stat != Status.READY:
+            raise BackendError(f"puck {i} failed to wake: STAT={stat}")
 
 
 def probe_pucks(bus: can.BusABC, ids: Iterable[int] = WAM_PUCK_IDS, *, wake: bool = True,
-                timeout_s: float = PROBE_TIMEOUT_S, wake_timeout_s: float = WAKE_TIMEOUT_S,
-                send=None) -> dict[int, PuckInfo]:
-    """Find the pucks answering on the bus, wake motor pucks left in the monitor, read their properties.
+                timeout_s: float = PROBE_TIMEOUT_S, send: Send | None = None,
+                sleep: Callable[[float], None] = time.sleep) -> dict[int, PuckInfo]:
+    """Find the nodes answering on the bus, wake WAM pucks left in the monitor, read their properties.
 
     Parameters
     ----------
     bus : can.BusABC
     ids : iterable of int
-        Node ids to probe (a get of STAT each).
+        Node ids to probe (a get of STAT each; the monitor answers it too).
     wake : bool
-        Set STAT=READY on WAM pucks found in the monitor and wait for them (needed to read CTS, IPNM,
-        PIDX and MODE); a woken puck is left idle.
-    timeout_s, wake_timeout_s : float
-        Reply timeout per request; the longest wait for pucks to wake.
-    send : callable, optional
-        ``send(msg)`` used to transmit (default ``bus.send``).
+        Wake WAM pucks found in the monitor (:func:`wake_pucks`: needed to read CTS, IPNM, PIDX, POLES, the
+        groups and MODE); a woken puck is left idle.
+    timeout_s : float
+        Reply timeout per request.
+    send, sleep : callable, optional
+        Transmit (default ``bus.send``) and wait (default ``time.sleep``).
 
     Returns
     -------
     dict of int to PuckInfo
-        The nodes that answered, by id. Motor pucks (1..7) that are awake and have firmware >= 68 carry
-        CTS, IPNM, PIDX and MODE.
+        The nodes that answered, by id. Motor pucks (1..7) awake with firmware >= 65 carry CTS, IPNM, PIDX,
+        POLES, groups and MODE.
     """
-    send = send or (lambda msg: bus.send(msg, timeout=TX_TIMEOUT_S))
+    send = send or _default_send(bus)
     stat = read_property(bus, ids, Prop.STAT, timeout_s, send=send)
     found = {i: PuckInfo(i, s) for i, s in sorted(stat.items())}
     asleep = [i for i, info in found.items() if info.stat != Status.READY and i in WAM_PUCK_IDS]
     if wake and asleep:
-        logger.info("waking pucks %s", asleep)
+        wake_pucks(bus, asleep, send, sleep)
         for i in asleep:
-            send(make_set_property(i, Prop.STAT, Status.READY))
-        t_end = time.perf_counter() + wake_timeout_s
-        while asleep and time.perf_counter() < t_end:
-            time.sleep(0.02)
-            for i, s in read_property(bus, asleep, Prop.STAT, timeout_s, retries=0, send=send).items():
-                found[i].stat = s
-            asleep = [i for i in asleep if found[i].stat != Status.READY]
+            found[i].stat = int(Status.READY)
     ids_found = list(found)
     for field, prop in (("vers", Prop.VERS), ("role", Prop.ROLE), ("sn", Prop.SN)):
         for i, v in read_property(bus, ids_found, prop, timeout_s, send=send).items():
             setattr(found[i], field, v)
     motors = [i for i in ids_found if i in WAM_PUCK_IDS and found[i].stat == Status.READY
               and found[i].firmware_ok]
-    for field, prop in (("cts", Prop.CTS), ("ipnm", Prop.IPNM), ("pidx", Prop.PIDX),
+    for field, prop in (("cts", Prop.CTS), ("ipnm", Prop.IPNM), ("pidx", Prop.PIDX), ("poles", Prop.POLES),
                         ("mode", Prop.MODE)):
         for i, v in read_property(bus, motors, prop, timeout_s, send=send).items():
             setattr(found[i], field, v)
+    grp = {p: read_property(bus, motors, p, timeout_s, send=send) for p in (Prop.GRPA, Prop.GRPB, Prop.GRPC)}
+    for i in motors:
+        if all(i in grp[p] for p in grp):
+            found[i].groups = tuple(grp[p][i] for p in (Prop.GRPA, Prop.GRPB, Prop.GRPC))
     return found
 
 
-# ---------------------------------------------------------------------------------------------- bus load
+# -------------------------------------------------------------------------------------- the safety module
 
-def frame_bits(dlc: int | np.ndarray, stuffing: bool = False) -> int | np.ndarray:
-    """Bits a standard (11-bit id) data frame occupies on the bus, interframe space included.
+@dataclasses.dataclass
+class SafetyInfo:
+    """What the session and ``bus-check`` read from the safety module (node 10).
 
-    Parameters
+    Attributes
     ----------
-    dlc : int or array of int
-        Data bytes, 0..8.
-    stuffing : bool
-        Add the worst-case stuff bits ``floor((34 + 8 dlc - 1) / 4)``.
-
-    Returns
-    -------
-    int or numpy.ndarray
-        ``47 + 8 dlc`` (SOF, id, control, CRC, ACK, EOF and the 3-bit interframe space), plus stuffing.
+    vers, role : int or None
+    mode : int or None
+        :class:`~.protocol.safety.SafetyMode` (0 E-stop, 1 idle, 2 active).
+    zero : int or None
+        1 when the arm has been zeroed since power-up.
+    pen : int or None
+        Raw pendant state (:func:`~.protocol.safety.decode_pen`).
+    limits : dict of str to int
+        VL1, VL2, TL1, TL2 as read.
+    groups : (int, int, int) or None
     """
-    dlc = np.asarray(dlc)
-    bits = 47 + 8 * dlc
-    if stuffing:
-        bits = bits + (34 + 8 * dlc - 1) // 4
-    return bits if bits.ndim else int(bits)
 
+    vers: int | None = None
+    role: int | None = None
+    mode: int | None = None
+    zero: int | None = None
+    pen: int | None = None
+    limits: dict = dataclasses.field(default_factory=dict)
+    groups: tuple[int, int, int] | None = None
 
-def loop_bus_load_pct(bitrate: int, rate_hz: float = P.CONTROL_RATE_HZ, stuffing: bool = False) -> float:
-    """Bus load of the control loop: per cycle one position request (1 byte), seven replies (3 bytes) and
-    two packed-torque frames (8 bytes), in % of ``bitrate``."""
-    bits = frame_bits(1, stuffing) + 7 * frame_bits(3, stuffing) + 2 * frame_bits(8, stuffing)
-    return 100.0 * bits * rate_hz / bitrate
+    @property
+    def firmware_ok(self) -> bool:
+        return self.vers is not None and self.vers >= SAFETY_MIN_FIRMWARE_VERSION
 
+    @property
+    def is_safety_module(self) -> bool:
+        return self.role is not None and (self.role & ROLE_MASK) == ROLE_SAFETY
 
-def measure_bus_load(bus: can.BusABC, bitrate: int, window_s: float = 1.0, poll_hz: float = 0.0) -> dict:
-    """Count the frames on the bus over a window and estimate the load.
+    @property
+    def zeroed(self) -> bool:
+        return self.zero == 1
 
-    Parameters
-    ----------
-    bus : can.BusABC
-    bitrate : int
-        Bit/s, for the percentage.
-    window_s : float
-        Listening time.
-    poll_hz : float
-        If > 0, request the WAM's positions at this rate during the window (deadline-scheduled), and
-        time the replies; the frames sent count in the load.
-
-    Returns
-    -------
-    dict
-        ``window_s, frames, frames_per_s, bits_per_s, load_pct, load_pct_worst`` (with worst-case bit
-        stuffing), ``control_loop_load_pct`` (the 500 Hz loop's estimate), and with polling
-        ``polls, complete_polls, reply_latency_p50_s, reply_latency_p99_s, reply_latency_max_s``.
-    """
-    n_frames = 0
-    bits = bits_worst = 0
-    latencies: list[float] = []
-    polls = complete = 0
-    t_start = time.perf_counter()
-    t_end = t_start + window_s
-    period = 1.0 / poll_hz if poll_hz > 0 else math.inf
-    next_poll = t_start if poll_hz > 0 else math.inf
-    request = make_position_request(GROUP_WAM)
-    got = 0
-    t_sent = None
-
-    def count(dlc: int) -> None:
-        nonlocal n_frames, bits, bits_worst
-        n_frames += 1
-        bits += frame_bits(dlc)
-        bits_worst += frame_bits(dlc, stuffing=True)
-
-    while True:
-        now = time.perf_counter()
-        if now >= t_end:
-            break
-        if now >= next_poll:
-            bus.send(request, timeout=TX_TIMEOUT_S)
-            count(1)
-            polls += 1
-            got, t_sent = 0, now
-            next_poll += period * max(1, math.floor((now - next_poll) / period) + 1)
-        msg = bus.recv(timeout=max(0.0, min(t_end, next_poll) - time.perf_counter()))
-        if msg is None or msg.is_error_frame:
-            continue
-        count(len(msg.data))
-        if t_sent is not None and not msg.is_extended_id and msg.arbitration_id <= MAX_CAN_ID:
-            bid = decode_bus_id(msg.arbitration_id)
-            if bid.is_group and bid.target == FEEDBACK_POSITION_TARGET and bid.sender in WAM_PUCK_IDS:
-                got |= 1 << (bid.sender - 1)
-                if got == ALL_WAM_PUCKS:
-                    latencies.append(time.perf_counter() - t_sent)
-                    complete += 1
-                    t_sent = None
-    elapsed = time.perf_counter() - t_start
-    out = {"window_s": elapsed, "frames": n_frames, "frames_per_s": n_frames / elapsed,
-           "bits_per_s": bits / elapsed, "load_pct": 100.0 * bits / elapsed / bitrate,
-           "load_pct_worst": 100.0 * bits_worst / elapsed / bitrate,
-           "control_loop_load_pct": loop_bus_load_pct(bitrate),
-           "control_loop_load_pct_worst": loop_bus_load_pct(bitrate, stuffing=True)}
-    if poll_hz > 0:
-        lat = np.asarray(latencies)
-        out.update(polls=polls, complete_polls=complete, poll_hz=poll_hz,
-                   reply_latency_p50_s=float(np.percentile(lat, 50)) if lat.size else None,
-                   reply_latency_p99_s=float(np.percentile(lat, 99)) if lat.size else None,
-                   reply_latency_max_s=float(lat.max()) if lat.size else None)
-    return out
-
-
-def bus_check(interface: str, channel: str, bitrate: int = 1_000_000, *, simulate_pucks: bool = False,
-              window_s: float = 1.0, poll_hz: float = 0.0, wake: bool = True,
-              ids: Iterable[int] = range(1, 32)) -> dict:
-    """What ``wamctl bus-check`` reports: the pucks found and the bus load.
-
-    Parameters
-    ----------
-    interface, channel, bitrate
-        The bus.
-    simulate_pucks : bool
-        Answer as simulated pucks (a WAM at rest at ``HOME_Q_RAD``) on the in-process virtual bus.
-    window_s, poll_hz
-        See :func:`measure_bus_load`.
-    wake : bool
-        Wake motor pucks found in the monitor to read CTS, IPNM and PIDX.
-    ids : iterable of int
-        Node ids probed.
-
-    Returns
-    -------
-    dict
-        ``interface, channel, bitrate, simulated, pucks`` (list of :meth:`PuckInfo.to_dict`),
-        ``missing_wam_pucks``, ``problems`` (list of str) and ``load`` (:func:`measure_bus_load`).
-
-    Raises
-    ------
-    BackendError
-        If the bus cannot be opened or no node answers.
-    """
-    sim = None
-    if simulate_pucks:
-        if interface != "virtual":
-            raise BackendError("--simulate-pucks needs --interface virtual: simulated pucks must never answer "
-                               "on a bus with a real arm")
-        from wamctl.backends.can.puck_sim import PuckSimulator, StaticPlant
-        sim = PuckSimulator(StaticPlant(P.HOME_Q_RAD), channel=channel, interface="virtual").start()
-    try:
-        bus = open_bus(interface, channel, bitrate)
+    def mode_words(self) -> str:
         try:
-            found = probe_pucks(bus, ids, wake=wake)
-            if not found:
-                raise BackendError(f"no puck answered on {interface} channel {channel!r} "
-                                   f"(is the WAM powered and the bus terminated?)")
-            problems = []
-            missing = [i for i in WAM_PUCK_IDS if i not in found]
-            if missing:
-                problems.append(f"WAM pucks not found: {missing}")
-            for i in WAM_PUCK_IDS:
-                info = found.get(i)
-                if info is None:
-                    continue
-                if info.stat != Status.READY:
-                    problems.append(f"puck {i} is not awake (STAT={info.stat})")
-                elif not info.firmware_ok:
-                    problems.append(f"puck {i}: firmware VERS={info.vers} older than {MIN_FIRMWARE_VERSION}")
-            present = {i: found[i].pidx for i in WAM_PUCK_IDS if i in found and found[i].pidx is not None}
-            if len(present) == N_JOINTS:
-                try:
-                    torque_slot_of_puck(present)
-                except BackendError as exc:
-                    problems.append(str(exc))
-            load = measure_bus_load(bus, bitrate, window_s, poll_hz)
-        finally:
-            bus.shutdown()
-    finally:
-        if sim is not None:
-            sim.shutdown()
-    return {"interface": interface, "channel": channel, "bitrate": bitrate, "simulated": simulate_pucks,
-            "pucks": [info.to_dict() for info in found.values()], "missing_wam_pucks": missing,
-            "problems": problems, "load": load}
+            return SafetyMode(self.mode).words
+        except (TypeError, ValueError):
+            return "unknown" if self.mode is None else f"MODE {self.mode}"
 
+    def to_dict(self) -> dict:
+        d = dataclasses.asdict(self)
+        d.update(firmware_ok=self.firmware_ok, mode_name=self.mode_words(), zeroed=self.zeroed)
+        try:
+            pen = decode_pen(self.pen) if self.pen is not None else None
+        except PuckFrameError as exc:
+            d["pendant"] = str(exc)
+        else:
+            d["pendant"] = None if pen is None else {"summary": pen.summary(), "faults": pen.faults(),
+                                                     "warnings": pen.warnings()}
+        if "VL1" in self.limits and "VL2" in self.limits:
+            d["velocity_limits_m_s"] = {k: velocity_limit_m_s(self.limits[k]) for k in ("VL1", "VL2")}
+        return d
+
+
+def read_safety_module(bus: can.BusABC, send: Send | None = None,
+                       timeout_s: float = PROBE_TIMEOUT_S) -> SafetyInfo | None:
+    """Read node 10 (None if it does not answer): VERS, ROLE, then, with firmware >= 61, MODE, ZERO, PEN, the
+    limits and the groups."""
+    send = send or _default_send(bus)
+
+    def get(prop: int) -> int | None:
+        return read_property(bus, [SAFETY_PUCK_ID], prop, timeout_s, send=send).get(SAFETY_PUCK_ID)
+
+    vers = get(SafetyProp.VERS)
+    if vers is None:
+        return None
+    info = SafetyInfo(vers=vers, role=get(SafetyProp.ROLE))
+    if not (info.firmware_ok and info.is_safety_module):
+        return info
+    info.mode, info.zero, info.pen = get(SafetyProp.MODE), get(SafetyProp.ZERO), get(SafetyProp.PEN)
+    for name in ("VL1", "VL2", "TL1", "TL2"):
+        v = get(SafetyProp[name])
+        if v is not None:
+            info.limits[name] = v
+    grp = [get(p) for p in (SafetyProp.GRPA, SafetyProp.GRPB, SafetyProp.GRPC)]
+    info.groups = None if None in grp else tuple(grp)
+    return info

@@ -1,16 +1,18 @@
 """The simulated arm behind the simulated pucks, and the faults they can be made to show.
 
-Simulated pucks (``backend: {kind: can, simulate_pucks: true}``, virtual bus only): a
-:class:`~wamctl.backends.can.puck_sim.PuckSimulator` answers on the same in-process channel, its plant a
+Simulated pucks (``backend: {kind: can, simulate_pucks: true}``, virtual bus only, or ``wamctl sim-arm`` in
+its own process): a :class:`~wamctl.backends.can.sim.simulator.PuckSimulator` answers on the bus, its plant a
 :class:`~wamctl.backends.sim.SimBackend` of the spec's plant wrapped in :class:`SimulatedArm`. The CAN
 frames are the only coupling: the physics runs on the simulator's thread, one control period per position
-request while any puck is in TORQUE mode (the arm is held at rest while the pucks are idle, as an operator
-holds the WAM while activating it). The simulated arm therefore advances at the loop's real-time rate,
-and a run over the virtual bus reproduces the direct simulation up to the protocol's quantisation.
+request once the pucks apply torque. The arm is held at rest while no puck is in TORQUE mode (idle pucks
+brake) and, after Shift-Activate, until the first non-zero torque command arrives: an operator holds the WAM
+while activating it, until the controller takes it. The simulated arm therefore advances at the loop's
+real-time rate, and a run over the bus reproduces the direct simulation up to the protocol's quantisation.
 
 Fault injection for tests and demos (``backend.simulated_fault``, simulated pucks only): the fault starts
 at a given control cycle (dropped replies, a silent puck, garbled replies, garbage frames, pucks that stop
-answering, or host transmit errors); :func:`inject_fault` starts it.
+answering, host transmit errors, or the pendant: Shift-Idle, E-stop, a velocity fault of the safety
+module); :func:`inject_fault` starts it.
 """
 
 from __future__ import annotations
@@ -32,16 +34,18 @@ SIM_CTS_IDEAL_SENSOR = 40960  # simulated pucks' CTS when the plant's sensor is 
 class SimulatedArm:
     """A :class:`~wamctl.backends.can.puck_sim.PlantAdapter` over a :class:`~wamctl.backends.sim.SimBackend`.
 
-    Runs on the puck simulator's thread only. Each position request (but the very first) made while a
-    puck is in TORQUE mode advances the physics by one control period under the torques the pucks hold
-    (zero-order hold, like the direct simulation), then returns the encoders' reading. While the pucks
-    are idle the arm is held at rest. With the host switching to TORQUE mode at its first torque command
-    (cycle 0), the arm's cycle count matches the host's.
+    Runs on the puck simulator's thread only. Once released (the first non-zero torque while a puck is in
+    TORQUE mode), each position request made while a puck is in TORQUE mode advances the physics by one control
+    period under the torques the pucks hold (zero-order hold, like the direct simulation), then returns the
+    encoders' reading; otherwise the arm is held at rest. The host's first command (cycle 0) releases it, so
+    the arm's cycle count matches the host's.
 
     Parameters
     ----------
     sim : SimBackend
         The arm (opened here); build it with open safety limits: the host's backend enforces the real ones.
+    rebuild : callable, optional
+        ``rebuild(q_rad) -> SimBackend`` at rest at ``q_rad``: lets :meth:`place` move the held arm.
 
     Attributes
     ----------
@@ -52,12 +56,13 @@ class SimulatedArm:
         loop; NaN: not zero now).
     """
 
-    def __init__(self, sim) -> None:
+    def __init__(self, sim, rebuild=None) -> None:
         self.sim = sim
         sim.open()
+        self._rebuild = rebuild
         self._lock = threading.Lock()
         self._tau_Nm = np.zeros(P.N_JOINTS)
-        self._requested = False
+        self._released = False
         self._simulator = None
         self.cycle = 0
         self.zero_torque_since_cycle = np.full(P.N_JOINTS, -1.0)
@@ -72,25 +77,35 @@ class SimulatedArm:
         return any(m == Mode.TORQUE for m in self._simulator.modes().values())
 
     def joint_positions_rad(self) -> np.ndarray:
-        """Advance one control period if a puck is in TORQUE mode; the encoders' reading."""
+        """Advance one control period if released and a puck is in TORQUE mode; the encoders' reading."""
         torque_mode = self._torque_mode()
         with self._lock:
-            if torque_mode and self._requested:
+            if torque_mode and self._released:
                 self.sim.command_torques(self._tau_Nm)
                 self.sim.wait_next_cycle()
                 self.cycle += 1
-            self._requested = True
             return self.sim.read_positions().copy()
 
     def apply_joint_torques_Nm(self, tau: np.ndarray) -> None:
         """Hold the joint torques the pucks now apply, until the next step."""
+        torque_mode = self._torque_mode()
         with self._lock:
             tau = np.asarray(tau, float)
             zero = tau == 0.0
+            if torque_mode and not zero.all():
+                self._released = True
             since = self.zero_torque_since_cycle
             since[~zero] = np.nan
             since[zero & np.isnan(since)] = self.cycle
             self._tau_Nm[:] = tau
+
+    def place(self, q_rad) -> None:
+        """An operator moves the held arm to ``q_rad`` (ignored once the controller has it)."""
+        with self._lock:
+            if self._released or self._rebuild is None:
+                return
+            self.sim = self._rebuild(np.asarray(q_rad, float))
+            self.sim.open()
 
     def truth(self) -> tuple[np.ndarray, np.ndarray]:
         """Copies of the true position and velocity (for tests)."""
@@ -138,7 +153,17 @@ def build_simulated_arm(plant_spec, base_dir: Path | None, q0_rad, rng: np.rando
     from wamctl.model.plant import Plant
 
     plant = Plant(plant_spec, base_dir)
-    arm = SimulatedArm(SimBackend(plant, q0_rad, rng, physics_substeps, limits=open_limits()))
+    # one physics step of a throwaway copy now (its own plant: effects keep state), not at the run's first cycle
+    warm = SimBackend(Plant(plant_spec, base_dir), q0_rad, np.random.default_rng(0), physics_substeps,
+                      limits=open_limits())
+    warm.open()
+    warm.command_torques(np.zeros(P.N_JOINTS))
+    warm.wait_next_cycle()
+
+    def rebuild(q_rad):
+        return SimBackend(plant, q_rad, rng, physics_substeps, limits=open_limits())
+
+    arm = SimulatedArm(rebuild(q0_rad), rebuild)
     return arm, plant.sensors.encoder_counts_per_rev or SIM_CTS_IDEAL_SENSOR
 
 
@@ -170,6 +195,10 @@ def inject_fault(simulator, fault) -> int:
         simulator.stop_answering()
     elif fault.kind == "bus_error":
         return fault.count
+    elif fault.kind in ("shift_idle", "estop"):
+        simulator.press({"shift_idle": "idle", "estop": "estop"}[fault.kind])
+    elif fault.kind == "velocity_fault":
+        simulator.safety_fault("velocity")
     else:  # pragma: no cover - the spec's Literal lists every kind
         raise ValueError(f"unknown simulated fault {fault.kind!r}")
     return 0

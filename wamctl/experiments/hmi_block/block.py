@@ -174,14 +174,17 @@ class HmiBlock:
         ff, friction_ff = self._friction_feedforward()
         self.feed = open_feed(h, self.base_dir, self.run.path)
         try:
+            self.gaze = self._make_gaze()
+            controller = make_joint_controller(self.spec, ff)  # built before the arm is live (no heartbeat gap)
             with make_backend(self.spec, self.base_dir) as backend:
-                self.run.update_manifest(backend=backend.describe())
-                self.simulated = backend.name == "sim"
-                self.gaze = self._make_gaze()
-                self.arm = self._make_arm(backend, ff, friction_ff)
-                self.supervisor = Supervisor(h.start_mode())
-                self._event("session_start", f"{len(todo)} of {len(plan.trials)} trials to run")
-                self._session(todo, len(done))
+                try:
+                    self.simulated = backend.name == "sim"
+                    self.arm = self._make_arm(backend, controller, ff, friction_ff)
+                    self.supervisor = Supervisor(h.start_mode())
+                    self._event("session_start", f"{len(todo)} of {len(plan.trials)} trials to run")
+                    self._session(todo, len(done))
+                finally:  # after the session: the CAN backend's loop statistics are final then
+                    self.run.update_manifest(backend=backend.describe())
         finally:
             self.feed.close()
             self._trial = None
@@ -230,10 +233,10 @@ class HmiBlock:
             point_filter=f.kind if f.kind in ("ma", "wma") else None, window_s=f.window_s,
             kalman_q=f.q if f.kind == "kalman" else None, stall_timeout_s=h.watchdog_s)
 
-    def _make_arm(self, backend, ff, friction_ff) -> HandArm:
+    def _make_arm(self, backend, controller, ff, friction_ff) -> HandArm:
         h, plan = self.h, self.plan
         return HandArm(
-            backend, make_joint_controller(self.spec, ff), HandKinematics(tool_offset_m=h.tool_offset_m),
+            backend, controller, HandKinematics(tool_offset_m=h.tool_offset_m),
             workspace=plan.workspace, mapping=plan.mapping, z_tool_m=h.z_tool_m, R_ref=plan.R_ref,
             q_rest=plan.q_start, home_q_rad=plan.q_home, ik_rate_hz=h.ik_rate_hz, watchdog_s=h.watchdog_s,
             accel_m_s2=h.accel_m_s2, joint_speed_rad_s=h.joint_speed_rad_s,

@@ -1,16 +1,18 @@
 """Barrett's puck CAN protocol: identifiers, message builders and parsers, puck units.
 
 Pure functions and constants only: nothing here opens a bus, sleeps or keeps state. The backend loop
-(:mod:`wamctl.backends.can.backend`), the bus tools and the simulated pucks (:mod:`wamctl.backends.can.puck_sim`)
+(:mod:`wamctl.backends.can.backend`), the bus tools and the simulated WAM (:mod:`wamctl.backends.can.sim`)
 are built on top of it.
 
 What lives here:
 
 - :mod:`.addressing`: the 11-bit identifiers, node ids, broadcast and feedback groups, packed-torque groups,
   :class:`~.addressing.PuckFrameError`.
-- :mod:`.properties`: property ids (:class:`~.properties.Prop`), MODE and STAT values, the firmware check,
-  and property get / set / reply messages.
-- :mod:`.positions`: 22-bit position replies and the position request.
+- :mod:`.properties`: property ids (:class:`~.properties.Prop`), MODE and STAT values, ROLE bits, the firmware
+  check, and property get / set / reply messages.
+- :mod:`.safety`: the safety module's ids, modes, pendant state (PEN), limits and broadcast.
+- :mod:`.configuration`: the arm the model describes (groups, POLES) and the zeroing counts at the home pose.
+- :mod:`.positions`: 22-bit position replies (3 bytes, or 6 with a joint encoder) and the position request.
 - :mod:`.torques`: packed 14-bit torque frames and puck torque units (IPNM).
 
 Joint <-> motor <-> encoder-count conversions are the arm's, not the bus's: they live in

@@ -30,6 +30,7 @@ __all__ = [
     "encode_position_22bit",
     "make_position_reply",
     "make_position_request",
+    "parse_combined_position_reply",
     "parse_position_reply",
 ]
 
@@ -100,7 +101,8 @@ def make_position_request(target: int = GROUP_WAM) -> can.Message:
     return make_get_property(target, Prop.P)
 
 
-def make_position_reply(puck_id: int, counts: int, *, wrap: bool = False) -> can.Message:
+def make_position_reply(puck_id: int, counts: int, *, wrap: bool = False,
+                        secondary_counts: int | None = None) -> can.Message:
     """Build a puck's position reply (used by the simulator).
 
     Parameters
@@ -111,13 +113,19 @@ def make_position_reply(puck_id: int, counts: int, *, wrap: bool = False) -> can
         Motor encoder counts.
     wrap : bool, default False
         See :func:`encode_position_22bit`.
+    secondary_counts : int, optional
+        A joint (secondary) encoder's counts: the reply then has six bytes, motor encoder first (pucks whose
+        ROLE has the joint-encoder option, libbarrett ``CombinedPositionParser``).
 
     Returns
     -------
     can.Message
-        Three bytes to feedback group 3: id ``0x400 | puck_id << 5 | 3``.
+        Three (or six) bytes to feedback group 3: id ``0x400 | puck_id << 5 | 3``.
     """
-    return data_frame(encode_bus_id(puck_id, FEEDBACK_POSITION), encode_position_22bit(counts, wrap=wrap))
+    payload = encode_position_22bit(counts, wrap=wrap)
+    if secondary_counts is not None:
+        payload += encode_position_22bit(secondary_counts, wrap=wrap)
+    return data_frame(encode_bus_id(puck_id, FEEDBACK_POSITION), payload)
 
 
 def parse_position_reply(msg: can.Message) -> tuple[int, int]:
@@ -146,4 +154,18 @@ def parse_position_reply(msg: can.Message) -> tuple[int, int]:
     if len(data) not in (3, 6):
         raise PuckFrameError(f"position reply from puck {bid.sender}: expected 3 or 6 bytes, got {len(data)}")
     return bid.sender, decode_position_22bit(data)
+
+
+def parse_combined_position_reply(msg: can.Message) -> tuple[int, int, int | None]:
+    """Decode a position reply with its joint encoder: ``(puck_id, motor counts, joint counts or None)``; a
+    3-byte reply has no joint encoder (libbarrett ``CombinedPositionParser``).
+
+    Raises
+    ------
+    PuckFrameError
+        As :func:`parse_position_reply`.
+    """
+    puck, counts = parse_position_reply(msg)
+    data = bytes(msg.data)
+    return puck, counts, decode_position_22bit(data[3:]) if len(data) == 6 else None
 

@@ -2,7 +2,7 @@
 
 A property is read with a get (one byte, the id) and answered by a reply to feedback group 6; it is written
 with a set (``[id | 0x80, 0, value int32 LE]``). Sources: libbarrett ``src/products/property_list.cpp``
-(motor-puck tables for firmware >= 68), ``include/barrett/products/puck.h``, ``motor_puck.h`` and
+(motor-puck tables for firmware >= 65), ``include/barrett/products/puck.h``, ``motor_puck.h`` and
 ``detail/puck-inl.h``.
 """
 
@@ -22,12 +22,14 @@ from wamctl.backends.can.protocol.addressing import (
     decode_reply_id,
     encode_bus_id,
 )
-from wamctl.errors import BackendError
+from wamctl.errors import ConfigurationRefused
 from wamctl.model import params as P
 
 __all__ = [
     "CTS_DEFAULT",
     "MIN_FIRMWARE_VERSION",
+    "MONITOR_PROPS",
+    "OLD_MOTOR_IDS",
     "Mode",
     "PROPERTY_MASK",
     "Prop",
@@ -46,39 +48,63 @@ SET_MASK = 0x80  # puck.h SET_MASK: first data byte of a SET (and of a property 
 PROPERTY_MASK = 0x7F  # puck.h PROPERTY_MASK
 
 # --------------------------------------------------------------------------------------------------
-# Properties (libbarrett src/products/property_list.cpp, motor-puck tables for firmware >= 68)
+# Properties (libbarrett src/products/property_list.cpp, motor-puck tables for firmware >= 65)
 # --------------------------------------------------------------------------------------------------
 
 
 class Prop(enum.IntEnum):
-    """Property ids of a WAM motor puck.
+    """Property ids of a WAM motor puck with firmware VERS >= 65 (libbarrett ``property_list.cpp``, motor tables
+    from VERS 65 on; the ids below do not move again up to the newest table, VERS >= 175).
 
-    VERS, ROLE, SN, ID, ERROR, STAT, MODE, T and P have these ids from firmware 61 on (VERS..STAT also
-    in the bootloader/monitor). CTS, IPNM and PIDX moved: 65/83/67 (firmware 61-64), 66/83/68 (65-67),
-    68/86/70 from firmware 68 on; see :func:`check_firmware_version`.
+    VERS..STAT also exist in the monitor (the bootloader a puck starts in), where 8 is LOCK, not MODE. Older
+    firmware uses other ids for CTS, IPNM, PIDX and POLES (:data:`OLD_MOTOR_IDS`); it is refused by
+    :func:`check_firmware_version`.
     """
 
     VERS = 0  # firmware version
-    ROLE = 1  # puck role and options (low 5 bits: 0 = motor "tater")
+    ROLE = 1  # puck role and options (low 5 bits: 0 = motor "tater"; see ROLE_* below)
     SN = 2  # serial number
     ID = 3  # node id
     ERROR = 4
     STAT = 5  # 0 reset (monitor), 2 ready; set STAT=2 to wake a puck
-    MODE = 8  # motor mode, see :class:`Mode`
+    MODE = 8  # motor mode, see :class:`Mode` (set by the safety module, never by wamctl: only IDLE)
+    GRPA = 26  # the three broadcast groups a puck listens to (EEPROM; libbarrett never writes them)
+    GRPB = 27
+    GRPC = 28
+    SAVE = 30  # SAVE / LOAD / DEF: write a property to EEPROM / reload it / load its factory default
+    LOAD = 31
+    DEF = 32
     T = 42  # torque command (puck units); packed-torque frames start with 0x80|42 = 0xAA
-    P = 48  # motor encoder position (counts, 22-bit replies to feedback group 3)
+    P = 48  # motor encoder position (counts, 22-bit replies to feedback group 3); a set defines the position
     MECH = 66  # absolute mechanical angle (counts, firmware >= 118 with absolute encoders)
     CTS = 68  # encoder counts per motor revolution
     PIDX = 70  # 1-based slot of this puck in its packed-torque frame
     IPNM = 86  # puck torque units per N m of motor torque
+    POLES = 90  # motor poles: 12 (pucks 1-4), 8 (wrist pucks 5-6), 6 (wrist puck 7) or 8 (gimbals puck 7)
 
+
+# Property ids above are valid from this motor-puck firmware version on (property_list.cpp PL_Motor).
+MIN_FIRMWARE_VERSION = 65
+# What older motor firmware calls CTS, IPNM, PIDX and POLES (libbarrett property_list.cpp): the reason it is
+# refused. Below 61, every id differs (motor pucks and the safety module shared one list).
+OLD_MOTOR_IDS: dict[tuple[int, int], dict[str, int]] = {
+    (61, 63): {"CTS": 65, "IPNM": 83, "PIDX": 67, "POLES": 87},
+    (64, 64): {"CTS": 66, "IPNM": 83, "PIDX": 68, "POLES": 87},
+}
+
+# ROLE (libbarrett puck.h): the puck type in the low five bits, options above.
+ROLE_MASK = 0x1F
+ROLE_TATER = 0  # a WAM motor puck
+ROLE_GIMBALS = 1
+ROLE_SAFETY = 2  # the safety module
+ROLE_OPTICAL_ENC_ON_ENC = 0x4000  # RO_OpticalEncOnEnc: a joint (secondary) encoder: 6-byte position replies
+ROLE_MAG_ENC_ON_SERIAL = 0x0100  # RO_MagEncOnSerial: absolute motor encoder (MECH)
+# Properties a puck answers in the monitor (libbarrett PL_Monitor: VERS, ROLE, SN, ID, ERROR, STAT, ...).
+MONITOR_PROPS = frozenset({0, 1, 2, 3, 4, 5})
 
 # CTS assumed until each puck's is read: the model's encoder resolution (4096 on older arms, 40960 with
 # magnetic encoders); IPNM's default is with the torques (torques.IPNM_DEFAULT).
 CTS_DEFAULT = P.ENCODER_COUNTS_PER_REV
-
-# Property ids above are valid from this motor-puck firmware version on (property_list.cpp PL_Motor).
-MIN_FIRMWARE_VERSION = 68
 
 
 class Mode(enum.IntEnum):
@@ -101,7 +127,7 @@ class Status(enum.IntEnum):
 
 
 def check_firmware_version(puck_id: int, vers: int) -> None:
-    """Refuse a motor puck whose firmware uses other ids for CTS, IPNM and PIDX.
+    """Refuse a motor puck whose firmware uses other property ids than :class:`Prop`.
 
     Parameters
     ----------
@@ -113,13 +139,16 @@ def check_firmware_version(puck_id: int, vers: int) -> None:
     Raises
     ------
     BackendError
-        If ``vers`` is below :data:`MIN_FIRMWARE_VERSION`.
+        If ``vers`` is below :data:`MIN_FIRMWARE_VERSION`; the message names the ids that firmware uses.
     """
-    if vers < MIN_FIRMWARE_VERSION:
-        raise BackendError(
-            f"puck {puck_id}: firmware VERS={vers} is older than {MIN_FIRMWARE_VERSION}; its CTS/IPNM/PIDX "
-            "property ids differ and are not supported"
-        )
+    if vers >= MIN_FIRMWARE_VERSION:
+        return
+    ids = next((d for (lo, hi), d in OLD_MOTOR_IDS.items() if lo <= vers <= hi), None)
+    why = ("it names " + ", ".join(f"{k} {v}" for k, v in ids.items()) + " where VERS >= 65 uses "
+           + ", ".join(f"{k} {int(Prop[k])}" for k in ids)) if ids else \
+        "below VERS 61 every property id differs (motor pucks and the safety module shared one list)"
+    raise ConfigurationRefused(f"puck {puck_id}: firmware VERS={vers} is older than {MIN_FIRMWARE_VERSION}: {why} "
+                       f"(libbarrett property_list.cpp); update the puck firmware")
 
 
 class PropertyReply(NamedTuple):

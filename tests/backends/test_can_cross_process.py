@@ -1,0 +1,148 @@
+"""The simulated WAM in its own process (``wamctl sim-arm``) over python-can's ``udp_multicast`` interface, a run in
+this one: the lab's situation (issue 14). A whole first session of the day, from power-up (pucks in the monitor,
+encoders not zeroed, the arm at its home pose) through zeroing, the operator moving the arm to the start pose,
+Shift-Activate and the rotation test, must match the direct simulation as the in-process virtual bus does; the
+wire (recorded by a third bus in this process) shows libbarrett's pacing, no MODE=TORQUE from wamctl and zero
+torque until every puck reports TORQUE. A gimbals arm is refused on the command line in one line.
+
+Each test uses its own multicast group and port, so that runs of other test sessions on this machine do not mix.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import signal
+import subprocess
+import sys
+
+import can
+import numpy as np
+import pytest
+import yaml
+from can_wire import all_pucks_torque_index, host_mode_writes, host_sets, torque_frames, wake_pacing
+from conftest import Q0, rotation_spec
+from typer.testing import CliRunner
+
+from wamctl.analysis.rotation import rotation_metrics
+from wamctl.backends.can.protocol.configuration import zeroing_counts
+from wamctl.backends.can.protocol.properties import Mode, Prop
+from wamctl.experiments.runner import run_spec
+from wamctl.model.transmission import joint_rad_per_count
+from wamctl.runs.store import open_run, read_table
+from wamctl.specs import parse_spec
+
+pytestmark = pytest.mark.timeout(300)
+
+SHORT_ROTATION = {"joints": [2, 4], "mode": "all_together", "amplitude_rad": 0.2, "velocity_rad_s": 0.2,
+                  "tc_s": 0.3, "settle_s": 0.2, "hold_s": 0.5}
+
+
+@pytest.fixture
+def udp():
+    """A multicast group and port of this test's own; skipped (with the reason) where multicast is unavailable."""
+    group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
+    port = random.randint(42000, 60000)
+    try:
+        can.Bus(interface="udp_multicast", channel=group, port=port).shutdown()
+    except Exception as exc:  # noqa: BLE001 - any failure to join a multicast group
+        pytest.skip(f"udp_multicast unavailable here: {exc}")
+    return group, port
+
+
+class SimArm:
+    """``wamctl sim-arm`` in a subprocess: started, waited for ("serving"), stopped with SIGTERM (SIGINT is ignored
+    by processes started from a background job)."""
+
+    def __init__(self, group: str, port: int, *args: str) -> None:
+        cmd = [sys.executable, "-m", "wamctl.cli", "sim-arm", "--interface", "udp_multicast", "--channel", group,
+               "--bus-option", f"port={port}", "--json", *args]
+        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                                     env={**os.environ, "COLUMNS": "300"})
+        self.seen: dict | None = None
+        # ready when it logs that it serves (event-driven: the first line on stderr, no sleep)
+        line = self.proc.stderr.readline()
+        if "serving" not in line:
+            self.proc.kill()
+            raise RuntimeError(f"sim-arm did not start: {line}{self.proc.stderr.read()}")
+
+    def stop(self) -> dict:
+        self.proc.send_signal(signal.SIGTERM)
+        out, err = self.proc.communicate(timeout=60)
+        assert self.proc.returncode == 0, err
+        self.seen = json.loads(out)
+        return self.seen
+
+
+def backend(group: str, port: int, **kw) -> dict:
+    return {"kind": "can", "interface": "udp_multicast", "channel": group, "bus_options": {"port": port},
+            "watchdog_cycles": 25, "reply_timeout_s": 0.05, "idle_wait_s": 5.0, **kw}
+
+
+def test_first_session_of_the_day_over_udp_matches_the_direct_simulation(runs_dir, udp, tmp_path):
+    group, port = udp
+    can_spec = rotation_spec(name="xproc", rotation=SHORT_ROTATION,
+                             backend=backend(group, port, zeroing_confirmed=True))
+    spec_file = tmp_path / "xproc.yaml"
+    spec_file.write_text(yaml.safe_dump(can_spec))
+    # the monitor reads in a thread of its own (python-can's Notifier): a socket left unread overflows
+    monitor = can.Bus(interface="udp_multicast", channel=group, port=port)
+    recorded = can.BufferedReader()
+    notifier = can.Notifier(monitor, [recorded], timeout=0.1)
+    arm = SimArm(group, port, "--spec", str(spec_file), "--pose", "home", "--not-zeroed", "--asleep",
+                 "--pendant", "move@0.3,activate@0.8,idle@end")
+    try:
+        out_can = run_spec(parse_spec(can_spec), tmp_path, runs_dir, make_report=False)
+    finally:
+        seen = arm.stop()
+        notifier.stop()
+        monitor.shutdown()
+    frames = []
+    while (m := recorded.get_message(0.0)) is not None:
+        frames.append(m)
+    out_direct = run_spec(parse_spec(rotation_spec(name="direct", rotation=SHORT_ROTATION)), None, runs_dir,
+                          make_report=False)
+    assert out_can.status == "completed", out_can.reason
+    data_can, data_direct = read_table(out_can.path), read_table(out_direct.path)
+    q_cols = [f"q_{j}_rad" for j in range(1, 8)]
+    # zeroed at home, moved to the start pose by the operator: the run starts at the spec's q0
+    np.testing.assert_array_less(np.abs(data_can[q_cols].to_numpy()[0] - Q0), joint_rad_per_count(4096) + 1e-12)
+    # as on the virtual bus (tests/backends/test_can_backend.py): RPE within 5 %, trajectory within 5e-4 rad
+    m_can, m_direct = rotation_metrics(data_can), rotation_metrics(data_direct)
+    assert (m_direct["rpe_pct"] > 0.1).all()
+    np.testing.assert_allclose(m_can["rpe_pct"], m_direct["rpe_pct"], rtol=0.05)
+    assert np.abs(data_can[q_cols].to_numpy() - data_direct[q_cols].to_numpy()).max() < 5e-4
+
+    # the wire: libbarrett's pacing, the zeroing, no MODE=TORQUE, zero torque until every puck reports TORQUE
+    w = wake_pacing(frames)
+    assert w["n"] == 7 and min(w["gaps_s"]) >= 0.010 - 5e-4 and w["silence_s"] >= 1.0 - 5e-4
+    assert [v for _, _, v in host_sets(frames, Prop.P)] == zeroing_counts([4096] * 7).tolist()
+    assert {v for _, v in host_mode_writes(frames)} == {int(Mode.IDLE)}
+    i_torque = all_pucks_torque_index(frames)
+    tq = torque_frames(frames)
+    assert not any(s.any() for i, s in tq if i < i_torque) and any(s.any() for i, s in tq if i > i_torque)
+    # what the arm saw
+    st = seen["stats"]
+    assert st["host_mode_writes_refused"] == 0 and st["bus_off_events"] == 0
+    assert seen["safety_module"]["zero"] == 1 and seen["safety_module"]["mode"] == "Shift-idle"
+    manifest, _ = open_run(out_can.path)
+    assert manifest["backend"]["session"]["zeroed_now"] is True
+
+
+def test_gimbals_arm_is_refused_in_one_line(runs_dir, udp, tmp_path):
+    group, port = udp
+    spec_file = tmp_path / "gimbals.yaml"
+    spec_file.write_text(yaml.safe_dump({**rotation_spec(name="gimbals", rotation=SHORT_ROTATION,
+                                                         backend=backend(group, port)), "out_dir": str(runs_dir)}))
+    arm = SimArm(group, port, "--gimbals", "--zeroed", "--awake")
+    try:
+        from wamctl.cli import _register, app
+        _register()
+        res = CliRunner().invoke(app, ["run", str(spec_file), "--quiet"])
+    finally:
+        seen = arm.stop()
+    assert res.exit_code != 0
+    text = " ".join(res.output.split())
+    assert "puck 7 reports POLES=8: a WAM with gimbals" in text and "Traceback" not in res.output
+    assert seen["stats"]["torque_frames"] == 0 and seen["stats"]["position_requests"] == 0
