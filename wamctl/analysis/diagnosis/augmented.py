@@ -110,10 +110,12 @@ def _effects_after(diag, thetas, joints_friction) -> dict:
                         ratios.append(fs / fc)
                 vss.append(pp["vs_rad_s"])
                 fr.update(fs_pos_Nm=max(pp["Fs_pos_Nm"], 0.0), fs_neg_Nm=max(pp["Fs_neg_Nm"], 0.0),
-                          vs_rad_s=_clip(pp["vs_rad_s"], 1e-4, 5.0), stribeck_delta=2.0)
+                          vs_rad_s=_clip(pp["vs_rad_s"], 1e-4, 5.0),
+                          stribeck_delta=_clip(pp.get("stribeck_delta", 2.0), 0.5, 4.0))
             out["stribeck"] = {"joints": js, "breakaway_ratio": _clip(np.median(ratios) if ratios else 1.5,
                                                                        1.0001, 10.0),
-                               "vs_rad_s": _clip(float(np.median(vss)), 1e-4, 5.0), "delta": 2.0}
+                               "vs_rad_s": _clip(float(np.median(vss)), 1e-4, 5.0),
+                               "delta": _clip(float(p.get("stribeck_delta", 2.0)), 0.5, 4.0)}
         elif name == "position_ripple":
             out["position_ripple"] = {"joints": [j + 1], "amplitude_Nm": _clip(p["amplitude_Nm"], 1e-6, 20.0),
                                       "period_rad": _clip(p["period_rad"], 0.005, 6.3),

@@ -14,9 +14,9 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import stribeck_columns
-from wamctl.analysis.diagnosis.signals import Signals, interp_columns
+from wamctl.analysis.diagnosis.signals import Signals
 from wamctl.analysis.diagnosis.stats import lstsq, lstsq_bounded
-from wamctl.model.friction import FrictionModel, classic_friction_columns
+from wamctl.model.friction import FrictionModel, classic_friction_columns, stribeck_decay
 
 N_FRICTION = 4                    # classic friction: Coulomb and viscous, per direction
 N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 10, "delay": 0, "friction_drift": 2,
@@ -90,9 +90,13 @@ class Design:
 
 # ---------------------------------------------------------------------------------------------- terms
 def ncols(term: dict) -> int:
-    """Columns a term adds (the arm's one payload, once fitted over all joints, adds one)."""
-    if term["name"] == "payload" and isinstance(term.get("h_all", term.get("fixed_h")), tuple):
+    """Columns a term adds (the arm's one payload, once fitted over all joints, adds one; a Stribeck effect whose
+    shape was measured elsewhere adds none: it shapes the friction columns)."""
+    h = term.get("h_all", term.get("fixed_h"))
+    if term["name"] == "payload" and isinstance(h, tuple):
         return 1
+    if term["name"] == "stribeck" and isinstance(term.get("fixed_h"), tuple):
+        return 0
     return N_COLUMNS[term["name"]]
 
 
@@ -189,25 +193,23 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
     sig = des.sig
     j = jd.j
     qd_f = sig.qd_rad_s[:, j]
+    shift = d / sig.dt_s
 
-    def sample(raw):
-        """The smoothed feature at the joint's samples (shifted by d: from the smoothed full-rate one)."""
-        if not d:
-            return sig.smooth_at(raw, jd.idx)
-        return interp_columns(jd.t_s + d, sig.t_s, sig.smooth(raw))
+    def sample(fn):
+        """The smoothed feature ``fn(full-rate indices)`` at the joint's samples (``d`` seconds later)."""
+        return sig.smooth_at(fn, jd.idx, shift)
 
     if name == "friction":
-        if not d:
-            return sample(classic_friction_columns(qd_f))
-        full = jd.extra.get("fric_smooth")
-        if full is None:
-            full = jd.extra["fric_smooth"] = sig.smooth(classic_friction_columns(qd_f))
-        return interp_columns(jd.t_s + d, sig.t_s, full)
+        return sample(lambda p: friction_columns(qd_f[p], h))
     if name == "stribeck":
-        return sample(stribeck_columns(qd_f, h))
+        return sample(lambda p: stribeck_columns(qd_f[p], h))
     if name == "position_ripple":
-        ph = 2 * np.pi * sig.q_rad[:, j] / h
-        return sample(np.column_stack([np.sin(ph), np.cos(ph)]))
+        q_f = sig.q_rad[:, j]
+
+        def ripple(p):
+            ph = 2 * np.pi * q_f[p] / h
+            return np.column_stack([np.sin(ph), np.cos(ph)])
+        return sample(ripple)
     if name == "payload":
         X = jd.extra["payload"]
         if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold
@@ -221,8 +223,32 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
         tb = declared_levels(des, jd)
         return np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * np.exp(-jd.extra["t_rel"] / h)[:, None]
     if name == "backlash":
-        return sample((jd.extra["dgdq_full"] * np.sign(qd_f))[:, None])
+        dg = jd.extra["dgdq_full"]
+        return sample(lambda p: (dg[p] * np.sign(qd_f[p]))[:, None])
     raise ValueError(name)
+
+
+def friction_columns(qd: np.ndarray, shape=None) -> np.ndarray:
+    """The classic friction regressor (m, 4) at speeds ``qd`` (m,); with ``shape = (ratio_pos, ratio_neg, vs,
+    delta)`` (a Stribeck effect whose shape was measured elsewhere: at the breakaways or on the friction map of
+    steady segments) the Coulomb columns carry it, ``Fc (1 + (ratio - 1) exp(-|qd / vs|^delta))``, so that the
+    model stays linear in the four classic levels."""
+    F = classic_friction_columns(qd)
+    if shape is not None:
+        rp, rn, vs, delta = shape
+        e = stribeck_decay(np.asarray(qd, float), vs, delta)
+        F[:, 0] *= 1.0 + (rp - 1.0) * e
+        F[:, 1] *= 1.0 + (rn - 1.0) * e
+    return F
+
+
+def at_shift(x: np.ndarray, idx: np.ndarray, shift: float) -> np.ndarray:
+    """Full-rate samples ``x`` (n,) at the fractional sample positions ``idx + shift`` (linear interpolation; the
+    time grid is uniform)."""
+    p = np.clip(np.asarray(idx, float) + shift, 0, len(x) - 1)
+    i0 = np.minimum(np.floor(p).astype(int), len(x) - 2)
+    f = p - i0
+    return x[i0] * (1.0 - f) + x[i0 + 1] * f
 
 
 def shifted_target(des: Design, jd: JointData, d: float) -> np.ndarray:
@@ -231,11 +257,23 @@ def shifted_target(des: Design, jd: JointData, d: float) -> np.ndarray:
     cache = jd.extra.setdefault("_shift", {})
     key = round(float(d), 9)
     if key not in cache:
-        model = des.rnea_Nm[:, jd.j] + des.known_Nm[:, jd.j]
+        shift = d / des.sig.dt_s
+        model = at_shift(des.rnea_Nm[:, jd.j], jd.idx, shift)
+        if des.friction_given is not None:
+            model += at_shift(des.known_Nm[:, jd.j], jd.idx, shift)
         if len(cache) > 100:
             cache.clear()
-        cache[key] = des.tau_Nm[jd.idx, jd.j] - np.interp(jd.t_s + d, des.sig.t_s, model)
+        cache[key] = des.tau_Nm[jd.idx, jd.j] - model
     return cache[key]
+
+
+def friction_shape(terms: list[dict], fold: int | None = None):
+    """The Stribeck shape ``(ratio_pos, ratio_neg, vs, delta)`` a term among ``terms`` gives the friction
+    columns (a Stribeck effect measured elsewhere), or None."""
+    for t in terms:
+        if t["name"] == "stribeck" and isinstance(t.get("fixed_h"), tuple):
+            return t["fixed_h"]
+    return None
 
 
 def target_and_design(des: Design, jd: JointData, terms: list[dict],
@@ -244,8 +282,8 @@ def target_and_design(des: Design, jd: JointData, terms: list[dict],
     (None: chosen on all data); a delay term shifts target and friction instead of adding columns."""
     d = delay_of(terms, fold)
     y = shifted_target(des, jd, d) if d else jd.y_Nm
-    cols = [columns(des, "friction", jd, None, d)]
-    cols += [columns(des, t["name"], jd, shape_of(t, fold), d) for t in terms if t["name"] != "delay"]
+    cols = [columns(des, "friction", jd, friction_shape(terms, fold), d)]
+    cols += [columns(des, t["name"], jd, shape_of(t, fold), d) for t in terms if ncols(t) > 0]
     return y, np.hstack(cols)
 
 

@@ -175,6 +175,7 @@ class ModelDiagnosis:
         self.reason_ = None
         self.joints_ = {}
         self.effects_found_ = []
+        self.ambiguous_ = []
         unknown = [c for c in self.candidates if c not in EFFECT_NAMES]
         if unknown:
             raise ValueError(f"unknown candidate effects {unknown}; known: {EFFECT_NAMES}")
@@ -209,6 +210,7 @@ class ModelDiagnosis:
             for j in sig.joints:
                 onset_tests(self, j, tests)
         self.effects_found_ = self._ranked_effects()
+        self.ambiguous_ = self._ambiguous_groups()
         report_effects(self)
         self.conclusive_ = True
         self.positions_ = None
@@ -259,7 +261,17 @@ class ModelDiagnosis:
         pre = None
         if "stribeck" in tests and "stribeck" not in (rejected or {}):
             pre = stribeck_at_breakaways(self, jd.j)
-        return forward_select(self.design_, jd, res, tests, self.threshold_, self.max_steps, pre, rejected)
+
+        def onset_recheck(name: str, other: dict) -> dict | None:
+            """Stribeck seen at the breakaways, tested again with a measurement delay in the model (the other
+            candidates leave the breakaway levels as they are)."""
+            if name != "stribeck" or other["name"] != "delay":
+                return None
+            d = float(np.median([h for h in other["h_fold"] if h is not None]))
+            return stribeck_at_breakaways(self, jd.j, extra_delay_s=d, test_only=True)
+
+        return forward_select(self.design_, jd, res, tests, self.threshold_, self.max_steps, pre, rejected,
+                              onset_recheck)
 
     def _check_delay(self, tests: list[str]) -> None:
         """One delay for the arm: joints whose delay disagrees are diagnosed again without it."""
@@ -298,6 +310,16 @@ class ModelDiagnosis:
             for k in res.kept:
                 strength[k["name"]] = max(strength.get(k["name"], 0.0), k["gain"])
         return sorted(strength, key=lambda n: -strength[n])
+
+    def _ambiguous_groups(self) -> list[tuple[str, ...]]:
+        """The ambiguous groups of every joint, each once (names sorted)."""
+        groups = []
+        for res in self.joints_.values():
+            for g in res.ambiguous:
+                key = tuple(sorted(g["names"]))
+                if key not in groups:
+                    groups.append(key)
+        return groups
 
     def _position_check(self, data) -> None:
         pc = position_check(self, data, self.simulator, self.max_sim_samples or MAX_SIM_SAMPLES)

@@ -71,8 +71,15 @@ def stribeck_params(fr: np.ndarray, coef: np.ndarray, vs_rad_s: float, term: dic
     """Breakaway and Coulomb levels per direction and the Stribeck velocity, from the absolute classic levels
     ``fr`` (4,) and the breakaway excess ``coef`` (2,); a term found at the breakaways takes the levels the
     joint withstood there."""
+    shape = term.get("fixed_h")
+    if isinstance(shape, tuple):        # measured at the breakaways or on the friction map
+        rp, rn, vs, delta = shape
+        return {"Fs_pos_Nm": float(rp * fr[0]), "Fs_neg_Nm": float(rn * fr[1]), "Fc_pos_Nm": float(fr[0]),
+                "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(vs), "stribeck_delta": float(delta),
+                "Fs_from": term.get("seen", "breakaways")}
     out = {"Fs_pos_Nm": float(fr[0] + coef[0]), "Fs_neg_Nm": float(fr[1] + coef[1]),
-           "Fc_pos_Nm": float(fr[0]), "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(vs_rad_s)}
+           "Fc_pos_Nm": float(fr[0]), "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(vs_rad_s),
+           "stribeck_delta": 2.0}
     if term.get("onset_ratio"):
         rho = term.get("onset_ratio_dir", {})
         out["Fs_pos_Nm"] = rho.get("pos", term["onset_ratio"]) * out["Fc_pos_Nm"]
@@ -117,6 +124,11 @@ def report_effects(diag) -> None:
         for t in res.kept:
             ev = t["evidence"]
             test = TEST_NAME if t["name"] != "backlash" else ONSET_TEST_NAME
-            res.effects.append({"name": t["name"], "params": kept_effect_params(diag, j, t["name"]),
-                                "evidence": {"test": test, "p_value": float(ev["p_value"]),
-                                             "delta_bic": float(ev["delta_bic"])}})
+            entry = {"name": t["name"], "params": kept_effect_params(diag, j, t["name"]),
+                     "evidence": {"test": test, "p_value": float(ev["p_value"]), "delta_bic": float(ev["delta_bic"])}}
+            if t.get("onset_test") and t["name"] == "stribeck":
+                entry["evidence"]["test"] = ONSET_TEST_NAME
+            for k in ("rms_before_Nm", "rms_after_Nm"):
+                if k in t:
+                    entry[f"torque_{k}"] = float(t[k])
+            res.effects.append(entry)

@@ -94,19 +94,35 @@ class Signals:
         """The analysis filter (Gaussian pre-filter, then Savitzky-Golay) along axis 0, or its derivative."""
         return smooth(X, self.window, self.gauss, deriv, self.dt_s)
 
-    def smooth_at(self, X: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """The analysis filter of ``X`` (n, p) evaluated at the samples ``idx`` only (m, p): the same
-        convolution as :meth:`smooth` away from the ends (which the masks leave out), at a fraction of the
-        cost when ``m`` is much smaller than ``n``."""
-        r = self.window // 2 + int(np.ceil(4 * self.gauss)) + 1     # the Gaussian is truncated at 4 sigma
-        imp = np.zeros(4 * r + 1)
-        imp[2 * r] = 1.0
-        k = smooth(imp, self.window, self.gauss)[r:3 * r + 1]          # symmetric kernel, 2 r + 1 taps
-        pos = np.clip(np.asarray(idx)[:, None] + np.arange(-r, r + 1)[None, :], 0, len(X) - 1)
-        X = np.asarray(X, float)
-        if X.ndim == 1:
-            return X[pos] @ k
-        return np.einsum("mkp,k->mp", X[pos], k)
+    def kernel(self) -> np.ndarray:
+        """The analysis filter as one symmetric FIR kernel (2 r + 1 taps, the Gaussian truncated at 4 sigma)."""
+        return _kernel(self.window, float(self.gauss))
+
+    def smooth_at(self, X, idx: np.ndarray, shift: float = 0.0) -> np.ndarray:
+        """The analysis filter of a full-rate feature evaluated at the samples ``idx`` only (m, p) or (m,): the
+        same convolution as :meth:`smooth` away from the ends (which the masks leave out).
+
+        ``X`` is an (n, p) / (n,) array, or a function ``pos -> values`` of full-rate sample indices (then the
+        feature is only evaluated where the filter needs it: long runs are not computed at the full rate).
+        ``shift``: the filtered feature ``shift`` samples later (fractional: linear interpolation between the two
+        neighbouring samples, as ``np.interp`` of the filtered feature)."""
+        k = self.kernel()
+        r = len(k) // 2
+        idx = np.asarray(idx)
+        base = int(np.floor(shift))
+        frac = float(shift - base)
+        offs = [base] if frac < 1e-12 else [base, base + 1]
+        fn = X if callable(X) else np.asarray(X, float).__getitem__
+        out = None
+        for w, o in zip(([1.0] if len(offs) == 1 else [1.0 - frac, frac]), offs):
+            pos = np.clip(idx[:, None] + o + np.arange(-r, r + 1)[None, :], 0, self.n - 1)
+            vals = np.asarray(fn(pos.ravel()), float)
+            if vals.ndim == 1:
+                y = vals.reshape(pos.shape) @ k
+            else:
+                y = np.einsum("mkp,k->mp", vals.reshape(pos.shape + (vals.shape[1],)), k)
+            out = w * y if out is None else out + w * y
+        return out
 
     @property
     def duration_s(self) -> float:
@@ -164,6 +180,14 @@ def window_samples(rate_hz: float, window_s: float = DEFAULT_WINDOW_S) -> int:
     w = int(round(window_s * rate_hz))
     w = max(w, POLYORDER + 4)
     return w + 1 - w % 2
+
+
+@lru_cache(maxsize=16)
+def _kernel(window: int, gauss: float) -> np.ndarray:
+    r = window // 2 + int(np.ceil(4 * gauss)) + 1     # the Gaussian is truncated at 4 sigma
+    imp = np.zeros(4 * r + 1)
+    imp[2 * r] = 1.0
+    return smooth(imp, window, gauss)[r:3 * r + 1]     # symmetric kernel, 2 r + 1 taps
 
 
 @lru_cache(maxsize=16)
