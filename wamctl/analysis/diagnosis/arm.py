@@ -11,7 +11,7 @@ import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import payload_from_pi
 from wamctl.analysis.diagnosis.design import Design, columns, target_and_design
-from wamctl.analysis.diagnosis.stats import lstsq
+from wamctl.analysis.diagnosis.stats import finite_ss, lstsq
 
 # a wrist payload the WAM can carry (its rated payload is about 4 kg; PayloadEffect allows up to 5 kg), held
 # within half a metre of the flange
@@ -70,6 +70,39 @@ def payload_rejection(fit: dict) -> str | None:
         return (f"the payload fitted over joints {fit['joints_fitted']} is {fit['mass_kg']:.3g} kg at "
                 f"{far:.3g} m from the flange: not a wrist payload (mass {PAYLOAD_MASS_RANGE_KG[0]} to "
                 f"{PAYLOAD_MASS_RANGE_KG[1]} kg within {PAYLOAD_MAX_COM_M} m)")
+    return None
+
+
+def payload_inconsistency(des: Design, joints: dict, jds: dict, fit: dict, factor: float = 2.0) -> str | None:
+    """Why the payload fitted at some joints is not one for the arm, or None: a payload changes the torque of
+    every joint it hangs from, so at each diagnosed joint that did not keep it and where its torque would be
+    larger than that joint's held-out residual, adding it (fixed, as fitted) must not make that residual more
+    than ``factor`` times larger in power (a payload found through one joint's inertial coupling, say, would
+    load the others' gravity torques with what they do not show)."""
+    for j, res in joints.items():
+        jd = jds[j]
+        if j + 1 in fit["joints_fitted"] or "payload" not in jd.extra:
+            continue
+        pt = jd.extra["payload"] @ fit["pi"]
+        e_after = res.e_after
+        ss0 = finite_ss(e_after)
+        if ss0 <= 0 or np.sum(pt ** 2) < ss0:
+            continue
+        e_with = np.full(jd.n, np.nan)
+        for f in range(des.n_folds):
+            te = jd.fold == f
+            tr = ~te
+            if not te.any() or tr.sum() < 20:
+                continue
+            y, X = target_and_design(des, jd, res.kept, f)
+            y = y - pt
+            th = lstsq(X[tr], y[tr])
+            e_with[te] = y[te] - X[te] @ th
+        e_with[~np.isfinite(e_after)] = np.nan
+        if finite_ss(e_with) > factor * ss0:
+            return (f"the payload fitted at joints {fit['joints_fitted']} ({fit['mass_kg']:.3g} kg) would make the "
+                    f"held-out torque residual of joint {j + 1}, which shows no payload, "
+                    f"{np.sqrt(finite_ss(e_with) / ss0):.2g} times larger: not a payload of the arm")
     return None
 
 

@@ -55,6 +55,7 @@ from wamctl.analysis.diagnosis.arm import (
     fold_payloads,
     global_payload_terms,
     payload_fit,
+    payload_inconsistency,
     payload_rejection,
 )
 from wamctl.analysis.diagnosis.augmented import MAX_SIM_SAMPLES, position_check
@@ -73,6 +74,7 @@ from wamctl.analysis.diagnosis.prepare import declared_delay_s, prepare_design
 from wamctl.analysis.diagnosis.serialise import diagnosis_dict
 from wamctl.analysis.diagnosis.signals import Signals, prepare_signals
 from wamctl.analysis.diagnosis.stats import finite_ss
+from wamctl.analysis.diagnosis.sweeps import map_evidence
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel
 
@@ -189,8 +191,10 @@ class ModelDiagnosis:
         self.declared_effects_ = set(declared.effects or {})
         self._prepare(sig)
         tests = [c for c in self.candidates if c not in self.declared_effects_]
-        # every test of the run: one per joint and candidate, and Stribeck twice (sliding data, breakaways)
-        n_tests = len(tests) + (1 if "stribeck" in tests else 0)
+        # every test of the run: one per joint and candidate, and Stribeck three times (sliding data,
+        # breakaways, friction map)
+        n_tests = len(tests) + (2 if "stribeck" in tests else 0)
+        self.map_tests_ = {}
         self.threshold_ = self.alpha / max(1, len(sig.joints) * max(1, n_tests))
         torque_tests = [c for c in tests if c != "backlash"]
         for j in sig.joints:
@@ -258,20 +262,34 @@ class ModelDiagnosis:
         excluded beforehand, with the reason); Stribeck seen at the breakaways under the declared model is
         offered first (when a joint sticks and slips, few sliding samples remain)."""
         res = joint_baseline(self.design_, jd)
-        pre = None
+        pre = {}
         if "stribeck" in tests and "stribeck" not in (rejected or {}):
-            pre = stribeck_at_breakaways(self, jd.j)
+            pre = {"breakaways": stribeck_at_breakaways(self, jd.j), "map": self._map_evidence(jd.j)}
+            pre = {k: v for k, v in pre.items() if v is not None}
 
         def onset_recheck(name: str, other: dict) -> dict | None:
-            """Stribeck seen at the breakaways, tested again with a measurement delay in the model (the other
-            candidates leave the breakaway levels as they are)."""
+            """Stribeck seen at the breakaways, tested again with a measurement delay in the model (a delay
+            leaves the friction map of steady segments and the other candidates leave the breakaway levels as
+            they are)."""
             if name != "stribeck" or other["name"] != "delay":
                 return None
+            if "map" in pre:
+                return pre["map"]
             d = float(np.median([h for h in other["h_fold"] if h is not None]))
             return stribeck_at_breakaways(self, jd.j, extra_delay_s=d, test_only=True)
 
         return forward_select(self.design_, jd, res, tests, self.threshold_, self.max_steps, pre, rejected,
                               onset_recheck)
+
+    def _map_evidence(self, j: int) -> dict | None:
+        """The friction map's Stribeck test of 0-based joint ``j`` when it passes and is plausible (else None;
+        every map test is kept in ``map_tests_``)."""
+        if j not in self.map_tests_:
+            self.map_tests_[j] = map_evidence(self, j)
+        ev = self.map_tests_[j]
+        if ev is None or not ev["plausible"] or ev["p_value"] >= self.threshold_ or ev["delta_bic"] >= 0:
+            return None
+        return ev
 
     def _check_delay(self, tests: list[str]) -> None:
         """One delay for the arm: joints whose delay disagrees are diagnosed again without it."""
@@ -287,7 +305,7 @@ class ModelDiagnosis:
         fit = payload_fit(self.design_, self.joints_, self.jd_)
         if fit is None:
             return
-        why = payload_rejection(fit)
+        why = payload_rejection(fit) or payload_inconsistency(self.design_, self.joints_, self.jd_, fit)
         if why is not None:
             log.info(why)
             tests = [c for c in self.candidates if c not in self.declared_effects_ and c != "backlash"]

@@ -75,17 +75,19 @@ def joint_baseline(des: Design, jd: JointData) -> JointResult:
 
 
 def forward_select(des: Design, jd: JointData, res: JointResult, tests: list[str], threshold: float,
-                   max_steps: int, pre: tuple | None = None, rejected: dict | None = None,
+                   max_steps: int, pre: dict | None = None, rejected: dict | None = None,
                    onset_recheck=None) -> JointResult:
     """Forward selection of the torque-domain candidates ``tests`` at one joint, from ``joint_baseline``.
 
     At each step every remaining candidate is tested against the current model; the plausible ones that pass
     meet head to head (:mod:`wamctl.analysis.diagnosis.headtohead`): one is kept only when it wins clearly,
     otherwise the group is reported as ambiguous (``res.ambiguous``) and kept out of the named model.
-    ``pre``: (test, onsets) when the breakaways under the declared model show a Stribeck effect
-    (:func:`wamctl.analysis.diagnosis.onset_tests.stribeck_at_breakaways`): at the first step that Stribeck
-    candidate replaces the one fitted on the sliding samples. ``rejected`` maps candidates excluded beforehand
-    to the reason. ``onset_recheck``: see :func:`wamctl.analysis.diagnosis.headtohead.beyond_tests`."""
+    ``pre``: ``{"breakaways": (test, onsets) or None, "map": test or None}`` when the breakaways under the
+    declared model (:func:`wamctl.analysis.diagnosis.onset_tests.stribeck_at_breakaways`) or the friction map of
+    steady segments (:func:`wamctl.analysis.diagnosis.sweeps.map_evidence`) show a Stribeck effect: at the first
+    step that Stribeck candidate replaces the one fitted on the sliding samples. ``rejected`` maps candidates
+    excluded beforehand to the reason. ``onset_recheck``: see
+    :func:`wamctl.analysis.diagnosis.headtohead.beyond_tests`."""
     rejected = dict(rejected or {})
     terms: list[dict] = []
     hidden: list[dict] = []            # terms of ambiguous groups: in the model searched from, never named
@@ -97,9 +99,10 @@ def forward_select(des: Design, jd: JointData, res: JointResult, tests: list[str
     for step in range(max_steps):
         model_terms = terms + hidden
         entries = _entries(des, jd, model_terms, remaining, res.e_base, current, step, last)
-        if step == 0 and pre is not None and "stribeck" in remaining:
-            entries["stribeck"] = _stribeck_from_breakaways(des, jd, model_terms, pre)
-            last["stribeck"] = dict(entries["stribeck"]["test"], step=step, reason="kept (seen at the breakaways)")
+        if step == 0 and pre and "stribeck" in remaining:
+            entries["stribeck"] = _stribeck_seen_elsewhere(des, jd, model_terms, pre)
+            seen = entries["stribeck"]["term"]["seen"]
+            last["stribeck"] = dict(entries["stribeck"]["test"], step=step, reason=f"kept (seen {seen})")
         passing = sorted((c for c, en in entries.items() if passes(en["test"], threshold)),
                          key=lambda c: finite_ss(entries[c]["e"]))
         plaus = _plausible_all(des, jd, model_terms, passing, entries, last, remaining)
@@ -123,6 +126,8 @@ def forward_select(des: Design, jd: JointData, res: JointResult, tests: list[str
             continue
         c = winner["name"]
         gain = (finite_ss(current) - finite_ss(winner["e"])) / base_ssr if base_ssr > 0 else 0.0
+        if winner["term"].get("onset_test"):      # its evidence is where it was seen, not the sliding samples
+            gain = max(gain, 1.0 - winner["test"].get("ssr_ratio", 1.0))
         term = dict(winner["term"], evidence=_evidence(winner["test"]), gain=gain,
                     rms_before_Nm=rms(current), rms_after_Nm=rms(winner["e"]))
         terms.append(term)
@@ -164,15 +169,22 @@ def _entries(des: Design, jd: JointData, terms: list[dict], remaining: list[str]
     return out
 
 
-def _stribeck_from_breakaways(des: Design, jd: JointData, terms: list[dict], pre: tuple) -> dict:
-    """The Stribeck candidate seen at the breakaways: an entry with the onset test as its evidence, the shape
-    measured there (the breakaway ratio of each direction, the velocity from the slips after the breakaways)
-    and the held-out residual with it."""
-    r, ons = pre
-    shape = breakaway_shape(ons, float(np.exp(r["coef"])), des.sig.dt_s)
+def _stribeck_seen_elsewhere(des: Design, jd: JointData, terms: list[dict], pre: dict) -> dict:
+    """The Stribeck candidate seen on the friction map of steady segments or at the breakaways: an entry with
+    that test as its evidence (the smaller p-value of the two), the shape measured there (the map's fit when the
+    map shows the hump; else the breakaway ratio of each direction and the velocity from the slips after the
+    breakaways) and the held-out residual with it."""
+    mp, br = pre.get("map"), pre.get("breakaways")
+    if mp is not None:
+        shape, seen, test = mp["shape"], "on the friction map of steady segments", mp
+    else:
+        r, ons = br
+        shape, seen, test = breakaway_shape(ons, float(np.exp(r["coef"])), des.sig.dt_s), "at the breakaways", r
+    if mp is not None and br is not None and br[0]["p_value"] < mp["p_value"]:
+        test = br[0]
     e1, h_fold = cv_residual(des, jd, terms, "stribeck", shape)
-    term = {"name": "stribeck", "h_fold": h_fold, "fixed_h": shape, "onset_test": True, "seen": "breakaways"}
-    return {"name": "stribeck", "test": dict(_evidence(r), seen="at the breakaways"), "e": e1, "term": term}
+    term = {"name": "stribeck", "h_fold": h_fold, "fixed_h": shape, "onset_test": True, "seen": seen}
+    return {"name": "stribeck", "test": dict(_evidence(test), seen=seen), "e": e1, "term": term}
 
 
 def breakaway_shape(ons: dict, ratio: float, dt_s: float) -> tuple[float, float, float, float]:
