@@ -126,23 +126,49 @@ def global_payload_terms(kept: list[dict], n_folds: int) -> list[dict]:
     return terms
 
 
-def delay_disagreements(joints: dict, dt_s: float) -> dict:
+def delay_disagreements(joints: dict, dt_s: float, des: Design | None = None, jds: dict | None = None) -> dict:
     """{0-based joint: why} of the joints whose kept delay is not the arm's.
 
-    A late measurement delays every joint's positions by the same time: a delay stands only where at least
-    half of the diagnosed ``joints`` show it, within one sample period ``dt_s`` of their median (position
-    noise fed back by the controller can mimic a lag, but not the same one at every joint)."""
+    A late measurement delays every joint's positions by the same time. A delay stands where the joints that
+    show it agree (within ``max(min(dt_s, 2 ms), 25 %)`` of their median; position noise fed back by the
+    controller can mimic a lag, but not the same one at several joints): at least half of the diagnosed
+    ``joints``, or at least two (the only one when a single joint is diagnosed) when none of the others
+    contradicts it: the arm's delay put into a joint that did not keep one must not make its held-out residual
+    worse by more than the minimum effect (a joint whose motion is too slow or too quiet to show a few
+    milliseconds of lag does not contradict it; one that moves and tracks without lag does)."""
     with_d = {j: next(t["h_all"] for t in r.kept if t["name"] == "delay")
               for j, r in joints.items() if any(t["name"] == "delay" for t in r.kept)}
     if not with_d:
         return {}
-    need = int(np.ceil(len(joints) / 2))
     med = float(np.median(list(with_d.values())))
-    agree = {j for j, d in with_d.items() if abs(d - med) <= max(dt_s, 0.25 * med)}
-    if len(agree) >= need:
+    agree = {j for j, d in with_d.items() if abs(d - med) <= max(min(dt_s, 2e-3), 0.25 * med)}
+    half = int(np.ceil(len(joints) / 2))
+    against = [] if des is None else _contradicting(des, joints, jds, set(with_d), med)
+    if len(agree) >= half or (len(agree) >= min(2, len(joints)) and not against):
         return {j: (f"delay {with_d[j] * 1e3:.1f} ms disagrees with the {med * 1e3:.1f} ms of the other "
                     "joints (a late measurement is one delay for the arm)") for j in with_d if j not in agree}
     why = (f"a consistent delay was seen at {len(agree)} of {len(joints)} joints "
-           f"(delays {', '.join(f'{d * 1e3:.1f}' for d in with_d.values())} ms); a late measurement "
-           f"delays every joint alike (at least {need} joints within one sample period needed)")
+           f"(delays {', '.join(f'{d * 1e3:.1f}' for d in with_d.values())} ms)")
+    if against:
+        why += f", and joints {[j + 1 for j in against]} move without it"
+    why += (f"; a late measurement delays every joint alike (at least {half} joints, or two that no other joint "
+            "contradicts, needed)")
     return dict.fromkeys(with_d, why)
+
+
+def _contradicting(des: Design, joints: dict, jds: dict, with_d: set, d: float) -> list[int]:
+    """The joints without a kept delay whose held-out residual the delay ``d`` makes worse by more than the
+    minimum effect."""
+    from wamctl.analysis.diagnosis.crossval import cv_terms
+    from wamctl.analysis.diagnosis.stats import MIN_EFFECT
+
+    out = []
+    for j, res in joints.items():
+        if j in with_d:
+            continue
+        terms = list(res.kept) + [{"name": "delay", "h_fold": [d] * des.n_folds, "h_all": d, "fixed_h": d}]
+        e_d = cv_terms(des, jds[j], terms)
+        ok = np.isfinite(e_d) & np.isfinite(res.e_after)
+        if finite_ss(e_d[ok]) > (1 + MIN_EFFECT) * finite_ss(res.e_after[ok]):
+            out.append(j)
+    return out

@@ -293,7 +293,8 @@ class ModelDiagnosis:
 
     def _check_delay(self, tests: list[str]) -> None:
         """One delay for the arm: joints whose delay disagrees are diagnosed again without it."""
-        for j, why in delay_disagreements(self.joints_, self.signals_.dt_s).items():
+        for j, why in delay_disagreements(self.joints_, self.signals_.dt_s, self.design_,
+                                                     self.jd_).items():
             log.info("joint %d: %s", j + 1, why)
             self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"delay": why})
 

@@ -29,6 +29,7 @@ from wamctl.analysis.diagnosis.design import (
 from wamctl.analysis.diagnosis.headtohead import p_extra, passes, tournament
 from wamctl.analysis.diagnosis.onsets import slip_vs
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss, nested_test, whiteness_p
+from wamctl.model import params as P
 
 EVIDENCE_KEYS = ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")
 UNTESTED = {"p_value": float("nan"), "delta_bic": float("nan")}
@@ -317,11 +318,16 @@ def _ripple_plausible(des: Design, jd: JointData, terms: list[dict]) -> tuple[bo
     return True, ""
 
 
+MIN_DELAY_S = 1.5e-3       # three quarters of a control period: below, the loop's own timing (ZOH, ticks)
+
+
 def _delay_plausible(h: float, dt_s: float) -> tuple[bool, str]:
-    """A delay inside the range searched and longer than one sample period."""
+    """A delay inside the range searched and longer than the timing conventions of the loop and the log can
+    account for (``MIN_DELAY_S``; at a log of the loop's rate or faster, one sample period)."""
     if h >= DELAY_GRID_S[-1] - 1e-12:
         return False, f"fitted delay at the end of the range searched ({h * 1e3:.1f} ms): not a delay"
-    if h < dt_s * (1 + 1e-9):
-        return False, (f"fitted delay {h * 1e3:.1f} ms is not longer than one sample period "
-                       f"({dt_s * 1e3:.1f} ms): within the timing convention of the log")
+    floor = max(MIN_DELAY_S, min(dt_s, 1.0 / P.CONTROL_RATE_HZ))
+    if h < floor * (1 + 1e-9):
+        return False, (f"fitted delay {h * 1e3:.1f} ms is not longer than {floor * 1e3:.1f} ms: within the "
+                       "timing conventions of the control loop and the log")
     return True, ""

@@ -107,7 +107,7 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
     q_raw = sig.q_raw_rad[:, j]
     quantum, tol = detection_tolerance(sig, j)
     ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, 2 * sig.reach)
-    tau_c = zoh_centred(sig.tau_raw_Nm[:, j])      # as for the sliding residual
+    tau_c = zoh_centred(sig.tau_raw_Nm[:, j], sig.zoh_share)      # as for the sliding residual
     tau_c_decl = delayed(sig.t_s, tau_c, model.delay_declared_s) if model.delay_declared_s > 0 else tau_c
     if model.delay_s > 0:   # positions measured d late: the torque that moved the link to q_meas(t) acted at t - d
         tau_c = delayed(sig.t_s, tau_c, model.delay_s)

@@ -66,6 +66,6 @@ def diagnosis_dict(diag, data_path: str = "") -> dict:
                          "alpha_per_run": diag.alpha, "folds": diag.n_folds, "blocks": diag.n_blocks,
                          "savgol_window_samples": sig.window, "gauss_sigma_samples": sig.gauss,
                          "sample_rate_hz": 1.0 / sig.dt_s,
-                         "samples": sig.n, "resampled": sig.resampled,
+                         "samples": sig.n, "resampled": sig.resampled, "time_base": sig.time_base,
                          "decimation": getattr(diag, "decimation_", 1)}
     return out

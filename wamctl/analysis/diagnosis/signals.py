@@ -80,6 +80,12 @@ class Signals:
     v_stick_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(N7))
     resampled: bool = False
     q_noise_rad: np.ndarray = field(default_factory=lambda: np.zeros(N7))
+    time_base: str = "as logged"
+
+    @property
+    def zoh_share(self) -> float:
+        """See :func:`zoh_share`."""
+        return zoh_share(self.dt_s)
 
     @property
     def n(self) -> int:
@@ -113,6 +119,12 @@ class Signals:
         frac = float(shift - base)
         offs = [base] if frac < 1e-12 else [base, base + 1]
         fn = X if callable(X) else np.asarray(X, float).__getitem__
+        if len(idx) * len(k) * len(offs) > self.n:       # cheaper at the full rate
+            full = self.smooth(np.asarray(fn(np.arange(self.n)), float))
+            p = np.clip(idx + shift, 0, self.n - 1)
+            i0 = np.minimum(np.floor(p).astype(int), self.n - 2)
+            f = (p - i0) if full.ndim == 1 else (p - i0)[:, None]
+            return full[i0] * (1.0 - f) + full[i0 + 1] * f
         out = None
         for w, o in zip(([1.0] if len(offs) == 1 else [1.0 - frac, frac]), offs):
             pos = np.clip(idx[:, None] + o + np.arange(-r, r + 1)[None, :], 0, self.n - 1)
@@ -129,18 +141,38 @@ class Signals:
         return float(self.t_s[-1] - self.t_s[0])
 
 
-def uniform_grid(t_s: np.ndarray, *arrays: np.ndarray, rate_hz: float) -> tuple[np.ndarray, list, bool]:
-    """Resample (n, k) arrays onto a uniform grid at ``rate_hz`` when the time stamps jitter.
+TIME_AS_LOGGED = "as logged"
+TIME_RESAMPLED = "resampled from the time stamps"
+TIME_TICKS = "uniform ticks (the time stamps' jitter is the logger's, not the samples')"
 
-    Returns ``(t_uniform, arrays, resampled)``. Jitter below 1 % of the period is left alone.
+
+def uniform_grid(t_s: np.ndarray, *arrays: np.ndarray, rate_hz: float) -> tuple[np.ndarray, list, str]:
+    """(n, k) arrays on a uniform grid at ``rate_hz``; the first array holds the measured positions.
+
+    Jitter below 1 % of the period is left alone. Larger jitter is either the loop's (the samples were taken
+    late or early and stamped truthfully: resample from the stamps) or the logger's (the samples were taken on
+    exact ticks and stamped with jitter: keep them, on uniform ticks). Without gaps, the time base under which
+    the measured positions are smoother (the smaller sum of squared second differences; a moving joint is
+    smooth at the sample rate, a wrong time base is not) is taken. Returns ``(t_uniform, arrays, time_base)``.
     """
     dt = 1.0 / rate_hz
     steps = np.diff(t_s)
     if np.abs(steps - dt).max() <= 0.01 * dt:
-        return t_s - 0.0, list(arrays), False
+        return t_s - 0.0, list(arrays), TIME_AS_LOGGED
     n = int(np.floor((t_s[-1] - t_s[0]) / dt)) + 1
     tu = t_s[0] + np.arange(n) * dt
-    return tu, [interp_columns(tu, t_s, a) for a in arrays], True
+    out = [interp_columns(tu, t_s, a) for a in arrays]
+    if len(steps) and steps.min() > 0.5 * dt and steps.max() < 1.5 * dt:
+        k = np.arange(len(t_s))
+        slope, icpt = np.polyfit(k, t_s, 1)
+        ticks = icpt + slope * k
+        if abs(slope / dt - 1) < 0.01 and np.abs(t_s - ticks).max() < 0.5 * dt:
+            q = np.asarray(arrays[0], float)
+            rough_ticks = float(np.sum(np.diff(q, 2, axis=0) ** 2))
+            rough_stamps = float(np.sum(np.diff(out[0], 2, axis=0) ** 2))
+            if rough_ticks <= rough_stamps:
+                return ticks, list(arrays), TIME_TICKS
+    return tu, out, TIME_RESAMPLED
 
 
 def interp_columns(x_new: np.ndarray, x: np.ndarray, Y: np.ndarray) -> np.ndarray:
@@ -155,11 +187,20 @@ def delayed(t_s: np.ndarray, Y: np.ndarray, delay_s: float) -> np.ndarray:
     return interp_columns(t_s - delay_s, t_s, Y)
 
 
-def zoh_centred(tau: np.ndarray) -> np.ndarray:
-    """Torque acting around each sample of a zero-order hold, ``(tau[k-1] + tau[k]) / 2`` along axis 0 (the
-    first sample kept): (n,) or (n, p), a new array."""
+def zoh_share(dt_s: float) -> float:
+    """Share of the previous sample in :func:`zoh_centred` for a log at period ``dt_s``: a logged torque was set
+    at its sample and held for one period of the arm's control loop (libbarrett's 500 Hz), so it acts around
+    half a control period later; a log slower than the loop (every second tick at 250 Hz, ...) keeps that half
+    control period, not half its own period."""
+    return 0.5 * min(1.0, (1.0 / P.CONTROL_RATE_HZ) / dt_s)
+
+
+def zoh_centred(tau: np.ndarray, share: float = 0.5) -> np.ndarray:
+    """Torque acting around each sample of a zero-order hold, ``(1 - share) tau[k] + share tau[k-1]`` along
+    axis 0 (the first sample kept; ``share`` from :func:`zoh_share`, 1/2 at the loop's own rate): (n,) or
+    (n, p), a new array."""
     out = np.array(tau, dtype=float)
-    out[1:] = 0.5 * (tau[1:] + tau[:-1])
+    out[1:] = (1.0 - share) * tau[1:] + share * tau[:-1]
     return out
 
 
@@ -274,7 +315,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
         raise DataFormatError(f"t: a gap of {steps[k]:.4g} s after t = {t_s[k]:.6g} s ({steps[k] * rate_hz:.0f} "
                               "sample periods); the diagnosis differentiates positions and needs contiguous "
                               "samples (gaps of up to 5 samples are interpolated)")
-    t, (q, q_ref, tau), resampled = uniform_grid(np.asarray(t_s, float), q_rad, q_ref_rad, tau_Nm,
+    t, (q, q_ref, tau), time_base = uniform_grid(np.asarray(t_s, float), q_rad, q_ref_rad, tau_Nm,
                                                  rate_hz=rate_hz)
     dt = 1.0 / rate_hz
     w = window_samples(rate_hz, window_s)
@@ -282,7 +323,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     if len(t) < 4 * w:
         raise DataFormatError(f"only {len(t)} samples; the diagnosis needs at least {4 * w} "
                               f"({4 * w * dt:.2f} s at {rate_hz:g} Hz)")
-    tau_c = zoh_centred(tau)
+    tau_c = zoh_centred(tau, zoh_share(1.0 / rate_hz))
     qs = smooth(q, w, gs)
     qd = smooth(q, w, gs, 1, dt)
     qdd = smooth(q, w, gs, 2, dt)
@@ -315,5 +356,5 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
                 skipped[j] = why
             continue
         joints.append(j)
-    return Signals(t, dt, w, gs, qs, qd, qdd, taus, q, q_ref, tau, moving, joints, skipped, v_stick, resampled,
-                   q_noise)
+    return Signals(t, dt, w, gs, qs, qd, qdd, taus, q, q_ref, tau, moving, joints, skipped, v_stick,
+                   time_base == TIME_RESAMPLED, q_noise, time_base)
