@@ -35,7 +35,7 @@ from wamctl.specs import PlantSpec
 log = logging.getLogger(__name__)
 
 N7 = P.N_JOINTS
-MAX_SIM_SAMPLES = 60000          # per simulation: the position check of a long run scores its first part
+MAX_SIM_SAMPLES = 30000          # per simulation: the position check of a long run scores its first part
 
 
 def encoder_counts(q_raw: np.ndarray, joints: list[int]) -> int:

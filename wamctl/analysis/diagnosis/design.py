@@ -62,7 +62,7 @@ class Design:
     rnea_Nm : (n, 7) rigid-body torque of the declared model (a declared payload included).
     known_Nm : (n, 7) torque a declared model file adds beyond the rigid body (zero when friction is fitted).
     known_other_Nm : (n, 7) its part that is not friction (ripple).
-    tau_Nm : (n, 7) smoothed torque the model is compared with (a declared delay applied).
+    tau_Nm : unused (None): each joint's smoothed torque is in ``JointData.extra["tau"]``.
     friction_given : the declared friction, or None when it is fitted from the data.
     n_folds : folds of the held-out figures.
     decimation : the joints' sliding samples are taken every ``decimation`` samples.
@@ -177,12 +177,23 @@ def columns(des: Design, name: str, jd: JointData, h, d: float = 0.0) -> np.ndar
     taken ``d`` seconds later (a delay term).
 
     Features that are nonlinear functions of the state are built at the full rate and smoothed by the
-    same filter as the torque, so that feature and torque are averaged alike over each window."""
+    same filter as the torque, so that feature and torque are averaged alike over each window. A fractional
+    shift is the linear interpolation between the two whole-sample shifts around it (each built once)."""
+    shift = float(d) / des.sig.dt_s
+    k0 = int(np.floor(shift + 1e-9))
+    frac = shift - k0
+    if frac < 1e-9 or name == "payload":
+        return _columns_at(des, name, jd, h, k0)
+    return (1.0 - frac) * _columns_at(des, name, jd, h, k0) + frac * _columns_at(des, name, jd, h, k0 + 1)
+
+
+def _columns_at(des: Design, name: str, jd: JointData, h, k: int) -> np.ndarray:
+    """:func:`columns` with the state ``k`` whole samples later (cached per joint)."""
     cache = jd.extra.setdefault("_cache", {})
-    key = (name, h if (h is None or isinstance(h, tuple)) else round(float(h), 12), round(float(d), 9))
+    key = (name, h if (h is None or isinstance(h, tuple)) else round(float(h), 12), int(k))
     if key in cache:
         return cache[key]
-    X = _build_columns(des, name, jd, h, d)
+    X = _build_columns(des, name, jd, h, k * des.sig.dt_s)
     if len(cache) > 400:
         cache.clear()
     cache[key] = X
@@ -204,7 +215,7 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
     if name == "stribeck":
         return sample(lambda p: stribeck_columns(qd_f[p], h))
     if name == "position_ripple":
-        q_f = sig.q_rad[:, j]
+        q_f = sig.q_raw_rad[:, j]          # the angle as measured (the filter then smooths the feature)
 
         def ripple(p):
             ph = 2 * np.pi * q_f[p] / h
@@ -263,7 +274,7 @@ def shifted_target(des: Design, jd: JointData, d: float) -> np.ndarray:
             model += at_shift(des.known_Nm[:, jd.j], jd.idx, shift)
         if len(cache) > 100:
             cache.clear()
-        cache[key] = des.tau_Nm[jd.idx, jd.j] - model
+        cache[key] = jd.extra["tau"] - model
     return cache[key]
 
 

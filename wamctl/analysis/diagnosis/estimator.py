@@ -141,7 +141,7 @@ class ModelDiagnosis:
     conclusive_ : False when nothing could be concluded (reason in ``reason_``).
     threshold_ : per-test p-value threshold.
     design_ : :class:`wamctl.analysis.diagnosis.design.Design`, the run's arrays (also as ``rnea_full_``,
-        ``known_``, ``known_other_``, ``tau_model_``, ``union_``, ``decimation_``).
+        ``known_``, ``known_other_``, ``union_``, ``decimation_``).
     jd_ : {0-based joint: :class:`wamctl.analysis.diagnosis.design.JointData`}.
     onsets_ : {0-based joint: its onsets (:func:`wamctl.analysis.diagnosis.onsets.joint_onsets`)}.
     payload_ : the arm's payload found (``mass_kg``, ``com_m``, ``joints_fitted``), else None.
@@ -246,13 +246,12 @@ class ModelDiagnosis:
         self.union_ = des.union
         self.rnea_full_ = des.rnea_Nm
         self.known_, self.known_other_ = des.known_Nm, des.known_other_Nm
-        self.tau_model_ = des.tau_Nm
 
     def _declared_r2(self) -> float:
         """Share of the moving joints' torque variance the fitted declared model explains (held-out)."""
         ss_res, ss_tot = 0.0, 0.0
         for j, res in self.joints_.items():
-            tau = self.tau_model_[self.jd_[j].idx, j]
+            tau = self.jd_[j].extra["tau"]
             ss_res += finite_ss(res.e_base)
             ss_tot += float(np.sum((tau - tau.mean()) ** 2))
         return 1.0 - ss_res / ss_tot if ss_tot > 0 else 0.0
@@ -323,12 +322,15 @@ class ModelDiagnosis:
             set_after(self.design_, res, jd, terms, cv_terms(self.design_, jd, terms))
 
     def _ranked_effects(self) -> list[str]:
-        """Effect names kept anywhere, by their largest held-out gain."""
+        """Effect names kept anywhere, strongest evidence first: the smallest p-value of each name (p-values
+        below 1e-300 tie), then its largest held-out gain."""
         strength = {}
         for res in self.joints_.values():
             for k in res.kept:
-                strength[k["name"]] = max(strength.get(k["name"], 0.0), k["gain"])
-        return sorted(strength, key=lambda n: -strength[n])
+                p = max(float(k["evidence"].get("p_value", 1.0)), 1e-300)
+                key = (-np.log10(p), k["gain"])
+                strength[k["name"]] = max(strength.get(k["name"], key), key)
+        return sorted(strength, key=lambda n: strength[n], reverse=True)
 
     def _ambiguous_groups(self) -> list[tuple[str, ...]]:
         """The ambiguous groups of every joint, each once (names sorted)."""

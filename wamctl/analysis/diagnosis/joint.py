@@ -315,6 +315,40 @@ def _ripple_plausible(des: Design, jd: JointData, terms: list[dict]) -> tuple[bo
     if len(amps) == 2 and abs(amps[0] - amps[1]) > 0.5 * max(abs(amps[0]), abs(amps[1])):
         return False, (f"the ripple differs between the two directions of motion (amplitudes "
                        f"{abs(amps[0]):.3g} and {abs(amps[1]):.3g} N m): not a torque periodic in the angle")
+    return _ripple_repeats(des, jd, terms, h)
+
+
+ANGLE_FOLDS = 4
+
+
+def _ripple_repeats(des: Design, jd: JointData, terms: list[dict], period: float) -> tuple[bool, str]:
+    """A torque periodic in the angle repeats: fitted on three quarters of the joint's range of angles, it
+    predicts the fourth (each in turn) better than the model without it. A smooth trend over the range (a
+    link's mass or centre of mass off its declared value), which a sinusoid of a period close to the travel can
+    follow, does not extrapolate to angles it was not fitted on."""
+    travel = float(np.ptp(jd.q_rad))
+    folds = min(ANGLE_FOLDS, int(travel // period))
+    if folds < 2:
+        return False, (f"the joint's travel ({travel:.3g} rad) covers less than two periods of {period:.3g} rad: a "
+                       "torque periodic in the angle cannot be told from a trend over the range")
+    edges = np.linspace(jd.q_rad.min(), jd.q_rad.max(), folds + 1)        # angle ranges of a period or more
+    part = np.clip(np.searchsorted(edges, jd.q_rad, side="right") - 1, 0, folds - 1)
+    others = [t for t in terms if t["name"] != "position_ripple"]
+    y1, X1 = target_and_design(des, jd, terms, None)
+    y0, X0 = target_and_design(des, jd, others, None)
+    ss1 = ss0 = 0.0
+    for a in range(folds):
+        te, tr = part == a, part != a
+        if te.sum() < 20 or tr.sum() < X1.shape[1] + 20:
+            continue
+        r1 = y1[te] - X1[te] @ fit_theta(X1[tr], y1[tr], des.bounded)
+        r0 = y0[te] - X0[te] @ fit_theta(X0[tr], y0[tr], des.bounded)
+        ss1 += float(r1 @ r1)
+        ss0 += float(r0 @ r0)
+    if ss0 > 0 and ss1 >= ss0 * (1.0 - MIN_EFFECT):
+        return False, (f"a ripple of period {period:.3g} rad fitted on part of the joint's range does not predict "
+                       f"the rest (held-out angle ranges: {ss1 / ss0:.2f} of the residual without it): a trend "
+                       "over the range, not a torque periodic in the angle")
     return True, ""
 
 

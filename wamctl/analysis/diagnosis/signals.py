@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy.ndimage import binary_dilation, gaussian_filter1d
+from scipy.ndimage import correlate1d, gaussian_filter1d, maximum_filter1d
 from scipy.signal import savgol_coeffs, savgol_filter
 
 from wamctl.errors import DataFormatError
@@ -67,10 +67,8 @@ class Signals:
     dt_s: float
     window: int
     gauss: float
-    q_rad: np.ndarray
     qd_rad_s: np.ndarray
-    qdd_rad_s2: np.ndarray
-    tau_Nm: np.ndarray
+    tau_centred_Nm: np.ndarray
     q_raw_rad: np.ndarray
     q_ref_rad: np.ndarray
     tau_raw_Nm: np.ndarray
@@ -81,6 +79,43 @@ class Signals:
     resampled: bool = False
     q_noise_rad: np.ndarray = field(default_factory=lambda: np.zeros(N7))
     time_base: str = "as logged"
+    _full: dict = field(default_factory=dict, repr=False)
+
+    # The smoothed position, acceleration and torque at the full rate are computed on first use only: a long
+    # run is analysed at its joints' (decimated) samples, where :meth:`at` evaluates the filter.
+    @property
+    def q_rad(self) -> np.ndarray:
+        """(n, 7) smoothed position."""
+        if "q" not in self._full:
+            self._full["q"] = self.smooth(self.q_raw_rad)
+        return self._full["q"]
+
+    @property
+    def qdd_rad_s2(self) -> np.ndarray:
+        """(n, 7) smoothed acceleration."""
+        if "qdd" not in self._full:
+            self._full["qdd"] = self.smooth(self.q_raw_rad, 2)
+        return self._full["qdd"]
+
+    @property
+    def tau_Nm(self) -> np.ndarray:
+        """(n, 7) logged torque, aligned to the zero-order hold and smoothed like ``q``."""
+        if "tau" not in self._full:
+            self._full["tau"] = self.smooth(self.tau_centred_Nm)
+        return self._full["tau"]
+
+    def at(self, what: str, idx: np.ndarray, shift: float = 0.0) -> np.ndarray:
+        """(m, 7) smoothed ``"q"``, ``"qd"``, ``"qdd"`` or ``"tau"`` at the samples ``idx`` (``shift`` samples
+        later), from the full-rate array when it exists, else by the filter evaluated there."""
+        key = {"q": "q", "qdd": "qdd", "tau": "tau"}.get(what)
+        if what == "qd" or key in self._full:
+            full = self.qd_rad_s if what == "qd" else self._full[key]
+            if not shift:
+                return full[idx]
+            return _interp_rows(full, idx, shift)
+        raw = self.tau_centred_Nm if what == "tau" else self.q_raw_rad
+        deriv = {"q": 0, "qdd": 2, "tau": 0}[what]
+        return self.smooth_at(raw, idx, shift, deriv)
 
     @property
     def zoh_share(self) -> float:
@@ -100,11 +135,12 @@ class Signals:
         """The analysis filter (Gaussian pre-filter, then Savitzky-Golay) along axis 0, or its derivative."""
         return smooth(X, self.window, self.gauss, deriv, self.dt_s)
 
-    def kernel(self) -> np.ndarray:
-        """The analysis filter as one symmetric FIR kernel (2 r + 1 taps, the Gaussian truncated at 4 sigma)."""
-        return _kernel(self.window, float(self.gauss))
+    def kernel(self, deriv: int = 0) -> np.ndarray:
+        """The analysis filter (or its ``deriv``-th derivative) as one FIR correlation kernel (2 r + 1 taps, the
+        Gaussian truncated at 4 sigma): ``y[i] = sum_k kernel[k] x[i - r + k]``."""
+        return _kernel(self.window, float(self.gauss), deriv, self.dt_s)
 
-    def smooth_at(self, X, idx: np.ndarray, shift: float = 0.0) -> np.ndarray:
+    def smooth_at(self, X, idx: np.ndarray, shift: float = 0.0, deriv: int = 0) -> np.ndarray:
         """The analysis filter of a full-rate feature evaluated at the samples ``idx`` only (m, p) or (m,): the
         same convolution as :meth:`smooth` away from the ends (which the masks leave out).
 
@@ -112,7 +148,7 @@ class Signals:
         feature is only evaluated where the filter needs it: long runs are not computed at the full rate).
         ``shift``: the filtered feature ``shift`` samples later (fractional: linear interpolation between the two
         neighbouring samples, as ``np.interp`` of the filtered feature)."""
-        k = self.kernel()
+        k = self.kernel(deriv)
         r = len(k) // 2
         idx = np.asarray(idx)
         base = int(np.floor(shift))
@@ -120,11 +156,7 @@ class Signals:
         offs = [base] if frac < 1e-12 else [base, base + 1]
         fn = X if callable(X) else np.asarray(X, float).__getitem__
         if len(idx) * len(k) * len(offs) > self.n:       # cheaper at the full rate
-            full = self.smooth(np.asarray(fn(np.arange(self.n)), float))
-            p = np.clip(idx + shift, 0, self.n - 1)
-            i0 = np.minimum(np.floor(p).astype(int), self.n - 2)
-            f = (p - i0) if full.ndim == 1 else (p - i0)[:, None]
-            return full[i0] * (1.0 - f) + full[i0 + 1] * f
+            return _interp_rows(self.smooth(np.asarray(fn(np.arange(self.n)), float), deriv), idx, shift)
         out = None
         for w, o in zip(([1.0] if len(offs) == 1 else [1.0 - frac, frac]), offs):
             pos = np.clip(idx[:, None] + o + np.arange(-r, r + 1)[None, :], 0, self.n - 1)
@@ -223,12 +255,22 @@ def window_samples(rate_hz: float, window_s: float = DEFAULT_WINDOW_S) -> int:
     return w + 1 - w % 2
 
 
-@lru_cache(maxsize=16)
-def _kernel(window: int, gauss: float) -> np.ndarray:
+@lru_cache(maxsize=32)
+def _kernel(window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
     r = window // 2 + int(np.ceil(4 * gauss)) + 1     # the Gaussian is truncated at 4 sigma
     imp = np.zeros(4 * r + 1)
     imp[2 * r] = 1.0
-    return smooth(imp, window, gauss)[r:3 * r + 1]     # symmetric kernel, 2 r + 1 taps
+    # the impulse response, reversed: a correlation kernel (symmetric for deriv 0)
+    return _two_pass(imp, window, gauss, deriv, dt_s)[r:3 * r + 1][::-1].copy()
+
+
+def _interp_rows(full: np.ndarray, idx: np.ndarray, shift: float) -> np.ndarray:
+    """Rows of ``full`` (n,) or (n, p) at the fractional positions ``idx + shift`` (linear interpolation)."""
+    n = len(full)
+    p = np.clip(np.asarray(idx, float) + shift, 0, n - 1)
+    i0 = np.minimum(np.floor(p).astype(int), n - 2)
+    f = (p - i0) if full.ndim == 1 else (p - i0)[:, None]
+    return full[i0] * (1.0 - f) + full[i0 + 1] * f
 
 
 @lru_cache(maxsize=16)
@@ -248,10 +290,23 @@ def savgol_gain(window: int, f_cycles_per_sample: np.ndarray, gauss: float = 0.0
     return np.interp(f, ft, gt) * np.exp(-0.5 * (2 * np.pi * f * gauss) ** 2)
 
 
-def smooth(X: np.ndarray, window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
+def _two_pass(X: np.ndarray, window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
     """Gaussian pre-filter (sigma ``gauss`` samples, edges held) then Savitzky-Golay (cubic) along axis 0."""
     Y = gaussian_filter1d(np.asarray(X, float), gauss, axis=0, mode="nearest") if gauss > 0 else X
     return savgol_filter(Y, window, POLYORDER, deriv=deriv, delta=dt_s, axis=0)
+
+
+def smooth(X: np.ndarray, window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
+    """The analysis filter along axis 0: a Gaussian pre-filter (sigma ``gauss`` samples) then a cubic
+    Savitzky-Golay filter of ``window`` samples (its ``deriv``-th derivative), applied as one FIR kernel (the
+    two filters composed; the ends held)."""
+    X = np.asarray(X, float)
+    if len(X) < 4 * window + 8 * int(np.ceil(gauss)) + 4:
+        return _two_pass(X, window, gauss, deriv, dt_s)
+    k = _kernel(window, float(gauss), deriv, dt_s)
+    if X.ndim == 1:
+        return correlate1d(X, k, mode="nearest")
+    return correlate1d(np.ascontiguousarray(X.T), k, axis=1, mode="nearest").T
 
 
 def derivative_noise_gain(window: int, gauss: float, dt_s: float) -> float:
@@ -262,11 +317,23 @@ def derivative_noise_gain(window: int, gauss: float, dt_s: float) -> float:
     return float(np.sqrt(np.sum(smooth(imp, window, gauss, 1, dt_s) ** 2)))
 
 
+def _spread_chunks(x: np.ndarray, n_max: int = 200_000, chunks: int = 20) -> np.ndarray:
+    """``x`` (n, ...) itself, or for a long run ``chunks`` contiguous pieces spread over it, ``n_max`` samples
+    together (noise statistics need not read an hour of data)."""
+    n = len(x)
+    if n <= n_max:
+        return x
+    L = n_max // chunks
+    starts = np.linspace(0, n - L, chunks).astype(int)
+    return np.concatenate([x[s:s + L] for s in starts])
+
+
 def position_noise_rad(q_raw: np.ndarray) -> np.ndarray:
     """(7,) standard deviation of the measured positions about the motion: position noise, or quantisation.
 
     Estimated from the part of ``q`` a short cubic fit does not explain (robust MAD); quantised signals whose
     high-pass is mostly zero get the smallest step over root 12 instead."""
+    q_raw = _spread_chunks(q_raw)
     short = 7 if len(q_raw) > 7 else POLYORDER + 2
     short += 1 - short % 2
     hf = q_raw - savgol_filter(q_raw, short, POLYORDER, axis=0)
@@ -324,10 +391,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
         raise DataFormatError(f"only {len(t)} samples; the diagnosis needs at least {4 * w} "
                               f"({4 * w * dt:.2f} s at {rate_hz:g} Hz)")
     tau_c = zoh_centred(tau, zoh_share(1.0 / rate_hz))
-    qs = smooth(q, w, gs)
     qd = smooth(q, w, gs, 1, dt)
-    qdd = smooth(q, w, gs, 2, dt)
-    taus = smooth(tau_c, w, gs)
 
     q_noise = position_noise_rad(q)
     v_noise = q_noise * derivative_noise_gain(w, gs, dt)
@@ -335,7 +399,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     v_stick = np.maximum(4.0 * v_noise, 1e-3)
     stuck = np.abs(qd) < v_stick[None, :]
     reach = filter_reach(w, gs)
-    moving = ~binary_dilation(stuck, structure=np.ones((4 * reach + 1, 1), bool))
+    moving = maximum_filter1d(stuck.view(np.uint8), 4 * reach + 1, axis=0, mode="constant") == 0
     edge = 2 * reach  # the filter's edge samples are extrapolations
     moving[:edge] = False
     moving[-edge:] = False
@@ -356,5 +420,5 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
                 skipped[j] = why
             continue
         joints.append(j)
-    return Signals(t, dt, w, gs, qs, qd, qdd, taus, q, q_ref, tau, moving, joints, skipped, v_stick,
+    return Signals(t, dt, w, gs, qd, tau_c, q, q_ref, tau, moving, joints, skipped, v_stick,
                    time_base == TIME_RESAMPLED, q_noise, time_base)

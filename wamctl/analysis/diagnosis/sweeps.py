@@ -31,13 +31,17 @@ log = logging.getLogger(__name__)
 MIN_POINTS_PER_DIRECTION = 4      # the Stribeck fit needs three per direction; one more to hold out
 MIN_SPEEDS = 3                    # distinct speeds (within 20 %) per direction
 MIN_EXCESS = 0.05                 # a breakaway at least 5 % above the Coulomb level (below: not a hump)
+MAX_MOVES = 60                    # moves per joint on the map at most (a long run: evenly spread)
+MAX_STAGE_SAMPLES = 100           # a segment's mean friction from at most this many of its samples
+MAX_MAP_SAMPLES = 300_000         # the map of a long run is made from its first ten minutes (at 500 Hz)
 
 
 def map_options():
     """Segment detection for the diagnosis: the identification's, keeping segments that stick and slip."""
     from wamctl.analysis.friction_id.velocity_map import MapOptions
 
-    return MapOptions(stick_fraction_max=1.0, velocity_tolerance=0.5, consistency=0.5)
+    return MapOptions(stick_fraction_max=1.0, velocity_tolerance=0.5, consistency=0.5, max_moves=MAX_MOVES,
+                      max_stage_samples=MAX_STAGE_SAMPLES)
 
 
 def _distinct_speeds(v: np.ndarray) -> int:
@@ -46,16 +50,21 @@ def _distinct_speeds(v: np.ndarray) -> int:
 
 
 def friction_map_of(diag, j: int):
-    """The friction-velocity map (accepted rows) of 0-based joint ``j`` of a fitted ``ModelDiagnosis``."""
+    """The friction-velocity map (accepted rows) of 0-based joint ``j`` of a fitted ``ModelDiagnosis`` (the map
+    of every diagnosed joint is made once, on first use, and kept as ``diag.friction_map_``)."""
     from wamctl.analysis.friction_id.velocity_map import friction_map
 
-    sig = diag.signals_
-    has_ref = np.ptp(sig.q_ref_rad[:, j]) > 0
-    fmap = friction_map(sig.t_s, sig.q_raw_rad, sig.tau_raw_Nm, sig.q_ref_rad if has_ref else None, [j + 1],
-                        diag.dynamics_, map_options())
+    fmap = getattr(diag, "friction_map_", None)
+    if fmap is None:
+        sig = diag.signals_
+        n = min(sig.n, MAX_MAP_SAMPLES)
+        has_ref = np.ptp(sig.q_ref_rad[:n, sig.joints], axis=0).max() > 0
+        fmap = friction_map(sig.t_s[:n], sig.q_raw_rad[:n], sig.tau_raw_Nm[:n], sig.q_ref_rad[:n] if has_ref else None,
+                            [jj + 1 for jj in sig.joints], diag.dynamics_, map_options())
+        diag.friction_map_ = fmap
     if not len(fmap):
         return fmap
-    return fmap[fmap["accepted"] & fmap["friction_Nm"].notna()]
+    return fmap[(fmap["joint"] == j + 1) & fmap["accepted"] & fmap["friction_Nm"].notna()]
 
 
 HUMP_VS_GRID_RAD_S = np.geomspace(0.005, 0.2, 9)
