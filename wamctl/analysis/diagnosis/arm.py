@@ -18,6 +18,11 @@ from wamctl.analysis.diagnosis.stats import finite_ss, lstsq
 PAYLOAD_MASS_RANGE_KG = (0.01, 10.0)
 PAYLOAD_MAX_COM_M = 0.5
 N_PAYLOAD = 10                    # inertial parameters of the payload (m, m c, inertia)
+# a payload parameter whose 95 % interval is wider than this is reported as not identified: a centre of mass
+# known to 5 cm says little about a wrist payload (a few centimetres from the flange), a mass known to half
+# its value little more
+COM_CI_MAX_WIDTH_M = 0.05
+MASS_CI_MAX_SHARE = 0.5
 
 
 def payload_fit(des: Design, joints: dict, jds: dict, rows_of=None) -> dict | None:
@@ -26,10 +31,24 @@ def payload_fit(des: Design, joints: dict, jds: dict, rows_of=None) -> dict | No
     bool``) restricts the samples. None when no joint kept a payload.
 
     Returns ``mass_kg``, ``com_m``, ``joints_fitted`` (1-based) and ``pi`` (10,) the inertial parameters."""
+    system = payload_system(des, joints, jds, rows_of)
+    if system is None:
+        return None
+    X, y, w, _, with_p = system
+    theta = lstsq(X * w[:, None], y * w)
+    n_own = X.shape[1] - N_PAYLOAD
+    pi = theta[n_own:n_own + N_PAYLOAD]    # mass, first moment, inertia of the link-7 addition
+    return {**payload_from_pi(pi), "joints_fitted": [j + 1 for j in with_p], "pi": pi}
+
+
+def payload_system(des: Design, joints: dict, jds: dict, rows_of=None):
+    """The stacked least-squares problem of :func:`payload_fit`: ``(X, y, w, groups, joints)`` with ``groups``
+    (m, 2) the (joint, time block) of each row; None when no joint kept a payload. The payload's ten columns are
+    the last ones of ``X``."""
     with_p = [j for j, r in joints.items() if any(t["name"] == "payload" for t in r.kept)]
     if not with_p:
         return None
-    blocks, ys, shared, wts = [], [], [], []
+    blocks, ys, shared, wts, groups = [], [], [], [], []
     for j in with_p:
         res, jd = joints[j], jds[j]
         mask = np.ones(jd.n, bool) if rows_of is None else rows_of(jd)
@@ -41,12 +60,41 @@ def payload_fit(des: Design, joints: dict, jds: dict, rows_of=None) -> dict | No
         shared.append(columns(des, "payload", jd, None)[sub])
         ys.append(y_o[sub])
         wts.append(np.full(len(sub), 1.0 / max(res.torque_rms_after_Nm, 1e-9)))
-    X = _shared_design(blocks, shared)
-    w = np.concatenate(wts)
-    theta = lstsq(X * w[:, None], np.concatenate(ys) * w)
+        groups.append(np.column_stack([np.full(len(sub), j), jd.extra["block"][sub]]))
+    return _shared_design(blocks, shared), np.concatenate(ys), np.concatenate(wts), np.vstack(groups), with_p
+
+
+def payload_uncertainty(des: Design, joints: dict, jds: dict) -> tuple[dict, list[str]]:
+    """95 % intervals of the arm's payload (``mass_kg``, ``com_x_m``, ``com_y_m``, ``com_z_m``; a bootstrap over the
+    time blocks of each joint that fitted it) and the keys the motion cannot determine: the mass when its column
+    is not in the row space of the regressor, a centre-of-mass component when its first moment (or the mass) is
+    not, or when its interval is wider than the range a wrist payload may have (``PAYLOAD_MAX_COM_M``)."""
+    from wamctl.analysis.diagnosis.uncertainty import estimable, group_bootstrap, percentile_ci
+
+    system = payload_system(des, joints, jds)
+    if system is None:
+        return {}, []
+    X, y, w, groups, _ = system
     n_own = X.shape[1] - N_PAYLOAD
-    pi = theta[n_own:n_own + N_PAYLOAD]    # mass, first moment, inertia of the link-7 addition
-    return {**payload_from_pi(pi), "joints_fitted": [j + 1 for j in with_p], "pi": pi}
+    ok = estimable(X * w[:, None], [n_own + k for k in range(4)])
+    reps = group_bootstrap(X, y, groups, rng=np.random.default_rng(4000), w=w)
+    pis = reps[:, n_own:n_own + N_PAYLOAD]
+    ests = [payload_from_pi(pi) for pi in pis]
+    est = payload_from_pi(lstsq(X * w[:, None], y * w)[n_own:n_own + N_PAYLOAD])
+    ng = len({tuple(g) for g in groups})
+    ci = {"mass_kg": percentile_ci([e["mass_kg"] for e in ests], center=est["mass_kg"], n_groups=ng)}
+    for i, ax in enumerate("xyz"):
+        ci[f"com_{ax}_m"] = percentile_ci([e["com_m"][i] if e["mass_kg"] > 0 else None for e in ests],
+                                          center=est["com_m"][i], n_groups=ng)
+    m_lo, m_hi = ci["mass_kg"]
+    mass_ok = ok[0] and m_lo is not None and m_lo > 0 and m_hi - m_lo <= MASS_CI_MAX_SHARE * est["mass_kg"]
+    ni = [] if mass_ok else ["mass_kg"]
+    for i, ax in enumerate("xyz"):
+        lo, hi = ci[f"com_{ax}_m"]
+        wide = lo is None or hi - lo > COM_CI_MAX_WIDTH_M
+        if not (mass_ok and ok[1 + i]) or wide:
+            ni.append(f"com_{ax}_m")
+    return ci, ni
 
 
 def _shared_design(blocks: list[np.ndarray], shared: list[np.ndarray]) -> np.ndarray:

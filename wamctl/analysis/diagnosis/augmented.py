@@ -35,7 +35,8 @@ from wamctl.specs import PlantSpec
 log = logging.getLogger(__name__)
 
 N7 = P.N_JOINTS
-MAX_SIM_SAMPLES = 30000          # per simulation: the position check of a long run scores its first part
+MAX_SIM_SAMPLES = 20000          # per simulation: the position check of a long run scores its first part
+BOTH_HALVES_MAX = 20000          # up to this many samples both halves are scored (four simulations)
 
 
 def encoder_counts(q_raw: np.ndarray, joints: list[int]) -> int:
@@ -184,8 +185,8 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
                               dyn.gravity if diag.meta_.gravity_compensation else None)
     traces = {"before": np.full((n, N7), np.nan), "after": np.full((n, N7), np.nan)}
     same = not diag.effects_found_
-    # up to 20000 samples, both halves are scored (four simulations); above, one half (two simulations)
-    for h in ((0, 1) if n <= 20000 else (1,)):
+    # up to BOTH_HALVES_MAX samples, both halves are scored (four simulations); above, one half (two)
+    for h in ((0, 1) if n <= BOTH_HALVES_MAX else (1,)):
         thetas = diag.refit(lambda jd, h=h: half_fit[jd.j] != h)       # fit on the other half
         for which in ("before", "after"):
             if which == "after" and same:

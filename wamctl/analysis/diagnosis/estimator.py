@@ -57,6 +57,7 @@ from wamctl.analysis.diagnosis.arm import (
     payload_fit,
     payload_inconsistency,
     payload_rejection,
+    payload_uncertainty,
 )
 from wamctl.analysis.diagnosis.augmented import MAX_SIM_SAMPLES, position_check
 from wamctl.analysis.diagnosis.candidates import EFFECT_NAMES
@@ -209,6 +210,7 @@ class ModelDiagnosis:
             return self
         self._check_delay(torque_tests)
         self._check_payload()
+        self._check_breakaways(torque_tests)
         self.onsets_ = {}
         if "backlash" in tests or "stribeck" in tests:
             for j in sig.joints:
@@ -313,6 +315,7 @@ class ModelDiagnosis:
                 self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"payload": why})
             return
         self.payload_ = {k: v for k, v in fit.items() if k != "pi"}
+        self.payload_ci_ = payload_uncertainty(self.design_, self.joints_, self.jd_)
         # one column per joint (its torque), fitted without each fold for the held-out figures, and on all
         # data for the model
         self.payload_pi_ = self.design_.payload_pi = fold_payloads(self.design_, self.joints_, self.jd_, fit)
@@ -320,6 +323,24 @@ class ModelDiagnosis:
             res, jd = self.joints_[j], self.jd_[j]
             terms = global_payload_terms(res.kept, self.n_folds)
             set_after(self.design_, res, jd, terms, cv_terms(self.design_, jd, terms))
+
+    def _check_breakaways(self, tests: list[str]) -> None:
+        """A Stribeck effect seen only at the breakaways is tested there again under the final model with the
+        other effects kept at the joint (a payload, a ripple, a delay change the torque a joint withstood before
+        it moved); the joint is diagnosed again without it when the breakaways no longer show it."""
+        from wamctl.analysis.diagnosis.onsets import onset_model
+
+        for j, res in list(self.joints_.items()):
+            t = next((t for t in res.kept if t["name"] == "stribeck" and t.get("seen") == "at the breakaways"), None)
+            if t is None or len(res.kept) < 2:
+                continue
+            r = stribeck_at_breakaways(self, j, test_only=True, model=onset_model(self, j, exclude=("stribeck",)))
+            if r is not None and r["kept"]:
+                continue
+            why = ("the breakaways show no Stribeck effect once the joint's other effects ("
+                   + ", ".join(k["name"] for k in res.kept if k["name"] != "stribeck") + ") are in the model")
+            log.info("joint %d: %s", j + 1, why)
+            self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"stribeck": why})
 
     def _ranked_effects(self) -> list[str]:
         """Effect names kept anywhere, strongest evidence first: the smallest p-value of each name (p-values

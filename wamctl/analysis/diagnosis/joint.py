@@ -134,10 +134,41 @@ def forward_select(des: Design, jd: JointData, res: JointResult, tests: list[str
         terms.append(term)
         current = winner["e"]
         remaining.remove(c)
-    e_after = current if not hidden else cv_terms(des, jd, terms)
+    terms, dropped = _backward(des, jd, terms, hidden, res.e_base, threshold)
+    for c, why in dropped.items():
+        last[c] = dict(last.get(c, UNTESTED), reason=why)
+    e_after = current if not (hidden or dropped) else cv_terms(des, jd, terms)
     set_after(des, res, jd, terms, e_after)
     res.candidates = _candidate_table(res, tests, rejected, last, threshold)
     return res
+
+
+def _backward(des: Design, jd: JointData, terms: list[dict], hidden: list[dict], e_base: np.ndarray,
+              threshold: float) -> tuple[list[dict], dict]:
+    """Backward check of the effects kept (one was kept before a later one that explains the same part of the
+    residual better): each must still add to the model with all the others, at the run's threshold; the weakest
+    that does not is dropped, and so on. Effects seen at the breakaways or on the friction map are judged there.
+    Returns the terms kept and {name: why} of the dropped ones."""
+    dropped = {}
+    while len(terms) >= 2:
+        e_full = cv_terms(des, jd, terms + hidden)
+        worst, worst_p = None, -1.0
+        for i, t in enumerate(terms):
+            if t.get("onset_test"):
+                continue
+            others = terms[:i] + terms[i + 1:]
+            e0 = cv_terms(des, jd, others + hidden)
+            k1 = N_FRICTION + sum(ncols(x) for x in terms + hidden)
+            share = finite_ss(e_base) / max(finite_ss(e0), 1e-300)
+            test = nested_test(e0, e_full, p_extra(t["name"]), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
+            if not passes(test, threshold) and test["p_value"] > worst_p:
+                worst, worst_p = i, test["p_value"]
+        if worst is None:
+            break
+        t = terms.pop(worst)
+        dropped[t["name"]] = ("does not add to the other effects found (" + ", ".join(x["name"] for x in terms)
+                              + f"): p = {worst_p:.3g} once they are in the model")
+    return terms, dropped
 
 
 def rms(e: np.ndarray) -> float:
@@ -181,11 +212,34 @@ def _stribeck_seen_elsewhere(des: Design, jd: JointData, terms: list[dict], pre:
     else:
         r, ons = br
         shape, seen, test = breakaway_shape(ons, float(np.exp(r["coef"])), des.sig.dt_s), "at the breakaways", r
+        shape = _sliding_shape(des, jd, terms, shape)
     if mp is not None and br is not None and br[0]["p_value"] < mp["p_value"]:
         test = br[0]
     e1, h_fold = cv_residual(des, jd, terms, "stribeck", shape)
     term = {"name": "stribeck", "h_fold": h_fold, "fixed_h": shape, "onset_test": True, "seen": seen}
+    if br is not None:
+        term["onsets"] = br[1]           # the onsets its shape was measured at (for its intervals)
     return {"name": "stribeck", "test": dict(_evidence(test), seen=seen), "e": e1, "term": term}
+
+
+SHAPE_DELTAS = (1.0, 1.5, 2.0)
+
+
+def _sliding_shape(des: Design, jd: JointData, terms: list[dict], shape: tuple) -> tuple:
+    """The breakaway ratios measured at the onsets, with the Stribeck velocity and exponent that best fit the
+    joint's sliding samples (the friction levels refitted): the slips after the breakaways give a velocity for
+    one exponent only, and the decay of real friction is not always Gaussian."""
+    rp, rn, vs0, _ = shape
+    best, arg = np.inf, shape
+    for delta in SHAPE_DELTAS:
+        for vs in np.r_[STRIBECK_VS_GRID_RAD_S, vs0]:
+            cand = (rp, rn, float(vs), delta)
+            y, X = target_and_design(des, jd, terms + [{"name": "stribeck", "fixed_h": cand, "h_all": cand}], None)
+            r = y - X @ fit_theta(X, y, des.bounded)
+            ssr = float(r @ r)
+            if ssr < best:
+                best, arg = ssr, cand
+    return arg
 
 
 def breakaway_shape(ons: dict, ratio: float, dt_s: float) -> tuple[float, float, float, float]:

@@ -78,13 +78,14 @@ def onset_candidate(values: np.ndarray, rev: np.ndarray | None, fold: np.ndarray
     return out
 
 
-def stribeck_at_breakaways(diag, j: int, extra_delay_s: float = 0.0,
-                           test_only: bool = False) -> tuple[dict, dict] | dict | None:
+def stribeck_at_breakaways(diag, j: int, extra_delay_s: float = 0.0, test_only: bool = False,
+                           model=None) -> tuple[dict, dict] | dict | None:
     """(test, onsets) when the breakaway ratios of 0-based joint ``j`` under the declared model show a
     Stribeck effect, else None. ``extra_delay_s``: a measurement delay added to the declared model (a late
     measurement makes every breakaway look later, at a higher torque); ``test_only``: the test whatever it says
-    (None when there are too few onsets)."""
-    model = onset_model(diag, j, declared=True)
+    (None when there are too few onsets); ``model``: an :class:`~wamctl.analysis.diagnosis.onsets.OnsetModel`
+    other than the declared one."""
+    model = model or onset_model(diag, j, declared=True)
     if extra_delay_s:
         model = replace(model, delay_s=model.delay_s + float(extra_delay_s))
     ons = joint_onsets(diag.design_, diag.dynamics_, diag.jd_[j], model)

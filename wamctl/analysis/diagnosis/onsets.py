@@ -21,7 +21,7 @@ from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
 
 EXTEND_SAMPLES = 100        # samples of the slip kept after each stall (the slip velocity is fitted on them)
-MAX_ONSETS = 400            # onsets analysed per joint at most
+MAX_ONSETS = 250            # onsets analysed per joint at most
 
 
 @dataclass
@@ -61,15 +61,15 @@ def payload_dynamics(declared: Payload | None, found: dict) -> WamDynamics:
     return WamDynamics(Payload(m, tuple(com)))
 
 
-def onset_model(diag, j: int, declared: bool = False) -> OnsetModel:
+def onset_model(diag, j: int, declared: bool = False, exclude: tuple[str, ...] = ()) -> OnsetModel:
     """The model of 0-based joint ``j`` of a fitted ``ModelDiagnosis`` at onsets: the final one (its kept
-    effects), or with ``declared`` the declared model fitted."""
+    effects but ``exclude``), or with ``declared`` the declared model fitted."""
     if declared:
         fr = levels_dict(levels(diag.declared_.friction, j, diag.jd_[j].extra["theta_before"]))
         kept = {}
     else:
         fr = diag.friction_after(j)
-        kept = {t["name"]: t for t in diag.joints_[j].kept}
+        kept = {t["name"]: t for t in diag.joints_[j].kept if t["name"] not in exclude}
 
     def params(name):
         return diag.effect_params(j, name) if name in kept else None
@@ -107,9 +107,13 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
     sig, j = des.sig, jd.j
     q_raw = sig.q_raw_rad[:, j]
     quantum, tol = detection_tolerance(sig, j)
-    ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, 2 * sig.reach)
-    if len(ons) > MAX_ONSETS:          # a long run: evenly spread over it, plenty for the tests
-        ons = [ons[i] for i in np.unique(np.linspace(0, len(ons) - 1, MAX_ONSETS).round().astype(int))]
+    cache = jd.extra.setdefault("_onsets", {})
+    if tol not in cache:     # the measured onsets depend on the signals only
+        ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, 2 * sig.reach)
+        if len(ons) > MAX_ONSETS:          # a long run: evenly spread over it, plenty for the tests
+            ons = [ons[i] for i in np.unique(np.linspace(0, len(ons) - 1, MAX_ONSETS).round().astype(int))]
+        cache[tol] = ons
+    ons = cache[tol]
     tau_c = zoh_centred(sig.tau_raw_Nm[:, j], sig.zoh_share)      # as for the sliding residual
     tau_c_decl = delayed(sig.t_s, tau_c, model.delay_declared_s) if model.delay_declared_s > 0 else tau_c
     if model.delay_s > 0:   # positions measured d late: the torque that moved the link to q_meas(t) acted at t - d

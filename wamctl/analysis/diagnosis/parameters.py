@@ -118,13 +118,24 @@ def backlash_params(term: dict, coef: np.ndarray, ons: dict) -> dict:
 
 
 def report_effects(diag) -> None:
-    """Set every joint's report-ready ``effects`` (name, parameters, evidence) of a fitted ``ModelDiagnosis``."""
+    """Set every joint's report-ready ``effects`` (name, parameters, their 95 % intervals and what the data
+    cannot determine, evidence, held-out RMS before and after the effect) of a fitted ``ModelDiagnosis``."""
+    from wamctl.analysis.diagnosis.intervals import joint_intervals
+
     for j, res in diag.joints_.items():
         res.effects = []
+        intervals = joint_intervals(diag, j)
         for t in res.kept:
             ev = t["evidence"]
             test = TEST_NAME if t["name"] != "backlash" else ONSET_TEST_NAME
-            entry = {"name": t["name"], "params": kept_effect_params(diag, j, t["name"]),
+            params = kept_effect_params(diag, j, t["name"])
+            if t["name"] == "payload":
+                ci, ni = getattr(diag, "payload_ci_", ({}, []))
+                params = payload_params(params, ni)
+            else:
+                ci, ni = intervals[t["name"]]["params_ci"], intervals[t["name"]]["not_identified"]
+                params = {k: (None if k in ni else v) for k, v in params.items()}
+            entry = {"name": t["name"], "params": params, "params_ci": ci, "not_identified": list(ni),
                      "evidence": {"test": test, "p_value": float(ev["p_value"]), "delta_bic": float(ev["delta_bic"])}}
             if t.get("onset_test") and t["name"] == "stribeck":
                 entry["evidence"]["test"] = ONSET_TEST_NAME
@@ -132,3 +143,19 @@ def report_effects(diag) -> None:
                 if k in t:
                     entry[f"torque_{k}"] = float(t[k])
             res.effects.append(entry)
+
+
+def payload_params(p: dict, not_identified: list[str]) -> dict:
+    """A payload's parameters with the centre of mass also by component (``com_x_m`` ...), the ones the data
+    cannot determine set to None (also in ``com_m``)."""
+    out = dict(p)
+    com = list(p["com_m"])
+    for i, ax in enumerate("xyz"):
+        key = f"com_{ax}_m"
+        out[key] = None if key in not_identified else float(com[i])
+        if key in not_identified:
+            com[i] = None
+    out["com_m"] = com
+    if "mass_kg" in not_identified:
+        out["mass_kg"] = None
+    return out

@@ -146,3 +146,24 @@ def map_evidence(diag, j: int) -> dict | None:
     else:
         out.update(plausible=True, reason="")
     return out
+
+
+def map_bootstrap(ev: dict, n_boot: int, rng: np.random.Generator) -> tuple[list, list]:
+    """Breakaway ratios (positive, negative) and hump velocities of the map's fit over its segments resampled
+    with replacement (within each direction), for the intervals of a Stribeck effect seen on the map."""
+    from wamctl.analysis.friction_id.selection import segment_sigma
+
+    fmap = ev["map"]
+    v = fmap["velocity_rad_s"].to_numpy(float)
+    f = fmap["friction_Nm"].to_numpy(float)
+    w = 1.0 / segment_sigma(v, f, fmap["friction_se_Nm"].to_numpy(float), reference="classic")
+    pos, neg = np.flatnonzero(v > 0), np.flatnonzero(v < 0)
+    ratios, vss = [], []
+    for _ in range(n_boot):
+        rows = np.r_[rng.choice(pos, len(pos)), rng.choice(neg, len(neg))]
+        th, vs, _ = _hump_fit(v, f, w, rows)
+        fc = np.maximum(th[:2], 1e-9)
+        r = 1.0 + th[4:6] / fc
+        ratios.append((float(r[0]), float(r[1])))
+        vss.append(float(vs))
+    return ratios, vss
