@@ -155,7 +155,7 @@ def feedforward_from_log(meta, t_s, q_ref, q, tau, gravity) -> np.ndarray | None
     return tau - pd - g
 
 
-def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SAMPLES) -> dict:
+def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SAMPLES, meta=None) -> dict:
     """Held-out closed-loop position error of the declared and the augmented model.
 
     ``simulate_positions(plant, meta, t_s, q_ref, q0, feedforward, payload) -> (n, 7)`` runs the closed loop of
@@ -178,11 +178,12 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
     for j, jd in diag.jd_.items():
         half_fit[j] = jd.extra["block"] % 2
         half_t[j] = block_of(jd, sig.t_s[:n]) % 2
-    mp = diag.meta_.payload      # what the controller's gravity compensation knew
+    meta = meta or diag.meta_    # the run's metadata, with the controller's gains the check uses
+    mp = meta.payload            # what the controller's gravity compensation knew
     ctl_payload = Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None
     dyn = WamDynamics(ctl_payload)
-    ff = feedforward_from_log(diag.meta_, t, q_ref, q_meas, sig.tau_raw_Nm[:n],
-                              dyn.gravity if diag.meta_.gravity_compensation else None)
+    ff = feedforward_from_log(meta, t, q_ref, q_meas, sig.tau_raw_Nm[:n],
+                              dyn.gravity if meta.gravity_compensation else None)
     traces = {"before": np.full((n, N7), np.nan), "after": np.full((n, N7), np.nan)}
     same = not diag.effects_found_
     # up to BOTH_HALVES_MAX samples, both halves are scored (four simulations); above, one half (two)
@@ -192,7 +193,7 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
             if which == "after" and same:
                 continue
             plant = plant_dict(diag, which, thetas)
-            q_sim = simulate_positions(plant, diag.meta_, t, q_ref, q_meas[0], ff, ctl_payload)
+            q_sim = simulate_positions(plant, meta, t, q_ref, q_meas[0], ff, ctl_payload)
             for j in range(N7):
                 sel = half_t[j] == h if j in half_t else np.ones(n, bool)
                 traces[which][sel, j] = q_sim[sel, j]

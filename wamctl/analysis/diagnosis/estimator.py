@@ -76,6 +76,8 @@ from wamctl.analysis.diagnosis.serialise import diagnosis_dict
 from wamctl.analysis.diagnosis.signals import Signals, prepare_signals
 from wamctl.analysis.diagnosis.stats import finite_ss
 from wamctl.analysis.diagnosis.sweeps import map_evidence
+from wamctl.analysis.diagnosis.unexplained import unexplained
+from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel
 
@@ -103,6 +105,16 @@ class DeclaredModel:
     def delay_s(self) -> float:
         """The declared measurement delay, s (0 without one)."""
         return declared_delay_s(self.effects)
+
+
+def torque_warnings(sig: Signals) -> list[str]:
+    """Torques beyond the model's limits are data (a real arm's log, another controller), not errors: said."""
+    out = []
+    over = np.abs(sig.tau_raw_Nm) > P.TAU_MAX_NM * (1 + 1e-6)
+    for j in np.flatnonzero(over.any(axis=0)):
+        out.append(f"joint {j + 1}: {int(over[:, j].sum())} samples with |tau| above the model's limit of "
+                   f"{P.TAU_MAX_NM[j]:g} N m (up to {np.abs(sig.tau_raw_Nm[:, j]).max():.3g} N m); kept as data")
+    return out
 
 
 @contextmanager
@@ -179,10 +191,16 @@ class ModelDiagnosis:
         self.joints_ = {}
         self.effects_found_ = []
         self.ambiguous_ = []
+        self.warnings_ = []
+        self.gains_ = None
+        self.position_skipped_ = None
         unknown = [c for c in self.candidates if c not in EFFECT_NAMES]
         if unknown:
             raise ValueError(f"unknown candidate effects {unknown}; known: {EFFECT_NAMES}")
         sig = self._signals(data)
+        self.warnings_ = torque_warnings(sig)
+        for w in self.warnings_:
+            log.warning(w)
         if not sig.joints:
             why = "; ".join(f"joint {j + 1}: {r}" for j, r in sig.skipped.items())
             self.reason_ = ("no joint moved enough to compare the model with the data"
@@ -218,8 +236,12 @@ class ModelDiagnosis:
         self.effects_found_ = self._ranked_effects()
         self.ambiguous_ = self._ambiguous_groups()
         report_effects(self)
+        for j, res in self.joints_.items():
+            res.unexplained = unexplained(self, j)
         self.conclusive_ = True
         self.positions_ = None
+        self.gains_ = None
+        self.position_skipped_ = None if self.simulator is not None else "no simulator given"
         if self.simulator is not None:
             self._position_check(data)
         return self
@@ -235,8 +257,13 @@ class ModelDiagnosis:
         kw = {} if self.window_s is None else {"window_s": self.window_s}
         if self.gauss_s is not None:
             kw["gauss_s"] = self.gauss_s
+        qd = None
+        if all(f"qd_{j}_rad_s" in data.data for j in range(1, 8)):
+            qd = data.col("qd")
+            qd = qd if np.isfinite(qd).all() else None
         self.signals_ = prepare_signals(data.t_s, data.col("q"), data.col("q_ref"), data.col("tau"),
-                                        float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints], **kw)
+                                        float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints],
+                                        qd_rad_s=qd, **kw)
         return self.signals_
 
     def _prepare(self, sig: Signals) -> None:
@@ -364,7 +391,19 @@ class ModelDiagnosis:
         return groups
 
     def _position_check(self, data) -> None:
-        pc = position_check(self, data, self.simulator, self.max_sim_samples or MAX_SIM_SAMPLES)
+        """The closed-loop position check, with the controller's gains the log shows (or skipped, said why)."""
+        from wamctl.analysis.diagnosis.gains import controller_gains
+
+        mp = self.meta_.payload
+        ctl = WamDynamics(Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None)
+        self.gains_ = controller_gains(self.signals_, self.meta_, ctl.gravity)
+        if self.gains_["kp"] is None:
+            self.position_skipped_ = self.gains_["reason"]
+            log.warning("closed-loop position check skipped: %s", self.position_skipped_)
+            return
+        meta = self.meta_.model_copy(update={"controller": self.meta_.controller.model_copy(
+            update={"kp": self.gains_["kp"], "kd": self.gains_["kd"]})})
+        pc = position_check(self, data, self.simulator, self.max_sim_samples or MAX_SIM_SAMPLES, meta)
         self.positions_ = pc
         for j, res in self.joints_.items():
             res.position_rms_before_rad = pc["rms_before"].get(j, float("nan"))

@@ -59,6 +59,12 @@ def diagnosis_dict(diag, data_path: str = "") -> dict:
            "effects_found": list(diag.effects_found_), "joints": joints,
            "ambiguous": [list(g) for g in getattr(diag, "ambiguous_", [])],
            "conclusive": bool(diag.conclusive_), "reason": diag.reason_}
+    if getattr(diag, "warnings_", None):
+        out["warnings"] = list(diag.warnings_)
+    gains = getattr(diag, "gains_", None)
+    if gains is not None or getattr(diag, "position_skipped_", None):
+        out["position_check"] = {"controller_gains": gains,
+                                 "skipped": getattr(diag, "position_skipped_", None)}
     sig = getattr(diag, "signals_", None)
     if sig is not None:
         out["skipped_joints"] = {str(j + 1): r for j, r in sig.skipped.items()}
@@ -67,5 +73,7 @@ def diagnosis_dict(diag, data_path: str = "") -> dict:
                          "savgol_window_samples": sig.window, "gauss_sigma_samples": sig.gauss,
                          "sample_rate_hz": 1.0 / sig.dt_s,
                          "samples": sig.n, "resampled": sig.resampled, "time_base": sig.time_base,
+                         "velocities": "measured (qd columns)" if sig.qd_raw_rad_s is not None else
+                         "differentiated positions",
                          "decimation": getattr(diag, "decimation_", 1)}
     return out

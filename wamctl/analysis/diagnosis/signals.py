@@ -79,6 +79,7 @@ class Signals:
     resampled: bool = False
     q_noise_rad: np.ndarray = field(default_factory=lambda: np.zeros(N7))
     time_base: str = "as logged"
+    qd_raw_rad_s: np.ndarray | None = None       # measured velocities (the log's qd_* columns), when given
     _full: dict = field(default_factory=dict, repr=False)
 
     # The smoothed position, acceleration and torque at the full rate are computed on first use only: a long
@@ -94,7 +95,8 @@ class Signals:
     def qdd_rad_s2(self) -> np.ndarray:
         """(n, 7) smoothed acceleration."""
         if "qdd" not in self._full:
-            self._full["qdd"] = self.smooth(self.q_raw_rad, 2)
+            self._full["qdd"] = self.smooth(self.q_raw_rad, 2) if self.qd_raw_rad_s is None else \
+                self.smooth(self.qd_raw_rad_s, 1)
         return self._full["qdd"]
 
     @property
@@ -115,6 +117,8 @@ class Signals:
             return _interp_rows(full, idx, shift)
         raw = self.tau_centred_Nm if what == "tau" else self.q_raw_rad
         deriv = {"q": 0, "qdd": 2, "tau": 0}[what]
+        if what == "qdd" and self.qd_raw_rad_s is not None:
+            raw, deriv = self.qd_raw_rad_s, 1
         return self.smooth_at(raw, idx, shift, deriv)
 
     @property
@@ -353,7 +357,8 @@ def velocity_noise_rad_s(q_raw: np.ndarray, dt_s: float, window: int, gauss: flo
 
 def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, tau_Nm: np.ndarray,
                     rate_hz: float, joints_hint: list[int] | None = None,
-                    window_s: float = DEFAULT_WINDOW_S, gauss_s: float = DEFAULT_GAUSS_S) -> Signals:
+                    window_s: float = DEFAULT_WINDOW_S, gauss_s: float = DEFAULT_GAUSS_S,
+                    qd_rad_s: np.ndarray | None = None) -> Signals:
     """Align, smooth and mask a run's samples.
 
     Parameters
@@ -362,6 +367,8 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     q_rad, q_ref_rad, tau_Nm : (n, 7) measured positions, reference, logged torque.
     rate_hz : nominal sample rate.
     joints_hint : 0-based joints the metadata says moved (others are also diagnosed if they moved).
+    qd_rad_s : (n, 7) measured velocities, when the log has them: smoothed (and differentiated once for the
+        acceleration) instead of differentiating the positions.
 
     Raises
     ------
@@ -382,8 +389,10 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
         raise DataFormatError(f"t: a gap of {steps[k]:.4g} s after t = {t_s[k]:.6g} s ({steps[k] * rate_hz:.0f} "
                               "sample periods); the diagnosis differentiates positions and needs contiguous "
                               "samples (gaps of up to 5 samples are interpolated)")
-    t, (q, q_ref, tau), time_base = uniform_grid(np.asarray(t_s, float), q_rad, q_ref_rad, tau_Nm,
-                                                 rate_hz=rate_hz)
+    arrays = [q_rad, q_ref_rad, tau_Nm] + ([qd_rad_s] if qd_rad_s is not None else [])
+    t, out, time_base = uniform_grid(np.asarray(t_s, float), *arrays, rate_hz=rate_hz)
+    q, q_ref, tau = out[:3]
+    qd_meas = out[3] if qd_rad_s is not None else None
     dt = 1.0 / rate_hz
     w = window_samples(rate_hz, window_s)
     gs = gauss_s * rate_hz
@@ -391,7 +400,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
         raise DataFormatError(f"only {len(t)} samples; the diagnosis needs at least {4 * w} "
                               f"({4 * w * dt:.2f} s at {rate_hz:g} Hz)")
     tau_c = zoh_centred(tau, zoh_share(1.0 / rate_hz))
-    qd = smooth(q, w, gs, 1, dt)
+    qd = smooth(q, w, gs, 1, dt) if qd_meas is None else smooth(qd_meas, w, gs)
 
     q_noise = position_noise_rad(q)
     v_noise = q_noise * derivative_noise_gain(w, gs, dt)
@@ -421,4 +430,4 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
             continue
         joints.append(j)
     return Signals(t, dt, w, gs, qd, tau_c, q, q_ref, tau, moving, joints, skipped, v_stick,
-                   time_base == TIME_RESAMPLED, q_noise, time_base)
+                   time_base == TIME_RESAMPLED, q_noise, time_base, qd_meas)
