@@ -23,6 +23,11 @@ N_PAYLOAD = 10                    # inertial parameters of the payload (m, m c, 
 # its value little more
 COM_CI_MAX_WIDTH_M = 0.05
 MASS_CI_MAX_SHARE = 0.5
+# The bootstrap interval is statistical: it takes the declared rigid body as exact. The arm's own link parameters
+# are known to a few per cent (datasheet against identification), which moves a payload's estimate more than the
+# noise does; the intervals are therefore at least this wide on either side of the estimate.
+MASS_SYSTEMATIC_SHARE = 0.02
+COM_SYSTEMATIC_M = 0.005
 
 
 def payload_fit(des: Design, joints: dict, jds: dict, rows_of=None) -> dict | None:
@@ -82,10 +87,12 @@ def payload_uncertainty(des: Design, joints: dict, jds: dict) -> tuple[dict, lis
     ests = [payload_from_pi(pi) for pi in pis]
     est = payload_from_pi(lstsq(X * w[:, None], y * w)[n_own:n_own + N_PAYLOAD])
     ng = len({tuple(g) for g in groups})
-    ci = {"mass_kg": percentile_ci([e["mass_kg"] for e in ests], center=est["mass_kg"], n_groups=ng)}
+    ci = {"mass_kg": _at_least(percentile_ci([e["mass_kg"] for e in ests], center=est["mass_kg"], n_groups=ng),
+                               est["mass_kg"], MASS_SYSTEMATIC_SHARE * abs(est["mass_kg"]))}
     for i, ax in enumerate("xyz"):
-        ci[f"com_{ax}_m"] = percentile_ci([e["com_m"][i] if e["mass_kg"] > 0 else None for e in ests],
-                                          center=est["com_m"][i], n_groups=ng)
+        ci[f"com_{ax}_m"] = _at_least(percentile_ci([e["com_m"][i] if e["mass_kg"] > 0 else None for e in ests],
+                                                    center=est["com_m"][i], n_groups=ng),
+                                      est["com_m"][i], COM_SYSTEMATIC_M)
     m_lo, m_hi = ci["mass_kg"]
     mass_ok = ok[0] and m_lo is not None and m_lo > 0 and m_hi - m_lo <= MASS_CI_MAX_SHARE * est["mass_kg"]
     ni = [] if mass_ok else ["mass_kg"]
@@ -152,6 +159,14 @@ def payload_inconsistency(des: Design, joints: dict, jds: dict, fit: dict, facto
                     f"held-out torque residual of joint {j + 1}, which shows no payload, "
                     f"{np.sqrt(finite_ss(e_with) / ss0):.2g} times larger: not a payload of the arm")
     return None
+
+
+def _at_least(ci: list, center: float, half: float) -> list:
+    """``ci`` widened to at least ``center +- half``."""
+    lo, hi = ci
+    if lo is None or hi is None:
+        return ci
+    return [min(lo, center - half), max(hi, center + half)]
 
 
 def fold_payloads(des: Design, joints: dict, jds: dict, fit: dict) -> dict:
