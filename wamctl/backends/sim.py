@@ -91,7 +91,7 @@ class SimBackend(ArmBackend):
                  limits: SafetyLimits | None = None):
         super().__init__(limits)
         self.plant = plant
-        self.dynamics = WamDynamics(plant.payload)
+        self.dynamics = WamDynamics(plant.payload, plant.links)
         self.substeps = int(substeps)
         self.h_s = self.control_period_s / self.substeps
         self.rng = rng

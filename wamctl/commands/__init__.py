@@ -7,4 +7,4 @@ CLI, and tests never take library code from here.
 """
 
 # command modules, in the order their commands appear in ``wamctl --help``
-COMMAND_MODULES = ("data", "report", "run", "friction", "diagnose", "ift", "hmi", "bus", "sweep")
+COMMAND_MODULES = ("data", "report", "run", "friction", "diagnose", "identify", "ift", "hmi", "bus", "sweep")

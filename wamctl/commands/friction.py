@@ -26,6 +26,9 @@ def friction_id(
                                                 show_default=False)] = None,
     criterion: Annotated[str | None, typer.Option("--criterion", help="With --data: bic (default) or aic for "
                                                      "the held-out model selection.", show_default=False)] = None,
+    model: Annotated[Path | None, typer.Option("--model", help="With --data: a model file whose links (e.g. from "
+                                                "`wamctl identify`) replace the datasheet's rigid body.",
+                                                show_default=False)] = None,
     dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the sweep plan and check every setpoint "
                                           "against the limits; move nothing.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no tables.")] = False,
@@ -55,7 +58,9 @@ def friction_id(
             if criterion not in ("bic", "aic"):
                 raise SpecError(f"--criterion: {criterion!r}; choose bic or aic")
             options["criterion"] = criterion
-        return _from_data(data, out, quiet, json, options)
+        return _from_data(data, out, quiet, json, options, model)
+    if model is not None:
+        raise SpecError("--model goes with --data; a spec declares its arm in controller.declared_links")
     if loss is not None or criterion is not None:
         raise SpecError("--loss/--criterion go with --data; a spec sets them in its identification: section")
     return _from_spec(spec, out, dry_run, quiet, json)
@@ -69,11 +74,12 @@ def _from_spec(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as
                    files=lambda run_path: {"friction_model": run_path / MODEL_FILE})
 
 
-def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options: dict) -> None:
+def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options: dict,
+               model: Path | None = None) -> None:
     from wamctl.commands.common import print_document_tables
     from wamctl.experiments.friction_sweep import MODEL_FILE, analyse_recorded
 
-    target, ident, doc = analyse_recorded(data, out, options=options)
+    target, ident, doc = analyse_recorded(data, out, options=options, model=model)
     if as_json:
         emit_json({"out": str(target), "friction_model": str(target / MODEL_FILE), "report": doc.to_json()})
         return

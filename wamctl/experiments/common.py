@@ -20,11 +20,14 @@ from wamctl.control.controllers import JointController, friction_feedforward_Nm
 from wamctl.control.trajectory import Reference
 from wamctl.errors import SpecError
 from wamctl.experiments.engine import LoopRecorder, run_loop
+from wamctl.io import resolve_path
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.plant import resolve_friction
 from wamctl.runs.store import RunDir
 from wamctl.specs import Common, check_positions
+from wamctl.specs.common import link_parameters
+from wamctl.specs.load import load_model_links
 
 log = logging.getLogger(__name__)
 
@@ -65,10 +68,23 @@ class Plan:
         return done
 
 
-def declared_dynamics(spec: Common) -> WamDynamics:
-    """The model the controller knows (rigid body + a declared payload, if any)."""
+def declared_dynamics(spec: Common, base_dir: Path | None = None) -> WamDynamics:
+    """The model the controller knows: the rigid body of ``controller.declared_links`` (the datasheet's by
+    default; a model file's ``links:``, e.g. an identified arm) and a declared payload, if any."""
     p = spec.controller.declared_payload
-    return WamDynamics(Payload(p.mass_kg, tuple(p.com_m)) if p else None)
+    return WamDynamics(Payload(p.mass_kg, tuple(p.com_m)) if p else None,
+                       declared_links(spec.controller.declared_links, base_dir))
+
+
+def declared_links(value, base_dir: Path | None = None) -> P.LinkParameters:
+    """:class:`LinkParameters` of a ``declared_links`` value: None (the datasheet), a links mapping, or a model
+    file with a ``links:`` section (relative to ``base_dir`` or the working directory)."""
+    if isinstance(value, str):
+        value = load_model_links(resolve_path(value, base_dir))
+    try:
+        return link_parameters(value)
+    except ValueError as exc:
+        raise SpecError(f"controller.declared_links: {exc}") from None
 
 
 def feedforward_for(spec: Common, reference: Reference, base_dir: Path | None) -> np.ndarray | None:

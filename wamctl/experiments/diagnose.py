@@ -22,7 +22,8 @@ log = logging.getLogger(__name__)
 
 def declared_model(path: Path | None):
     """The declared model from ``--model``: a friction file (wamctl-friction/1) or a model file
-    (wamctl-model/1: friction, effects, sensors). None: classic friction fitted from the data."""
+    (wamctl-model/1: friction, effects, sensors, links, e.g. from `wamctl identify`). None: classic friction
+    fitted from the data."""
     from pydantic import ValidationError
 
     from wamctl.analysis.diagnosis.estimator import DeclaredModel
@@ -32,6 +33,7 @@ def declared_model(path: Path | None):
     from wamctl.model.friction import FRICTION_FILE_FORMAT, FrictionModel
     from wamctl.model.plant import resolve_friction
     from wamctl.specs import PlantSpec, format_validation_error, load_model_file
+    from wamctl.specs.common import link_parameters
 
     if path is None:
         return None
@@ -46,8 +48,9 @@ def declared_model(path: Path | None):
     effects = {k: v for k, v in plant.effects.model_dump(mode="json").items() if v is not None}
     payload = Payload(plant.effects.payload.mass_kg, tuple(plant.effects.payload.com_m)) \
         if plant.effects.payload else None
+    links = link_parameters(plant.links) if plant.links else None
     return DeclaredModel(friction=friction, payload=payload, effects=effects,
-                         sensors=plant.sensors.model_dump(mode="json"), source=str(path))
+                         sensors=plant.sensors.model_dump(mode="json"), source=str(path), links=links)
 
 
 def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = Path("runs"),

@@ -22,7 +22,13 @@ from pathlib import Path
 
 from wamctl.backends import make_backend
 from wamctl.control.trajectory import ReferenceBuilder
-from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_joint_controller
+from wamctl.experiments.common import (
+    Plan,
+    closed_loop_stage,
+    declared_dynamics,
+    feedforward_for,
+    make_joint_controller,
+)
 from wamctl.model import params as P
 from wamctl.runs.store import RunDir, json_default
 from wamctl.specs.friction_sweep import DEFAULT_VELOCITIES_RAD_S, FrictionSweepSpec  # noqa: F401
@@ -106,7 +112,8 @@ def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, bas
         run.update_manifest(backend=backend.describe())
         closed_loop_stage(backend, make_joint_controller(spec, plan.feedforward_Nm), ref, run,
                           sub_progress(0, "friction sweep"))
-    result = identify(load_run_data(run.path), spec.identification.model_dump())
+    result = identify(load_run_data(run.path), spec.identification.model_dump(),
+                      dynamics=declared_dynamics(spec, base_dir))
     write_identification(run.path, result)
     offset = n_total
     for kind, rspec in val_specs.items():
@@ -148,9 +155,20 @@ def _rotation_plan(rspec: RotationSpec, base_dir: Path | None = None) -> Plan:
 
 
 # ------------------------------------------------------------------------------------------------ recorded data
+def _model_dynamics(model: Path, rd):
+    """The rigid body of a model file's ``links`` with the run's declared payload."""
+    from wamctl.experiments.common import declared_links
+    from wamctl.model.dynamics import Payload, WamDynamics
+
+    pl = rd.meta.payload
+    return WamDynamics(Payload(pl.mass_kg, tuple(pl.com_m)) if pl and pl.mass_kg > 0 else None,
+                       declared_links(str(model)))
+
+
 def analyse_recorded(source: Path, out: Path | None = None, runs_dir: Path = Path("runs"),
-                     name: str | None = None, options: dict | None = None):
-    """Identify friction from a recorded sweep (a measured-run directory or a run directory).
+                     name: str | None = None, options: dict | None = None, model: Path | None = None):
+    """Identify friction from a recorded sweep (a measured-run directory or a run directory). ``model``: a model
+    file whose ``links`` (an identified arm, ``wamctl identify``) replace the datasheet's rigid body.
 
     Without ``out`` a new run directory of kind ``friction_sweep`` is created under ``runs_dir`` holding the
     samples (so that ``wamctl report`` takes it again), the friction model and the report; with ``out`` the
@@ -167,7 +185,7 @@ def analyse_recorded(source: Path, out: Path | None = None, runs_dir: Path = Pat
 
     source = Path(source)
     rd = load_run_data(source)   # DataFormatError naming the file, key, column or row
-    ident = identify(rd, options)
+    ident = identify(rd, options, dynamics=_model_dynamics(model, rd) if model is not None else None)
     src_spec: dict = {}
     src_backend = "measured"
     if (source / "manifest.json").is_file():

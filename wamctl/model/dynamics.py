@@ -9,6 +9,13 @@ Conventions
 * Reflected rotor inertia is the joint armature (used by pinocchio's CRBA and ABA).
 * Gravity is -9.81 m/s^2 along z0; frame 0 is at the shoulder.
 * An optional payload (point mass, COM in the link-7 frame) is added to link 7.
+* Link parameters (mass, COM, inertia, armature) come from a :class:`~wamctl.model.params.LinkParameters`,
+  the datasheet's by default; ``WamDynamics(links=...)`` builds the arm of a model file (``links:``, e.g. an
+  identified arm, :mod:`wamctl.analysis.identification`).
+* Standard inertial parameters (the torque regressor's, pinocchio's order): per link ``m, m c_x, m c_y, m c_z,
+  I_xx, I_xy, I_yy, I_xz, I_yz, I_zz`` with the first moment and the inertia about the *joint* frame's origin
+  in the joint frame's axes (pinocchio joint ``i`` = DH frame ``i-1`` turned by ``q_i``), ``tau = Y pi +
+  armature * qdd``. :func:`links_from_standard` maps them back to DH-frame COM and inertia about the COM.
 """
 
 from __future__ import annotations
@@ -19,6 +26,8 @@ import numpy as np
 import pinocchio as pin
 
 from wamctl.model import params as P
+
+N_STANDARD_INERTIAL = 10 * P.N_JOINTS     # standard inertial parameters of the seven links
 
 
 @dataclass(frozen=True)
@@ -42,24 +51,26 @@ def _dh_fixed(i: int) -> pin.SE3:
     return pin.SE3(rot, np.array([P.DH_A_M[i], 0.0, P.DH_D_M[i]]))
 
 
-def _link_inertia(i: int) -> pin.Inertia:
-    ixx, iyy, izz, ixy, ixz, iyz = P.LINK_INERTIA_KG_M2[i]
-    inertia = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
-    return pin.Inertia(float(P.LINK_MASS_KG[i]), P.LINK_COM_M[i].copy(), inertia)
+def _link_inertia(i: int, links: P.LinkParameters) -> pin.Inertia:
+    """Link ``i``'s (0-based) inertia in DH frame i (about the COM there, as the datasheet gives it)."""
+    return pin.Inertia(float(links.mass_kg[i]), np.array(links.com_m[i]), links.inertia_matrix_kg_m2(i))
 
 
-def build_wam7_model(payload: Payload | None = None) -> pin.Model:
+def build_wam7_model(payload: Payload | None = None, links: P.LinkParameters | None = None) -> pin.Model:
     """Build the 7-DOF WAM as a pinocchio model.
 
     Parameters
     ----------
     payload : Payload, optional
         Point mass added to link 7.
+    links : LinkParameters, optional
+        Link masses, COMs, inertias and armature; default :meth:`LinkParameters.datasheet`.
 
     Returns
     -------
     pinocchio.Model with nq = nv = 7, armature, position, velocity and effort limits set.
     """
+    links = links if links is not None else P.LinkParameters.datasheet()
     model = pin.Model()
     model.name = "wam7"
     parent = 0
@@ -67,13 +78,13 @@ def build_wam7_model(payload: Payload | None = None) -> pin.Model:
     for i in range(P.N_JOINTS):
         jid = model.addJoint(parent, pin.JointModelRZ(), placement, f"joint{i + 1}")
         fixed = _dh_fixed(i)
-        model.appendBodyToJoint(jid, fixed.act(_link_inertia(i)), pin.SE3.Identity())
+        model.appendBodyToJoint(jid, fixed.act(_link_inertia(i, links)), pin.SE3.Identity())
         parent, placement = jid, fixed
     model.addFrame(pin.Frame("link7", parent, placement, pin.FrameType.OP_FRAME))
     if payload is not None and payload.mass_kg > 0:
         point = pin.Inertia(float(payload.mass_kg), np.asarray(payload.com_m, float), np.zeros((3, 3)))
         model.appendBodyToJoint(parent, placement.act(point), pin.SE3.Identity())
-    model.armature = P.ARMATURE_KG_M2.copy()
+    model.armature = np.array(links.armature_kg_m2)
     model.lowerPositionLimit = P.Q_MIN_RAD.copy()
     model.upperPositionLimit = P.Q_MAX_RAD.copy()
     model.velocityLimit = P.QD_MAX_RAD_S.copy()
@@ -88,9 +99,10 @@ class WamDynamics:
     All arrays are (7,) in radians, rad/s, rad/s^2 and N m; matrices (7, 7).
     """
 
-    def __init__(self, payload: Payload | None = None):
+    def __init__(self, payload: Payload | None = None, links: P.LinkParameters | None = None):
         self.payload = payload
-        self.model = build_wam7_model(payload)
+        self.links = links if links is not None else P.LinkParameters.datasheet()
+        self.model = build_wam7_model(payload, self.links)
         self.data = self.model.createData()
         self._link7 = self.model.getFrameId("link7")
 
@@ -140,6 +152,59 @@ class WamDynamics:
         pin.framesForwardKinematics(self.model, self.data, q)
         return pin.getFrameJacobian(self.model, self.data, self._link7, pin.LOCAL_WORLD_ALIGNED).copy()
 
+    def link7_speed_m_s(self, q: np.ndarray, qd: np.ndarray) -> np.ndarray:
+        """Linear speed of the link-7 origin (the wrist flange), m/s, for states (n, 7): (n,)."""
+        q, qd = np.atleast_2d(q), np.atleast_2d(qd)
+        out = np.empty(len(q))
+        for k in range(len(q)):
+            pin.forwardKinematics(self.model, self.data, q[k], qd[k])
+            pin.updateFramePlacement(self.model, self.data, self._link7)
+            v = pin.getFrameVelocity(self.model, self.data, self._link7, pin.LOCAL_WORLD_ALIGNED)
+            out[k] = np.linalg.norm(v.linear)
+        return out
+
     def regressor_basis(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Joint torque regressor Y (7, 70) with tau = Y @ pi for the standard inertial parameters."""
         return pin.computeJointTorqueRegressor(self.model, self.data, q, qd, qdd).copy()
+
+    def torque_regressor(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """:meth:`regressor_basis` along a trajectory: (n, 7, 70) for states (n, 7). The regressor depends on
+        the kinematics only, never on the link parameters or the payload."""
+        q, qd, qdd = (np.atleast_2d(np.asarray(x, float)) for x in (q, qd, qdd))
+        out = np.empty((len(q), P.N_JOINTS, N_STANDARD_INERTIAL))
+        for k in range(len(q)):
+            out[k] = pin.computeJointTorqueRegressor(self.model, self.data, q[k], qd[k], qdd[k])
+        return out
+
+    def standard_parameters(self) -> np.ndarray:
+        """(70,) standard inertial parameters of this arm (payload included in link 7), see the module doc."""
+        return np.concatenate([self.model.inertias[i + 1].toDynamicParameters() for i in range(P.N_JOINTS)])
+
+    @property
+    def armature_kg_m2(self) -> np.ndarray:
+        """(7,) joint armature (reflected rotor inertia) of this model."""
+        return np.array(self.model.armature)
+
+
+
+def links_from_standard(pi: np.ndarray, armature_kg_m2: np.ndarray) -> P.LinkParameters:
+    """The :class:`LinkParameters` (DH-frame COM, inertia about the COM) of standard inertial parameters.
+
+    Parameters
+    ----------
+    pi : (70,) standard parameters in the order of :meth:`WamDynamics.standard_parameters`; each link's mass
+        must be positive.
+    armature_kg_m2 : (7,)
+
+    ``WamDynamics(links=links_from_standard(pi, a)).standard_parameters()`` gives ``pi`` back (to rounding).
+    """
+    pi = np.asarray(pi, float).reshape(P.N_JOINTS, 10)
+    mass, com, inertia = np.zeros(P.N_JOINTS), np.zeros((P.N_JOINTS, 3)), np.zeros((P.N_JOINTS, 6))
+    for i in range(P.N_JOINTS):
+        if not pi[i, 0] > 0:
+            raise ValueError(f"link {i + 1}: mass {pi[i, 0]:g} kg; standard parameters need a positive mass")
+        body = _dh_fixed(i).actInv(pin.Inertia.FromDynamicParameters(pi[i]))
+        mass[i], com[i] = body.mass, body.lever
+        m = body.inertia
+        inertia[i] = [m[0, 0], m[1, 1], m[2, 2], m[0, 1], m[0, 2], m[1, 2]]
+    return P.LinkParameters(mass, com, inertia, armature_kg_m2)

@@ -89,3 +89,127 @@ THESIS_RPE_PCT = {
 ROTATION_AMPLITUDE_RAD = 0.5
 ROTATION_VELOCITY_RAD_S = 0.083
 LSPB_TC_S = 1.0
+
+
+# --- Link parameters as one value: the datasheet's by default, or a model file's (e.g. `wamctl identify`). ---
+LINK_KEYS = ("mass_kg", "com_m", "inertia_kg_m2", "armature_kg_m2")
+
+
+class LinkParameters:
+    """Inertial parameters of the seven links and the joint armature: what :class:`wamctl.model.dynamics.
+    WamDynamics` builds the rigid body from. :meth:`datasheet` (the default everywhere) holds the numbers above.
+
+    Attributes (copies, arrays in link order 1..7 at rows 0..6)
+    ----------
+    mass_kg : (7,)
+    com_m : (7, 3), centre of mass in DH frame i (the frame at the output of ``A_i``).
+    inertia_kg_m2 : (7, 6), ``Ixx, Iyy, Izz, Ixy, Ixz, Iyz`` about the COM, axes of DH frame i.
+    armature_kg_m2 : (7,), reflected rotor inertia of joint i (drives link i).
+
+    The mapping form (:meth:`to_mapping`, :meth:`with_overrides`, the ``links:`` section of a model file) is
+    ``{joint: {mass_kg, com_m: [x, y, z], inertia_kg_m2: [Ixx, Iyy, Izz, Ixy, Ixz, Iyz], armature_kg_m2}}``
+    with 1-based joint numbers; keys left out keep the datasheet's value.
+    """
+
+    __slots__ = ("mass_kg", "com_m", "inertia_kg_m2", "armature_kg_m2")
+
+    def __init__(self, mass_kg, com_m, inertia_kg_m2, armature_kg_m2):
+        shapes = {"mass_kg": (N_JOINTS,), "com_m": (N_JOINTS, 3), "inertia_kg_m2": (N_JOINTS, 6),
+                  "armature_kg_m2": (N_JOINTS,)}
+        for name, value in zip(LINK_KEYS, (mass_kg, com_m, inertia_kg_m2, armature_kg_m2)):
+            arr = np.array(value, dtype=float)
+            if arr.shape != shapes[name]:
+                raise ValueError(f"{name}: expected shape {shapes[name]}, got {arr.shape}")
+            if not np.isfinite(arr).all():
+                raise ValueError(f"{name}: non-finite value")
+            arr.setflags(write=False)
+            object.__setattr__(self, name, arr)
+
+    def __setattr__(self, name, value):
+        raise AttributeError("LinkParameters is immutable; use with_overrides()")
+
+    @classmethod
+    def datasheet(cls) -> LinkParameters:
+        """The libbarrett wam7w.conf numbers (Sept 2008) and the reflected rotor inertia."""
+        return cls(LINK_MASS_KG, LINK_COM_M, LINK_INERTIA_KG_M2, ARMATURE_KG_M2)
+
+    def __eq__(self, other) -> bool:
+        return isinstance(other, LinkParameters) and all(
+            np.array_equal(getattr(self, k), getattr(other, k)) for k in LINK_KEYS)
+
+    def __hash__(self) -> int:
+        return hash(tuple(getattr(self, k).tobytes() for k in LINK_KEYS))
+
+    def __repr__(self) -> str:
+        changed = sorted(self.to_mapping(changed_only=True))
+        return f"LinkParameters({'datasheet' if not changed else 'links ' + str(changed) + ' changed'})"
+
+    def with_overrides(self, links: dict | None) -> LinkParameters:
+        """A copy with the values of ``links`` ({joint: {key: value}}, 1-based joints; None values and absent
+        keys keep this one's) in place of these.
+
+        Raises ValueError naming ``links.<joint>.<key>`` for an unknown key, a wrong length or a mass <= 0."""
+        if not links:
+            return self
+        out = {k: np.array(getattr(self, k)) for k in LINK_KEYS}
+        for key, entry in links.items():
+            j = int(key)
+            if not 1 <= j <= N_JOINTS:
+                raise ValueError(f"links.{key}: joint numbers are 1..{N_JOINTS}")
+            if hasattr(entry, "model_dump"):        # a validated spec entry
+                entry = entry.model_dump()
+            for name, value in (entry or {}).items():
+                if value is None:
+                    continue
+                if name not in LINK_KEYS:
+                    raise ValueError(f"links.{key}.{name}: unknown key (known: {', '.join(LINK_KEYS)})")
+                want = out[name][j - 1].shape
+                arr = np.asarray(value, dtype=float)
+                if arr.shape != want:
+                    raise ValueError(f"links.{key}.{name}: expected {int(np.prod(want)) or 1} value(s)")
+                out[name][j - 1] = arr
+        if (out["mass_kg"] <= 0).any():
+            raise ValueError(f"links.{int(np.argmax(out['mass_kg'] <= 0)) + 1}.mass_kg: must be > 0")
+        if (out["armature_kg_m2"] < 0).any():
+            raise ValueError(f"links.{int(np.argmax(out['armature_kg_m2'] < 0)) + 1}.armature_kg_m2: must be >= 0")
+        return LinkParameters(**out)
+
+    def to_mapping(self, changed_only: bool = False) -> dict:
+        """``{joint: {key: value}}`` (1-based, plain floats and lists); ``changed_only``: only the entries that
+        differ from the datasheet."""
+        ref = LinkParameters.datasheet()
+        out = {}
+        for j in range(N_JOINTS):
+            entry = {}
+            for name in LINK_KEYS:
+                v = getattr(self, name)[j]
+                if changed_only and np.allclose(v, getattr(ref, name)[j], rtol=1e-12, atol=1e-15):
+                    continue
+                entry[name] = float(v) if np.ndim(v) == 0 else [float(x) for x in v]
+            if entry:
+                out[j + 1] = entry
+        return out
+
+    def inconsistent_links(self, rel_tol: float = 1e-9) -> dict[int, str]:
+        """``{joint (1-based): why}`` for every link that is not a physical body: mass <= 0, or an inertia
+        about the COM that is not positive semidefinite or breaks the triangle inequality (each principal
+        moment at most the sum of the other two); together these are exactly a positive semidefinite
+        pseudo-inertia (Wensing, Kim and Slotine, 2017)."""
+        out = {}
+        for i in range(N_JOINTS):
+            if not self.mass_kg[i] > 0:
+                out[i + 1] = f"mass {self.mass_kg[i]:g} kg"
+                continue
+            ev = np.linalg.eigvalsh(self.inertia_matrix_kg_m2(i))
+            tol = rel_tol * max(ev.max(), 1e-12)
+            if ev.min() < -tol:
+                out[i + 1] = f"inertia about the COM has a negative principal moment ({ev.min():.3g} kg m^2)"
+            elif ev.max() > ev.sum() - ev.max() + tol:
+                out[i + 1] = (f"principal moments {', '.join(f'{e:.3g}' for e in ev)} kg m^2 break the triangle "
+                              "inequality")
+        return out
+
+    def inertia_matrix_kg_m2(self, i: int) -> np.ndarray:
+        """Link ``i``'s (0-based) inertia tensor about its COM, (3, 3) in DH frame i axes."""
+        ixx, iyy, izz, ixy, ixz, iyz = self.inertia_kg_m2[i]
+        return np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])

@@ -6,6 +6,8 @@ Effects (each switchable in ``plant.effects``; see :mod:`wamctl.specs` for the p
 * ``stribeck``        breakaway friction ``breakaway_ratio * Fc`` decaying with speed (eq. 2.8), in the
                       plant's friction model.
 * ``position_ripple`` a torque ``A sin(2 pi q / period + phase)`` added at every physics step.
+* ``links``           (not an effect: the rigid body itself) the plant's link masses, COMs, inertias and
+                      armature in place of the datasheet's, e.g. an arm identified by ``wamctl identify``.
 * ``payload``         a point mass added to link 7 of the plant's rigid body (the controller does not know it
                       unless ``controller.declared_payload`` says so).
 * ``delay``           measured positions are the true ones ``delay_s`` earlier (linear interpolation over the
@@ -77,6 +79,8 @@ class Plant:
                 np.where(m, fx.stribeck.vs_rad_s, np.nan), fx.stribeck.delta)
         self.friction = friction
         self.payload = Payload(fx.payload.mass_kg, tuple(fx.payload.com_m)) if fx.payload else None
+        # the rigid body: the datasheet's links unless the plant gives its own (`links:`, e.g. an identified arm)
+        self.links = P.LinkParameters.datasheet().with_overrides(getattr(spec, "links", None))
         self.ripple_amplitude_Nm = np.zeros(P.N_JOINTS)
         self.ripple_wavenumber_rad = np.zeros(P.N_JOINTS)  # 2 pi / period
         self.ripple_phase_rad = 0.0

@@ -132,12 +132,50 @@ class SensorSpec(Strict):
     torque_noise_Nm: float = Field(0.0, ge=0.0, le=1.0, description="actuation noise added to the torque")
 
 
+class LinkEntry(Strict):
+    """One link's inertial parameters in place of the datasheet's (keys left out keep the datasheet's):
+    mass, COM in DH frame i, inertia about the COM (``Ixx, Iyy, Izz, Ixy, Ixz, Iyz``, frame-i axes) and the
+    armature (reflected rotor inertia) of the joint that drives it."""
+    mass_kg: float | None = Field(None, gt=0.0, le=100.0)
+    com_m: Annotated[list[float], Field(min_length=3, max_length=3)] | None = None
+    inertia_kg_m2: Annotated[list[float], Field(min_length=6, max_length=6)] | None = None
+    armature_kg_m2: float | None = Field(None, ge=0.0, le=10.0)
+
+
+Links = dict[Joint, LinkEntry]
+
+
+def link_parameters(links: dict | None) -> P.LinkParameters:
+    """The datasheet's link parameters with a ``links:`` mapping ({joint: LinkEntry or dict}) in place.
+
+    Raises ValueError naming ``links.<joint>`` when a link is not a physical body (see
+    :meth:`wamctl.model.params.LinkParameters.inconsistent_links`)."""
+    if not links:
+        return P.LinkParameters.datasheet()
+    out = P.LinkParameters.datasheet().with_overrides(links)
+    bad = [(j, why) for j, why in out.inconsistent_links().items() if int(j) in {int(k) for k in links}]
+    if bad:
+        j, why = bad[0]
+        raise ValueError(f"links.{j}: not a physical body: {why}")
+    return out
+
+
 class PlantSpec(Strict):
     """The simulated arm: its friction (``table_4_1``, ``none``, a friction model file, or inline), the effects
-    a real arm has and a declared model may lack, and its sensors."""
+    a real arm has and a declared model may lack, its sensors, and its links (the datasheet's unless ``links``
+    says otherwise, e.g. a model file written by ``wamctl identify``)."""
     friction: Literal["table_4_1", "none"] | FrictionInline | str = "table_4_1"
     effects: Effects = Effects()
     sensors: SensorSpec = SensorSpec()
+    links: Links | None = Field(None, description="per-link mass, COM, inertia, armature in place of the "
+                                                  "datasheet's ({joint: {mass_kg, com_m, inertia_kg_m2, "
+                                                  "armature_kg_m2}})")
+
+    @field_validator("links")
+    @classmethod
+    def _physical_links(cls, v):
+        link_parameters(v)
+        return v
 
 
 # ----------------------------------------------------------------------------------------------- controller
@@ -150,6 +188,17 @@ class ControllerSpec(Strict):
     friction_ff: str | None = Field(None, description="pd_g_ff: 'table_4_1' or a friction_model.yaml path")
     ff_inertia: bool = Field(True, description="pd_g_ff: include the m * qdd_r term of eq. 4.3")
     declared_payload: PayloadEffect | None = Field(None, description="payload known to gravity compensation")
+    declared_links: Links | str | None = Field(
+        None, description="the links the controller's model uses (gravity compensation, feed-forward inertia) "
+                          "in place of the datasheet's: a links mapping, or a model file with a links: section "
+                          "(e.g. the model.yaml of `wamctl identify`)")
+
+    @field_validator("declared_links")
+    @classmethod
+    def _physical_declared_links(cls, v):
+        if isinstance(v, dict):
+            link_parameters(v)
+        return v
 
     @model_validator(mode="after")
     def _check(self):

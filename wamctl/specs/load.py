@@ -59,8 +59,9 @@ def parse_spec(data: Any, source: str = "spec") -> Common:
 
 
 def load_model_file(path: str | Path) -> dict:
-    """A model file (``format: wamctl-model/1``): a plant description (``friction``, ``effects``, ``sensors``)
-    as written by ``wamctl diagnose``; usable wherever a spec takes ``plant:``."""
+    """A model file (``format: wamctl-model/1``): a plant description (``friction``, ``effects``, ``sensors``,
+    ``links``) as written by ``wamctl diagnose`` or ``wamctl identify``; usable wherever a spec takes
+    ``plant:``."""
     data = load_yaml(path)
     if not isinstance(data, dict):
         raise SpecError(f"{path}: a model file is a mapping with friction/effects/sensors")
@@ -68,10 +69,25 @@ def load_model_file(path: str | Path) -> dict:
     return data
 
 
+def load_model_links(path: str | Path) -> dict:
+    """The ``links:`` section of a model file (as ``wamctl identify`` writes it), for
+    ``controller.declared_links: FILE``."""
+    data = load_yaml(path)
+    if not isinstance(data, dict) or not isinstance(data.get("links"), dict):
+        raise SpecError(f"{path}: no links: section; controller.declared_links takes a model file with link "
+                        "parameters (e.g. the model.yaml of `wamctl identify`)")
+    return data["links"]
+
+
 def load_spec(path: str | Path) -> Common:
-    """Read and validate a spec file. ``plant: FILE`` loads a model file (relative to the spec's folder)."""
+    """Read and validate a spec file. ``plant: FILE`` loads a model file and ``controller.declared_links:
+    FILE`` its ``links:`` (both relative to the spec's folder), so the run directory's spec is self-contained."""
     path = Path(path)
     data = load_yaml(path)
     if isinstance(data, dict) and isinstance(data.get("plant"), str):
         data = dict(data, plant=load_model_file(resolve_path(data["plant"], path.parent)))
+    ctl = data.get("controller") if isinstance(data, dict) else None
+    if isinstance(ctl, dict) and isinstance(ctl.get("declared_links"), str):
+        links = load_model_links(resolve_path(ctl["declared_links"], path.parent))
+        data = dict(data, controller=dict(ctl, declared_links=links))
     return parse_spec(data, str(path))

@@ -38,7 +38,10 @@ KINDS: dict[str, Kind] = {k.name: k for k in (
          report="wamctl.report.ift:report"),
     Kind("hmi_block", spec="wamctl.specs.hmi_block:HmiBlockSpec", experiment="wamctl.experiments.hmi_block",
          report="wamctl.report.hmi:report"),
+    Kind("excitation", spec="wamctl.specs.excitation:ExcitationSpec", experiment="wamctl.experiments.excitation",
+         report="wamctl.report.excitation:report"),
     Kind("diagnosis", report="wamctl.report.diagnosis:report"),
+    Kind("identification", report="wamctl.report.identification:report"),
     Kind("measured", report="wamctl.report.measured:report"),
 )}
 

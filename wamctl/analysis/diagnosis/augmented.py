@@ -86,6 +86,8 @@ def plant_dict(diag, which: str = "after", thetas: dict | None = None) -> dict:
     sensors = dict(declared.sensors or {})
     sensors.setdefault("encoder_counts_per_rev", encoder_counts(diag.signals_.q_raw_rad, diag.signals_.joints))
     out = {"friction": {"joints": joints}, "effects": effects, "sensors": sensors}
+    if declared.links is not None:          # an identified arm (`wamctl identify`) stays the plant's rigid body
+        out["links"] = declared.links.to_mapping()
     PlantSpec.model_validate(out)   # a programming error if this fails: the shape is ours
     return out
 

@@ -80,6 +80,7 @@ from wamctl.analysis.diagnosis.unexplained import unexplained
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel
+from wamctl.model.params import LinkParameters
 
 log = logging.getLogger(__name__)
 
@@ -89,13 +90,15 @@ MIN_DECLARED_R2 = 0.25            # below: the data are not this arm under this 
 @dataclass
 class DeclaredModel:
     """What the user declares: friction (None = fit it), a payload known to the model, effects from a model
-    file (a PlantSpec ``effects`` mapping) and the file's sensors, if any."""
+    file (a PlantSpec ``effects`` mapping), the file's sensors and its link parameters (an identified arm,
+    ``wamctl identify``; None: the datasheet), if any."""
 
     friction: FrictionModel | None = None
     payload: Payload | None = None
     effects: dict = field(default_factory=dict)
     sensors: dict | None = None
     source: str | None = None
+    links: LinkParameters | None = None
 
     @property
     def fitted(self) -> bool:
@@ -253,7 +256,7 @@ class ModelDiagnosis:
         if payload is None and meta.payload is not None and meta.payload.mass_kg > 0:
             payload = Payload(meta.payload.mass_kg, tuple(meta.payload.com_m))
         self.payload_declared_ = payload
-        self.dynamics_ = WamDynamics(payload)
+        self.dynamics_ = WamDynamics(payload, self.declared_.links)
         kw = {} if self.window_s is None else {"window_s": self.window_s}
         if self.gauss_s is not None:
             kw["gauss_s"] = self.gauss_s

@@ -118,11 +118,13 @@ def identify_from_map(fmap: pd.DataFrame, models=MODEL_NAMES, folds: int = 5, cr
     return result
 
 
-def identify(run, options: dict | None = None, map_options: MapOptions | None = None) -> FrictionIdentification:
+def identify(run, options: dict | None = None, map_options: MapOptions | None = None,
+             dynamics=None) -> FrictionIdentification:
     """Identify friction from a recorded sweep (:class:`~wamctl.runs.measured.RunData`): map, fits, selection.
 
     ``options``: ``loss``, ``criterion``, ``folds``, ``models`` (as the spec's ``identification`` section).
-    The declared rigid-body model includes the payload the metadata declare.
+    ``dynamics``: the declared rigid body (a WamDynamics, e.g. an identified arm); default the datasheet's
+    with the payload the metadata declare.
     """
     from wamctl.model.dynamics import Payload, WamDynamics
 
@@ -131,7 +133,8 @@ def identify(run, options: dict | None = None, map_options: MapOptions | None = 
     meta = run.meta
     joints = list(meta.experiment.joints) or list(range(1, P.N_JOINTS + 1))
     pl = meta.payload
-    dyn = WamDynamics(Payload(pl.mass_kg, tuple(pl.com_m)) if pl and pl.mass_kg > 0 else None)
+    dyn = dynamics if dynamics is not None else \
+        WamDynamics(Payload(pl.mass_kg, tuple(pl.com_m)) if pl and pl.mass_kg > 0 else None)
     q_ref = run.col("q_ref")
     fmap = friction_map(run.t_s, run.col("q"), run.col("tau"), q_ref, joints, dyn, map_options)
     if not len(fmap) or not fmap["accepted"].any():

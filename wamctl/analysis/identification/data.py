@@ -1,0 +1,217 @@
+"""From a measured run to the identification's rows: states, torque, the standard regressor, the mask.
+
+Filtering (two stages, one filter: :func:`wamctl.analysis.diagnosis.signals.smooth`)
+-------------------------------------------------------------------------------------
+1. The diagnosis' signals (:func:`wamctl.analysis.diagnosis.signals.prepare_signals`, its default filter of
+   about 10 Hz, zero phase): the logged torque half-sample aligned (the zero-order hold's delay,
+   ``(tau[k-1] + tau[k]) / 2``), ``q, qd, qdd`` and the torque smoothed alike. Any sample rate the diagnosis
+   accepts (>= 50 Hz; jittered time stamps are resampled) works here. The result is decimated to about
+   ``rate_hz`` (100 Hz; the signals hold nothing above the filter's band) and the standard regressor ``Y`` is
+   built there.
+2. A second, narrower pass of the same filter over the torque *and every column of* ``Y`` (parallel
+   filtering): ``S[tau] = S[Y] pi`` holds exactly because ``tau = Y pi`` is linear in ``pi``, so the filter
+   distorts nothing (not the gravity's curvature, not the friction's jump at a reversal) while it averages the
+   noise away. Its band follows the commanded motion (:func:`auto_filter`: three times the band holding 99 % of
+   the reference's acceleration energy). ``window_s=None`` skips it (the residuals then compare with
+   ``wamctl diagnose``'s).
+
+Rows
+----
+A row (sample k, joint j) is usable when joint j slides at every sample the second filter reaches from k:
+the diagnosis' ``moving`` mask (away from stick and from the record's ends) and at least ``MIN_SPEED_RAD_S``
+(0.02 rad/s; the classic friction model describes friction "at medium low and medium high velocities", thesis
+ch. 3: below, Stribeck and stick-slip take over). A stuck joint's friction is static and unknown, so its rows
+cannot be used; what only acts on joints that never slide is then undetermined (and said so:
+:func:`wamctl.analysis.identification.base.identifiability`).
+
+Instruments
+-----------
+``Z``: the standard regressor of the reference ``q_ref`` through the same two filters. The reference is
+exogenous (free of the measurement's noise and of the actuation noise the closed loop feeds back into the
+motion) and close to the motion, so it is the instrument of the estimator's instrumental-variable fit (when it
+follows the motion: :func:`reference_tracks`; otherwise the run's rows are fitted by least squares).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.ndimage import binary_dilation
+
+from wamctl.analysis.diagnosis.signals import (
+    DEFAULT_GAUSS_S,
+    DEFAULT_WINDOW_S,
+    filter_reach,
+    prepare_signals,
+    savgol_gain,
+    smooth,
+    window_samples,
+)
+from wamctl.analysis.identification.base import N_STANDARD, standard_regressor
+from wamctl.model import params as P
+
+N7 = P.N_JOINTS
+ROW_RATE_HZ = 100.0
+SIGNAL_SHARE = 0.99     # of the reference's acceleration energy that sets the signal band
+BAND_MARGIN = 3.0       # the second filter's cut-off at least this many times the signal band
+TRACKING_SHARE = 0.2    # a reference further from the motion than this is no instrument
+MIN_SPEED_RAD_S = 0.02  # slower sliding is left out (see the module doc)
+WINDOWS_S = (0.06, 0.08, 0.1, 0.15, 0.2, 0.3, 0.4)     # candidate Savitzky-Golay windows (Gaussian: a quarter)
+
+
+@dataclass
+class RunRows:
+    """One run's identification rows, at the decimated samples.
+
+    Attributes
+    ----------
+    source : where the run came from.
+    t_s : (m,) time of each kept sample, s.
+    q_rad, qd_rad_s : (m, 7) states (first filter).
+    tau_Nm : (m, 7) torque through both filters.
+    usable : (m, 7) bool, rows (sample, joint) where the joint slides over the second filter's reach.
+    Y : (m, 7, 105) standard regressor (:func:`~wamctl.analysis.identification.base.standard_regressor`)
+        through the second filter.
+    Z : (m, 7, 105) the reference's, likewise: instruments.
+    joints : 0-based joints with usable rows.
+    skipped : {0-based joint: why} for joints commanded to move that yield no rows.
+    dt_s : period of the kept samples. reach_s : the filters' reach on either side, s.
+    window_s, gauss_s : the second filter (None: none).
+    """
+
+    source: str
+    t_s: np.ndarray
+    q_rad: np.ndarray
+    qd_rad_s: np.ndarray
+    tau_Nm: np.ndarray
+    usable: np.ndarray
+    Y: np.ndarray
+    Z: np.ndarray
+    joints: list[int]
+    skipped: dict[int, str]
+    dt_s: float
+    reach_s: float
+    window_s: float | None
+    gauss_s: float | None
+    reference_tracks: bool = True
+
+    @property
+    def n_rows(self) -> int:
+        return int(self.usable.sum())
+
+    def stacked(self, mask: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """Usable rows in time order (joints interleaved): ``(Y (r, 105), tau (r,), joint (r,), sample (r,))``;
+        ``mask`` (m,) bool restricts the samples (e.g. a held-out block)."""
+        use = self.usable if mask is None else self.usable & np.asarray(mask, bool)[:, None]
+        k, j = np.nonzero(use)
+        return self.Y[k, j, :], self.tau_Nm[k, j], j, k
+
+    def restricted(self, mask: np.ndarray) -> RunRows:
+        """A copy whose usable rows are limited to the samples ``mask`` (m,) bool (e.g. a fitting block)."""
+        return replace(self, usable=self.usable & np.asarray(mask, bool)[:, None])
+
+    def instruments(self) -> np.ndarray:
+        """The instruments' rows (r, 105), in the order of :meth:`stacked` (no mask): the reference's regressor
+        when the reference follows the motion (:func:`reference_tracks`), else the regressor itself (least
+        squares on this run's rows)."""
+        k, j = np.nonzero(self.usable)
+        return (self.Z if self.reference_tracks else self.Y)[k, j, :]
+
+
+def signal_band_hz(t_s: np.ndarray, q_ref_rad: np.ndarray, share: float = SIGNAL_SHARE) -> float:
+    """Frequency below which ``share`` of the reference's acceleration energy lies (all joints together), Hz:
+    where the commanded motion ends and only noise and the loop's own dynamics remain."""
+    dt = float(np.median(np.diff(t_s)))
+    qdd = np.diff(q_ref_rad, 2, axis=0) / dt ** 2
+    qdd = qdd - qdd.mean(axis=0)
+    if not np.any(qdd):
+        return 0.0
+    p = np.sum(np.abs(np.fft.rfft(qdd, axis=0)) ** 2, axis=1)
+    f = np.fft.rfftfreq(len(qdd), dt)
+    c = np.cumsum(p) / p.sum()
+    return float(f[min(int(np.searchsorted(c, share)), len(f) - 1)])
+
+
+def cutoff_hz(rate_hz: float, window_s: float, gauss_s: float) -> float:
+    """Half-power frequency of the analysis filter (Gaussian + Savitzky-Golay) at ``rate_hz``, Hz."""
+    f = np.linspace(0.0, 0.5, 4001)
+    gain = savgol_gain(window_samples(rate_hz, window_s), f, gauss_s * rate_hz)
+    below = np.flatnonzero(gain < np.sqrt(0.5))
+    return float(f[below[0]] * rate_hz) if len(below) else rate_hz / 2
+
+
+def auto_filter(t_s: np.ndarray, q_ref_rad: np.ndarray, rate_hz: float = ROW_RATE_HZ) -> tuple[float, float] | None:
+    """(window_s, gauss_s) of the second filter: the narrowest whose cut-off is at least ``BAND_MARGIN`` times
+    :func:`signal_band_hz`, or None when no candidate is narrower than the first filter (fast motion)."""
+    band = signal_band_hz(t_s, q_ref_rad) * BAND_MARGIN
+    first = cutoff_hz(rate_hz, DEFAULT_WINDOW_S, DEFAULT_GAUSS_S)
+    best = None
+    for w in WINDOWS_S:
+        g = w / 4.0
+        if band <= cutoff_hz(rate_hz, w, g) < first:
+            best = (w, g)
+    return best
+
+
+def reference_tracks(q_rad: np.ndarray, q_ref_rad: np.ndarray, joints: list[int]) -> bool:
+    """Whether the reference follows the motion closely enough to serve as an instrument: for every moving
+    joint, the tracking error's RMS is below ``TRACKING_SHARE`` of the motion's own RMS (about its mean)."""
+    for j in joints:
+        motion = np.std(q_rad[:, j])
+        if motion <= 0 or np.sqrt(np.mean((q_rad[:, j] - q_ref_rad[:, j]) ** 2)) > TRACKING_SHARE * motion:
+            return False
+    return bool(joints)
+
+
+def _dilate(mask: np.ndarray, reach: int) -> np.ndarray:
+    return binary_dilation(mask, structure=np.ones((2 * reach + 1, 1), bool)) if reach > 0 else mask
+
+
+def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str | None = "auto",
+             gauss_s: float | None = None) -> RunRows:
+    """The identification rows of one run (:class:`wamctl.runs.measured.RunData`).
+
+    ``dynamics`` (a WamDynamics) supplies the kinematics of the regressor. ``window_s``: ``"auto"``
+    (:func:`auto_filter`), None (no second filter: residuals comparable with ``wamctl diagnose``'s), or seconds
+    (with ``gauss_s``, default a quarter of it). Raises DataFormatError (from the diagnosis' signal
+    preparation) for data that cannot be differentiated."""
+    meta = data.meta
+    sig = prepare_signals(data.t_s, data.col("q"), data.col("q_ref"), data.col("tau"),
+                          float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints])
+    step = max(1, int(round(1.0 / (sig.dt_s * rate_hz))))
+    keep = np.arange(0, sig.n, step)
+    dt = sig.dt_s * step
+    if window_s == "auto":
+        auto = auto_filter(sig.t_s, sig.q_ref_rad, 1.0 / dt)
+        window_s, gauss_s = auto if auto else (None, None)
+    sliding = sig.moving & (np.abs(sig.qd_rad_s) >= MIN_SPEED_RAD_S)
+    sliding[:, [j for j in range(N7) if j not in sig.joints]] = False
+    sliding = sliding[keep]
+    Y = standard_regressor(dynamics, sig.q_rad[keep], sig.qd_rad_s[keep], sig.qdd_rad_s2[keep])
+    Z = standard_regressor(dynamics, sig.smooth(sig.q_ref_rad)[keep], sig.smooth(sig.q_ref_rad, 1)[keep],
+                           sig.smooth(sig.q_ref_rad, 2)[keep])
+    tau = sig.tau_Nm[keep]
+    reach2 = 0
+    if window_s is not None:
+        gauss_s = window_s / 4.0 if gauss_s is None else gauss_s
+        w2 = window_samples(1.0 / dt, window_s)
+        if len(keep) < 2 * w2:
+            window_s = gauss_s = None
+        else:
+            g2 = gauss_s / dt
+            m = len(keep)
+            Y = smooth(Y.reshape(m, -1), w2, g2).reshape(m, N7, N_STANDARD)
+            Z = smooth(Z.reshape(m, -1), w2, g2).reshape(m, N7, N_STANDARD)
+            tau = smooth(tau, w2, g2)
+            reach2 = filter_reach(w2, g2)
+    usable = ~_dilate(~sliding, reach2)
+    if reach2:
+        usable[:reach2] = usable[-reach2:] = False
+    joints = [j for j in sig.joints if usable[:, j].any()]
+    return RunRows(str(data.source), sig.t_s[keep], sig.q_rad[keep], sig.qd_rad_s[keep], tau, usable, Y, Z,
+                   joints, dict(sig.skipped), dt, sig.reach * sig.dt_s + reach2 * dt, window_s, gauss_s,
+                   reference_tracks(sig.q_raw_rad, sig.q_ref_rad, joints))
+
+
+

@@ -1,0 +1,363 @@
+"""Exciting trajectories for the identification: finite Fourier series designed under the arm's limits.
+
+Trajectory (Swevers et al., "Optimal robot excitation and identification", IEEE TRA 1997), per joint ``j``,
+with base frequency ``w = 2 pi / period`` and ``L`` harmonics:
+
+    q_j(t) = q0_j + sum_l  a_jl / (w l) sin(w l t) - b_jl / (w l) (cos(w l t) - 1)
+    qd_j   =        sum_l  a_jl cos(w l t) + b_jl sin(w l t)                       (a, b in rad/s)
+
+Every period starts and ends at ``q0`` at rest: ``sum_l a_jl = 0`` (no velocity) and ``sum_l l b_jl = 0`` (no
+acceleration) are built in by solving for ``a_j1`` and ``b_j1``, so the free coefficients are ``a_j2..a_jL``,
+``b_j2..b_jL`` of the moving joints (the others hold ``q0``). Periodic data can be averaged and the run can be
+repeated.
+
+Design: minimise a criterion of the base regressor over one period (sampled at ``n_grid`` points; rows of the
+moving joints only, the held joints' rows carry unknown static friction), subject to the limits over the
+whole period: joint range (with a margin), speed, acceleration, the torque the declared model needs (rigid
+body + friction) against the torque limits with a margin, and the wrist's Cartesian speed (the WAM's safety
+module faults at 1 m/s). Criteria: ``d_optimal`` (maximise ``log det(Yb^T Yb)``: independent of the
+parameters' units, smooth) or ``condition`` (minimise the condition number of the column-equilibrated base
+regressor). scipy's SLSQP from several random feasible starts; the best design is then checked at the control
+rate and shrunk if a limit is crossed between grid points. The base columns used are those the moving joints
+can determine (:func:`target_columns`).
+"""
+
+from __future__ import annotations
+
+import logging
+from contextlib import contextmanager
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy.optimize import minimize
+
+from wamctl.analysis.identification.base import (
+    N_STANDARD,
+    BaseParameters,
+    base_parameters,
+    identifiability,
+    standard_regressor,
+    standard_vector,
+)
+from wamctl.model import params as P
+
+log = logging.getLogger(__name__)
+N7 = P.N_JOINTS
+
+
+# ----------------------------------------------------------------------------------------------- trajectory
+@dataclass
+class FourierTrajectory:
+    """A finite Fourier series per joint, at rest at ``q0`` at the start and end of every period.
+
+    Attributes
+    ----------
+    q0_rad : (7,) start and end of each period.
+    period_s : base period.
+    a, b : (7, L) coefficients, rad/s (rows of held joints are zero).
+    """
+
+    q0_rad: np.ndarray
+    period_s: float
+    a: np.ndarray
+    b: np.ndarray
+
+    @property
+    def harmonics(self) -> int:
+        return self.a.shape[1]
+
+    @property
+    def moving(self) -> list[int]:
+        """0-based joints that move."""
+        return [j for j in range(N7) if np.any(self.a[j]) or np.any(self.b[j])]
+
+    @classmethod
+    def from_free(cls, q0_rad, period_s: float, joints: list[int], x: np.ndarray, harmonics: int):
+        """The trajectory of free coefficients ``x`` ((len(joints), 2 (L-1)) flattened: ``a_2..a_L, b_2..b_L``
+        per joint) for the 0-based ``joints``."""
+        L = harmonics
+        a, b = np.zeros((N7, L)), np.zeros((N7, L))
+        x = np.asarray(x, float).reshape(len(joints), 2 * (L - 1))
+        ls = np.arange(2, L + 1)
+        for row, j in zip(x, joints):
+            a[j, 1:], b[j, 1:] = row[: L - 1], row[L - 1:]
+            a[j, 0] = -a[j, 1:].sum()
+            b[j, 0] = -(ls * b[j, 1:]).sum()
+        return cls(np.asarray(q0_rad, float).copy(), float(period_s), a, b)
+
+    def evaluate(self, t_s: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``q, qd, qdd`` (n, 7) at times ``t_s`` (n,) (periodic)."""
+        w = 2 * np.pi / self.period_s
+        ls = np.arange(1, self.harmonics + 1)
+        ph = w * np.outer(np.asarray(t_s, float), ls)          # (n, L)
+        s, c = np.sin(ph), np.cos(ph)
+        wl = w * ls
+        q = self.q0_rad + s @ (self.a / wl).T - (c - 1.0) @ (self.b / wl).T
+        qd = c @ self.a.T + s @ self.b.T
+        qdd = -s @ (self.a * wl).T + c @ (self.b * wl).T
+        return q, qd, qdd
+
+    def to_dict(self) -> dict:
+        return {"period_s": self.period_s, "harmonics": self.harmonics,
+                "coefficients": {j + 1: {"a_rad_s": [float(v) for v in self.a[j]],
+                                         "b_rad_s": [float(v) for v in self.b[j]]} for j in self.moving}}
+
+
+# ----------------------------------------------------------------------------------------------- limits
+@dataclass
+class ExcitationLimits:
+    """What the trajectory must respect everywhere (arrays (7,)). ``torque_fraction``: share of the torque
+    limits the declared model may need; ``cartesian_speed_m_s``: largest speed of the wrist (link-7 origin)."""
+
+    q_min_rad: np.ndarray
+    q_max_rad: np.ndarray
+    qd_max_rad_s: np.ndarray
+    qdd_max_rad_s2: np.ndarray
+    torque_fraction: float = 0.7
+    cartesian_speed_m_s: float = 0.8
+
+    @property
+    def tau_max_Nm(self) -> np.ndarray:
+        return self.torque_fraction * P.TAU_MAX_NM
+
+    KINDS = ("position", "speed", "acceleration", "torque", "cartesian_speed")
+
+
+@dataclass
+class LimitUse:
+    """How close a trajectory comes to each limit: ``used[kind]`` (7,) (or a float for the Cartesian speed),
+    the largest share of the limit reached (<= 1 when respected); ``peak[kind]`` the value at that point."""
+
+    used: dict = field(default_factory=dict)
+    peak: dict = field(default_factory=dict)
+
+    @property
+    def worst(self) -> tuple[str, int | None, float]:
+        """(limit kind, 1-based joint or None, share used) of the limit closest to being crossed."""
+        best = ("", None, -np.inf)
+        for kind, u in self.used.items():
+            arr = np.atleast_1d(u)
+            k = int(np.argmax(arr))
+            if arr[k] > best[2]:
+                best = (kind, k + 1 if np.ndim(u) else None, float(arr[k]))
+        return best
+
+    @property
+    def respected(self) -> bool:
+        return self.worst[2] <= 1.0 + 1e-9
+
+
+def limit_use(q, qd, qdd, tau_Nm, cart_speed_m_s, limits: ExcitationLimits) -> LimitUse:
+    """Shares of each limit used by a sampled trajectory ((n, 7) arrays, (n,) Cartesian speed)."""
+    mid = 0.5 * (limits.q_min_rad + limits.q_max_rad)
+    half = 0.5 * (limits.q_max_rad - limits.q_min_rad)
+    out = LimitUse()
+    dev = np.abs(q - mid)
+    out.used["position"] = dev.max(axis=0) / half
+    out.peak["position"] = q[np.argmax(dev, axis=0), np.arange(N7)]
+    for kind, x, lim in (("speed", qd, limits.qd_max_rad_s), ("acceleration", qdd, limits.qdd_max_rad_s2),
+                         ("torque", tau_Nm, limits.tau_max_Nm)):
+        peak = np.abs(x).max(axis=0)
+        out.used[kind], out.peak[kind] = peak / lim, peak
+    out.peak["cartesian_speed"] = float(np.max(cart_speed_m_s)) if len(cart_speed_m_s) else 0.0
+    out.used["cartesian_speed"] = out.peak["cartesian_speed"] / limits.cartesian_speed_m_s
+    return out
+
+
+# ----------------------------------------------------------------------------------------------- criterion
+def target_columns(joints: list[int], base: BaseParameters | None = None, seed: int = 0) -> np.ndarray:
+    """(nb,) bool: the base parameters that data moving only the 0-based ``joints`` (each through rich
+    random motion, the others held, rows of the moving joints only) can determine."""
+    from wamctl.model.dynamics import WamDynamics
+
+    base = base if base is not None else base_parameters()
+    rng = np.random.default_rng(seed)
+    n = 150
+    q = np.tile(0.5 * (P.Q_MIN_RAD + P.Q_MAX_RAD), (n, 1))
+    qd, qdd = np.zeros((n, N7)), np.zeros((n, N7))
+    q[:, joints] = rng.uniform(P.Q_MIN_RAD[joints], P.Q_MAX_RAD[joints], (n, len(joints)))
+    qd[:, joints] = rng.normal(0, 1, (n, len(joints)))
+    qdd[:, joints] = rng.normal(0, 2, (n, len(joints)))
+    Y = standard_regressor(WamDynamics(), q, qd, qdd)[:, joints, :].reshape(-1, N_STANDARD)
+    return identifiability(base.regressor(Y), base).identified
+
+
+class Criterion:
+    """The design's objective and limit margins for one set of moving joints (callable on free
+    coefficients). ``dynamics`` (WamDynamics) and ``friction`` (FrictionModel) are the declared model the
+    torque limit is checked with."""
+
+    def __init__(self, q0_rad, period_s: float, joints: list[int], harmonics: int, limits: ExcitationLimits,
+                 dynamics, friction, kind: str = "d_optimal", n_grid: int = 60):
+        if kind not in CRITERIA:
+            raise ValueError(f"criterion: {kind!r}; choose {' or '.join(CRITERIA)}")
+        self.q0, self.period_s, self.joints, self.L = np.asarray(q0_rad, float), period_s, joints, harmonics
+        self.limits, self.dyn, self.kind = limits, dynamics, kind
+        self.base = base_parameters()
+        self.cols = self.base.independent[target_columns(joints, self.base)]
+        self.pi_nominal = standard_vector(dynamics, friction)
+        self.t_grid = (np.arange(n_grid) + 0.5) * period_s / n_grid
+        self._mid = 0.5 * (limits.q_min_rad + limits.q_max_rad)[joints]
+        self._half = 0.5 * (limits.q_max_rad - limits.q_min_rad)[joints]
+        self._cache: tuple[bytes, tuple] | None = None
+
+    @property
+    def n_free(self) -> int:
+        return len(self.joints) * 2 * (self.L - 1)
+
+    def trajectory(self, x) -> FourierTrajectory:
+        return FourierTrajectory.from_free(self.q0, self.period_s, self.joints, x, self.L)
+
+    def _evaluate(self, x):
+        """(eigenvalues of the column-equilibrated information matrix, per-point margins (n_grid, ...))."""
+        key = np.asarray(x, float).tobytes()
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        q, qd, qdd = self.trajectory(x).evaluate(self.t_grid)
+        Y = standard_regressor(self.dyn, q, qd, qdd)
+        tau = Y @ self.pi_nominal
+        J = self.joints
+        Yb = Y[:, J, :][:, :, self.cols].reshape(-1, len(self.cols))
+        G = Yb.T @ Yb
+        d = np.sqrt(np.maximum(np.diag(G), 1e-300))
+        ev = np.linalg.eigvalsh(G / np.outer(d, d))
+        lim = self.limits
+        margins = np.concatenate([
+            (1.0 - np.abs(q[:, J] - self._mid) / self._half).ravel(),
+            (1.0 - np.abs(qd[:, J]) / lim.qd_max_rad_s[J]).ravel(),
+            (1.0 - np.abs(qdd[:, J]) / lim.qdd_max_rad_s2[J]).ravel(),
+            (1.0 - np.abs(tau[:, J]) / lim.tau_max_Nm[J]).ravel(),
+            1.0 - self.dyn.link7_speed_m_s(q, qd) / lim.cartesian_speed_m_s])
+        self._cache = (key, (ev, margins))
+        return ev, margins
+
+    def objective(self, x) -> float:
+        """``-log det`` of the column-equilibrated information matrix ``Yb^T Yb`` per parameter (d_optimal;
+        the equilibration makes it independent of the parameters' units), or the log of the condition number
+        of the column-equilibrated base regressor (condition)."""
+        ev, _ = self._evaluate(x)
+        if ev[0] <= 1e-14 * ev[-1]:
+            return 1e3
+        if self.kind == "d_optimal":
+            return float(-np.sum(np.log(ev)) / len(ev))
+        return float(0.5 * np.log(ev[-1] / ev[0]))
+
+    def condition_number(self, x) -> float:
+        """Condition number of the column-equilibrated base regressor over one period."""
+        ev, _ = self._evaluate(x)
+        return float(np.sqrt(ev[-1] / ev[0])) if ev[0] > 0 else float("inf")
+
+    def margins(self, x) -> np.ndarray:
+        """``1 - share of the limit used`` at every grid point, moving joint and limit (>= 0 where it holds)."""
+        return self._evaluate(x)[1]
+
+    def worst(self, x) -> tuple[str, int | None, float]:
+        """(limit kind, 1-based joint or None, share of the limit used) of the most used limit at ``x``."""
+        m = self.margins(x)
+        k = int(np.argmin(m))
+        n, nj = len(self.t_grid), len(self.joints)
+        kinds = ("position", "speed", "acceleration", "torque")
+        block = k // (n * nj)
+        if block >= len(kinds):
+            return "cartesian_speed", None, float(1.0 - m[k])
+        return kinds[block], self.joints[k % nj] + 1, float(1.0 - m[k])
+
+    def joint_kinematic_scale(self, x: np.ndarray) -> np.ndarray:
+        """``x`` with each joint's block scaled to use at most half of its own range, speed and acceleration
+        (the joints' starts do not depend on each other; the torque and Cartesian limits then scale all)."""
+        x = np.array(x, float).reshape(len(self.joints), -1)
+        q, qd, qdd = self.trajectory(x.ravel()).evaluate(self.t_grid)
+        lim = self.limits
+        for r, j in enumerate(self.joints):
+            used = max(np.abs(q[:, j] - self._mid[r]).max() / self._half[r] if self._half[r] > 0 else np.inf,
+                       np.abs(qd[:, j]).max() / lim.qd_max_rad_s[j], np.abs(qdd[:, j]).max() / lim.qdd_max_rad_s2[j])
+            x[r] *= 0.5 / used if used > 0 else 0.0
+        return x.ravel()
+
+
+CRITERIA = ("d_optimal", "condition")
+
+
+@dataclass
+class ExcitationDesign:
+    """The designed trajectory and what it achieves (on the design grid)."""
+
+    trajectory: FourierTrajectory
+    criterion: str
+    objective: float
+    condition_number: float
+    n_target: int
+    starts: list[dict]
+
+
+def design_excitation(q0_rad, joints: list[int], period_s: float, harmonics: int, limits: ExcitationLimits,
+                      dynamics, friction, criterion: str = "d_optimal", starts: int = 3, max_iterations: int = 60,
+                      seed: int = 0, n_grid: int = 60, progress=None) -> ExcitationDesign:
+    """Design an exciting trajectory (see the module doc) for the 0-based moving ``joints``.
+
+    ``progress(done, total, label)`` is called after each start. Raises ValueError when no feasible start is
+    found (``q0`` outside the margins, or a torque limit already used up at ``q0``)."""
+    if harmonics < 2:
+        raise ValueError("harmonics: at least 2 (the first harmonic's coefficients keep the ends at rest)")
+    crit = Criterion(q0_rad, period_s, joints, harmonics, limits, dynamics, friction, criterion, n_grid)
+    rng = np.random.default_rng(seed)
+    best, tried = None, []
+    with _single_threaded_blas():
+        for s in range(starts):
+            x0 = _feasible_start(crit, crit.joint_kinematic_scale(rng.normal(0.0, 1.0, crit.n_free)))
+            if x0 is None:
+                tried.append({"start": s + 1, "status": "no feasible start"})
+                continue
+            res = minimize(crit.objective, x0, method="SLSQP",
+                           constraints=[{"type": "ineq", "fun": crit.margins}],
+                           options={"maxiter": max_iterations, "ftol": 1e-7})
+            x = res.x if crit.margins(res.x).min() >= 0 else x0
+            f = crit.objective(x)
+            tried.append({"start": s + 1, "objective": f, "condition_number": crit.condition_number(x),
+                          "iterations": int(res.nit), "message": str(res.message)})
+            if best is None or f < best[0]:
+                best = (f, x)
+            if progress:
+                progress(s + 1, starts, f"excitation design: start {s + 1}/{starts}")
+    if best is None:
+        kind, joint, share = crit.worst(1e-4 * crit.joint_kinematic_scale(np.ones(crit.n_free)))
+        where = f"joint {joint} " if joint else ""
+        raise ValueError(f"no feasible excitation: barely moving from q0, {where}{kind} is at {share:.0%} of its "
+                         "limit (torque: gravity and Coulomb friction of the declared model against the torque "
+                         "margin); choose another q0_rad or relax the limit")
+    f, x = best
+    return ExcitationDesign(crit.trajectory(x), criterion, f, crit.condition_number(x), int(len(crit.cols)), tried)
+
+
+def _feasible_start(crit: Criterion, direction: np.ndarray) -> np.ndarray | None:
+    """The largest multiple of ``direction`` (bisection) within every limit, shrunk to 90 % of it."""
+    if crit.margins(np.zeros_like(direction)).min() < 0:
+        return None
+    lo, hi = 0.0, 1.0
+    while crit.margins(hi * direction).min() >= 0 and hi < 1e3:
+        lo, hi = hi, 2 * hi
+    for _ in range(25):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if crit.margins(mid * direction).min() >= 0 else (lo, mid)
+    return 0.9 * lo * direction if lo > 0 else None
+
+
+@contextmanager
+def _single_threaded_blas():
+    """Small dense products: one BLAS thread is fastest on a shared machine (threadpoolctl is optional)."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:
+        yield
+        return
+    with threadpool_limits(limits=1, user_api="blas"):
+        yield
+
+
+def sampled_limit_use(traj: FourierTrajectory, limits: ExcitationLimits, dynamics, friction,
+                      rate_hz: float = P.CONTROL_RATE_HZ) -> LimitUse:
+    """:class:`LimitUse` of one period sampled at ``rate_hz`` (the design grid is coarser)."""
+    t = np.arange(int(round(traj.period_s * rate_hz)) + 1) / rate_hz
+    q, qd, qdd = traj.evaluate(t)
+    tau = standard_regressor(dynamics, q, qd, qdd) @ standard_vector(dynamics, friction)
+    return limit_use(q, qd, qdd, tau, dynamics.link7_speed_m_s(q, qd), limits)

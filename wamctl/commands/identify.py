@@ -1,0 +1,92 @@
+"""wamctl excite / identify: design an exciting trajectory, and identify the arm's own inertial parameters from
+measured runs (the pipelines are :mod:`wamctl.experiments.excitation` and :mod:`wamctl.experiments.identify`)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from wamctl.commands.common import JsonOpt, QuietOpt, console, emit_json
+
+
+def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, kind: excitation).",
+                                                show_default=False)],
+           out: Annotated[Path | None, typer.Option("--out", help="Directory for the designed spec and the design "
+                                                    "report (default: <spec folder>/<name>-design).",
+                                                    show_default=False)] = None,
+           quiet: QuietOpt = False, json: JsonOpt = False):
+    """Design an exciting trajectory for `wamctl identify` (finite Fourier series per joint).
+
+    Minimises a criterion of the base regressor (d_optimal or condition, the spec's excitation.design) under the
+    limits over the whole trajectory: joint range with margin, speed, acceleration, the declared model's torque
+    with margin, and the wrist's speed. Writes excitation.yaml (the spec with its coefficients: run it with
+    `wamctl run`), design.json and a report of the condition number and the limits reached.
+    """
+    from wamctl.commands.common import print_document_tables, progress_bar
+    from wamctl.experiments.excitation import excite as run_excite
+    from wamctl.experiments.excitation import limits_summary
+
+    with progress_bar("excitation design", enabled=not (quiet or json)) as progress:
+        path, design, use = run_excite(spec, out, progress)
+    if json:
+        emit_json({"out": str(path), "spec": str(path / "excitation.yaml"), "condition_number":
+                   design.condition_number, "criterion": design.criterion, "limits_used": {
+                       k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in use.used.items()}})
+        return
+    if not quiet:
+        from wamctl.report.document import Document
+        from wamctl.report.excitation import limits_table
+
+        print_document_tables(Document("Excitation design").table("limits", limits_table(use)))
+    console.print(f"condition number {design.condition_number:.4g} ({design.criterion}, {design.n_target} base "
+                  f"parameters); limits used: {limits_summary(use)}\ndesigned spec: {path / 'excitation.yaml'} "
+                  f"(run it with `wamctl run`)  report: {path / 'report.md'}", highlight=False)
+
+
+def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (measured-run directories or run "
+                                                         "directories), any sample rate.", show_default=False)],
+             validate: Annotated[list[Path] | None, typer.Option(
+                 "--validate", help="Held-out runs (best: another trajectory); repeat the option. Default: the "
+                                    "last quarter of each run is held out.", show_default=False)] = None,
+             model: Annotated[Path | None, typer.Option(
+                 "--model", help="Declared arm: a model file (links, friction) or a friction file. Default: "
+                                 "the datasheet and Table 4.1.", show_default=False)] = None,
+             out: Annotated[Path, typer.Option("--out", help="Parent directory of the run directory.")]
+             = Path("runs"),
+             quiet: QuietOpt = False, json: JsonOpt = False):
+    """Identify the arm's own inertial parameters (base parameters, armature and friction) from measured runs.
+
+    Rigid body from pinocchio's regressor, numerical base parameters, instrumental variables on the reference
+    (the closed loop's noise would bias least squares), per-joint weights, HAC intervals, a physically consistent
+    estimate (every link's pseudo-inertia positive definite, an SDP), validated on held-out data against the
+    nominal model. What the data cannot determine is named, not printed. Writes a run directory with model.yaml
+    (usable as plant:, controller.declared_links:, diagnose --model), identification.json, parameters.csv and a
+    report. Exit code 2 for unusable data.
+    """
+    from wamctl.commands.common import print_document_tables, progress_bar
+    from wamctl.experiments.identify import identify_to_run_dir
+
+    with progress_bar("identify", enabled=not (quiet or json)) as progress:
+        path, result, doc = identify_to_run_dir(data, validate, model, out, progress=progress)
+    if json:
+        emit_json({"run_dir": str(path), "model": str(path / "model.yaml"), "consistent": result["consistent"],
+                   "identifiability": result["identifiability"], "validation": result["validation"]})
+        return
+    if not quiet:
+        from wamctl.report.document import Document
+
+        short = Document(doc.title, [b for b in doc.blocks if b[0] == "table" and b[1][0] == "validation"])
+        print_document_tables(short)
+    ident = result["identifiability"]
+    und = ident["undetermined"]
+    console.print(f"rank {ident['rank']} of {ident['n_base']} base parameters"
+                  + (f"; not identified: {', '.join(und)}" if und else "")
+                  + f"; physically consistent: {'yes' if result['consistent'] else 'no'}\n"
+                  f"model: {path / 'model.yaml'}  run directory: {path}", highlight=False)
+
+
+def register(app: typer.Typer) -> None:
+    app.command("excite")(excite)
+    app.command("identify")(identify)

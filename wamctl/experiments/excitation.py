@@ -1,0 +1,201 @@
+"""The ``excitation`` kind: an exciting trajectory for identification, designed (``wamctl excite``) and run.
+
+``plan`` samples the Fourier series (designing it first when the spec carries no coefficients) between two
+holds at ``q0_rad`` and checks it at the control rate against the joint limits and the spec's excitation limits
+(range with margin, speed, acceleration, the declared model's torque with margin, wrist speed); ``execute``
+drives it on the backend under the spec's controller, like any closed-loop stage.
+
+:func:`excite` is the ``wamctl excite`` pipeline: design, then write the designed spec (the input with
+``excitation.coefficients`` filled in) and a design report into a directory.
+"""
+
+from __future__ import annotations
+
+import logging
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import yaml
+
+from wamctl.analysis.identification.excitation import (
+    ExcitationDesign,
+    ExcitationLimits,
+    FourierTrajectory,
+    LimitUse,
+    design_excitation,
+    sampled_limit_use,
+)
+from wamctl.backends import make_backend
+from wamctl.control.trajectory import Reference
+from wamctl.errors import SpecError
+from wamctl.experiments.common import Plan, closed_loop_stage, declared_dynamics, feedforward_for, make_joint_controller
+from wamctl.model import params as P
+from wamctl.model.plant import resolve_friction
+from wamctl.runs.store import RunDir
+from wamctl.specs.excitation import ExcitationSpec
+
+log = logging.getLogger(__name__)
+
+LIMIT_LABELS = {"position": "joint range (with margin)", "speed": "speed", "acceleration": "acceleration",
+                "torque": "torque (declared model, with margin)", "cartesian_speed": "wrist speed"}
+
+
+def limits_of(spec: ExcitationSpec) -> ExcitationLimits:
+    lim = spec.excitation.limits
+    q_min, q_max, qd, qdd = lim.arrays()
+    return ExcitationLimits(q_min, q_max, qd, qdd, 1.0 - lim.torque_margin, lim.max_cartesian_speed_m_s)
+
+
+def declared_model(spec: ExcitationSpec, base_dir: Path | None):
+    """(WamDynamics, FrictionModel) the torque limit is checked with: the controller's declared rigid body and
+    ``excitation.design.declared_friction``."""
+    return declared_dynamics(spec, base_dir), resolve_friction(spec.excitation.design.declared_friction, base_dir)
+
+
+def design(spec: ExcitationSpec, base_dir: Path | None = None, progress=None) -> ExcitationDesign:
+    """Design the spec's trajectory (ignores any coefficients it carries). Raises SpecError if infeasible."""
+    ex = spec.excitation
+    dyn, friction = declared_model(spec, base_dir)
+    try:
+        return design_excitation(np.asarray(spec.q0_rad), [j - 1 for j in ex.joints], ex.period_s, ex.harmonics,
+                                 limits_of(spec), dyn, friction, ex.design.criterion, ex.design.starts,
+                                 ex.design.max_iterations, spec.seed, ex.design.grid_points, progress)
+    except ValueError as exc:
+        raise SpecError(f"excitation: {exc}") from None
+
+
+def trajectory_of(spec: ExcitationSpec, base_dir: Path | None = None, progress=None) -> FourierTrajectory:
+    """The spec's series: its coefficients, or a design when it has none."""
+    ex = spec.excitation
+    if ex.coefficients is None:
+        log.info("excitation: no coefficients in the spec; designing them (seed %d)", spec.seed)
+        return design(spec, base_dir, progress).trajectory
+    a, b = np.zeros((P.N_JOINTS, ex.harmonics)), np.zeros((P.N_JOINTS, ex.harmonics))
+    for j, c in ex.coefficients.items():
+        a[j - 1], b[j - 1] = c.a_rad_s, c.b_rad_s
+    return FourierTrajectory(np.asarray(spec.q0_rad, float), ex.period_s, a, b)
+
+
+def reference_of(spec: ExcitationSpec, traj: FourierTrajectory) -> Reference:
+    """Hold ``settle_s``, ``periods`` periods of the series, hold ``settle_s``; sampled at the control rate."""
+    ex = spec.excitation
+    dt = 1.0 / P.CONTROL_RATE_HZ
+    n_hold = int(round(ex.settle_s / dt))
+    n_move = int(round(ex.periods * ex.period_s / dt))
+    q, qd, qdd = traj.evaluate(np.arange(n_move) * dt)
+    hold = np.tile(traj.q0_rad, (n_hold, 1))
+    zeros = np.zeros((n_hold, P.N_JOINTS))
+    n = 2 * n_hold + n_move
+    segments = [(0, "settle"), (n_hold, f"excitation: {ex.periods} x {ex.period_s:g} s, joints "
+                                        f"{','.join(map(str, ex.joints))}"), (n_hold + n_move, "hold")]
+    return Reference(np.arange(n) * dt, np.vstack([hold, q, hold]), np.vstack([zeros, qd, zeros]),
+                     np.vstack([zeros, qdd, zeros]), segments)
+
+
+@dataclass
+class ExcitationPlan(Plan):
+    """A plan whose limit check also covers the excitation's own limits."""
+
+    trajectory: FourierTrajectory | None = None
+    limit_use: LimitUse | None = None
+
+    def check_limits(self) -> list[str]:
+        done = super().check_limits()
+        worst_kind, joint, share = self.limit_use.worst
+        if share > 1.0 + 1e-9:
+            where = f"joint {joint} " if joint else ""
+            raise SpecError(f"excitation: {where}{LIMIT_LABELS[worst_kind]} at {share:.0%} of its limit; "
+                            "redesign with `wamctl excite`")
+        done.append("excitation within its limits over the whole trajectory: " + limits_summary(self.limit_use))
+        return done
+
+
+def limits_summary(use: LimitUse) -> str:
+    parts = []
+    for kind, label in LIMIT_LABELS.items():
+        u = np.atleast_1d(use.used[kind])
+        k = int(np.argmax(u))
+        parts.append(f"{label} {u[k]:.0%}" + (f" (joint {k + 1})" if np.ndim(use.used[kind]) else ""))
+    return ", ".join(parts)
+
+
+def plan(spec: ExcitationSpec, base_dir: Path | None = None) -> ExcitationPlan:
+    traj = trajectory_of(spec, base_dir)
+    ref = reference_of(spec, traj)
+    dyn, friction = declared_model(spec, base_dir)
+    use = sampled_limit_use(traj, limits_of(spec), dyn, friction)
+    ex = spec.excitation
+    summary = [f"excitation: joints {ex.joints}, Fourier series of {ex.harmonics} harmonics, period "
+               f"{ex.period_s:g} s x {ex.periods}, holds of {ex.settle_s:g} s at q0",
+               f"coefficients: {'from the spec' if ex.coefficients is not None else 'designed now'} "
+               f"({ex.design.criterion})",
+               f"controller {spec.controller.kind}, backend {spec.backend.kind}",
+               f"limits used: {limits_summary(use)}",
+               f"{len(ref)} ticks at {P.CONTROL_RATE_HZ:.0f} Hz = {len(ref) / P.CONTROL_RATE_HZ:.1f} s of arm time"]
+    return ExcitationPlan(ref, summary, feedforward_for(spec, ref, base_dir), trajectory=traj, limit_use=use)
+
+
+def execute(spec: ExcitationSpec, plan: ExcitationPlan, run: RunDir, progress=None,
+            base_dir: Path | None = None) -> None:
+    for i, label in plan.reference.segments:
+        run.event(plan.reference.t_s[i], "segment", None, label)
+    run.write_json("excitation.json", {"trajectory": plan.trajectory.to_dict(),
+                                       "q0_rad": [float(v) for v in plan.trajectory.q0_rad],
+                                       "limits_used": _use_dict(plan.limit_use)})
+    with make_backend(spec, base_dir) as backend:
+        run.update_manifest(backend=backend.describe())
+        closed_loop_stage(backend, make_joint_controller(spec, plan.feedforward_Nm), plan.reference, run, progress)
+
+
+def _use_dict(use: LimitUse) -> dict:
+    return {k: (np.asarray(v).tolist() if np.ndim(v) else float(v)) for k, v in use.used.items()}
+
+
+def designed_spec(raw: dict, traj: FourierTrajectory) -> dict:
+    """The input spec mapping with the designed coefficients in ``excitation.coefficients``."""
+    out = dict(raw)
+    ex = dict(out.get("excitation") or {})
+    ex["coefficients"] = {j + 1: {"a_rad_s": [float(v) for v in traj.a[j]], "b_rad_s": [float(v) for v in traj.b[j]]}
+                          for j in traj.moving}
+    out["excitation"] = ex
+    return out
+
+
+def excite(spec_path: Path, out: Path | None = None, progress=None) -> tuple[Path, ExcitationDesign, LimitUse]:
+    """``wamctl excite``: design the spec's trajectory, write ``excitation.yaml`` (the spec, designed),
+    ``design.json`` and the design report into ``out`` (default: ``<spec folder>/<name>-design``).
+
+    Returns (the directory, the design, the limits used at the control rate)."""
+    from wamctl.io import load_yaml
+    from wamctl.report.excitation import design_document
+    from wamctl.specs import load_spec
+
+    spec_path = Path(spec_path)
+    spec = load_spec(spec_path)
+    if not isinstance(spec, ExcitationSpec):
+        raise SpecError(f"{spec_path}: kind: {spec.kind!r}; `wamctl excite` designs specs of kind excitation")
+    base_dir = spec_path.parent
+    des = design(spec, base_dir, progress)
+    dyn, friction = declared_model(spec, base_dir)
+    use = sampled_limit_use(des.trajectory, limits_of(spec), dyn, friction)
+    out = Path(out) if out is not None else spec_path.parent / f"{spec.name}-design"
+    out.mkdir(parents=True, exist_ok=True)
+    raw = load_yaml(spec_path)
+    designed = designed_spec(raw, des.trajectory)
+    header = (f"# designed by `wamctl excite {spec_path.name}`: {des.criterion}, condition number "
+              f"{des.condition_number:.4g} over {des.n_target} base parameters\n")
+    (out / "excitation.yaml").write_text(header + yaml.safe_dump(designed, sort_keys=False))
+    summary = {"spec": str(spec_path.resolve()), "criterion": des.criterion, "objective": des.objective,
+               "condition_number": des.condition_number, "base_parameters_targeted": des.n_target,
+               "starts": des.starts, "limits_used": _use_dict(use), "trajectory": des.trajectory.to_dict()}
+    (out / "design.json").write_text(_json(summary))
+    design_document(spec, des, use, limits_of(spec), out)
+    return out, des, use
+
+
+def _json(obj) -> str:
+    import json
+
+    from wamctl.runs.store import json_default
+    return json.dumps(obj, indent=2, default=json_default)

@@ -1,0 +1,181 @@
+"""``wamctl identify`` as a pipeline: measured runs -> the arm's base parameters, physically consistent, validated
+on held-out data -> a run directory (kind ``identification``)::
+
+    spec.yaml, manifest.json    what was identified, from which runs, with which options
+    identification.json         the result (base parameters with intervals, identifiability, validation)
+    model.yaml                  the identified arm, format wamctl-model/1 (links + friction + provenance)
+    parameters.csv              one row per base parameter
+    validation.parquet          held-out torque: measured, nominal and identified model, per joint
+    report.md/.html/.json, *.png
+
+Held-out data: the ``validate`` runs (best: another trajectory), or else the last quarter of each run (the
+model is then fitted on the first three quarters). Residuals are computed with the diagnosis' filter, so they
+compare with ``wamctl diagnose``'s.
+"""
+
+from __future__ import annotations
+
+import logging
+from pathlib import Path
+
+import numpy as np
+
+from wamctl.errors import DataFormatError, SpecError
+
+log = logging.getLogger(__name__)
+HOLD_OUT_SHARE = 0.25
+
+
+def declared_arm(model: Path | None, payload):
+    """(WamDynamics, FrictionModel, description) of the declared arm: a model file's ``links`` and
+    ``friction`` (or a friction file), else the datasheet and Table 4.1; plus the runs' declared payload."""
+    from pydantic import ValidationError
+
+    from wamctl.io import load_yaml
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.friction import FRICTION_FILE_FORMAT, FrictionModel
+    from wamctl.model.plant import resolve_friction
+    from wamctl.specs import PlantSpec, format_validation_error, load_model_file
+    from wamctl.specs.common import link_parameters
+
+    if model is None:
+        return WamDynamics(payload), FrictionModel.table_4_1(), "datasheet links, Table 4.1 friction"
+    raw = load_yaml(model)
+    if isinstance(raw, dict) and (raw.get("format") == FRICTION_FILE_FORMAT or "joints" in raw):
+        return WamDynamics(payload), FrictionModel.load(model), f"datasheet links, friction of {model}"
+    try:
+        plant = PlantSpec.model_validate(load_model_file(model))
+        links = link_parameters(plant.links)
+    except ValidationError as exc:
+        raise SpecError(format_validation_error(exc, str(model))) from None
+    except ValueError as exc:
+        raise SpecError(f"{model}: {exc}") from None
+    return (WamDynamics(payload, links), resolve_friction(plant.friction, Path(model).parent),
+            f"links and friction of {model}")
+
+
+def _payload(datas):
+    """The payload the runs declare (they must agree), as a Payload or None."""
+    from wamctl.model.dynamics import Payload
+
+    seen = {(d.meta.payload.mass_kg, tuple(d.meta.payload.com_m)) if d.meta.payload and d.meta.payload.mass_kg > 0
+            else None for d in datas}
+    if len(seen) > 1:
+        raise DataFormatError("the runs declare different payloads (meta.yaml payload); identify runs of one arm "
+                              "configuration together")
+    p = seen.pop()
+    return Payload(p[0], p[1]) if p else None
+
+
+def identify(data_paths: list[Path], validate: list[Path] | None = None, model: Path | None = None,
+             progress=None):
+    """Fit the identification; returns ``(estimator, validation dict, provenance dict)`` (no files written)."""
+    from wamctl.analysis.identification.data import run_rows
+    from wamctl.analysis.identification.estimator import InertialIdentification
+    from wamctl.runs.measured import load_run_data
+
+    if not data_paths:
+        raise SpecError("identify: give at least one measured run")
+    validate = list(validate or [])
+    datas = [load_run_data(p) for p in data_paths]
+    vdatas = [load_run_data(p) for p in validate]
+    payload = _payload(datas + vdatas)
+    dyn, friction, described = declared_arm(model, payload)
+    step = 0
+    total = 2 + len(datas) + max(len(vdatas), len(datas))
+
+    def tick(label):
+        nonlocal step
+        step += 1
+        if progress:
+            progress(step, total, label)
+
+    rows = []
+    for d in datas:
+        rows.append(run_rows(d, dyn))
+        tick(f"identify: rows of {Path(d.source).name}")
+    fit_rows, held = rows, []
+    if vdatas:
+        for d in vdatas:
+            held.append((run_rows(d, dyn, window_s=None), None))
+            tick(f"identify: held-out rows of {Path(d.source).name}")
+    else:
+        fit_rows = []
+        for d, rr in zip(datas, rows):
+            t_split = rr.t_s[0] + (1 - HOLD_OUT_SHARE) * (rr.t_s[-1] - rr.t_s[0])
+            fit_rows.append(rr.restricted(rr.t_s < t_split - rr.reach_s))
+            vr = run_rows(d, dyn, window_s=None)
+            held.append((vr, vr.t_s >= t_split))
+            tick(f"identify: held-out quarter of {Path(d.source).name}")
+    est = InertialIdentification(dynamics=dyn, friction=friction).fit(fit_rows)
+    tick("identify: fitted")
+    validation = validation_of(est, held)
+    tick("identify: validated")
+    provenance = {"tool": "wamctl identify", "data": [str(Path(p).resolve()) for p in data_paths],
+                  "validation": ([str(Path(p).resolve()) for p in validate] if validate else
+                                 f"last {HOLD_OUT_SHARE:.0%} of each run (fitted on the rest)"),
+                  "declared": described, "payload_in_link7": (
+                      {"mass_kg": payload.mass_kg, "com_m": list(payload.com_m)} if payload else None),
+                  "method": "base parameters by IV on the reference, HAC intervals, consistent estimate by SDP"}
+    return est, validation, provenance
+
+
+def validation_of(est, held) -> dict:
+    """Held-out residual RMS per joint of the nominal and the identified model, and the traces."""
+    rms = {}
+    traces = []
+    rows = [vr for vr, _ in held]
+    masks = [m if m is not None else np.ones(len(vr.t_s), bool) for vr, m in held]
+    for which in ("nominal", "identified"):
+        rms[which] = est.rms_by_joint(rows, which, masks=masks)
+    rms["in_sample_identified"] = est.rms_by_joint(est.rows_, "identified")
+    for i, (vr, m) in enumerate(zip(rows, masks)):
+        pid, y, j, k = est.predict(vr, "identified", m)
+        pnom, _, _, _ = est.predict(vr, "nominal", m)
+        traces.append({"run": i, "t_s": vr.t_s[k], "joint": j + 1, "measured_Nm": y, "nominal_Nm": pnom,
+                       "identified_Nm": pid})
+    return {"rms": rms, "traces": traces, "sources": [vr.source for vr in rows]}
+
+
+def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = None, model: Path | None = None,
+                        out: Path = Path("runs"), name: str | None = None, formats=("md", "html", "json"),
+                        progress=None):
+    """``wamctl identify``: fit, then write the run directory; returns (run path, result dict, Document)."""
+    import pandas as pd
+    import yaml
+
+    from wamctl.analysis.identification.model_file import model_file
+    from wamctl.report import write_report
+    from wamctl.runs.store import RunDir, git_revision, package_versions, utc_now
+
+    est, validation, provenance = identify(data_paths, validate, model, progress)
+    name = name or f"identify-{Path(data_paths[0]).name}"
+    spec = {"kind": "identification", "name": name, "data": provenance["data"],
+            "validate": [str(Path(p).resolve()) for p in (validate or [])],
+            "model": str(Path(model).resolve()) if model else None,
+            "options": {"row_rate_hz": est.row_rate_hz, "alpha": est.alpha, "hold_out_share":
+                        None if validate else HOLD_OUT_SHARE}}
+    run = RunDir.create(out, name, spec, None, "identification",
+                        {"backend": {"name": "analysis"}, "source": provenance["data"]})
+    provenance.update(created_utc=utc_now(), wamctl_version=package_versions()["wamctl"],
+                      git_revision=git_revision(), run_dir=str(run.path.resolve()))
+    held = {str(j + 1): {k: _num(validation["rms"][k][j]) for k in ("nominal", "identified")} for j in range(7)}
+    result = dict(est.to_dict(), validation={k: [_num(v) for v in a] for k, a in validation["rms"].items()},
+                  validation_sources=validation["sources"], provenance=provenance,
+                  filter=[{"source": rr.source, "window_s": rr.window_s, "gauss_s": rr.gauss_s,
+                           "rows": rr.n_rows} for rr in est.rows_])
+    run.write_json("identification.json", result)
+    mf = model_file(est, provenance, held)
+    (run.path / "model.yaml").write_text(yaml.safe_dump(mf, sort_keys=False))
+    est.table().to_csv(run.path / "parameters.csv", index=False)
+    if validation["traces"]:
+        pd.concat([pd.DataFrame(t) for t in validation["traces"]], ignore_index=True).to_parquet(
+            run.path / "validation.parquet", index=False)
+    run.finish("completed", None, not_identified=est.identifiability_.undetermined)
+    doc = write_report(run.path, formats=formats)
+    return run.path, result, doc
+
+
+def _num(v):
+    v = float(v)
+    return v if np.isfinite(v) else None

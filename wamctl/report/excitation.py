@@ -1,0 +1,130 @@
+"""Excitation reports: the design (``wamctl excite``: condition number, limits reached, one period) and the run
+(limits reached by the arm itself, the condition number of the data it recorded)."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from wamctl.model import params as P
+from wamctl.report.document import Document
+from wamctl.report.figures import joint_grid, save
+from wamctl.runs.store import read_table
+
+LABELS = {"position": "joint range (with margin)", "speed": "speed", "acceleration": "acceleration",
+          "torque": "torque (declared model, with margin)", "cartesian_speed": "wrist speed"}
+PEAK_COLUMNS = {"position": "position_peak_rad", "speed": "speed_peak_rad_s",
+                "acceleration": "acceleration_peak_rad_s2", "torque": "torque_peak_Nm"}
+
+
+def limits_table(use) -> pd.DataFrame:
+    """Per joint: the peak of each quantity and the share of its limit used (a LimitUse and its limits)."""
+    rows = []
+    for j in range(P.N_JOINTS):
+        row = {"joint": j + 1}
+        for kind, col in PEAK_COLUMNS.items():
+            row[col] = float(use.peak[kind][j])
+            row[f"{kind}_used_pct"] = 100 * float(use.used[kind][j])
+        rows.append(row)
+    return pd.DataFrame(rows).set_index("joint")
+
+
+def design_document(spec, design, use, limits, out_dir: Path) -> Document:
+    """The report of a design (written into ``out_dir`` as report.md/html/json + a figure of one period)."""
+    ex = spec.excitation
+    doc = Document(f"Excitation design: {spec.name}")
+    doc.text(f"Fourier series of {ex.harmonics} harmonics, period {ex.period_s:g} s, joints {ex.joints}, q0 = "
+             f"{[round(v, 3) for v in spec.q0_rad]}. Criterion {design.criterion} over the {design.n_target} base "
+             f"parameters these joints can determine; condition number of the column-equilibrated base regressor "
+             f"over one period: {design.condition_number:.4g}.")
+    worst = use.worst
+    doc.text(f"Closest limit: {LABELS[worst[0]]}" + (f" of joint {worst[1]}" if worst[1] else "")
+             + f", {worst[2]:.0%} used; wrist speed peak {use.peak['cartesian_speed']:.3f} m/s of "
+               f"{limits.cartesian_speed_m_s:g} m/s. All limits checked at {P.CONTROL_RATE_HZ:.0f} Hz over the "
+               "whole period.")
+    doc.heading("Limits reached")
+    doc.table("limits", limits_table(use), "peak of each quantity over one period and the share of its "
+              "limit used (position: distance from the middle of the range with margin, as a share of its half).")
+    doc.heading("Starts")
+    doc.table("starts", pd.DataFrame(design.starts), "each random feasible start and where SLSQP ended")
+    doc.data.update(condition_number=design.condition_number, criterion=design.criterion,
+                    limits_used={k: np.asarray(v).tolist() for k, v in use.used.items()})
+    t = np.linspace(0, design.trajectory.period_s, 600)
+    q, qd, _ = design.trajectory.evaluate(t)
+    moving = design.trajectory.moving
+    fig, axes = joint_grid(len(moving), "One period of the designed excitation")
+    for ax, j in zip(axes, moving):
+        ax.plot(t, q[:, j], label="q (rad)")
+        ax.plot(t, qd[:, j], "--", label="qd (rad/s)")
+        ax.axhline(limits.q_min_rad[j], color="0.6", lw=0.8)
+        ax.axhline(limits.q_max_rad[j], color="0.6", lw=0.8)
+        ax.set_title(f"joint {j + 1}")
+        ax.set_xlabel("t (s)")
+        ax.grid(alpha=0.3)
+    axes[0].legend()
+    doc.figure(save(fig, Path(out_dir) / "excitation_design.png"), "one period; grey: joint range with margin")
+    doc.write(Path(out_dir), "report")
+    return doc
+
+
+def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
+    """The run of an excitation: limits the arm reached (measured), and what the data determine."""
+    from wamctl.analysis.identification.base import base_parameters, identifiability
+    from wamctl.analysis.identification.data import run_rows
+    from wamctl.errors import DataFormatError
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.runs.measured import load_run_data
+
+    out_dir = Path(out_dir or run_path)
+    data = read_table(run_path)
+    doc = Document(f"Excitation run: {manifest.get('name', run_path.name)}")
+    doc.text(f"Run {run_path.name}: status {manifest.get('status')}, backend "
+             f"{(manifest.get('backend') or {}).get('name', '?')}, {len(data)} samples.")
+    if manifest.get("status") != "completed" and manifest.get("reason"):
+        doc.text(f"The run ended {manifest['status']}: {manifest['reason']}.")
+    if len(data) < 10:
+        return doc
+    q = data[[f"q_{j}_rad" for j in range(1, 8)]].to_numpy()
+    tau = data[[f"tau_{j}_Nm" for j in range(1, 8)]].to_numpy()
+    t = data["t_s"].to_numpy()
+    qd = np.gradient(q, t, axis=0)
+    rows = []
+    for j in range(P.N_JOINTS):
+        lo, hi = q[:, j].min(), q[:, j].max()
+        rows.append({"joint": j + 1, "q_min_rad": lo, "q_max_rad": hi,
+                     "range_margin_rad": float(min(lo - P.Q_MIN_RAD[j], P.Q_MAX_RAD[j] - hi)),
+                     "speed_peak_rad_s": float(np.abs(qd[:, j]).max()),
+                     "torque_peak_Nm": float(np.abs(tau[:, j]).max()),
+                     "torque_used_pct": 100 * float(np.abs(tau[:, j]).max() / P.TAU_MAX_NM[j])})
+    measured = pd.DataFrame(rows).set_index("joint")
+    doc.heading("Limits reached by the arm (measured)")
+    doc.table("measured_limits", measured, "positions as measured; speed: finite difference of the measured "
+              "positions (with encoder noise); torque: the commanded torque against the WAM's limits")
+    doc.data["measured_limits"] = measured.reset_index().to_dict("records")
+    try:
+        rr = run_rows(load_run_data(run_path), WamDynamics())
+        Y, _, _, _ = rr.stacked()
+        base = base_parameters()
+        ident = identifiability(base.regressor(Y), base)
+        doc.heading("What these data determine")
+        doc.text(ident.statement() + ".")
+        doc.data["identifiability"] = ident.to_dict()
+    except DataFormatError as exc:
+        doc.text(f"No identification rows: {exc}")
+    moving = [j for j in range(P.N_JOINTS) if np.ptp(data[f"q_ref_{j + 1}_rad"]) > 1e-9]
+    if moving:
+        fig, axes = joint_grid(len(moving), "Reference, measured position and torque")
+        for ax, j in zip(axes, moving):
+            ax.plot(t, data[f"q_ref_{j + 1}_rad"], label="q_ref (rad)")
+            ax.plot(t, q[:, j], "--", label="q (rad)")
+            ax2 = ax.twinx()
+            ax2.plot(t, tau[:, j], color="C3", lw=0.6, alpha=0.7)
+            ax2.set_ylabel("tau (N m)", color="C3")
+            ax.set_title(f"joint {j + 1}")
+            ax.set_xlabel("t (s)")
+            ax.grid(alpha=0.3)
+        axes[0].legend(loc="upper left")
+        doc.figure(save(fig, out_dir / "excitation_run.png"), "reference and measured position; torque in red")
+    return doc

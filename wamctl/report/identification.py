@@ -1,0 +1,142 @@
+"""Identification report (``wamctl identify``): what the data determine, the identified base parameters with
+their intervals and how far each moved from the declared arm, physical consistency per link, and the held-out
+validation of the nominal against the identified model (table and measured-vs-predicted figures)."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+import yaml
+
+from wamctl.model import params as P
+from wamctl.report.document import Document
+from wamctl.report.figures import joint_grid, save
+
+
+def validation_table(result: dict) -> pd.DataFrame:
+    v = result["validation"]
+    rows = []
+    for j in range(P.N_JOINTS):
+        nom, idf, ins = v["nominal"][j], v["identified"][j], v["in_sample_identified"][j]
+        rows.append({"joint": j + 1, "nominal_rms_Nm": nom, "identified_rms_Nm": idf,
+                     "identified_over_nominal": (idf / nom) if nom and idf is not None else None,
+                     "in_sample_rms_Nm": ins})
+    return pd.DataFrame(rows).set_index("joint")
+
+
+def parameter_table(result: dict) -> pd.DataFrame:
+    df = pd.DataFrame(result["base"])
+    cols = ["parameter", "unit", "declared", "estimate", "ci_low", "ci_high", "moved_se", "data_share", "status"]
+    out = df[cols].copy()
+    return out
+
+
+def links_table(model: dict, margins: list) -> pd.DataFrame:
+    rows = []
+    for j in range(1, P.N_JOINTS + 1):
+        e = model["links"][j] if j in model["links"] else model["links"][str(j)]
+        ev = np.linalg.eigvalsh(P.LinkParameters.datasheet().with_overrides({j: e}).inertia_matrix_kg_m2(j - 1))
+        rows.append({"link": j, "mass_kg": e["mass_kg"], "com_x_m": e["com_m"][0], "com_y_m": e["com_m"][1],
+                     "com_z_m": e["com_m"][2], "I1_kg_m2": ev[0], "I2_kg_m2": ev[1], "I3_kg_m2": ev[2],
+                     "armature_kg_m2": e["armature_kg_m2"], "pseudo_inertia_margin": margins[j - 1],
+                     "consistent": bool(margins[j - 1] is not None and margins[j - 1] > 0)})
+    return pd.DataFrame(rows).set_index("link")
+
+
+def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
+    out_dir = Path(out_dir or run_path)
+    result = json.loads((run_path / "identification.json").read_text())
+    model = yaml.safe_load((run_path / "model.yaml").read_text())
+    doc = Document(f"Identification: {manifest.get('name', run_path.name)}")
+    ident = result["identifiability"]
+    prov = result["provenance"]
+    held = prov["validation"]
+    held = held if isinstance(held, str) else ", ".join(Path(p).name for p in held)
+    doc.text(f"From {len(prov['data'])} run(s), {result['n_rows']} rows (sample, sliding joint); declared arm: "
+             f"{prov['declared']}; held out: {held}. "
+             f"Instruments: {result['instruments']}. Model file: model.yaml (usable as plant:, "
+             "controller.declared_links:, diagnose --model).")
+    doc.heading("What the data determine")
+    cond = ident["condition_number"]
+    text = (f"Rank {ident['rank']} of {ident['n_base']} base parameters; condition number of the weighted, "
+            f"column-equilibrated base regressor {cond:.4g}." if cond != float("inf") and cond is not None else
+            f"Rank {ident['rank']} of {ident['n_base']} base parameters (condition number over the determined "
+            f"directions {ident['condition_number_identified']:.4g}).")
+    if ident["undetermined"]:
+        text += (f" Not identified (the data cannot determine them; their values stay the declared arm's): "
+                 f"{', '.join(ident['undetermined'])}.")
+    weak = [r["parameter"] for r in result["base"] if r["status"] == "weak"]
+    if weak:
+        text += (f" Weakly identified (the declared arm weighs more than the data): {', '.join(weak)}.")
+    doc.text(text)
+    doc.heading("Held-out validation")
+    vt = validation_table(result)
+    doc.table("validation", vt, "RMS of measured - predicted torque on held-out data, diagnosis filter (about 10 "
+              "Hz, as `wamctl diagnose`); nominal: declared links with friction fitted on the same data; "
+              "in-sample: the identified model on the data it was fitted on (after the identification's filter).")
+    doc.data["validation"] = vt.reset_index().replace({np.nan: None}).to_dict("records")
+    _validation_figure(run_path, out_dir, doc)
+    doc.heading("Base parameters")
+    doc.table("parameters", parameter_table(result), "estimate: the physically consistent estimate; interval: "
+              f"{100 * (1 - spec.get('options', {}).get('alpha', 0.05)):.0f} % (posterior: data with HAC "
+              "errors + a weak prior at the declared arm); moved_se: (estimate - declared) / standard error; "
+              "data_share: the data's share of the information. Expressions in parameters.csv.", digits=5)
+    _moved_figure(result, out_dir, doc)
+    doc.heading("Physical consistency")
+    doc.table("links", links_table(model, result["pseudo_inertia_margin"]),
+              "the identified arm's links (DH frame i; principal moments about the COM); margin: smallest "
+              "eigenvalue of the pseudo-inertia over its largest (> 0: a physical body).", digits=5)
+    doc.data.update(consistent=result["consistent"], not_identified=ident["undetermined"],
+                    condition_number=cond)
+    return doc
+
+
+def _validation_figure(run_path: Path, out_dir: Path, doc: Document) -> None:
+    path = run_path / "validation.parquet"
+    if not path.is_file():
+        return
+    df = pd.read_parquet(path)
+    first = df[df["run"] == df["run"].min()]
+    joints = sorted(first["joint"].unique())
+    if not joints:
+        return
+    fig, axes = joint_grid(len(joints), "Held-out torque: measured and predicted")
+    for ax, j in zip(axes, joints):
+        d = first[first["joint"] == j]
+        ax.plot(d["t_s"], d["measured_Nm"], ".", ms=1.5, color="0.3", label="measured")
+        ax.plot(d["t_s"], d["nominal_Nm"], ".", ms=1.2, color="C1", label="nominal")
+        ax.plot(d["t_s"], d["identified_Nm"], ".", ms=1.2, color="C0", label="identified")
+        ax.set_title(f"joint {j}")
+        ax.set_ylabel("tau (N m)")
+        ax.set_xlabel("t (s)")
+        ax.grid(alpha=0.3)
+    axes[0].legend(markerscale=6)
+    doc.figure(save(fig, out_dir / "identification_validation.png"),
+               "held-out torque (sliding samples of the first held-out run): measured, nominal and identified")
+
+
+def _moved_figure(result: dict, out_dir: Path, doc: Document) -> None:
+    import matplotlib.pyplot as plt
+
+    df = pd.DataFrame(result["base"])
+    df = df[df["status"] != "not identified"]
+    if not len(df):
+        return
+    scale = np.maximum(np.abs(df["declared"].to_numpy(float)), 1e-12)
+    rel = (df["estimate"].to_numpy(float) - df["declared"].to_numpy(float)) / scale
+    err = 1.96 * df["se"].to_numpy(float) / scale
+    fig, ax = plt.subplots(figsize=(11, max(4.0, 0.16 * len(df))))
+    y = np.arange(len(df))
+    ax.errorbar(np.clip(rel, -2, 2), y, xerr=np.minimum(err, 2), fmt="o", ms=3, lw=0.8)
+    ax.axvline(0, color="0.5", lw=0.8)
+    ax.set_yticks(y)
+    ax.set_yticklabels(df["parameter"], fontsize=6)
+    ax.set_xlim(-2.1, 2.1)
+    ax.set_xlabel("(estimate - declared) / |declared|  (clipped at +-2)")
+    ax.set_title("How far each base parameter moved from the declared arm, with its 95 % interval")
+    ax.grid(alpha=0.3)
+    doc.figure(save(fig, out_dir / "identification_moved.png"), "relative change of each base parameter from "
+               "the declared value, with its interval")

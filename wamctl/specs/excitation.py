@@ -1,0 +1,101 @@
+"""The ``excitation`` spec: an exciting trajectory for ``wamctl identify`` (finite Fourier series per joint).
+
+``wamctl excite SPEC.yaml`` designs the coefficients under the limits below and writes the same spec with
+``excitation.coefficients`` filled in; ``wamctl run`` executes it on the simulated arm or the real one. A
+spec without coefficients is designed when it is planned (deterministic: the spec's ``seed``).
+"""
+
+from __future__ import annotations
+
+from typing import Literal
+
+import numpy as np
+from pydantic import Field, model_validator
+
+from wamctl.model import params as P
+from wamctl.specs.common import Common, Joint, Strict, Vec7
+
+
+class ExcitationLimitsSpec(Strict):
+    """Limits the trajectory respects everywhere (checked over the whole trajectory at the control rate)."""
+    joint_margin_rad: float = Field(0.15, ge=0.0, le=1.0, description="distance kept from each joint limit")
+    max_speed_rad_s: float | Vec7 = Field(1.2, description="per joint (or one for all), at most 2 rad/s")
+    max_acceleration_rad_s2: float | Vec7 = Field(4.0, description="per joint (or one for all)")
+    torque_margin: float = Field(0.3, ge=0.0, lt=1.0, description="share of each torque limit kept free: the "
+                                 "declared model's torque stays below (1 - margin) x (25, 20, 15, 15, 5, 5, 5) N m")
+    max_cartesian_speed_m_s: float = Field(0.8, gt=0.0, le=1.0, description="wrist speed (the WAM's safety "
+                                           "module faults at 1 m/s)")
+
+    @model_validator(mode="after")
+    def _check(self):
+        for name, hard in (("max_speed_rad_s", P.QD_MAX_RAD_S), ("max_acceleration_rad_s2", None)):
+            v = np.broadcast_to(np.asarray(getattr(self, name), float), (P.N_JOINTS,))
+            if (v <= 0).any():
+                raise ValueError(f"{name}: must be > 0")
+            if hard is not None and (v > hard).any():
+                j = int(np.argmax(v > hard))
+                raise ValueError(f"{name}: joint {j + 1}: {v[j]:g} rad/s is above the velocity limit {hard[j]:g}")
+        return self
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(q_min, q_max, qd_max, qdd_max), (7,) each."""
+        m = self.joint_margin_rad
+        qd = np.broadcast_to(np.asarray(self.max_speed_rad_s, float), (P.N_JOINTS,)).copy()
+        qdd = np.broadcast_to(np.asarray(self.max_acceleration_rad_s2, float), (P.N_JOINTS,)).copy()
+        return P.Q_MIN_RAD + m, P.Q_MAX_RAD - m, qd, qdd
+
+
+class DesignSpec(Strict):
+    """How the coefficients are found: a criterion of the base regressor, minimised by SLSQP from ``starts``
+    random feasible starts."""
+    criterion: Literal["d_optimal", "condition"] = "d_optimal"
+    starts: int = Field(3, ge=1, le=50)
+    max_iterations: int = Field(60, ge=1, le=2000)
+    grid_points: int = Field(60, ge=20, le=1000, description="samples of one period the criterion is built on")
+    declared_friction: str = Field("table_4_1", description="friction the torque limit is checked with: "
+                                                            "table_4_1, none or a friction/model file")
+
+
+class JointCoefficients(Strict):
+    a_rad_s: list[float]
+    b_rad_s: list[float]
+
+
+class ExcitationSection(Strict):
+    """The trajectory: ``q_j(t) = q0_j + sum_l a_jl / (w l) sin(w l t) - b_jl / (w l) (cos(w l t) - 1)``,
+    ``w = 2 pi / period_s``, repeated ``periods`` times between two holds at ``q0_rad``."""
+    joints: list[Joint] = Field(default_factory=lambda: list(range(1, P.N_JOINTS + 1)),
+                                description="the joints that move (the others hold q0)")
+    period_s: float = Field(10.0, ge=1.0, le=120.0)
+    harmonics: int = Field(5, ge=2, le=15)
+    periods: int = Field(2, ge=1, le=100)
+    settle_s: float = Field(1.0, ge=0.0, le=30.0, description="hold at q0 before and after")
+    limits: ExcitationLimitsSpec = ExcitationLimitsSpec()
+    design: DesignSpec = DesignSpec()
+    coefficients: dict[Joint, JointCoefficients] | None = Field(
+        None, description="the designed series (written by `wamctl excite`); absent: designed when planned")
+
+    @model_validator(mode="after")
+    def _coefficients(self):
+        if self.coefficients is None:
+            return self
+        ls = np.arange(1, self.harmonics + 1)
+        for j, c in self.coefficients.items():
+            if j not in self.joints:
+                raise ValueError(f"coefficients.{j}: joint {j} is not among the moving joints {self.joints}")
+            for name in ("a_rad_s", "b_rad_s"):
+                if len(getattr(c, name)) != self.harmonics:
+                    raise ValueError(f"coefficients.{j}.{name}: expected {self.harmonics} values (harmonics)")
+            a, b = np.asarray(c.a_rad_s), np.asarray(c.b_rad_s)
+            scale = max(np.abs(a).max(), np.abs(b).max(), 1e-12)
+            if abs(a.sum()) > 1e-9 * scale * self.harmonics:
+                raise ValueError(f"coefficients.{j}.a_rad_s: must sum to 0 (the joint starts and ends at rest)")
+            if abs((ls * b).sum()) > 1e-9 * scale * self.harmonics ** 2:
+                raise ValueError(f"coefficients.{j}.b_rad_s: sum of l * b_l must be 0 (no acceleration at the "
+                                 "start and end)")
+        return self
+
+
+class ExcitationSpec(Common):
+    kind: Literal["excitation"]
+    excitation: ExcitationSection = ExcitationSection()
