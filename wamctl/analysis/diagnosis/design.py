@@ -20,7 +20,7 @@ from wamctl.model.friction import FrictionModel, classic_friction_columns, strib
 
 N_FRICTION = 4                    # classic friction: Coulomb and viscous, per direction
 N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 10, "delay": 0, "friction_drift": 2,
-             "backlash": 1}
+             "backlash": 1, "link_parameters": 1}
 FRICTION_KEYS = ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad", "viscous_neg_Nm_s_rad")
 
 
@@ -69,6 +69,8 @@ class Design:
     union : (u,) full-rate samples where some diagnosed joint slides (decimated).
     payload_pi : {fold (None: all data): (10,) inertial parameters of the arm's one payload fitted without
         that fold}, once a payload is kept.
+    links_beta, links_cols : {fold: the arm's link refit fitted without it} and the base columns it changes, once
+        ``link_parameters`` is named (:mod:`wamctl.analysis.diagnosis.links`).
     """
 
     sig: Signals
@@ -81,6 +83,8 @@ class Design:
     decimation: int = 1
     union: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     payload_pi: dict = field(default_factory=dict)
+    links_beta: dict = field(default_factory=dict)
+    links_cols: np.ndarray | None = None
 
     @property
     def bounded(self) -> bool:
@@ -226,6 +230,8 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
         if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold
             X = (X @ des.payload_pi[h[1]])[:, None]
         return X
+    if name == "link_parameters":       # ("links", fold): the arm's one refit, fitted without fold
+        return (jd.extra["links_base"][:, des.links_cols] @ des.links_beta[h[1]])[:, None]
     if name == "friction_drift":
         # the Coulomb and the viscous torque of the declared fit, each drifting as exp(-t / T): two columns
         # that keep the directions together (a direction seen only early in the run would otherwise be

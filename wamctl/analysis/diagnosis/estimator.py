@@ -60,7 +60,7 @@ from wamctl.analysis.diagnosis.arm import (
     payload_uncertainty,
 )
 from wamctl.analysis.diagnosis.augmented import MAX_SIM_SAMPLES, position_check
-from wamctl.analysis.diagnosis.candidates import EFFECT_NAMES
+from wamctl.analysis.diagnosis.candidates import ARM_ONLY, EFFECT_NAMES
 from wamctl.analysis.diagnosis.crossval import cv_terms
 from wamctl.analysis.diagnosis.design import JointData, columns, fit_theta, target_and_design
 from wamctl.analysis.diagnosis.joint import JointResult, forward_select, joint_baseline, set_after
@@ -218,7 +218,7 @@ class ModelDiagnosis:
         n_tests = len(tests) + (2 if "stribeck" in tests else 0)
         self.map_tests_ = {}
         self.threshold_ = self.alpha / max(1, len(sig.joints) * max(1, n_tests))
-        torque_tests = [c for c in tests if c != "backlash"]
+        torque_tests = [c for c in tests if c != "backlash" and c not in ARM_ONLY]
         for j in sig.joints:
             self.joints_[j] = self._diagnose_joint(self.jd_[j], torque_tests)
         r2 = self._declared_r2()
@@ -232,6 +232,8 @@ class ModelDiagnosis:
         self._check_delay(torque_tests)
         self._check_payload()
         self._check_breakaways(torque_tests)
+        if "link_parameters" in tests:
+            self._check_links()
         self.onsets_ = {}
         if "backlash" in tests or "stribeck" in tests:
             for j in sig.joints:
@@ -270,7 +272,8 @@ class ModelDiagnosis:
         return self.signals_
 
     def _prepare(self, sig: Signals) -> None:
-        want_payload = "payload" in self.candidates and "payload" not in self.declared_effects_
+        want_payload = ("payload" in self.candidates and "payload" not in self.declared_effects_) or \
+            "link_parameters" in self.candidates
         des, self.jd_ = prepare_design(sig, self.dynamics_, self.declared_.friction, self.declared_.effects,
                                        self.n_blocks, self.n_folds, want_payload)
         self.design_ = des
@@ -340,7 +343,8 @@ class ModelDiagnosis:
         why = payload_rejection(fit) or payload_inconsistency(self.design_, self.joints_, self.jd_, fit)
         if why is not None:
             log.info(why)
-            tests = [c for c in self.candidates if c not in self.declared_effects_ and c != "backlash"]
+            tests = [c for c in self.candidates if c not in self.declared_effects_ and c != "backlash"
+                     and c not in ARM_ONLY]
             for j in [jj - 1 for jj in fit["joints_fitted"]]:
                 self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"payload": why})
             return
@@ -371,6 +375,54 @@ class ModelDiagnosis:
                    + ", ".join(k["name"] for k in res.kept if k["name"] != "stribeck") + ") are in the model")
             log.info("joint %d: %s", j + 1, why)
             self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"stribeck": why})
+
+    def _check_links(self) -> None:
+        """``link_parameters`` against the current model (see :mod:`wamctl.analysis.diagnosis.links`): named in
+        place of the payload (or on its own) where a refit of the arm's parameters adds to it; else, with a
+        payload kept, the payload wins and its candidates say so."""
+        from wamctl.analysis.diagnosis.crossval import cv_terms
+        from wamctl.analysis.diagnosis.links import links_test, links_uncertainty
+
+        t = links_test(self.design_, self.joints_, self.jd_, self.threshold_)
+        self.links_test_ = None if t is None else {k: v for k, v in t.items() if k not in ("e", "betas")}
+        self.links_report_ = None
+        if t is None:
+            return
+        evidence = {k: t[k] for k in ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")}
+        record = {"vs": "link_parameters", "p_this_beyond": float("nan"), "p_other_beyond": float(t["p_value"])}
+        if not t["passes"]:
+            for res in self.joints_.values():
+                if "payload" in res.candidates and res.candidates["payload"].get("kept"):
+                    res.candidates["payload"].setdefault("head_to_head", []).append(dict(record, outcome="wins"))
+                res.candidates["link_parameters"] = dict(evidence, kept=False, reason=(
+                    "a refit of the arm's link parameters does not add to the model of the joints "
+                    + ("with the payload " if t["has_payload"] else "") + f"(p = {t['p_value']:.3g})"))
+            return
+        params, ci = links_uncertainty(self.design_, self.joints_, self.jd_, t)
+        self.links_report_ = {"params": params, "params_ci": ci,
+                              "not_identified": [f"d_{n}" for n in t["not_identified"]]}
+        des = self.design_
+        des.links_beta, des.links_cols = t["betas"], t["cols"]
+        for j in t["joints"]:
+            res, jd = self.joints_[j], self.jd_[j]
+            if finite_ss(t["e"][j]) >= finite_ss(res.e_after):
+                continue                                  # the refit does not help this joint
+            gain = (finite_ss(res.e_after) - finite_ss(t["e"][j])) / max(finite_ss(res.e_base), 1e-300)
+            term = {"name": "link_parameters", "h_fold": [("links", f) for f in range(self.n_folds)],
+                    "h_all": ("links", None), "fixed_h": ("links", None), "evidence": evidence, "gain": gain,
+                    "rms_before_Nm": float(np.sqrt(np.nanmean(res.e_after ** 2))),
+                    "rms_after_Nm": float(np.sqrt(np.nanmean(t["e"][j] ** 2)))}
+            had_payload = any(k["name"] == "payload" for k in res.kept)
+            terms = [k for k in res.kept if k["name"] != "payload"] + [term]
+            set_after(des, res, jd, terms, cv_terms(des, jd, terms))
+            res.candidates["link_parameters"] = dict(evidence, kept=True, reason="kept (refit over the arm)")
+            if had_payload:
+                res.candidates["payload"] = dict(res.candidates.get("payload", {}), kept=False, reason=(
+                    "a refit of the arm's link parameters explains the data better than a payload "
+                    f"(p = {t['p_value']:.3g} that it adds nothing to the payload)"),
+                    head_to_head=[dict(record, outcome="loses")])
+        if not any(any(k["name"] == "payload" for k in r.kept) for r in self.joints_.values()):
+            self.payload_ = None
 
     def _ranked_effects(self) -> list[str]:
         """Effect names kept anywhere, strongest evidence first: the smallest p-value of each name (p-values

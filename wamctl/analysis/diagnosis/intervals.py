@@ -33,7 +33,7 @@ def joint_intervals(diag, j: int) -> dict:
     out = {}
     for i, t in enumerate(res.kept):
         name = t["name"]
-        if name == "payload":
+        if name in ("payload", "link_parameters"):       # the arm's: their intervals come with the arm's fit
             continue
         base = kept_effect_params(diag, j, name)
         samples = [kept_effect_params(diag, j, name, th) for th in reps]

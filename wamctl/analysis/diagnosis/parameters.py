@@ -64,6 +64,10 @@ def kept_effect_params(diag, j: int, name: str, theta: np.ndarray | None = None)
                             declared_levels(diag.design_, jd), h)
     if name == "backlash":
         return backlash_params(t, coef, diag.onsets_.get(j, {}))
+    if name == "link_parameters":
+        rep = getattr(diag, "links_report_", None) or {"params": {}}
+        return dict(rep["params"], joints_fitted=[jj + 1 for jj, r in diag.joints_.items()
+                                                  if any(k["name"] == "link_parameters" for k in r.kept)])
     raise ValueError(name)
 
 
@@ -132,6 +136,9 @@ def report_effects(diag) -> None:
             if t["name"] == "payload":
                 ci, ni = getattr(diag, "payload_ci_", ({}, []))
                 params = payload_params(params, ni)
+            elif t["name"] == "link_parameters":
+                rep = diag.links_report_
+                ci, ni = rep["params_ci"], rep["not_identified"]
             else:
                 ci, ni = intervals[t["name"]]["params_ci"], intervals[t["name"]]["not_identified"]
                 params = {k: (None if k in ni else v) for k, v in params.items()}

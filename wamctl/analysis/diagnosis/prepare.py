@@ -62,23 +62,40 @@ def prepare_design(sig: Signals, dyn: WamDynamics, friction_given: FrictionModel
         extra = {"t_rel": sig.t_s[idx] - sig.t_s[0], "block": block, "tau": tau_j,
                  "dgdq_full": np.interp(sig.t_s, sig.t_s[coarse], dgdq_c[:, j])}
         if want_payload:
-            extra["payload"] = reg[u, j, :]
+            extra["payload"] = reg[u, j, PAYLOAD_REGRESSOR]
+            extra["links_base"] = link_base_rows(reg[u, j, :], sig.at("qdd", idx)[:, j], j)
         jds[j] = JointData(j, idx, sig.t_s[idx], sig.at("q", idx)[:, j], sig.qd_rad_s[idx, j],
                            sig.at("qdd", idx)[:, j], y, block % n_folds, extra)
+    if want_payload:
+        del reg
     return des, jds
 
 
 def _rigid_body_rows(dyn: WamDynamics, sig: Signals, rows: np.ndarray,
                      want_payload: bool) -> tuple[np.ndarray, np.ndarray | None]:
-    """Rigid-body torque (r, 7) at the samples ``rows`` (r,), and the payload regressor (r, 7, 10) there."""
+    """Rigid-body torque (r, 7) at the samples ``rows`` (r,), and the inertial regressor (r, 7, 70) there."""
     q, qd, qdd = sig.at("q", rows), sig.at("qd", rows), sig.at("qdd", rows)
     rnea = np.empty((len(rows), N7))
-    reg = np.empty((len(rows), N7, 10)) if want_payload else None
+    reg = np.empty((len(rows), N7, 70)) if want_payload else None
     for k in range(len(rows)):
         rnea[k] = dyn.inverse_dynamics(q[k], qd[k], qdd[k])
         if want_payload:
-            reg[k] = dyn.regressor_basis(q[k], qd[k], qdd[k])[:, PAYLOAD_REGRESSOR]
+            reg[k] = dyn.regressor_basis(q[k], qd[k], qdd[k])
     return rnea, reg
+
+
+def link_base_rows(inertial: np.ndarray, qdd_j: np.ndarray, j: int) -> np.ndarray:
+    """(m, nb) the rigid-body base columns (links and armature; :mod:`wamctl.analysis.identification.base`) of
+    joint ``j``'s torque rows, from its inertial regressor rows (m, 70) and its acceleration (m,): what a refit
+    of the arm's own parameters can change in that joint's torque."""
+    from wamctl.analysis.identification.base import N_INERTIAL, N_STANDARD, base_parameters
+
+    base = base_parameters()
+    Y = np.zeros((len(inertial), N_STANDARD))
+    Y[:, :N_INERTIAL] = inertial
+    Y[:, N_INERTIAL + j] = qdd_j
+    cols = base.independent < N_INERTIAL + N7          # not the friction, which each joint's model fits
+    return base.regressor(Y)[:, cols]
 
 
 def _rigid_body_full(dyn: WamDynamics, sig: Signals) -> np.ndarray:
