@@ -235,8 +235,11 @@ def zoh_centred(tau: np.ndarray, share: float = 0.5) -> np.ndarray:
     """Torque acting around each sample of a zero-order hold, ``(1 - share) tau[k] + share tau[k-1]`` along
     axis 0 (the first sample kept; ``share`` from :func:`zoh_share`, 1/2 at the loop's own rate): (n,) or
     (n, p), a new array."""
-    out = np.array(tau, dtype=float)
-    out[1:] = (1.0 - share) * tau[1:] + share * tau[:-1]
+    tau = np.asarray(tau, float)
+    out = np.empty_like(tau)
+    out[:1] = tau[:1]
+    np.multiply(tau[1:], 1.0 - share, out=out[1:])
+    out[1:] += share * tau[:-1]
     return out
 
 
