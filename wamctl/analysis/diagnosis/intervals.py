@@ -44,6 +44,13 @@ def joint_intervals(diag, j: int) -> dict:
         key = SHAPE_KEY.get(name)
         if isinstance(t.get("fixed_h"), tuple):           # a Stribeck shape measured at onsets or on the map
             ci.update(_stribeck_elsewhere_ci(diag, j, t, samples, base))
+            if not t.get("seen", "").startswith("on the friction map"):
+                # its velocity was fitted to the sliding samples (with the ratios measured at the onsets)
+                rp, rn, vs, delta = t["fixed_h"]
+                grid = _profile_grid(des, "stribeck", vs)
+                ssr = [_ssr_with(des, jd, res.kept, i, (rp, rn, float(h), delta)) for h in grid]
+                lo, hi = profile_ci(grid, ssr, n_eff)
+                ci["vs_rad_s"] = [None if lo is None else min(lo, vs), None if hi is None else max(hi, vs)]
         elif key:
             h0 = float(t["h_all"])
             grid = _profile_grid(des, name, h0)
@@ -56,6 +63,8 @@ def joint_intervals(diag, j: int) -> dict:
         if name == "backlash":
             ci["width_rad"] = _backlash_ci(diag.onsets_.get(j, {}))
         for k, v in ci.items():
+            if k.startswith(("Fc_", "Fs_")) and v[0] is not None:
+                v[0] = max(v[0], 0.0)                     # friction levels are magnitudes
             if v == [None, None] and k in base and _numeric(base[k]):
                 ni.append(k)
         out[name] = {"params_ci": ci, "not_identified": ni}
@@ -79,10 +88,12 @@ def _profile_grid(des, name: str, h: float) -> np.ndarray:
     return np.unique(np.r_[g, h])
 
 
-def _ssr_with(des, jd, terms: list[dict], i: int, h: float) -> float:
+def _ssr_with(des, jd, terms: list[dict], i: int, h) -> float:
     """Residual sum of squares of the final model on all data with term ``i``'s shape set to ``h``."""
     ts = [dict(t) for t in terms]
     ts[i]["h_all"] = h
+    if isinstance(h, tuple):
+        ts[i]["fixed_h"] = h
     y, X = target_and_design(des, jd, ts, None)
     r = y - X @ lstsq(X, y)
     return float(r @ r)
@@ -105,19 +116,20 @@ def _stribeck_elsewhere_ci(diag, j: int, term: dict, samples: list[dict], base: 
         ons = term.get("onsets") or diag.onsets_.get(j) or {}
         ratios, vss = _onset_ratio_bootstrap(diag, ons, N_BOOT_ONSETS, rng)
     if not ratios:
-        return {"Fs_pos_Nm": [None, None], "Fs_neg_Nm": [None, None], "vs_rad_s": [None, None]}
+        return {"Fs_pos_Nm": [None, None], "Fs_neg_Nm": [None, None]}
     k = min(len(ratios), len(fc_pos))
     rp = np.array([r[0] for r in ratios[:k]])
     rn = np.array([r[1] for r in ratios[:k]])
-    return {"Fs_pos_Nm": percentile_ci(rp * fc_pos[:k], center=base["Fs_pos_Nm"]),
-            "Fs_neg_Nm": percentile_ci(rn * fc_neg[:k], center=base["Fs_neg_Nm"]),
-            "vs_rad_s": percentile_ci(vss, center=base["vs_rad_s"])}
+    out = {"Fs_pos_Nm": percentile_ci(rp * fc_pos[:k], center=base["Fs_pos_Nm"]),
+           "Fs_neg_Nm": percentile_ci(rn * fc_neg[:k], center=base["Fs_neg_Nm"])}
+    if vss:
+        out["vs_rad_s"] = percentile_ci(vss, center=base["vs_rad_s"])
+    return out
 
 
 def _onset_ratio_bootstrap(diag, ons: dict, n_boot: int, rng) -> tuple[list, list]:
-    """Breakaway ratios per direction and the slip velocity over onsets resampled with replacement."""
-    from wamctl.analysis.diagnosis.onsets import slip_vs
-
+    """Breakaway ratios per direction over onsets resampled with replacement (no velocity: that one is fitted
+    to the sliding samples, its interval is a profile's)."""
     r = ons.get("breakaway_ratio")
     if r is None or len(r) < 4:
         return [], []
@@ -133,8 +145,6 @@ def _onset_ratio_bootstrap(diag, ons: dict, n_boot: int, rng) -> tuple[list, lis
             g = np.exp(np.mean(np.log(r[pick])))
             per.append(float(np.exp(np.mean(np.log(r[m])))) if len(m) >= 2 else float(g))
         ratios.append(tuple(per))
-        wins = [ons["windows"][i] for i in pick]
-        vss.append(slip_vs(wins, diag.signals_.dt_s, float(np.exp(np.mean(np.log(r[pick]))))))
     return ratios, vss
 
 
