@@ -260,10 +260,13 @@ def independent(tmp_path_factory):
 def test_independent_subset_names_nothing_that_is_not_there(independent):
     """On data from the independent generator: no effect that is not there is named (first or at all), clean runs
     with perturbed links name nothing but possibly link_parameters, and at least 4 of the 5 effect runs name
-    their effect first."""
+    their effect first. A payload is a change of link 7's parameters (docs/diagnosis-report.md), so on a payload
+    run link_parameters is not an effect that is not there (it is not the right name either)."""
     right = 0
     for cid, (truth, out) in independent.items():
         ok = set(truth["expected_effects"]) | set(truth["acceptable_extra"])
+        if "payload" in ok:
+            ok.add("link_parameters")
         assert set(out["effects_found"]) <= ok, (cid, out["effects_found"])
         if truth["expected_effects"]:
             right += bool(out["effects_found"]) and out["effects_found"][0] in truth["expected_effects"]

@@ -403,10 +403,8 @@ class ModelDiagnosis:
                               "not_identified": [f"d_{n}" for n in t["not_identified"]]}
         des = self.design_
         des.links_beta, des.links_cols = t["betas"], t["cols"]
-        for j in t["joints"]:
+        for j in t["helped"]:
             res, jd = self.joints_[j], self.jd_[j]
-            if finite_ss(t["e"][j]) >= finite_ss(res.e_after):
-                continue                                  # the refit does not help this joint
             gain = (finite_ss(res.e_after) - finite_ss(t["e"][j])) / max(finite_ss(res.e_base), 1e-300)
             term = {"name": "link_parameters", "h_fold": [("links", f) for f in range(self.n_folds)],
                     "h_all": ("links", None), "fixed_h": ("links", None), "evidence": evidence, "gain": gain,

@@ -12,7 +12,10 @@ The decision, on the held-out residuals of all diagnosed joints together (each j
 the payload's fit): does the link refit add to the current model (the arm's payload, if one was kept)? With a
 payload kept: no -> the payload stands (it explains the data as well as a refit of the links would, with ten
 parameters); yes -> ``link_parameters`` is named instead (the payload was the part of the links' errors a wrist
-mass can mimic). Without one: yes -> ``link_parameters``.
+mass can mimic). Without one: yes -> ``link_parameters``. The refit is one for the arm: it is tested when two
+joints or more are diagnosed and named only when it passes the nested test of two of them or more on their own
+(a refit that helps one joint only is just another function of that joint's angles, and takes up what another
+effect's model left there).
 """
 
 from __future__ import annotations
@@ -24,6 +27,7 @@ from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss, lstsq, nested
 
 RANK_RTOL = 1e-3
 SHARE_TOL = 0.01
+MIN_JOINTS = 2          # the arm's one refit must help two joints or more (each passing its own test)
 
 
 def _own_terms(res) -> list[dict]:
@@ -130,7 +134,7 @@ def links_test(des: Design, joints: dict, jds: dict, threshold: float) -> dict |
     ``not_identified`` (base parameters these data cannot determine), ``e`` {joint: held-out residual} and
     ``betas``."""
     js = [j for j in joints if "links_base" in jds[j].extra]
-    if not js:
+    if len(js) < MIN_JOINTS:       # one joint alone: a refit is just another function of its angle
         return None
     cols, undetermined = identified_columns(jds, js)
     if len(cols) == 0:
@@ -146,6 +150,14 @@ def links_test(des: Design, joints: dict, jds: dict, threshold: float) -> dict |
     p_extra = max(len(cols) - (10 if has_payload else 0), 1)
     k1 = sum(N_FRICTION + sum(ncols(t) for t in _own_terms(sub[j])) for j in js) + len(cols)
     t = nested_test(e0, e1, p_extra, k1, min(MIN_EFFECT * share, 0.9), groups)
-    t.update(passes=bool(t["p_value"] < threshold and t["delta_bic"] < 0), cols=cols, not_identified=undetermined,
-             e=e_l, betas=betas, joints=js, has_payload=has_payload)
+    helped = []
+    for j in js:           # each joint on its own: the refit must pass the joint's own nested test
+        share_j = finite_ss(sub[j].e_base) / max(finite_ss(sub[j].e_after), 1e-300)
+        k_j = N_FRICTION + sum(ncols(x) for x in _own_terms(sub[j])) + len(cols)
+        tj = nested_test(sub[j].e_after, e_l[j], p_extra, k_j, min(MIN_EFFECT * share_j, 0.9), jds[j].fold)
+        if tj["p_value"] < threshold and tj["delta_bic"] < 0:
+            helped.append(j)
+    t.update(passes=bool(t["p_value"] < threshold and t["delta_bic"] < 0 and len(helped) >= MIN_JOINTS),
+             cols=cols, not_identified=undetermined, e=e_l, betas=betas, joints=js, has_payload=has_payload,
+             helped=helped)
     return t

@@ -36,10 +36,13 @@ from wamctl.analysis.diagnosis.onsets import (
 )
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
 
+MIN_BREAKAWAY_RATIO = 1.2     # the breakaway is seen a sample or two late: a joint without Stribeck reads ~1.1
+
 
 def _stribeck_log_ratio_plausible(coef: float) -> bool:
-    """A breakaway above the Coulomb level, by at most ``MAX_BREAKAWAY_RATIO`` (``coef``: its log)."""
-    return 0 < coef <= np.log(MAX_BREAKAWAY_RATIO)
+    """A breakaway clearly above the Coulomb level (``MIN_BREAKAWAY_RATIO``: below, the detection's own lateness
+    can account for it), by at most ``MAX_BREAKAWAY_RATIO`` (``coef``: its log)."""
+    return np.log(MIN_BREAKAWAY_RATIO) <= coef <= np.log(MAX_BREAKAWAY_RATIO)
 
 
 def _public(r: dict) -> dict:
@@ -157,7 +160,8 @@ def _test_stribeck(diag, ons: dict, exclude_reversals: bool) -> dict:
     return onset_candidate(
         np.log(ons["breakaway_ratio"][same]), None, ons["fold"][same], diag.n_folds, diag.threshold_,
         _stribeck_log_ratio_plausible,
-        lambda coef: f"breakaway ratio {np.exp(coef):.2f} is not between 1 and {MAX_BREAKAWAY_RATIO:g}")
+        lambda coef: (f"breakaway ratio {np.exp(coef):.2f} is not between {MIN_BREAKAWAY_RATIO:g} (the lateness of "
+                      f"the detection) and {MAX_BREAKAWAY_RATIO:g}"))
 
 
 def _stribeck_levels_per_direction(res, ons: dict, backlash: bool) -> None:
