@@ -1,20 +1,34 @@
-"""Acceptance study and speed of ``wamctl diagnose`` (issue 5).
+"""Acceptance study and speed of ``wamctl diagnose`` (issues 5 and 15).
 
-(a) Study: generated measured runs (tests/analysis/diagnosis_gen.py: the real simulator, one undeclared effect at a
-    random joint with a random magnitude, or none), ``runs-per-effect`` per effect of the six plus ``clean``
-    clean runs, each diagnosed; prints the confusion table (true effect x first named effect) and the rates
-    of the acceptance criteria, and writes them to docs/diagnosis-validation.md.
-(b) Speed: one long run (``--long-samples``, a few hundred thousand samples) diagnosed, timed.
+Two generators of measured runs, written apart from each other:
+
+* ``sim``: tests/analysis/diagnosis_gen.py, the project's own simulator (implicit stick/slip friction step, Table 4.1
+  friction, 4096-count encoders, libbarrett PD + gravity) along LSPB moves, one undeclared effect at a random joint
+  with a random magnitude, or none;
+* ``independent``: tests/analysis/gen_independent/, its own pinocchio model, 4 kHz semi-implicit Euler with a
+  Karnopp stick band, other effect formulas, perturbed links in clean runs, 250 Hz logs with jitter, sweeps that
+  stick and slip, two effects at once; cases the loop cannot hold are kept (and reported), never redrawn.
+
+Seeds: the method was developed on the ``dev`` split and is reported on the ``report`` split (other seeds, never
+looked at while tuning): ``--split dev`` for development, ``--split report`` (default) for the study written to
+docs/diagnosis-validation.md.
+
+Parts: (a) the acceptance study per generator (confusion table, rates); (b) the false-alarm rate on clean runs with
+perturbed links (independent generator, ``--fa-runs``, with its 95 % Clopper-Pearson interval); (c) speed: one hour
+of 500 Hz seven-joint data diagnosed, timed (``--long-s``).
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_diagnose.py                 # 10 per effect + 20 clean, and the timing
-    .venv/bin/python benchmarks/bench_diagnose.py --runs-per-effect 2 --clean 4 --no-timing
+    .venv/bin/python benchmarks/bench_diagnose.py                       # everything, report split (about 1 h)
+    .venv/bin/python benchmarks/bench_diagnose.py --split dev --runs-per-effect 3 --clean 4 --fa-runs 0 --no-timing
+    .venv/bin/python benchmarks/bench_diagnose.py --only-timing
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import logging
 import sys
 import tempfile
 import time
@@ -23,207 +37,387 @@ from pathlib import Path
 
 import numpy as np
 import pandas as pd
+import yaml
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT / "tests" / "analysis"))
 
-from diagnosis_gen import EFFECTS, generate_run  # noqa: E402
+EFFECTS = ("stribeck", "position_ripple", "payload", "delay", "friction_drift", "backlash")
+NAMES = EFFECTS + ("link_parameters",)
+# seeds of the first generator: SEED_BASE[split] + 1000 * effect index + run index (clean: + 9000)
+SIM_SEED_BASE = {"dev": 50_000, "report": 70_000}
+# the independent generator's study plans: cases(..., seed=...) of each split, and the false-alarm plan
+INDEPENDENT_SEED = {"dev": 0, "report": 1}
+FA_SEED = {"dev": 100, "report": 101}
 
-SEED_BASE = 50_000          # study seeds: SEED_BASE + 1000 * effect index + run index (never used by the tests)
+
+# ---------------------------------------------------------------------------------------------- jobs
+def sim_jobs(split: str, runs_per_effect: int, clean: int) -> list[dict]:
+    base = SIM_SEED_BASE[split]
+    jobs = [{"generator": "sim", "effect": e, "seed": base + 1000 * k + i, "id": f"sim-{e}-{base + 1000 * k + i}"}
+            for k, e in enumerate(EFFECTS) for i in range(runs_per_effect)]
+    jobs += [{"generator": "sim", "effect": None, "seed": base + 9000 + i, "id": f"sim-clean-{base + 9000 + i}"}
+             for i in range(clean)]
+    return jobs
 
 
-def criteria(result: dict, effect: str | None, joint: int | None) -> dict:
-    """The acceptance criteria of one diagnosed run.
+def independent_jobs(split: str, runs_per_effect: int, clean: int, pairs: int | None = None) -> list[dict]:
+    from gen_independent import cases
 
-    Torque and position ratios: after / before on held-out data; at the effect's joint for joint effects,
-    and pooled over the diagnosed joints (root of the summed squares) for payload and delay."""
-    found = result.get("effects_found") or []
+    plan = cases(runs_per_effect, clean, INDEPENDENT_SEED[split], pairs)
+    return [{"generator": "independent", "case": c, "id": f"ind-{split}-{c['id']}"} for c in plan]
+
+
+def false_alarm_jobs(split: str, n: int) -> list[dict]:
+    """``n`` clean runs of the independent generator with perturbed links (the plan's nominal ones left out)."""
+    from gen_independent import cases
+
+    plan = [c for c in cases(0, (3 * n + 1) // 2 + 2, FA_SEED[split], 0) if c["links"] != "nominal"][:n]
+    return [{"generator": "independent", "case": c, "id": f"fa-{split}-{c['id']}", "study": "false_alarm"}
+            for c in plan]
+
+
+# ---------------------------------------------------------------------------------------------- one run
+def _generate(job: dict, root: Path) -> tuple[Path, dict]:
+    """The run directory of ``job`` (generated once into ``root``) and its truth in one shape:
+    ``expected``, ``joints`` (1-based effect joints, None for arm-wide effects), ``observable``, ``acceptable``,
+    ``forbidden``, ``status``, ``hard``, ``rate_hz``, ``excitation``."""
+    d = root / job["id"]
+    if job["generator"] == "sim":
+        from diagnosis_gen import generate_run
+
+        if not (d / "truth.yaml").is_file():
+            d.mkdir(parents=True, exist_ok=True)
+            g = generate_run(d, job["effect"], job["seed"])
+            (d / "path.txt").write_text(str(g.path))
+        run = Path((d / "path.txt").read_text())
+        t = yaml.safe_load((run / "truth.yaml").read_text())
+        eff = [t["effect"]] if t["effect"] else []
+        return run, {"expected": eff, "joints": [t["joint"]] if eff else [], "observable": True, "acceptable": [],
+                     "forbidden": [], "status": "ok", "hard": [], "rate_hz": 500, "excitation": "lspb",
+                     "links": "nominal"}
+    from gen_independent import generate
+
+    if not (d / "truth.yaml").is_file():
+        generate(job["case"], d)
+    t = yaml.safe_load((d / "truth.yaml").read_text())
+    return d, {"expected": t["expected_effects"], "joints": [e["joint"] for e in t["effects"]],
+               "observable": all(e.get("observable", True) for e in t["effects"]),
+               "acceptable": t["acceptable_extra"], "forbidden": t["forbidden"], "status": t["status"],
+               "hard": t["hard"], "rate_hz": t["timing"]["log_rate_hz"], "excitation": t["excitation"]["kind"],
+               "links": t["link_perturbation"]["mode"]}
+
+
+def criteria(result: dict, truth: dict) -> dict:
+    """The acceptance criteria of one diagnosed run against its truth.
+
+    ``correct``: an effect run names one of its true effects first (ambiguous or nothing is a miss); a clean run
+    names nothing (``correct_or_acceptable`` also allows ``link_parameters`` on a run whose links were perturbed).
+    ``wrong_first``: the first name is an effect that is not there. Torque ratio: after / before on held-out data,
+    pooled (root of summed squares) over the effects' joints, or over every diagnosed joint for arm-wide effects."""
+    found = list(result.get("effects_found") or [])
     joints = result.get("joints") or {}
-    out = {"effect": effect or "none", "joint": joint, "found": ",".join(found) or "-",
-           "first": found[0] if found else "none", "conclusive": bool(result.get("conclusive", True))}
-    if effect is None:
-        out["correct"] = not found
+    expected = truth["expected"]
+    amb = result.get("ambiguous") or []
+    first = found[0] if found else ("ambiguous" if amb else "none")
+    out = {"expected": "+".join(expected) or "none", "found": ",".join(found) or "-", "first": first,
+           "ambiguous": ";".join("/".join(g) for g in amb), "conclusive": bool(result.get("conclusive", True)),
+           "unexplained": ",".join(sorted({c for d in joints.values()
+                                           for c in (d.get("unexplained") or {}).get("correlates_with", [])}))}
+    ok_extra = set(expected) | set(truth["acceptable"])
+    if "payload" in expected:           # a payload is a change of link 7's parameters: not wrong (not right either)
+        ok_extra.add("link_parameters")
+    out["wrong_first"] = bool(found) and found[0] not in ok_extra if expected else bool(found) and \
+        found[0] not in truth["acceptable"]
+    out["wrong_any"] = any(f not in ok_extra for f in found)
+    if not expected:
+        out["correct"] = not found and not amb
+        out["correct_or_acceptable"] = all(f in truth["acceptable"] for f in found)
         return out
-    out["correct"] = bool(found) and found[0] == effect
-    out["only"] = found == [effect]
-
-    def ratio(key, unit):
-        kb, ka = f"{key}_before_{unit}", f"{key}_after_{unit}"
-        if joint is not None:
-            d = joints.get(str(joint))
-            if not d or d[kb] is None or d[ka] is None or d[kb] <= 0:
-                return np.nan
-            return d[ka] / d[kb]
-        pairs = [(d[kb], d[ka]) for d in joints.values() if d[kb] is not None and d[ka] is not None]
-        if not pairs:
-            return np.nan
-        b, a = np.array(pairs).T
-        return float(np.sqrt(np.sum(a ** 2) / np.sum(b ** 2))) if np.sum(b) > 0 else np.nan
-
-    out["torque_ratio"] = ratio("torque_rms", "Nm")
-    out["position_ratio"] = ratio("position_rms", "rad")
+    out["correct"] = bool(found) and found[0] in expected
+    out["all_found"] = set(expected) <= set(found)
+    js = [j for j in truth["joints"] if j is not None]
+    keys = [str(j) for j in js] if len(js) == len(truth["joints"]) else list(joints)
+    pairs = [(joints[k]["torque_rms_before_Nm"], joints[k]["torque_rms_after_Nm"]) for k in keys
+             if k in joints and joints[k]["torque_rms_before_Nm"] and joints[k]["torque_rms_after_Nm"] is not None]
+    if pairs:
+        b, a = np.array(pairs, float).T
+        out["torque_ratio"] = float(np.sqrt(np.sum(a ** 2) / np.sum(b ** 2)))
+    else:
+        out["torque_ratio"] = np.nan
     return out
 
 
 def one_run(args) -> dict:
-    effect, seed, root = args
+    job, root = args
+    logging.disable(logging.WARNING)
     from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
-    from wamctl.experiments.diagnose import simulate_positions
     from wamctl.runs.measured import load_run_data
 
     t0 = time.perf_counter()
-    g = generate_run(root, effect, seed)
+    path, truth = _generate(job, Path(root))
     t1 = time.perf_counter()
-    diag = ModelDiagnosis(simulator=simulate_positions).fit(load_run_data(g.path))
-    t2 = time.perf_counter()
-    out = criteria(diag.to_dict(str(g.path)), effect, g.joint)
-    out.update(seed=seed, spec=str(g.effect_spec), samples=g.n_samples, sim_s=t1 - t0, diagnose_s=t2 - t1)
-    return out
+    row = {"id": job["id"], "generator": job["generator"], "study": job.get("study", "acceptance"),
+           "status": truth["status"], "observable": truth["observable"], "rate_hz": truth["rate_hz"],
+           "excitation": truth["excitation"], "links": truth["links"], "hard": "; ".join(truth["hard"])}
+    try:
+        diag = ModelDiagnosis().fit(load_run_data(path))
+        result = diag.to_dict(str(path))
+        row.update(criteria(result, truth))
+        row["error"] = ""
+    except Exception as exc:  # a crash is a result of the study, not the end of it
+        row.update(criteria({}, truth))
+        row["error"] = f"{type(exc).__name__}: {exc}"[:200]
+    row.update(sim_s=t1 - t0, diagnose_s=time.perf_counter() - t1)
+    return row
 
 
-def study(runs_per_effect: int, clean: int, workers: int) -> pd.DataFrame:
-    jobs = []
-    with tempfile.TemporaryDirectory() as tmp:
-        for k, effect in enumerate(EFFECTS):
-            jobs += [(effect, SEED_BASE + 1000 * k + i, tmp) for i in range(runs_per_effect)]
-        jobs += [(None, SEED_BASE + 9000 + i, tmp) for i in range(clean)]
-        rows = []
-        with ProcessPoolExecutor(max_workers=workers) as pool:
-            for i, r in enumerate(pool.map(one_run, jobs)):
-                rows.append(r)
-                print(f"[{i + 1}/{len(jobs)}] {r['effect']:<16} joint {r['joint']}  found {r['found']:<28} "
-                      f"torque {r.get('torque_ratio', np.nan):.3f}  position {r.get('position_ratio', np.nan):.3f}"
-                      f"  ({r['diagnose_s']:.1f} s)", flush=True)
+def run_jobs(jobs: list[dict], workers: int, root: Path) -> pd.DataFrame:
+    rows = []
+    with ProcessPoolExecutor(max_workers=workers) as pool:
+        for i, r in enumerate(pool.map(one_run, [(j, str(root)) for j in jobs])):
+            rows.append(r)
+            mark = "ok " if r.get("correct") else ("WRG" if r.get("wrong_first") else "-- ")
+            print(f"[{i + 1}/{len(jobs)}] {mark} {r['id']:<48} expected {r['expected']:<24} found {r['found']:<30}"
+                  f" amb {r['ambiguous'] or '-':<12} torque {r.get('torque_ratio', np.nan):.3f} "
+                  f"({r['diagnose_s']:.1f} s) {r['error']}", flush=True)
     return pd.DataFrame(rows)
 
 
-def summarise(df: pd.DataFrame) -> tuple[pd.DataFrame, dict]:
-    names = list(EFFECTS) + ["none"]
-    conf = pd.crosstab(pd.Categorical(df["effect"], names), pd.Categorical(df["first"], names),
-                       rownames=["true effect"], colnames=["first named"], dropna=False)
-    eff = df[df["effect"] != "none"]
-    cln = df[df["effect"] == "none"]
-    rates = {
-        "effect runs": len(eff),
+# ---------------------------------------------------------------------------------------------- summaries
+def clopper_pearson(k: int, n: int, level: float = 0.95) -> tuple[float, float]:
+    from scipy.stats import binomtest
+
+    if n == 0:
+        return float("nan"), float("nan")
+    ci = binomtest(int(k), int(n)).proportion_ci(level, method="exact")
+    return float(ci.low), float(ci.high)
+
+
+def confusion(df: pd.DataFrame) -> pd.DataFrame:
+    rows = list(dict.fromkeys([e for e in EFFECTS if e in set(df["expected"])]
+                              + sorted(x for x in set(df["expected"]) if "+" in x) + ["none"]))
+    cols = list(NAMES) + ["ambiguous", "none"]
+    return pd.crosstab(pd.Categorical(df["expected"], rows), pd.Categorical(df["first"], cols),
+                       rownames=["true"], colnames=["first named"], dropna=False)
+
+
+def rates(df: pd.DataFrame) -> dict:
+    eff = df[df["expected"] != "none"]
+    obs = eff[eff["observable"]]
+    cln = df[df["expected"] == "none"]
+
+    def frac(x):
+        return float(np.mean(x)) if len(x) else float("nan")
+
+    return {
+        "effect runs": len(eff), "of which observable (effect >= 2x the noise floor)": len(obs),
         "clean runs": len(cln),
-        "injected effect named first": float(eff["correct"].mean()) if len(eff) else np.nan,
-        "injected effect the only one named": float(eff["only"].mean()) if len(eff) else np.nan,
-        "clean runs reporting nothing": float(cln["correct"].mean()) if len(cln) else np.nan,
-        "torque RMS after <= 1/3 before": float((eff["torque_ratio"] <= 1 / 3).mean()) if len(eff) else np.nan,
-        "position RMS dropped": float((eff["position_ratio"] < 1).mean()) if len(eff) else np.nan,
+        "right effect first (all effect runs)": frac(eff["correct"]),
+        "right effect first (observable)": frac(obs["correct"]),
+        "every true effect named (observable)": frac(obs["all_found"]) if len(obs) else float("nan"),
+        "wrong name first (all runs)": frac(df["wrong_first"]),
+        "a wrong name anywhere (all runs)": frac(df["wrong_any"]),
+        "ambiguous first (effect runs)": frac(eff["first"] == "ambiguous"),
+        "clean runs reporting none": frac(cln["correct"]),
+        "clean runs reporting none or link_parameters": frac(cln["correct_or_acceptable"]),
+        "torque RMS after <= 1/3 before (observable, named first)":
+            frac(obs[obs["correct"]]["torque_ratio"] <= 1 / 3),
+        "torque RMS after <= 1/3 before (observable)": frac(obs["torque_ratio"] <= 1 / 3),
         "median diagnose time (s)": float(df["diagnose_s"].median()),
     }
-    return conf, rates
 
 
 def per_effect(df: pd.DataFrame) -> pd.DataFrame:
-    eff = df[df["effect"] != "none"]
-    return eff.groupby("effect").agg(runs=("correct", "size"), named_first=("correct", "mean"),
-                                     only=("only", "mean"),
-                                     torque_le_third=("torque_ratio", lambda x: float((x <= 1 / 3).mean())),
-                                     median_torque_ratio=("torque_ratio", "median"),
-                                     position_dropped=("position_ratio", lambda x: float((x < 1).mean())),
-                                     median_position_ratio=("position_ratio", "median"))
+    eff = df[df["expected"] != "none"]
+    return eff.groupby("expected").agg(
+        runs=("correct", "size"), observable=("observable", "sum"), named_first=("correct", "mean"),
+        wrong_first=("wrong_first", "mean"), ambiguous=("first", lambda x: float((x == "ambiguous").mean())),
+        torque_le_third=("torque_ratio", lambda x: float((x <= 1 / 3).mean())),
+        median_torque_ratio=("torque_ratio", "median"))
 
 
-def timing(n_samples: int) -> dict:
+# ---------------------------------------------------------------------------------------------- speed
+def timing(duration_s: float, cache: Path, profile: bool = False) -> dict:
+    """One run of ``duration_s`` at 500 Hz with every joint moving (the first generator, a position ripple),
+    generated once into ``cache``, diagnosed with and without the closed-loop position check."""
+    from diagnosis_gen import generate_run
+
     from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
     from wamctl.experiments.diagnose import simulate_positions
     from wamctl.runs.measured import load_run_data
 
-    with tempfile.TemporaryDirectory() as tmp:
-        t0 = time.perf_counter()
-        g = generate_run(tmp, "position_ripple", SEED_BASE + 99_000, duration_s=n_samples / 500.0)
-        t1 = time.perf_counter()
-        data = load_run_data(g.path)
-        t2 = time.perf_counter()
-        diag = ModelDiagnosis(simulator=simulate_positions).fit(data)
-        t3 = time.perf_counter()
-        diag_nosim = ModelDiagnosis().fit(data)
-        t4 = time.perf_counter()
-    return {"samples": len(data.data), "simulate_s": t1 - t0, "load_s": t2 - t1, "diagnose_s": t3 - t2,
-            "diagnose_without_position_check_s": t4 - t3, "effects_found": diag.effects_found_,
-            "same_without_check": diag_nosim.effects_found_ == diag.effects_found_}
+    d = cache / f"long-{int(duration_s)}s"
+    t0 = time.perf_counter()
+    if not (d / "path.txt").is_file():
+        d.mkdir(parents=True, exist_ok=True)
+        g = generate_run(d, "position_ripple", 99_000, duration_s=duration_s)
+        (d / "path.txt").write_text(str(g.path))
+    t1 = time.perf_counter()
+    data = load_run_data(Path((d / "path.txt").read_text()))
+    t2 = time.perf_counter()
+    if profile:
+        import cProfile
+        import pstats
+
+        pr = cProfile.Profile()
+        pr.enable()
+    diag = ModelDiagnosis(simulator=simulate_positions).fit(data)
+    t3 = time.perf_counter()
+    if profile:
+        pr.disable()
+        pstats.Stats(pr).sort_stats("cumulative").print_stats(40)
+    diag_nosim = ModelDiagnosis().fit(data)
+    t4 = time.perf_counter()
+    moving = [j + 1 for j in diag.signals_.joints]
+    return {"samples": len(data.data), "duration_s": duration_s, "joints_diagnosed": moving,
+            "generate_s": t1 - t0, "load_s": t2 - t1, "diagnose_s": t3 - t2, "diagnose_without_position_check_s":
+            t4 - t3, "effects_found": diag.effects_found_, "same_without_check": diag_nosim.effects_found_ ==
+            diag.effects_found_}
 
 
-def markdown(conf: pd.DataFrame, rates: dict, per: pd.DataFrame, df: pd.DataFrame, speed: dict | None) -> str:
+# ---------------------------------------------------------------------------------------------- the document
+def _rates_lines(r: dict) -> list[str]:
+    return [f"- {k}: {v:.3f}" if isinstance(v, float) else f"- {k}: {v}" for k, v in r.items()]
+
+
+def markdown(studies: dict, fa: pd.DataFrame | None, speed: dict | None, split: str) -> str:
     from wamctl.report.document import markdown_table
 
-    lines = ["# Diagnosis validation (`wamctl diagnose`, issue 5)", "",
-             "Written by `benchmarks/bench_diagnose.py`. Measured runs are generated by "
-             "`tests/analysis/diagnosis_gen.py`: "
-             "the real simulator (Table 4.1 friction, 4096-count encoders, libbarrett PD + gravity gains) along a "
-             "varied excitation of LSPB moves, with one undeclared effect at a random joint, magnitude and seed "
-             "(ranges in the generator's docstring), or none. Each run is diagnosed with the default settings "
-             "(alpha = 0.01 per run, Bonferroni over joints x tests, minimum effect 5 % of the residual "
-             "variance, each joint's sliding samples cut into 10 contiguous blocks dealt into 5 folds).", "",
-             "## Confusion table (true effect x first effect named)", "",
-             markdown_table(conf.rename_axis(index="true \\ named")), "",
-             "## Acceptance rates", ""]
-    for k, v in rates.items():
-        lines.append(f"- {k}: {v:.3f}" if isinstance(v, float) else f"- {k}: {v}")
-    lines += ["", "Torque and position ratios are after / before on held-out data, at the effect's joint "
-              "(pooled over joints for payload and delay).", "", "## Per effect", "",
-              markdown_table(per, 3), ""]
+    lines = ["# Diagnosis validation (`wamctl diagnose`, issues 5 and 15)", "",
+             "Written by `benchmarks/bench_diagnose.py` (see its docstring). Every run is diagnosed with the default "
+             "settings (alpha = 0.01 per run, Bonferroni over joints x tests, minimum effect 5 % of the residual "
+             "variance, 10 contiguous time blocks dealt into 5 folds, head-to-head comparison of competing "
+             "candidates on held-out data).", "",
+             f"**Seeds.** The method was developed and its thresholds set on the `dev` split; this document reports "
+             f"the `{split}` split, generated from other seeds "
+             f"(first generator: seeds from {SIM_SEED_BASE[split]}; independent generator: "
+             f"`cases(..., seed={INDEPENDENT_SEED[split]})`, false alarms `seed={FA_SEED[split]}`), which were not "
+             "looked at while the method was tuned.", "",
+             "**Counting.** An effect run is right when the first effect named is one of its true effects; "
+             "\"ambiguous\" and \"none\" count as misses. A wrong name is a first name that is not a true effect "
+             "(on a run whose links were perturbed, `link_parameters` is true; on a payload run it is not wrong "
+             "either: a payload is a change of link 7's parameters, but it does not count as right). Runs whose "
+             "effect is below twice the torque noise floor (`observable: false` in the generator's truth) are kept "
+             "and counted; the rates are given over all runs and over the observable ones. Runs the loop could "
+             "not hold are kept (their rows up to the trip are diagnosed). Torque ratio: held-out RMS after / "
+             "before at the effects' joints (pooled over the diagnosed joints for payload and delay).", ""]
+    for name, df in studies.items():
+        lines += [f"## Generator `{name}`", "", "### Confusion table (true effects x first effect named)", "",
+                  markdown_table(confusion(df).rename_axis(index="true \\ named")), "",
+                  "### Acceptance rates", ""] + _rates_lines(rates(df)) + [
+                  "", "### Per effect", "", markdown_table(per_effect(df), 3), ""]
+        bad = df[(~df["correct"].astype(bool)) | df["wrong_first"].astype(bool)]
+        if len(bad):
+            cols = ["id", "expected", "found", "ambiguous", "observable", "rate_hz", "excitation", "hard", "error"]
+            lines += ["### Runs not right", "", markdown_table(bad[cols].reset_index(drop=True)), ""]
+    if fa is not None and len(fa):
+        k = int(fa["wrong_first"].sum())
+        k_any = int((fa["found"] != "-").sum())
+        n = len(fa)
+        lo, hi = clopper_pearson(k, n)
+        lo2, hi2 = clopper_pearson(k_any, n)
+        lines += ["## False alarms on clean runs with perturbed links", "",
+                  f"{n} clean runs of the independent generator whose links differ from the declared model "
+                  "(`heavier_3_4`: links 3 and 4 5-10 % heavier, COM +-5 %; `random_10pct`: links 2-7 within "
+                  "+-10 %), sweeps and free motion, 500 and 250 Hz, quiet and noisy.", "",
+                  f"- an effect that is not there named (payload, ripple, ...; `link_parameters` is true here): "
+                  f"{k} of {n} = {k / n:.3f}, 95 % interval [{lo:.3f}, {hi:.3f}] (Clopper-Pearson)",
+                  f"- anything named at all (`link_parameters` included): {k_any} of {n} = {k_any / n:.3f}, "
+                  f"95 % interval [{lo2:.3f}, {hi2:.3f}]",
+                  f"- ambiguous reported: {int((fa['ambiguous'] != '').sum())} of {n}", "",
+                  markdown_table(pd.crosstab(fa["links"], fa["first"])), ""]
+    lines += ["## Known limits", "",
+              "- Backlash with the encoder on the motor side (the independent generator: a two-inertia joint whose "
+              "rotor crosses the gap at each reversal, the link behind it) is not detected: the measurement then "
+              "leads the link instead of lagging it, there is no stall at a reversal in free motion, and the "
+              "samples around reversals, where it shows, are left out of the sliding residual. These runs come "
+              "out as `none` (a miss, not a wrong name), most with `unexplained` at the joint. Backlash with the "
+              "dead band on the encoder's side (the first generator) is found at the onsets.",
+              "- A payload on a sweep of one joint cannot be told from a change of that joint's link parameters: "
+              "its mass is not determined (reported as not identified, or the candidate rejected as no wrist "
+              "payload), and `link_parameters` needs two joints. Small payloads (below twice the noise floor) "
+              "are usually not named.",
+              "- The torque ratio criterion (held-out RMS after <= 1/3 before) cannot be met by an effect of "
+              "about twice the noise floor: the floor stays (after / before >= 1 / sqrt(1 + SNR^2)). The ratio "
+              "is given for every run.",
+              "- Intervals are statistical given the declared model, widened for the payload by a systematic "
+              "allowance (+-2 % of the mass, +-5 mm): model errors the data cannot show are not in them.",
+              "- Delays of at most 2 ms (1.5 ms at 1 kHz) are not named: the timing conventions of the loop "
+              "and the log can account for them.", ""]
     if speed:
         lines += ["## Speed", "",
-                  f"`diagnose` on {speed['samples']} samples ({speed['samples'] / 500:.0f} s at 500 Hz): "
-                  f"{speed['diagnose_s']:.1f} s including the closed-loop position check (which simulates at "
-                  f"most 60000 samples, one half scored), "
-                  f"{speed['diagnose_without_position_check_s']:.1f} s without it "
-                  f"(on a shared 2-core machine).", ""]
-    lines += ["## Known limits", "",
-              "- Delay: on this arm a delay longer than about 10 ms destabilises libbarrett's gains, so the "
-              "generator draws 2-8 ms. The model with the delay found leaves the same residual as a model file "
-              "declaring the true delay (tests/analysis/test_diagnose.py), i.e. the noise floor of the residual "
-              "(encoder "
-              "quantisation through the second derivative); a 3-5 ms delay is only two or three times that "
-              "floor, so its held-out torque RMS can drop by less than a factor three although the delay is "
-              "named and estimated within about 0.5 ms. Delays of one sample period or less are not named (they "
-              "cannot be told from the logging convention).",
-              "- Stribeck on a joint that sticks and slips: found at the breakaways, but a closed-loop "
-              "re-simulation of stick-slip is chaotic, so its position RMS does not always drop; a joint that "
-              "sticks again within about 80 ms every time it moves leaves no sliding samples and is skipped.",
-              "- Backlash needs at least three reversals of the joint in the run; payload and delay are named "
-              "only when most joints show them alike.",
-              ""]
-    lines += ["## Every run", "", markdown_table(df.drop(columns=["spec"]).round(4), 4), ""]
+                  f"`diagnose` on {speed['samples']} samples ({speed['duration_s']:.0f} s at 500 Hz, joints "
+                  f"{speed['joints_diagnosed']} diagnosed): {speed['diagnose_s']:.1f} s including the closed-loop "
+                  f"position check, {speed['diagnose_without_position_check_s']:.1f} s without it (on the shared "
+                  "2-core machine; loading the parquet file is not counted: "
+                  f"{speed['load_s']:.1f} s).", ""]
     return "\n".join(lines)
 
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--split", choices=("dev", "report"), default="report")
+    ap.add_argument("--generators", default="sim,independent")
     ap.add_argument("--runs-per-effect", type=int, default=10)
     ap.add_argument("--clean", type=int, default=20)
+    ap.add_argument("--pairs", type=int, default=None, help="two-effect runs (independent; default runs-per-effect)")
+    ap.add_argument("--fa-runs", type=int, default=200)
     ap.add_argument("--workers", type=int, default=2)
-    ap.add_argument("--long-samples", type=int, default=300_000)
+    ap.add_argument("--long-s", type=float, default=3600.0)
     ap.add_argument("--no-timing", action="store_true")
-    ap.add_argument("--no-study", action="store_true")
+    ap.add_argument("--only-timing", action="store_true")
+    ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--runs-dir", type=Path, default=None, help="keep generated runs here (default: temporary)")
     ap.add_argument("--write", type=Path, default=ROOT / "docs" / "diagnosis-validation.md",
                     help="Markdown file for the results ('-' to skip)")
+    ap.add_argument("--csv", type=Path, default=None, help="every run's row as CSV")
+    ap.add_argument("--from-csv", type=Path, default=None,
+                    help="write the document from a CSV of an earlier run of this script (no runs)")
+    ap.add_argument("--timing-json", type=Path, default=None, help="with --from-csv: the speed figures")
     a = ap.parse_args(argv)
-    df = conf = rates = per = None
-    if not a.no_study:
-        df = study(a.runs_per_effect, a.clean, a.workers)
-        conf, rates = summarise(df)
-        per = per_effect(df)
-        print("\nconfusion table (rows: true effect, columns: first effect named)")
-        print(conf.to_string())
-        print()
-        for k, v in rates.items():
-            print(f"{k}: {v:.3f}" if isinstance(v, float) else f"{k}: {v}")
-        print()
-        print(per.to_string())
-    speed = None
-    if not a.no_timing:
-        speed = timing(a.long_samples)
-        print(f"\ndiagnose on {speed['samples']} samples: {speed['diagnose_s']:.1f} s "
-              f"({speed['diagnose_without_position_check_s']:.1f} s without the position check); "
-              f"simulating the data took {speed['simulate_s']:.1f} s; found {speed['effects_found']}")
-    if df is not None and str(a.write) != "-":
-        a.write.parent.mkdir(parents=True, exist_ok=True)
-        a.write.write_text(markdown(conf, rates, per, df, speed))
+    if a.from_csv:
+        df = pd.read_csv(a.from_csv, keep_default_na=False, na_values=[""])
+        for c in ("correct", "wrong_first", "wrong_any", "observable", "all_found", "correct_or_acceptable"):
+            if c in df:
+                df[c] = df[c].map(lambda v: str(v) == "True")
+        for c in ("ambiguous", "found", "first", "expected"):
+            df[c] = df[c].fillna("").astype(str)
+        df["found"] = df["found"].replace("", "-")
+        studies = {g: d[d["study"] == "acceptance"] for g, d in df.groupby("generator", sort=False)
+                   if (d["study"] == "acceptance").any()}
+        fa = df[df["study"] == "false_alarm"]
+        speed = json.loads(a.timing_json.read_text()) if a.timing_json else None
+        a.write.write_text(markdown(studies, fa if len(fa) else None, speed, a.split))
         print(f"wrote {a.write}")
+        return
+    tmp = tempfile.TemporaryDirectory() if a.runs_dir is None else None
+    root = Path(tmp.name) if tmp else a.runs_dir
+    root.mkdir(parents=True, exist_ok=True)
+    studies, fa, speed = {}, None, None
+    if not a.only_timing:
+        for g in a.generators.split(","):
+            jobs = sim_jobs(a.split, a.runs_per_effect, a.clean) if g == "sim" else \
+                independent_jobs(a.split, a.runs_per_effect, a.clean, a.pairs)
+            df = run_jobs(jobs, a.workers, root)
+            studies[g] = df
+            print(f"\n== {g} ==\n{confusion(df).to_string()}\n")
+            for line in _rates_lines(rates(df)):
+                print(line)
+        if a.fa_runs:
+            fa = run_jobs(false_alarm_jobs(a.split, a.fa_runs), a.workers, root)
+            k, n = int(fa["wrong_first"].sum()), len(fa)
+            print(f"\nfalse alarms: {k} of {n}, 95 % CI {clopper_pearson(k, n)}")
+    if not a.no_timing:
+        speed = timing(a.long_s, ROOT / "benchmarks" / "out", a.profile)
+        print(json.dumps(speed, indent=1, default=str))
+    if a.csv:
+        pd.concat(list(studies.values()) + ([fa] if fa is not None else [])).to_csv(a.csv, index=False)
+    if studies and str(a.write) != "-":
+        a.write.write_text(markdown(studies, fa, speed, a.split))
+        print(f"wrote {a.write}")
+    if tmp:
+        tmp.cleanup()
 
 
 if __name__ == "__main__":

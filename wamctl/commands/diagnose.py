@@ -40,11 +40,13 @@ def diagnose(data: DataArg,
         return
     if not quiet:     # the summary and the effects; every candidate is in the report
         from wamctl.report.document import Document
-        short = Document(doc.title, [b for b in doc.blocks if b[0] == "table" and b[1][0] in ("summary",
-                                                                                              "effects")])
+        short = Document(doc.title, [b for b in doc.blocks if b[0] == "table" and b[1][0] in (
+            "summary", "effects", "ambiguous", "unexplained")])
         print_document_tables(short)
     found = ", ".join(result["effects_found"]) or "none"
-    msg = f"effects found: {found}" if result.get("conclusive") else f"nothing concluded: {result.get('reason')}"
+    amb = "; ".join(" / ".join(g) for g in result.get("ambiguous") or [])
+    msg = f"effects found: {found}" + (f" (ambiguous: {amb})" if amb else "") if result.get("conclusive") \
+        else f"nothing concluded: {result.get('reason')}"
     console.print(f"{msg}  run directory: {path}", highlight=False)
 
 

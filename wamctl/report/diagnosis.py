@@ -22,8 +22,10 @@ def _fmt_params(params: dict) -> str:
     for k, v in params.items():
         if isinstance(v, float):
             out.append(f"{k}={v:.4g}")
-        elif isinstance(v, list) and all(isinstance(x, (int, float)) for x in v):
-            out.append(f"{k}=[{', '.join(f'{x:.3g}' for x in v)}]")
+        elif isinstance(v, list) and all(isinstance(x, (int, float)) or x is None for x in v):
+            out.append(f"{k}=[{', '.join('not identified' if x is None else f'{x:.3g}' for x in v)}]")
+        elif v is None:
+            out.append(f"{k}=not identified")
         elif isinstance(v, dict):
             continue
         else:
@@ -45,13 +47,48 @@ def summary_table(result: dict) -> pd.DataFrame:
     return df.set_index("joint") if len(df) else df
 
 
+def _fmt_ci(params: dict, ci: dict) -> str:
+    """Each estimate with its 95 % interval, e.g. ``mass_kg=1.28 [1.25, 1.31]`` (open ends as ``..``)."""
+    out = []
+    for k, (lo, hi) in (ci or {}).items():
+        v = params.get(k)
+        if v is None or isinstance(v, (dict, list)):
+            continue
+        out.append(f"{k}={v:.4g} [{'..' if lo is None else f'{lo:.4g}'}, {'..' if hi is None else f'{hi:.4g}'}]")
+    return ", ".join(out)
+
+
 def effects_table(result: dict) -> pd.DataFrame:
     rows = []
     for j, d in result.get("joints", {}).items():
         for e in d["effects"]:
             rows.append({"joint": int(j), "effect": e["name"], "params": _fmt_params(e["params"]),
+                         "95 % intervals": _fmt_ci(e["params"], e.get("params_ci")),
+                         "not identified": ", ".join(e.get("not_identified") or []) or "-",
+                         "torque_rms_before_Nm": e.get("torque_rms_before_Nm"),
+                         "torque_rms_after_Nm": e.get("torque_rms_after_Nm"),
                          "p_value": _p(e["evidence"]["p_value"]), "delta_bic": e["evidence"]["delta_bic"],
                          "test": e["evidence"]["test"]})
+    return pd.DataFrame(rows)
+
+
+def ambiguous_table(result: dict) -> pd.DataFrame:
+    rows = []
+    for j, d in result.get("joints", {}).items():
+        for g in d.get("ambiguous") or []:
+            cands = {c["name"]: c for c in d["candidates"]}
+            rows.append({"joint": int(j), "candidates": " / ".join(g),
+                         "p_values": ", ".join(f"{n}: {_p(cands.get(n, {}).get('p_value'))}" for n in g)})
+    return pd.DataFrame(rows)
+
+
+def unexplained_table(result: dict) -> pd.DataFrame:
+    rows = []
+    for j, d in result.get("joints", {}).items():
+        u = d.get("unexplained")
+        if u:
+            rows.append({"joint": int(j), "correlates_with": ", ".join(u["correlates_with"]),
+                         "torque_rms_Nm": u["torque_rms_Nm"]})
     return pd.DataFrame(rows)
 
 
@@ -180,8 +217,25 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
         doc.text(str(result.get("reason")))
     else:
         found = result.get("effects_found") or []
+        amb = result.get("ambiguous") or []
         doc.heading("Effects found")
-        doc.text(", ".join(found) if found else "None: the data show nothing the declared model lacks.")
+        if found:
+            doc.text(", ".join(found) + " (strongest evidence first).")
+        elif amb:
+            doc.text("None named: the data show something the declared model lacks, but the candidates below "
+                     "explain it equally well (ambiguous).")
+        else:
+            doc.text("None: the data show nothing the declared model lacks.")
+        if amb:
+            doc.text("Ambiguous (neither candidate explains the held-out data clearly better than the other, so "
+                     "neither is named): " + "; ".join(" / ".join(g) for g in amb) + ".")
+    for w in result.get("warnings") or []:
+        doc.text(f"Warning: {w}.")
+    pc = result.get("position_check") or {}
+    if pc.get("skipped"):
+        doc.text(f"The closed-loop position check was skipped: {pc['skipped']}.")
+    elif (pc.get("controller_gains") or {}).get("source"):
+        doc.text(f"Closed-loop check: controller gains {pc['controller_gains']['source']}.")
     skipped = result.get("skipped_joints") or {}
     for j, why in skipped.items():
         doc.text(f"Joint {j} was not diagnosed: {why}.")
@@ -196,6 +250,16 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     if len(eff):
         doc.heading("Effects and their evidence")
         doc.table("effects", eff)
+    amb = ambiguous_table(result)
+    if len(amb):
+        doc.heading("Ambiguous candidates")
+        doc.table("ambiguous", amb, "candidates that passed but neither explained the held-out residual clearly "
+                  "better than the other")
+    unx = unexplained_table(result)
+    if len(unx):
+        doc.heading("What is left")
+        doc.table("unexplained", unx, "joints whose held-out residual, after every named effect, still follows "
+                  "these signals (not named as an effect)")
     doc.heading("Candidates")
     doc.table("candidates", candidates_table(result), "every candidate tested per joint, with the reason it was "
               "kept or rejected")

@@ -37,8 +37,10 @@ class _Meta(BaseModel):
 
 class MeasuredController(_Meta):
     kind: Literal["pd_g", "pid", "pd_g_ff"]
-    kp: list[float] = _Vec7
-    kd: list[float] = _Vec7
+    # the gains may be unknown (a recording of someone else's controller): ``wamctl diagnose`` then estimates
+    # them from the log
+    kp: list[float] | None = Field(None, min_length=P.N_JOINTS, max_length=P.N_JOINTS)
+    kd: list[float] | None = Field(None, min_length=P.N_JOINTS, max_length=P.N_JOINTS)
     ki: list[float] | None = Field(None, min_length=P.N_JOINTS, max_length=P.N_JOINTS)
 
 

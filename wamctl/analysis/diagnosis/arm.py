@@ -11,13 +11,23 @@ import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import payload_from_pi
 from wamctl.analysis.diagnosis.design import Design, columns, target_and_design
-from wamctl.analysis.diagnosis.stats import lstsq
+from wamctl.analysis.diagnosis.stats import finite_ss, lstsq
 
 # a wrist payload the WAM can carry (its rated payload is about 4 kg; PayloadEffect allows up to 5 kg), held
 # within half a metre of the flange
 PAYLOAD_MASS_RANGE_KG = (0.01, 10.0)
 PAYLOAD_MAX_COM_M = 0.5
 N_PAYLOAD = 10                    # inertial parameters of the payload (m, m c, inertia)
+# a payload parameter whose 95 % interval is wider than this is reported as not identified: a centre of mass
+# known to 5 cm says little about a wrist payload (a few centimetres from the flange), a mass known to half
+# its value little more
+COM_CI_MAX_WIDTH_M = 0.05
+MASS_CI_MAX_SHARE = 0.5
+# The bootstrap interval is statistical: it takes the declared rigid body as exact. The arm's own link parameters
+# are known to a few per cent (datasheet against identification), which moves a payload's estimate more than the
+# noise does; the intervals are therefore at least this wide on either side of the estimate.
+MASS_SYSTEMATIC_SHARE = 0.02
+COM_SYSTEMATIC_M = 0.005
 
 
 def payload_fit(des: Design, joints: dict, jds: dict, rows_of=None) -> dict | None:
@@ -26,10 +36,24 @@ def payload_fit(des: Design, joints: dict, jds: dict, rows_of=None) -> dict | No
     bool``) restricts the samples. None when no joint kept a payload.
 
     Returns ``mass_kg``, ``com_m``, ``joints_fitted`` (1-based) and ``pi`` (10,) the inertial parameters."""
+    system = payload_system(des, joints, jds, rows_of)
+    if system is None:
+        return None
+    X, y, w, _, with_p = system
+    theta = lstsq(X * w[:, None], y * w)
+    n_own = X.shape[1] - N_PAYLOAD
+    pi = theta[n_own:n_own + N_PAYLOAD]    # mass, first moment, inertia of the link-7 addition
+    return {**payload_from_pi(pi), "joints_fitted": [j + 1 for j in with_p], "pi": pi}
+
+
+def payload_system(des: Design, joints: dict, jds: dict, rows_of=None):
+    """The stacked least-squares problem of :func:`payload_fit`: ``(X, y, w, groups, joints)`` with ``groups``
+    (m, 2) the (joint, time block) of each row; None when no joint kept a payload. The payload's ten columns are
+    the last ones of ``X``."""
     with_p = [j for j, r in joints.items() if any(t["name"] == "payload" for t in r.kept)]
     if not with_p:
         return None
-    blocks, ys, shared, wts = [], [], [], []
+    blocks, ys, shared, wts, groups = [], [], [], [], []
     for j in with_p:
         res, jd = joints[j], jds[j]
         mask = np.ones(jd.n, bool) if rows_of is None else rows_of(jd)
@@ -41,12 +65,43 @@ def payload_fit(des: Design, joints: dict, jds: dict, rows_of=None) -> dict | No
         shared.append(columns(des, "payload", jd, None)[sub])
         ys.append(y_o[sub])
         wts.append(np.full(len(sub), 1.0 / max(res.torque_rms_after_Nm, 1e-9)))
-    X = _shared_design(blocks, shared)
-    w = np.concatenate(wts)
-    theta = lstsq(X * w[:, None], np.concatenate(ys) * w)
+        groups.append(np.column_stack([np.full(len(sub), j), jd.extra["block"][sub]]))
+    return _shared_design(blocks, shared), np.concatenate(ys), np.concatenate(wts), np.vstack(groups), with_p
+
+
+def payload_uncertainty(des: Design, joints: dict, jds: dict) -> tuple[dict, list[str]]:
+    """95 % intervals of the arm's payload (``mass_kg``, ``com_x_m``, ``com_y_m``, ``com_z_m``; a bootstrap over the
+    time blocks of each joint that fitted it) and the keys the motion cannot determine: the mass when its column
+    is not in the row space of the regressor, a centre-of-mass component when its first moment (or the mass) is
+    not, or when its interval is wider than the range a wrist payload may have (``PAYLOAD_MAX_COM_M``)."""
+    from wamctl.analysis.diagnosis.uncertainty import estimable, group_bootstrap, percentile_ci
+
+    system = payload_system(des, joints, jds)
+    if system is None:
+        return {}, []
+    X, y, w, groups, _ = system
     n_own = X.shape[1] - N_PAYLOAD
-    pi = theta[n_own:n_own + N_PAYLOAD]    # mass, first moment, inertia of the link-7 addition
-    return {**payload_from_pi(pi), "joints_fitted": [j + 1 for j in with_p], "pi": pi}
+    ok = estimable(X * w[:, None], [n_own + k for k in range(4)])
+    reps = group_bootstrap(X, y, groups, rng=np.random.default_rng(4000), w=w)
+    pis = reps[:, n_own:n_own + N_PAYLOAD]
+    ests = [payload_from_pi(pi) for pi in pis]
+    est = payload_from_pi(lstsq(X * w[:, None], y * w)[n_own:n_own + N_PAYLOAD])
+    ng = len({tuple(g) for g in groups})
+    ci = {"mass_kg": _at_least(percentile_ci([e["mass_kg"] for e in ests], center=est["mass_kg"], n_groups=ng),
+                               est["mass_kg"], MASS_SYSTEMATIC_SHARE * abs(est["mass_kg"]))}
+    for i, ax in enumerate("xyz"):
+        ci[f"com_{ax}_m"] = _at_least(percentile_ci([e["com_m"][i] if e["mass_kg"] > 0 else None for e in ests],
+                                                    center=est["com_m"][i], n_groups=ng),
+                                      est["com_m"][i], COM_SYSTEMATIC_M)
+    m_lo, m_hi = ci["mass_kg"]
+    mass_ok = ok[0] and m_lo is not None and m_lo > 0 and m_hi - m_lo <= MASS_CI_MAX_SHARE * est["mass_kg"]
+    ni = [] if mass_ok else ["mass_kg"]
+    for i, ax in enumerate("xyz"):
+        lo, hi = ci[f"com_{ax}_m"]
+        wide = lo is None or hi - lo > COM_CI_MAX_WIDTH_M
+        if not (mass_ok and ok[1 + i]) or wide:
+            ni.append(f"com_{ax}_m")
+    return ci, ni
 
 
 def _shared_design(blocks: list[np.ndarray], shared: list[np.ndarray]) -> np.ndarray:
@@ -73,6 +128,47 @@ def payload_rejection(fit: dict) -> str | None:
     return None
 
 
+def payload_inconsistency(des: Design, joints: dict, jds: dict, fit: dict, factor: float = 2.0) -> str | None:
+    """Why the payload fitted at some joints is not one for the arm, or None: a payload changes the torque of
+    every joint it hangs from, so at each diagnosed joint that did not keep it and where its torque would be
+    larger than that joint's held-out residual, adding it (fixed, as fitted) must not make that residual more
+    than ``factor`` times larger in power (a payload found through one joint's inertial coupling, say, would
+    load the others' gravity torques with what they do not show)."""
+    for j, res in joints.items():
+        jd = jds[j]
+        if j + 1 in fit["joints_fitted"] or "payload" not in jd.extra:
+            continue
+        pt = jd.extra["payload"] @ fit["pi"]
+        e_after = res.e_after
+        ss0 = finite_ss(e_after)
+        if ss0 <= 0 or np.sum(pt ** 2) < ss0:
+            continue
+        e_with = np.full(jd.n, np.nan)
+        for f in range(des.n_folds):
+            te = jd.fold == f
+            tr = ~te
+            if not te.any() or tr.sum() < 20:
+                continue
+            y, X = target_and_design(des, jd, res.kept, f)
+            y = y - pt
+            th = lstsq(X[tr], y[tr])
+            e_with[te] = y[te] - X[te] @ th
+        e_with[~np.isfinite(e_after)] = np.nan
+        if finite_ss(e_with) > factor * ss0:
+            return (f"the payload fitted at joints {fit['joints_fitted']} ({fit['mass_kg']:.3g} kg) would make the "
+                    f"held-out torque residual of joint {j + 1}, which shows no payload, "
+                    f"{np.sqrt(finite_ss(e_with) / ss0):.2g} times larger: not a payload of the arm")
+    return None
+
+
+def _at_least(ci: list, center: float, half: float) -> list:
+    """``ci`` widened to at least ``center +- half``."""
+    lo, hi = ci
+    if lo is None or hi is None:
+        return ci
+    return [min(lo, center - half), max(hi, center + half)]
+
+
 def fold_payloads(des: Design, joints: dict, jds: dict, fit: dict) -> dict:
     """{fold: (10,) the arm's payload fitted without that fold, None: ``fit``'s on all data}."""
     pis = {None: fit["pi"]}
@@ -93,23 +189,49 @@ def global_payload_terms(kept: list[dict], n_folds: int) -> list[dict]:
     return terms
 
 
-def delay_disagreements(joints: dict, dt_s: float) -> dict:
+def delay_disagreements(joints: dict, dt_s: float, des: Design | None = None, jds: dict | None = None) -> dict:
     """{0-based joint: why} of the joints whose kept delay is not the arm's.
 
-    A late measurement delays every joint's positions by the same time: a delay stands only where at least
-    half of the diagnosed ``joints`` show it, within one sample period ``dt_s`` of their median (position
-    noise fed back by the controller can mimic a lag, but not the same one at every joint)."""
+    A late measurement delays every joint's positions by the same time. A delay stands where the joints that
+    show it agree (within ``max(min(dt_s, 2 ms), 25 %)`` of their median; position noise fed back by the
+    controller can mimic a lag, but not the same one at several joints): at least half of the diagnosed
+    ``joints``, or at least two (the only one when a single joint is diagnosed) when none of the others
+    contradicts it: the arm's delay put into a joint that did not keep one must not make its held-out residual
+    worse by more than the minimum effect (a joint whose motion is too slow or too quiet to show a few
+    milliseconds of lag does not contradict it; one that moves and tracks without lag does)."""
     with_d = {j: next(t["h_all"] for t in r.kept if t["name"] == "delay")
               for j, r in joints.items() if any(t["name"] == "delay" for t in r.kept)}
     if not with_d:
         return {}
-    need = int(np.ceil(len(joints) / 2))
     med = float(np.median(list(with_d.values())))
-    agree = {j for j, d in with_d.items() if abs(d - med) <= max(dt_s, 0.25 * med)}
-    if len(agree) >= need:
+    agree = {j for j, d in with_d.items() if abs(d - med) <= max(min(dt_s, 2e-3), 0.25 * med)}
+    half = int(np.ceil(len(joints) / 2))
+    against = [] if des is None else _contradicting(des, joints, jds, set(with_d), med)
+    if len(agree) >= half or (len(agree) >= min(2, len(joints)) and not against):
         return {j: (f"delay {with_d[j] * 1e3:.1f} ms disagrees with the {med * 1e3:.1f} ms of the other "
                     "joints (a late measurement is one delay for the arm)") for j in with_d if j not in agree}
     why = (f"a consistent delay was seen at {len(agree)} of {len(joints)} joints "
-           f"(delays {', '.join(f'{d * 1e3:.1f}' for d in with_d.values())} ms); a late measurement "
-           f"delays every joint alike (at least {need} joints within one sample period needed)")
+           f"(delays {', '.join(f'{d * 1e3:.1f}' for d in with_d.values())} ms)")
+    if against:
+        why += f", and joints {[j + 1 for j in against]} move without it"
+    why += (f"; a late measurement delays every joint alike (at least {half} joints, or two that no other joint "
+            "contradicts, needed)")
     return dict.fromkeys(with_d, why)
+
+
+def _contradicting(des: Design, joints: dict, jds: dict, with_d: set, d: float) -> list[int]:
+    """The joints without a kept delay whose held-out residual the delay ``d`` makes worse by more than the
+    minimum effect."""
+    from wamctl.analysis.diagnosis.crossval import cv_terms
+    from wamctl.analysis.diagnosis.stats import MIN_EFFECT
+
+    out = []
+    for j, res in joints.items():
+        if j in with_d:
+            continue
+        terms = list(res.kept) + [{"name": "delay", "h_fold": [d] * des.n_folds, "h_all": d, "fixed_h": d}]
+        e_d = cv_terms(des, jds[j], terms)
+        ok = np.isfinite(e_d) & np.isfinite(res.e_after)
+        if finite_ss(e_d[ok]) > (1 + MIN_EFFECT) * finite_ss(res.e_after[ok]):
+            out.append(j)
+    return out

@@ -35,7 +35,8 @@ from wamctl.specs import PlantSpec
 log = logging.getLogger(__name__)
 
 N7 = P.N_JOINTS
-MAX_SIM_SAMPLES = 60000          # per simulation: the position check of a long run scores its first part
+MAX_SIM_SAMPLES = 20000          # per simulation: the position check of a long run scores its first part
+BOTH_HALVES_MAX = 20000          # up to this many samples both halves are scored (four simulations)
 
 
 def encoder_counts(q_raw: np.ndarray, joints: list[int]) -> int:
@@ -112,10 +113,12 @@ def _effects_after(diag, thetas, joints_friction) -> dict:
                         ratios.append(fs / fc)
                 vss.append(pp["vs_rad_s"])
                 fr.update(fs_pos_Nm=max(pp["Fs_pos_Nm"], 0.0), fs_neg_Nm=max(pp["Fs_neg_Nm"], 0.0),
-                          vs_rad_s=_clip(pp["vs_rad_s"], 1e-4, 5.0), stribeck_delta=2.0)
+                          vs_rad_s=_clip(pp["vs_rad_s"], 1e-4, 5.0),
+                          stribeck_delta=_clip(pp.get("stribeck_delta", 2.0), 0.5, 4.0))
             out["stribeck"] = {"joints": js, "breakaway_ratio": _clip(np.median(ratios) if ratios else 1.5,
                                                                        1.0001, 10.0),
-                               "vs_rad_s": _clip(float(np.median(vss)), 1e-4, 5.0), "delta": 2.0}
+                               "vs_rad_s": _clip(float(np.median(vss)), 1e-4, 5.0),
+                               "delta": _clip(float(p.get("stribeck_delta", 2.0)), 0.5, 4.0)}
         elif name == "position_ripple":
             out["position_ripple"] = {"joints": [j + 1], "amplitude_Nm": _clip(p["amplitude_Nm"], 1e-6, 20.0),
                                       "period_rad": _clip(p["period_rad"], 0.005, 6.3),
@@ -154,7 +157,7 @@ def feedforward_from_log(meta, t_s, q_ref, q, tau, gravity) -> np.ndarray | None
     return tau - pd - g
 
 
-def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SAMPLES) -> dict:
+def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SAMPLES, meta=None) -> dict:
     """Held-out closed-loop position error of the declared and the augmented model.
 
     ``simulate_positions(plant, meta, t_s, q_ref, q0, feedforward, payload) -> (n, 7)`` runs the closed loop of
@@ -177,21 +180,22 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
     for j, jd in diag.jd_.items():
         half_fit[j] = jd.extra["block"] % 2
         half_t[j] = block_of(jd, sig.t_s[:n]) % 2
-    mp = diag.meta_.payload      # what the controller's gravity compensation knew
+    meta = meta or diag.meta_    # the run's metadata, with the controller's gains the check uses
+    mp = meta.payload            # what the controller's gravity compensation knew
     ctl_payload = Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None
     dyn = WamDynamics(ctl_payload)
-    ff = feedforward_from_log(diag.meta_, t, q_ref, q_meas, sig.tau_raw_Nm[:n],
-                              dyn.gravity if diag.meta_.gravity_compensation else None)
+    ff = feedforward_from_log(meta, t, q_ref, q_meas, sig.tau_raw_Nm[:n],
+                              dyn.gravity if meta.gravity_compensation else None)
     traces = {"before": np.full((n, N7), np.nan), "after": np.full((n, N7), np.nan)}
     same = not diag.effects_found_
-    # up to 20000 samples, both halves are scored (four simulations); above, one half (two simulations)
-    for h in ((0, 1) if n <= 20000 else (1,)):
+    # up to BOTH_HALVES_MAX samples, both halves are scored (four simulations); above, one half (two)
+    for h in ((0, 1) if n <= BOTH_HALVES_MAX else (1,)):
         thetas = diag.refit(lambda jd, h=h: half_fit[jd.j] != h)       # fit on the other half
         for which in ("before", "after"):
             if which == "after" and same:
                 continue
             plant = plant_dict(diag, which, thetas)
-            q_sim = simulate_positions(plant, diag.meta_, t, q_ref, q_meas[0], ff, ctl_payload)
+            q_sim = simulate_positions(plant, meta, t, q_ref, q_meas[0], ff, ctl_payload)
             for j in range(N7):
                 sel = half_t[j] == h if j in half_t else np.ones(n, bool)
                 traces[which][sel, j] = q_sim[sel, j]

@@ -163,20 +163,30 @@ def breakaway_ratio(u_Nm: np.ndarray, dt_s: float, inertia: float, fc_pos: float
     """Smallest ratio ``rho`` of breakaway to Coulomb level for which the model's link, started at rest, moves
     no more than ``tol`` through the stall (bisection; ``rho`` is about 1 when the joint broke away at its
     Coulomb level, and ``Fs / Fc`` with a Stribeck effect)."""
-    def moved(rho):
-        x = hidden_travel(u_Nm, dt_s, inertia, fc_pos, fc_neg, b_pos, b_neg, rho * fc_pos, rho * fc_neg)
-        return np.max(np.abs(x)) > tol
-    if not moved(lo):
+    return float(_breakaway_kernel(np.ascontiguousarray(u_Nm, dtype=float), float(dt_s), float(inertia),
+                                   float(fc_pos), float(fc_neg), float(b_pos), float(b_neg), float(tol), float(lo),
+                                   float(hi), TRAVEL_CAP_RAD))
+
+
+@njit(cache=True)
+def _moved(u_Nm, dt_s, inertia, fc_pos, fc_neg, b_pos, b_neg, rho, tol, cap):
+    x = _travel_kernel(u_Nm, dt_s, inertia, fc_pos, fc_neg, b_pos, b_neg, rho * fc_pos, rho * fc_neg, 4, 0.0, cap)
+    return np.max(np.abs(x)) > tol
+
+
+@njit(cache=True)
+def _breakaway_kernel(u_Nm, dt_s, inertia, fc_pos, fc_neg, b_pos, b_neg, tol, lo, hi, cap):
+    if not _moved(u_Nm, dt_s, inertia, fc_pos, fc_neg, b_pos, b_neg, lo, tol, cap):
         return lo
-    if moved(hi):
+    if _moved(u_Nm, dt_s, inertia, fc_pos, fc_neg, b_pos, b_neg, hi, tol, cap):
         return hi
     for _ in range(14):
         mid = np.sqrt(lo * hi)
-        if moved(mid):
+        if _moved(u_Nm, dt_s, inertia, fc_pos, fc_neg, b_pos, b_neg, mid, tol, cap):
             lo = mid
         else:
             hi = mid
-    return float(np.sqrt(lo * hi))
+    return np.sqrt(lo * hi)
 
 
 def onset_test(travel: np.ndarray, X0: np.ndarray, X1: np.ndarray, fold: np.ndarray, n_folds: int,

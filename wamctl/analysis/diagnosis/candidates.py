@@ -27,7 +27,8 @@ from wamctl.analysis.diagnosis.signals import savgol_gain
 from wamctl.model import params as P
 from wamctl.model.friction import stribeck_decay
 
-EFFECT_NAMES = ("stribeck", "position_ripple", "payload", "delay", "friction_drift", "backlash")
+EFFECT_NAMES = ("stribeck", "position_ripple", "payload", "delay", "friction_drift", "backlash", "link_parameters")
+ARM_ONLY = ("link_parameters",)     # tested over the whole arm only (:mod:`wamctl.analysis.diagnosis.links`)
 
 STRIBECK_VS_GRID_RAD_S = np.geomspace(0.004, 0.4, 13)
 RIPPLE_PERIOD_MIN_RAD = 0.01

@@ -180,6 +180,10 @@ def _fold_design(des: Design, jd: JointData, terms: list[dict], f: int, trr: np.
         h = select_delay(des, jd, trr, here)
         y, X = target_and_design(des, jd, terms + [{"name": "delay", "h_fold": [h] * des.n_folds}], f)
         return y, X, h
+    if cand == "stribeck" and isinstance(fixed_h, tuple):      # a Stribeck shape measured elsewhere
+        shaped = {"name": "stribeck", "h_fold": [fixed_h] * des.n_folds, "fixed_h": fixed_h}
+        y, X = target_and_design(des, jd, terms + [shaped], f)
+        return y, X, fixed_h
     h = fixed_h if fixed_h is not None else select_shape(des, cand, jd, trr, Xb, y, here)
     return y, np.hstack([Xb, columns(des, cand, jd, h, delay_of(here))]), h
 

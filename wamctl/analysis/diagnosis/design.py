@@ -14,13 +14,13 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import stribeck_columns
-from wamctl.analysis.diagnosis.signals import Signals, interp_columns
+from wamctl.analysis.diagnosis.signals import Signals
 from wamctl.analysis.diagnosis.stats import lstsq, lstsq_bounded
-from wamctl.model.friction import FrictionModel, classic_friction_columns
+from wamctl.model.friction import FrictionModel, classic_friction_columns, stribeck_decay
 
 N_FRICTION = 4                    # classic friction: Coulomb and viscous, per direction
 N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 10, "delay": 0, "friction_drift": 2,
-             "backlash": 1}
+             "backlash": 1, "link_parameters": 1}
 FRICTION_KEYS = ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad", "viscous_neg_Nm_s_rad")
 
 
@@ -62,13 +62,15 @@ class Design:
     rnea_Nm : (n, 7) rigid-body torque of the declared model (a declared payload included).
     known_Nm : (n, 7) torque a declared model file adds beyond the rigid body (zero when friction is fitted).
     known_other_Nm : (n, 7) its part that is not friction (ripple).
-    tau_Nm : (n, 7) smoothed torque the model is compared with (a declared delay applied).
+    tau_Nm : unused (None): each joint's smoothed torque is in ``JointData.extra["tau"]``.
     friction_given : the declared friction, or None when it is fitted from the data.
     n_folds : folds of the held-out figures.
     decimation : the joints' sliding samples are taken every ``decimation`` samples.
     union : (u,) full-rate samples where some diagnosed joint slides (decimated).
     payload_pi : {fold (None: all data): (10,) inertial parameters of the arm's one payload fitted without
         that fold}, once a payload is kept.
+    links_beta, links_cols : {fold: the arm's link refit fitted without it} and the base columns it changes, once
+        ``link_parameters`` is named (:mod:`wamctl.analysis.diagnosis.links`).
     """
 
     sig: Signals
@@ -81,6 +83,8 @@ class Design:
     decimation: int = 1
     union: np.ndarray = field(default_factory=lambda: np.zeros(0, int))
     payload_pi: dict = field(default_factory=dict)
+    links_beta: dict = field(default_factory=dict)
+    links_cols: np.ndarray | None = None
 
     @property
     def bounded(self) -> bool:
@@ -90,9 +94,13 @@ class Design:
 
 # ---------------------------------------------------------------------------------------------- terms
 def ncols(term: dict) -> int:
-    """Columns a term adds (the arm's one payload, once fitted over all joints, adds one)."""
-    if term["name"] == "payload" and isinstance(term.get("h_all", term.get("fixed_h")), tuple):
+    """Columns a term adds (the arm's one payload, once fitted over all joints, adds one; a Stribeck effect whose
+    shape was measured elsewhere adds none: it shapes the friction columns)."""
+    h = term.get("h_all", term.get("fixed_h"))
+    if term["name"] == "payload" and isinstance(h, tuple):
         return 1
+    if term["name"] == "stribeck" and isinstance(term.get("fixed_h"), tuple):
+        return 0
     return N_COLUMNS[term["name"]]
 
 
@@ -173,12 +181,23 @@ def columns(des: Design, name: str, jd: JointData, h, d: float = 0.0) -> np.ndar
     taken ``d`` seconds later (a delay term).
 
     Features that are nonlinear functions of the state are built at the full rate and smoothed by the
-    same filter as the torque, so that feature and torque are averaged alike over each window."""
+    same filter as the torque, so that feature and torque are averaged alike over each window. A fractional
+    shift is the linear interpolation between the two whole-sample shifts around it (each built once)."""
+    shift = float(d) / des.sig.dt_s
+    k0 = int(np.floor(shift + 1e-9))
+    frac = shift - k0
+    if frac < 1e-9 or name == "payload":
+        return _columns_at(des, name, jd, h, k0)
+    return (1.0 - frac) * _columns_at(des, name, jd, h, k0) + frac * _columns_at(des, name, jd, h, k0 + 1)
+
+
+def _columns_at(des: Design, name: str, jd: JointData, h, k: int) -> np.ndarray:
+    """:func:`columns` with the state ``k`` whole samples later (cached per joint)."""
     cache = jd.extra.setdefault("_cache", {})
-    key = (name, h if (h is None or isinstance(h, tuple)) else round(float(h), 12), round(float(d), 9))
+    key = (name, h if (h is None or isinstance(h, tuple)) else round(float(h), 12), int(k))
     if key in cache:
         return cache[key]
-    X = _build_columns(des, name, jd, h, d)
+    X = _build_columns(des, name, jd, h, k * des.sig.dt_s)
     if len(cache) > 400:
         cache.clear()
     cache[key] = X
@@ -189,30 +208,30 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
     sig = des.sig
     j = jd.j
     qd_f = sig.qd_rad_s[:, j]
+    shift = d / sig.dt_s
 
-    def sample(raw):
-        """The smoothed feature at the joint's samples (shifted by d: from the smoothed full-rate one)."""
-        if not d:
-            return sig.smooth_at(raw, jd.idx)
-        return interp_columns(jd.t_s + d, sig.t_s, sig.smooth(raw))
+    def sample(fn):
+        """The smoothed feature ``fn(full-rate indices)`` at the joint's samples (``d`` seconds later)."""
+        return sig.smooth_at(fn, jd.idx, shift)
 
     if name == "friction":
-        if not d:
-            return sample(classic_friction_columns(qd_f))
-        full = jd.extra.get("fric_smooth")
-        if full is None:
-            full = jd.extra["fric_smooth"] = sig.smooth(classic_friction_columns(qd_f))
-        return interp_columns(jd.t_s + d, sig.t_s, full)
+        return sample(lambda p: friction_columns(qd_f[p], h))
     if name == "stribeck":
-        return sample(stribeck_columns(qd_f, h))
+        return sample(lambda p: stribeck_columns(qd_f[p], h))
     if name == "position_ripple":
-        ph = 2 * np.pi * sig.q_rad[:, j] / h
-        return sample(np.column_stack([np.sin(ph), np.cos(ph)]))
+        q_f = sig.q_raw_rad[:, j]          # the angle as measured (the filter then smooths the feature)
+
+        def ripple(p):
+            ph = 2 * np.pi * q_f[p] / h
+            return np.column_stack([np.sin(ph), np.cos(ph)])
+        return sample(ripple)
     if name == "payload":
         X = jd.extra["payload"]
         if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold
             X = (X @ des.payload_pi[h[1]])[:, None]
         return X
+    if name == "link_parameters":       # ("links", fold): the arm's one refit, fitted without fold
+        return (jd.extra["links_base"][:, des.links_cols] @ des.links_beta[h[1]])[:, None]
     if name == "friction_drift":
         # the Coulomb and the viscous torque of the declared fit, each drifting as exp(-t / T): two columns
         # that keep the directions together (a direction seen only early in the run would otherwise be
@@ -221,8 +240,32 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
         tb = declared_levels(des, jd)
         return np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * np.exp(-jd.extra["t_rel"] / h)[:, None]
     if name == "backlash":
-        return sample((jd.extra["dgdq_full"] * np.sign(qd_f))[:, None])
+        dg = jd.extra["dgdq_full"]
+        return sample(lambda p: (dg[p] * np.sign(qd_f[p]))[:, None])
     raise ValueError(name)
+
+
+def friction_columns(qd: np.ndarray, shape=None) -> np.ndarray:
+    """The classic friction regressor (m, 4) at speeds ``qd`` (m,); with ``shape = (ratio_pos, ratio_neg, vs,
+    delta)`` (a Stribeck effect whose shape was measured elsewhere: at the breakaways or on the friction map of
+    steady segments) the Coulomb columns carry it, ``Fc (1 + (ratio - 1) exp(-|qd / vs|^delta))``, so that the
+    model stays linear in the four classic levels."""
+    F = classic_friction_columns(qd)
+    if shape is not None:
+        rp, rn, vs, delta = shape
+        e = stribeck_decay(np.asarray(qd, float), vs, delta)
+        F[:, 0] *= 1.0 + (rp - 1.0) * e
+        F[:, 1] *= 1.0 + (rn - 1.0) * e
+    return F
+
+
+def at_shift(x: np.ndarray, idx: np.ndarray, shift: float) -> np.ndarray:
+    """Full-rate samples ``x`` (n,) at the fractional sample positions ``idx + shift`` (linear interpolation; the
+    time grid is uniform)."""
+    p = np.clip(np.asarray(idx, float) + shift, 0, len(x) - 1)
+    i0 = np.minimum(np.floor(p).astype(int), len(x) - 2)
+    f = p - i0
+    return x[i0] * (1.0 - f) + x[i0 + 1] * f
 
 
 def shifted_target(des: Design, jd: JointData, d: float) -> np.ndarray:
@@ -231,11 +274,23 @@ def shifted_target(des: Design, jd: JointData, d: float) -> np.ndarray:
     cache = jd.extra.setdefault("_shift", {})
     key = round(float(d), 9)
     if key not in cache:
-        model = des.rnea_Nm[:, jd.j] + des.known_Nm[:, jd.j]
+        shift = d / des.sig.dt_s
+        model = at_shift(des.rnea_Nm[:, jd.j], jd.idx, shift)
+        if des.friction_given is not None:
+            model += at_shift(des.known_Nm[:, jd.j], jd.idx, shift)
         if len(cache) > 100:
             cache.clear()
-        cache[key] = des.tau_Nm[jd.idx, jd.j] - np.interp(jd.t_s + d, des.sig.t_s, model)
+        cache[key] = jd.extra["tau"] - model
     return cache[key]
+
+
+def friction_shape(terms: list[dict], fold: int | None = None):
+    """The Stribeck shape ``(ratio_pos, ratio_neg, vs, delta)`` a term among ``terms`` gives the friction
+    columns (a Stribeck effect measured elsewhere), or None."""
+    for t in terms:
+        if t["name"] == "stribeck" and isinstance(t.get("fixed_h"), tuple):
+            return t["fixed_h"]
+    return None
 
 
 def target_and_design(des: Design, jd: JointData, terms: list[dict],
@@ -244,8 +299,8 @@ def target_and_design(des: Design, jd: JointData, terms: list[dict],
     (None: chosen on all data); a delay term shifts target and friction instead of adding columns."""
     d = delay_of(terms, fold)
     y = shifted_target(des, jd, d) if d else jd.y_Nm
-    cols = [columns(des, "friction", jd, None, d)]
-    cols += [columns(des, t["name"], jd, shape_of(t, fold), d) for t in terms if t["name"] != "delay"]
+    cols = [columns(des, "friction", jd, friction_shape(terms, fold), d)]
+    cols += [columns(des, t["name"], jd, shape_of(t, fold), d) for t in terms if ncols(t) > 0]
     return y, np.hstack(cols)
 
 

@@ -55,10 +55,12 @@ from wamctl.analysis.diagnosis.arm import (
     fold_payloads,
     global_payload_terms,
     payload_fit,
+    payload_inconsistency,
     payload_rejection,
+    payload_uncertainty,
 )
 from wamctl.analysis.diagnosis.augmented import MAX_SIM_SAMPLES, position_check
-from wamctl.analysis.diagnosis.candidates import EFFECT_NAMES
+from wamctl.analysis.diagnosis.candidates import ARM_ONLY, EFFECT_NAMES
 from wamctl.analysis.diagnosis.crossval import cv_terms
 from wamctl.analysis.diagnosis.design import JointData, columns, fit_theta, target_and_design
 from wamctl.analysis.diagnosis.joint import JointResult, forward_select, joint_baseline, set_after
@@ -73,6 +75,9 @@ from wamctl.analysis.diagnosis.prepare import declared_delay_s, prepare_design
 from wamctl.analysis.diagnosis.serialise import diagnosis_dict
 from wamctl.analysis.diagnosis.signals import Signals, prepare_signals
 from wamctl.analysis.diagnosis.stats import finite_ss
+from wamctl.analysis.diagnosis.sweeps import map_evidence
+from wamctl.analysis.diagnosis.unexplained import unexplained
+from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel
 from wamctl.model.params import LinkParameters
@@ -103,6 +108,16 @@ class DeclaredModel:
     def delay_s(self) -> float:
         """The declared measurement delay, s (0 without one)."""
         return declared_delay_s(self.effects)
+
+
+def torque_warnings(sig: Signals) -> list[str]:
+    """Torques beyond the model's limits are data (a real arm's log, another controller), not errors: said."""
+    out = []
+    over = np.abs(sig.tau_raw_Nm) > P.TAU_MAX_NM * (1 + 1e-6)
+    for j in np.flatnonzero(over.any(axis=0)):
+        out.append(f"joint {j + 1}: {int(over[:, j].sum())} samples with |tau| above the model's limit of "
+                   f"{P.TAU_MAX_NM[j]:g} N m (up to {np.abs(sig.tau_raw_Nm[:, j]).max():.3g} N m); kept as data")
+    return out
 
 
 @contextmanager
@@ -142,7 +157,7 @@ class ModelDiagnosis:
     conclusive_ : False when nothing could be concluded (reason in ``reason_``).
     threshold_ : per-test p-value threshold.
     design_ : :class:`wamctl.analysis.diagnosis.design.Design`, the run's arrays (also as ``rnea_full_``,
-        ``known_``, ``known_other_``, ``tau_model_``, ``union_``, ``decimation_``).
+        ``known_``, ``known_other_``, ``union_``, ``decimation_``).
     jd_ : {0-based joint: :class:`wamctl.analysis.diagnosis.design.JointData`}.
     onsets_ : {0-based joint: its onsets (:func:`wamctl.analysis.diagnosis.onsets.joint_onsets`)}.
     payload_ : the arm's payload found (``mass_kg``, ``com_m``, ``joints_fitted``), else None.
@@ -178,10 +193,17 @@ class ModelDiagnosis:
         self.reason_ = None
         self.joints_ = {}
         self.effects_found_ = []
+        self.ambiguous_ = []
+        self.warnings_ = []
+        self.gains_ = None
+        self.position_skipped_ = None
         unknown = [c for c in self.candidates if c not in EFFECT_NAMES]
         if unknown:
             raise ValueError(f"unknown candidate effects {unknown}; known: {EFFECT_NAMES}")
         sig = self._signals(data)
+        self.warnings_ = torque_warnings(sig)
+        for w in self.warnings_:
+            log.warning(w)
         if not sig.joints:
             why = "; ".join(f"joint {j + 1}: {r}" for j, r in sig.skipped.items())
             self.reason_ = ("no joint moved enough to compare the model with the data"
@@ -191,10 +213,12 @@ class ModelDiagnosis:
         self.declared_effects_ = set(declared.effects or {})
         self._prepare(sig)
         tests = [c for c in self.candidates if c not in self.declared_effects_]
-        # every test of the run: one per joint and candidate, and Stribeck twice (sliding data, breakaways)
-        n_tests = len(tests) + (1 if "stribeck" in tests else 0)
+        # every test of the run: one per joint and candidate, and Stribeck three times (sliding data,
+        # breakaways, friction map)
+        n_tests = len(tests) + (2 if "stribeck" in tests else 0)
+        self.map_tests_ = {}
         self.threshold_ = self.alpha / max(1, len(sig.joints) * max(1, n_tests))
-        torque_tests = [c for c in tests if c != "backlash"]
+        torque_tests = [c for c in tests if c != "backlash" and c not in ARM_ONLY]
         for j in sig.joints:
             self.joints_[j] = self._diagnose_joint(self.jd_[j], torque_tests)
         r2 = self._declared_r2()
@@ -207,14 +231,22 @@ class ModelDiagnosis:
             return self
         self._check_delay(torque_tests)
         self._check_payload()
+        self._check_breakaways(torque_tests)
+        if "link_parameters" in tests:
+            self._check_links()
         self.onsets_ = {}
         if "backlash" in tests or "stribeck" in tests:
             for j in sig.joints:
                 onset_tests(self, j, tests)
         self.effects_found_ = self._ranked_effects()
+        self.ambiguous_ = self._ambiguous_groups()
         report_effects(self)
+        for j, res in self.joints_.items():
+            res.unexplained = unexplained(self, j)
         self.conclusive_ = True
         self.positions_ = None
+        self.gains_ = None
+        self.position_skipped_ = None if self.simulator is not None else "no simulator given"
         if self.simulator is not None:
             self._position_check(data)
         return self
@@ -230,12 +262,18 @@ class ModelDiagnosis:
         kw = {} if self.window_s is None else {"window_s": self.window_s}
         if self.gauss_s is not None:
             kw["gauss_s"] = self.gauss_s
+        qd = None
+        if all(f"qd_{j}_rad_s" in data.data for j in range(1, 8)):
+            qd = data.col("qd")
+            qd = qd if np.isfinite(qd).all() else None
         self.signals_ = prepare_signals(data.t_s, data.col("q"), data.col("q_ref"), data.col("tau"),
-                                        float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints], **kw)
+                                        float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints],
+                                        qd_rad_s=qd, **kw)
         return self.signals_
 
     def _prepare(self, sig: Signals) -> None:
-        want_payload = "payload" in self.candidates and "payload" not in self.declared_effects_
+        want_payload = ("payload" in self.candidates and "payload" not in self.declared_effects_) or \
+            "link_parameters" in self.candidates
         des, self.jd_ = prepare_design(sig, self.dynamics_, self.declared_.friction, self.declared_.effects,
                                        self.n_blocks, self.n_folds, want_payload)
         self.design_ = des
@@ -243,13 +281,12 @@ class ModelDiagnosis:
         self.union_ = des.union
         self.rnea_full_ = des.rnea_Nm
         self.known_, self.known_other_ = des.known_Nm, des.known_other_Nm
-        self.tau_model_ = des.tau_Nm
 
     def _declared_r2(self) -> float:
         """Share of the moving joints' torque variance the fitted declared model explains (held-out)."""
         ss_res, ss_tot = 0.0, 0.0
         for j, res in self.joints_.items():
-            tau = self.tau_model_[self.jd_[j].idx, j]
+            tau = self.jd_[j].extra["tau"]
             ss_res += finite_ss(res.e_base)
             ss_tot += float(np.sum((tau - tau.mean()) ** 2))
         return 1.0 - ss_res / ss_tot if ss_tot > 0 else 0.0
@@ -259,14 +296,39 @@ class ModelDiagnosis:
         excluded beforehand, with the reason); Stribeck seen at the breakaways under the declared model is
         offered first (when a joint sticks and slips, few sliding samples remain)."""
         res = joint_baseline(self.design_, jd)
-        pre = None
+        pre = {}
         if "stribeck" in tests and "stribeck" not in (rejected or {}):
-            pre = stribeck_at_breakaways(self, jd.j)
-        return forward_select(self.design_, jd, res, tests, self.threshold_, self.max_steps, pre, rejected)
+            pre = {"breakaways": stribeck_at_breakaways(self, jd.j), "map": self._map_evidence(jd.j)}
+            pre = {k: v for k, v in pre.items() if v is not None}
+
+        def onset_recheck(name: str, other: dict) -> dict | None:
+            """Stribeck seen at the breakaways, tested again with a measurement delay in the model (a delay
+            leaves the friction map of steady segments and the other candidates leave the breakaway levels as
+            they are)."""
+            if name != "stribeck" or other["name"] != "delay":
+                return None
+            if "map" in pre:
+                return pre["map"]
+            d = float(np.median([h for h in other["h_fold"] if h is not None]))
+            return stribeck_at_breakaways(self, jd.j, extra_delay_s=d, test_only=True)
+
+        return forward_select(self.design_, jd, res, tests, self.threshold_, self.max_steps, pre, rejected,
+                              onset_recheck)
+
+    def _map_evidence(self, j: int) -> dict | None:
+        """The friction map's Stribeck test of 0-based joint ``j`` when it passes and is plausible (else None;
+        every map test is kept in ``map_tests_``)."""
+        if j not in self.map_tests_:
+            self.map_tests_[j] = map_evidence(self, j)
+        ev = self.map_tests_[j]
+        if ev is None or not ev["plausible"] or ev["p_value"] >= self.threshold_ or ev["delta_bic"] >= 0:
+            return None
+        return ev
 
     def _check_delay(self, tests: list[str]) -> None:
         """One delay for the arm: joints whose delay disagrees are diagnosed again without it."""
-        for j, why in delay_disagreements(self.joints_, self.signals_.dt_s).items():
+        for j, why in delay_disagreements(self.joints_, self.signals_.dt_s, self.design_,
+                                                     self.jd_).items():
             log.info("joint %d: %s", j + 1, why)
             self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"delay": why})
 
@@ -278,14 +340,16 @@ class ModelDiagnosis:
         fit = payload_fit(self.design_, self.joints_, self.jd_)
         if fit is None:
             return
-        why = payload_rejection(fit)
+        why = payload_rejection(fit) or payload_inconsistency(self.design_, self.joints_, self.jd_, fit)
         if why is not None:
             log.info(why)
-            tests = [c for c in self.candidates if c not in self.declared_effects_ and c != "backlash"]
+            tests = [c for c in self.candidates if c not in self.declared_effects_ and c != "backlash"
+                     and c not in ARM_ONLY]
             for j in [jj - 1 for jj in fit["joints_fitted"]]:
                 self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"payload": why})
             return
         self.payload_ = {k: v for k, v in fit.items() if k != "pi"}
+        self.payload_ci_ = payload_uncertainty(self.design_, self.joints_, self.jd_)
         # one column per joint (its torque), fitted without each fold for the held-out figures, and on all
         # data for the model
         self.payload_pi_ = self.design_.payload_pi = fold_payloads(self.design_, self.joints_, self.jd_, fit)
@@ -294,16 +358,105 @@ class ModelDiagnosis:
             terms = global_payload_terms(res.kept, self.n_folds)
             set_after(self.design_, res, jd, terms, cv_terms(self.design_, jd, terms))
 
+    def _check_breakaways(self, tests: list[str]) -> None:
+        """A Stribeck effect seen only at the breakaways is tested there again under the final model with the
+        other effects kept at the joint (a payload, a ripple, a delay change the torque a joint withstood before
+        it moved); the joint is diagnosed again without it when the breakaways no longer show it."""
+        from wamctl.analysis.diagnosis.onsets import onset_model
+
+        for j, res in list(self.joints_.items()):
+            t = next((t for t in res.kept if t["name"] == "stribeck" and t.get("seen") == "at the breakaways"), None)
+            if t is None or len(res.kept) < 2:
+                continue
+            r = stribeck_at_breakaways(self, j, test_only=True, model=onset_model(self, j, exclude=("stribeck",)))
+            if r is not None and r["kept"]:
+                continue
+            why = ("the breakaways show no Stribeck effect once the joint's other effects ("
+                   + ", ".join(k["name"] for k in res.kept if k["name"] != "stribeck") + ") are in the model")
+            log.info("joint %d: %s", j + 1, why)
+            self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"stribeck": why})
+
+    def _check_links(self) -> None:
+        """``link_parameters`` against the current model (see :mod:`wamctl.analysis.diagnosis.links`): named in
+        place of the payload (or on its own) where a refit of the arm's parameters adds to it; else, with a
+        payload kept, the payload wins and its candidates say so."""
+        from wamctl.analysis.diagnosis.crossval import cv_terms
+        from wamctl.analysis.diagnosis.links import links_test, links_uncertainty
+
+        t = links_test(self.design_, self.joints_, self.jd_, self.threshold_)
+        self.links_test_ = None if t is None else {k: v for k, v in t.items() if k not in ("e", "betas")}
+        self.links_report_ = None
+        if t is None:
+            return
+        evidence = {k: t[k] for k in ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")}
+        record = {"vs": "link_parameters", "p_this_beyond": float("nan"), "p_other_beyond": float(t["p_value"])}
+        if not t["passes"]:
+            for res in self.joints_.values():
+                if "payload" in res.candidates and res.candidates["payload"].get("kept"):
+                    res.candidates["payload"].setdefault("head_to_head", []).append(dict(record, outcome="wins"))
+                res.candidates["link_parameters"] = dict(evidence, kept=False, reason=(
+                    "a refit of the arm's link parameters does not add to the model of the joints "
+                    + ("with the payload " if t["has_payload"] else "") + f"(p = {t['p_value']:.3g})"))
+            return
+        params, ci = links_uncertainty(self.design_, self.joints_, self.jd_, t)
+        self.links_report_ = {"params": params, "params_ci": ci,
+                              "not_identified": [f"d_{n}" for n in t["not_identified"]]}
+        des = self.design_
+        des.links_beta, des.links_cols = t["betas"], t["cols"]
+        for j in t["helped"]:
+            res, jd = self.joints_[j], self.jd_[j]
+            gain = (finite_ss(res.e_after) - finite_ss(t["e"][j])) / max(finite_ss(res.e_base), 1e-300)
+            term = {"name": "link_parameters", "h_fold": [("links", f) for f in range(self.n_folds)],
+                    "h_all": ("links", None), "fixed_h": ("links", None), "evidence": evidence, "gain": gain,
+                    "rms_before_Nm": float(np.sqrt(np.nanmean(res.e_after ** 2))),
+                    "rms_after_Nm": float(np.sqrt(np.nanmean(t["e"][j] ** 2)))}
+            had_payload = any(k["name"] == "payload" for k in res.kept)
+            terms = [k for k in res.kept if k["name"] != "payload"] + [term]
+            set_after(des, res, jd, terms, cv_terms(des, jd, terms))
+            res.candidates["link_parameters"] = dict(evidence, kept=True, reason="kept (refit over the arm)")
+            if had_payload:
+                res.candidates["payload"] = dict(res.candidates.get("payload", {}), kept=False, reason=(
+                    "a refit of the arm's link parameters explains the data better than a payload "
+                    f"(p = {t['p_value']:.3g} that it adds nothing to the payload)"),
+                    head_to_head=[dict(record, outcome="loses")])
+        if not any(any(k["name"] == "payload" for k in r.kept) for r in self.joints_.values()):
+            self.payload_ = None
+
     def _ranked_effects(self) -> list[str]:
-        """Effect names kept anywhere, by their largest held-out gain."""
+        """Effect names kept anywhere, strongest evidence first: the smallest p-value of each name (p-values
+        below 1e-300 tie), then its largest held-out gain."""
         strength = {}
         for res in self.joints_.values():
             for k in res.kept:
-                strength[k["name"]] = max(strength.get(k["name"], 0.0), k["gain"])
-        return sorted(strength, key=lambda n: -strength[n])
+                p = max(float(k["evidence"].get("p_value", 1.0)), 1e-300)
+                key = (-np.log10(p), k["gain"])
+                strength[k["name"]] = max(strength.get(k["name"], key), key)
+        return sorted(strength, key=lambda n: strength[n], reverse=True)
+
+    def _ambiguous_groups(self) -> list[tuple[str, ...]]:
+        """The ambiguous groups of every joint, each once (names sorted)."""
+        groups = []
+        for res in self.joints_.values():
+            for g in res.ambiguous:
+                key = tuple(sorted(g["names"]))
+                if key not in groups:
+                    groups.append(key)
+        return groups
 
     def _position_check(self, data) -> None:
-        pc = position_check(self, data, self.simulator, self.max_sim_samples or MAX_SIM_SAMPLES)
+        """The closed-loop position check, with the controller's gains the log shows (or skipped, said why)."""
+        from wamctl.analysis.diagnosis.gains import controller_gains
+
+        mp = self.meta_.payload
+        ctl = WamDynamics(Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None)
+        self.gains_ = controller_gains(self.signals_, self.meta_, ctl.gravity)
+        if self.gains_["kp"] is None:
+            self.position_skipped_ = self.gains_["reason"]
+            log.warning("closed-loop position check skipped: %s", self.position_skipped_)
+            return
+        meta = self.meta_.model_copy(update={"controller": self.meta_.controller.model_copy(
+            update={"kp": self.gains_["kp"], "kd": self.gains_["kd"]})})
+        pc = position_check(self, data, self.simulator, self.max_sim_samples or MAX_SIM_SAMPLES, meta)
         self.positions_ = pc
         for j, res in self.joints_.items():
             res.position_rms_before_rad = pc["rms_before"].get(j, float("nan"))

@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import DELAY_GRID_S, MAX_BREAKAWAY_RATIO, STRIBECK_VS_GRID_RAD_S
-from wamctl.analysis.diagnosis.crossval import cv_residual, fit_all
+from wamctl.analysis.diagnosis.crossval import cv_residual, cv_terms, fit_all
 from wamctl.analysis.diagnosis.design import (
     N_COLUMNS,
     N_FRICTION,
@@ -26,11 +26,11 @@ from wamctl.analysis.diagnosis.design import (
     split_coefs,
     target_and_design,
 )
+from wamctl.analysis.diagnosis.headtohead import p_extra, passes, tournament
 from wamctl.analysis.diagnosis.onsets import slip_vs
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss, nested_test, whiteness_p
+from wamctl.model import params as P
 
-HAS_GRID = {"stribeck": True, "position_ripple": True, "payload": False, "delay": True,
-            "friction_drift": True, "backlash": False}
 EVIDENCE_KEYS = ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")
 UNTESTED = {"p_value": float("nan"), "delta_bic": float("nan")}
 
@@ -58,6 +58,8 @@ class JointResult:
     position_rms_before_rad: float = float("nan")
     position_rms_after_rad: float = float("nan")
     effects: list[dict] = field(default_factory=list)         # report-ready: name, params, evidence
+    ambiguous: list[dict] = field(default_factory=list)       # groups no member of which won: names, evidence
+    unexplained: dict | None = None                           # what the final residual still correlates with
 
 
 def joint_baseline(des: Design, jd: JointData) -> JointResult:
@@ -74,93 +76,200 @@ def joint_baseline(des: Design, jd: JointData) -> JointResult:
 
 
 def forward_select(des: Design, jd: JointData, res: JointResult, tests: list[str], threshold: float,
-                   max_steps: int, pre: tuple | None = None, rejected: dict | None = None) -> JointResult:
+                   max_steps: int, pre: dict | None = None, rejected: dict | None = None,
+                   onset_recheck=None) -> JointResult:
     """Forward selection of the torque-domain candidates ``tests`` at one joint, from ``joint_baseline``.
 
-    ``pre``: (test, onsets) when the breakaways under the declared model show a Stribeck effect
-    (:func:`wamctl.analysis.diagnosis.onset_tests.stribeck_at_breakaways`). ``rejected`` maps candidates
-    excluded beforehand to the reason (e.g. a payload whose mass fitted over all joints is not positive)."""
+    At each step every remaining candidate is tested against the current model; the plausible ones that pass
+    meet head to head (:mod:`wamctl.analysis.diagnosis.headtohead`): one is kept only when it wins clearly,
+    otherwise the group is reported as ambiguous (``res.ambiguous``) and kept out of the named model.
+    ``pre``: ``{"breakaways": (test, onsets) or None, "map": test or None}`` when the breakaways under the
+    declared model (:func:`wamctl.analysis.diagnosis.onset_tests.stribeck_at_breakaways`) or the friction map of
+    steady segments (:func:`wamctl.analysis.diagnosis.sweeps.map_evidence`) show a Stribeck effect: at the first
+    step that Stribeck candidate replaces the one fitted on the sliding samples. ``rejected`` maps candidates
+    excluded beforehand to the reason. ``onset_recheck``: see
+    :func:`wamctl.analysis.diagnosis.headtohead.beyond_tests`."""
     rejected = dict(rejected or {})
     terms: list[dict] = []
+    hidden: list[dict] = []            # terms of ambiguous groups: in the model searched from, never named
     current = res.e_base
     remaining = [c for c in tests if c not in rejected]
-    last = {}
+    last: dict = {}
+    res.ambiguous = []
+    base_ssr = finite_ss(res.e_base)
     for step in range(max_steps):
-        trial = _trial(des, jd, terms, remaining, res.e_base, current)
-        for c, (t, _, _) in trial.items():
-            last[c] = dict(t, step=step)
-        passing = sorted((c for c, (t, _, _) in trial.items() if t["p_value"] < threshold and t["delta_bic"] < 0),
-                         key=lambda c: trial[c][0]["ssr_ratio"])
-        if step == 0 and pre is not None and "stribeck" in remaining and \
-                (not passing or passing[0] == "stribeck"
-                 or pre[0]["p_value"] < min(trial[c][0]["p_value"] for c in passing)):
-            # seen at the breakaways too: their levels and the slips after them pin Fs and vs better than
-            # the few low-speed sliding samples a joint that sticks and slips leaves
-            term, e1 = _stribeck_from_breakaways(des, jd, terms, pre)
-            terms.append(term)
-            last["stribeck"] = dict(term["evidence"], step=step, reason="kept (seen at the breakaways)")
-            current = e1 if finite_ss(e1) < finite_ss(current) else current
-            remaining.remove("stribeck")
-            continue
-        chosen = _first_plausible(des, jd, terms, passing, trial, last, remaining)
-        if chosen is None:
+        model_terms = terms + hidden
+        entries = _entries(des, jd, model_terms, remaining, res.e_base, current, step, last)
+        if step == 0 and pre and "stribeck" in remaining:
+            entries["stribeck"] = _stribeck_seen_elsewhere(des, jd, model_terms, pre)
+            seen = entries["stribeck"]["term"]["seen"]
+            last["stribeck"] = dict(entries["stribeck"]["test"], step=step, reason=f"kept (seen {seen})")
+        passing = sorted((c for c, en in entries.items() if passes(en["test"], threshold)),
+                         key=lambda c: finite_ss(entries[c]["e"]))
+        plaus = _plausible_all(des, jd, model_terms, passing, entries, last, remaining)
+        if not plaus:
             break
-        c, t, h_fold, e1 = chosen
-        base_ssr = finite_ss(res.e_base)
-        gain = (finite_ss(current) - finite_ss(e1)) / base_ssr if base_ssr > 0 else 0.0
-        terms.append({"name": c, "h_fold": h_fold, "evidence": t, "gain": gain})
-        current = e1
+        winner, group, records = tournament(des, jd, model_terms, [entries[c] for c in plaus], res.e_base,
+                                            threshold, onset_recheck)
+        for c, recs in records.items():
+            if recs:
+                last[c]["head_to_head"] = recs
+        if winner is None:
+            names = [g["name"] for g in group]
+            res.ambiguous.append({"names": names, "step": step,
+                                  "evidence": {g["name"]: _evidence(g["test"]) for g in group}})
+            for g in group:
+                last[g["name"]]["reason"] = ("ambiguous: neither of " + " and ".join(names)
+                                             + " explains the held-out residual clearly better than the other")
+                remaining.remove(g["name"])
+            hidden += [g["term"] for g in group]
+            current = cv_terms(des, jd, terms + hidden)
+            continue
+        c = winner["name"]
+        gain = (finite_ss(current) - finite_ss(winner["e"])) / base_ssr if base_ssr > 0 else 0.0
+        if winner["term"].get("onset_test"):      # its evidence is where it was seen, not the sliding samples
+            gain = max(gain, 1.0 - winner["test"].get("ssr_ratio", 1.0))
+        term = dict(winner["term"], evidence=_evidence(winner["test"]), gain=gain,
+                    rms_before_Nm=rms(current), rms_after_Nm=rms(winner["e"]))
+        terms.append(term)
+        current = winner["e"]
         remaining.remove(c)
-    set_after(des, res, jd, terms, current)
+    terms, dropped = _backward(des, jd, terms, hidden, res.e_base, threshold)
+    for c, why in dropped.items():
+        last[c] = dict(last.get(c, UNTESTED), reason=why)
+    e_after = current if not (hidden or dropped) else cv_terms(des, jd, terms)
+    set_after(des, res, jd, terms, e_after)
     res.candidates = _candidate_table(res, tests, rejected, last, threshold)
     return res
 
 
-def _trial(des: Design, jd: JointData, terms: list[dict], remaining: list[str], e_base: np.ndarray,
-           current: np.ndarray) -> dict:
-    """{candidate: (test, per-fold shape parameters, held-out residual)} of each remaining candidate added
-    to ``friction + terms``."""
-    trial = {}
+def _backward(des: Design, jd: JointData, terms: list[dict], hidden: list[dict], e_base: np.ndarray,
+              threshold: float) -> tuple[list[dict], dict]:
+    """Backward check of the effects kept (one was kept before a later one that explains the same part of the
+    residual better): each must still add to the model with all the others, at the run's threshold; the weakest
+    that does not is dropped, and so on. Effects seen at the breakaways or on the friction map are judged there.
+    Returns the terms kept and {name: why} of the dropped ones."""
+    dropped = {}
+    while len(terms) >= 2:
+        e_full = cv_terms(des, jd, terms + hidden)
+        worst, worst_p = None, -1.0
+        for i, t in enumerate(terms):
+            if t.get("onset_test"):
+                continue
+            others = terms[:i] + terms[i + 1:]
+            e0 = cv_terms(des, jd, others + hidden)
+            k1 = N_FRICTION + sum(ncols(x) for x in terms + hidden)
+            share = finite_ss(e_base) / max(finite_ss(e0), 1e-300)
+            test = nested_test(e0, e_full, p_extra(t["name"]), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
+            if not passes(test, threshold) and test["p_value"] > worst_p:
+                worst, worst_p = i, test["p_value"]
+        if worst is None:
+            break
+        t = terms.pop(worst)
+        dropped[t["name"]] = ("does not add to the other effects found (" + ", ".join(x["name"] for x in terms)
+                              + f"): p = {worst_p:.3g} once they are in the model")
+    return terms, dropped
+
+
+def rms(e: np.ndarray) -> float:
+    """Root mean square of the finite entries of a held-out residual."""
+    e = np.asarray(e, float)
+    e = e[np.isfinite(e)]
+    return float(np.sqrt(np.mean(e ** 2))) if len(e) else float("nan")
+
+
+def _evidence(t: dict) -> dict:
+    return {k: t[k] for k in EVIDENCE_KEYS if k in t}
+
+
+def _entries(des: Design, jd: JointData, terms: list[dict], remaining: list[str], e_base: np.ndarray,
+             current: np.ndarray, step: int, last: dict) -> dict:
+    """{candidate: entry} of each remaining candidate added to ``friction + terms``: its test against the current
+    model, its term and held-out residual (see :func:`wamctl.analysis.diagnosis.headtohead.tournament`)."""
+    out = {}
     for c in remaining:
         if c == "payload" and "payload" not in jd.extra:
             continue
         e1, h_fold = cv_residual(des, jd, terms, c)
         k1 = N_FRICTION + sum(ncols(t) for t in terms) + N_COLUMNS[c]
-        p_extra = N_COLUMNS[c] + (1 if HAS_GRID[c] else 0)
         # the minimum effect is a share of what the declared model left, not of what is left now: after a
         # strong effect, the traces of its imperfect model are not new effects
         share = finite_ss(e_base) / max(finite_ss(current), 1e-300)
-        t = nested_test(current, e1, p_extra, k1, min(MIN_EFFECT * share, 0.9), jd.fold)
-        trial[c] = (t, h_fold, e1)
-    return trial
+        t = nested_test(current, e1, p_extra(c), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
+        out[c] = {"name": c, "test": t, "e": e1, "term": {"name": c, "h_fold": h_fold}}
+        last[c] = dict(t, step=step)
+    return out
 
 
-def _stribeck_from_breakaways(des: Design, jd: JointData, terms: list[dict], pre: tuple) -> tuple[dict, np.ndarray]:
-    """The Stribeck term seen at the breakaways (its velocity from the slips after them) and the held-out
-    residual with it."""
-    r, ons = pre
-    ratio = float(np.exp(r["coef"]))
-    vs = slip_vs(ons["windows"], des.sig.dt_s, ratio) or float(np.median(STRIBECK_VS_GRID_RAD_S))
-    e1, h_fold = cv_residual(des, jd, terms, "stribeck", vs)
-    ev = {k: r[k] for k in EVIDENCE_KEYS}
-    term = {"name": "stribeck", "h_fold": h_fold, "fixed_h": vs, "evidence": ev, "gain": 1.0 - r["ssr_ratio"],
-            "onset_ratio": ratio, "onset_vs": vs, "onset_test": True}
-    return term, e1
+def _stribeck_seen_elsewhere(des: Design, jd: JointData, terms: list[dict], pre: dict) -> dict:
+    """The Stribeck candidate seen on the friction map of steady segments or at the breakaways: an entry with
+    that test as its evidence (the smaller p-value of the two), the shape measured there (the map's fit when the
+    map shows the hump; else the breakaway ratio of each direction and the velocity from the slips after the
+    breakaways) and the held-out residual with it."""
+    mp, br = pre.get("map"), pre.get("breakaways")
+    if mp is not None:
+        shape, seen, test = mp["shape"], "on the friction map of steady segments", mp
+    else:
+        r, ons = br
+        shape, seen, test = breakaway_shape(ons, float(np.exp(r["coef"])), des.sig.dt_s), "at the breakaways", r
+        shape = _sliding_shape(des, jd, terms, shape)
+    if mp is not None and br is not None and br[0]["p_value"] < mp["p_value"]:
+        test = br[0]
+    e1, h_fold = cv_residual(des, jd, terms, "stribeck", shape)
+    term = {"name": "stribeck", "h_fold": h_fold, "fixed_h": shape, "onset_test": True, "seen": seen}
+    if br is not None:
+        term["onsets"] = br[1]           # the onsets its shape was measured at (for its intervals)
+    return {"name": "stribeck", "test": dict(_evidence(test), seen=seen), "e": e1, "term": term}
 
 
-def _first_plausible(des: Design, jd: JointData, terms: list[dict], passing: list[str], trial: dict, last: dict,
-                     remaining: list[str]):
-    """(name, test, per-fold shapes, residual) of the first passing candidate that is plausible once fitted on
-    all data, or None; the implausible ones are dropped from ``remaining`` with their reason in ``last``."""
+SHAPE_DELTAS = (1.0, 1.5, 2.0)
+
+
+def _sliding_shape(des: Design, jd: JointData, terms: list[dict], shape: tuple) -> tuple:
+    """The breakaway ratios measured at the onsets, with the Stribeck velocity and exponent that best fit the
+    joint's sliding samples (the friction levels refitted): the slips after the breakaways give a velocity for
+    one exponent only, and the decay of real friction is not always Gaussian."""
+    rp, rn, vs0, _ = shape
+    best, arg = np.inf, shape
+    for delta in SHAPE_DELTAS:
+        for vs in np.r_[STRIBECK_VS_GRID_RAD_S, vs0]:
+            cand = (rp, rn, float(vs), delta)
+            y, X = target_and_design(des, jd, terms + [{"name": "stribeck", "fixed_h": cand, "h_all": cand}], None)
+            r = y - X @ fit_theta(X, y, des.bounded)
+            ssr = float(r @ r)
+            if ssr < best:
+                best, arg = ssr, cand
+    return arg
+
+
+def breakaway_shape(ons: dict, ratio: float, dt_s: float) -> tuple[float, float, float, float]:
+    """(ratio_pos, ratio_neg, vs, delta) of a Stribeck effect seen at the onsets ``ons``: the breakaway ratio of
+    each direction where it has two onsets or more (else the common ``ratio``), the velocity that best
+    reproduces the slips after the breakaways, the shape exponent 2."""
+    ok = np.isfinite(ons["breakaway_ratio"])
+    per = []
+    for sgn in (1.0, -1.0):
+        m = ok & (ons["sign"] == sgn)
+        per.append(float(np.clip(np.exp(np.mean(np.log(ons["breakaway_ratio"][m]))), 1.0, MAX_BREAKAWAY_RATIO))
+                   if m.sum() >= 2 else ratio)
+    vs = slip_vs(ons["windows"], dt_s, ratio) or float(np.median(STRIBECK_VS_GRID_RAD_S))
+    return per[0], per[1], float(vs), 2.0
+
+
+def _plausible_all(des: Design, jd: JointData, terms: list[dict], passing: list[str], entries: dict, last: dict,
+                   remaining: list[str]) -> list[str]:
+    """The passing candidates that are plausible once fitted on all data (in the order given); the implausible
+    ones are dropped from ``remaining`` with their reason in ``last``."""
+    out = []
     for c in passing:
-        t, h_fold, e1 = trial[c]
-        fitted, theta = fit_all(des, jd, terms + [{"name": c, "h_fold": h_fold}])
+        fitted, theta = fit_all(des, jd, terms + [entries[c]["term"]])
         ok, why = plausible(des, c, jd, fitted, theta)
         if ok:
-            return c, t, h_fold, e1
+            out.append(c)
+            continue
         last[c]["reason"] = why
         remaining.remove(c)
-    return None
+    return out
 
 
 def _candidate_table(res: JointResult, tests: list[str], rejected: dict, last: dict, threshold: float) -> dict:
@@ -175,6 +284,8 @@ def _candidate_table(res: JointResult, tests: list[str], rejected: dict, last: d
         elif c in kept_names:
             ev = next(k["evidence"] for k in res.kept if k["name"] == c)
             out[c] = dict(ev, kept=True, reason="kept")
+            if "head_to_head" in last[c]:
+                out[c]["head_to_head"] = last[c]["head_to_head"]
         else:
             t = last[c]
             out[c] = dict(t, kept=False, reason=t.get("reason") or why_rejected(t, threshold))
@@ -218,6 +329,8 @@ def plausible(des: Design, name: str, jd: JointData, terms: list[dict], theta: n
     """Whether candidate ``name``, fitted on all data with ``terms`` (coefficients ``theta``), is a physical
     effect, and why not."""
     if name == "stribeck":
+        if any(t["name"] == "stribeck" and isinstance(t.get("fixed_h"), tuple) for t in terms):
+            return True, ""            # its levels were measured (and judged) where they were seen
         return _stribeck_plausible(jd, split_coefs(terms, theta))
     if name == "position_ripple":
         return _ripple_plausible(des, jd, terms)
@@ -256,14 +369,53 @@ def _ripple_plausible(des: Design, jd: JointData, terms: list[dict]) -> tuple[bo
     if len(amps) == 2 and abs(amps[0] - amps[1]) > 0.5 * max(abs(amps[0]), abs(amps[1])):
         return False, (f"the ripple differs between the two directions of motion (amplitudes "
                        f"{abs(amps[0]):.3g} and {abs(amps[1]):.3g} N m): not a torque periodic in the angle")
+    return _ripple_repeats(des, jd, terms, h)
+
+
+ANGLE_FOLDS = 4
+
+
+def _ripple_repeats(des: Design, jd: JointData, terms: list[dict], period: float) -> tuple[bool, str]:
+    """A torque periodic in the angle repeats: fitted on three quarters of the joint's range of angles, it
+    predicts the fourth (each in turn) better than the model without it. A smooth trend over the range (a
+    link's mass or centre of mass off its declared value), which a sinusoid of a period close to the travel can
+    follow, does not extrapolate to angles it was not fitted on."""
+    travel = float(np.ptp(jd.q_rad))
+    folds = min(ANGLE_FOLDS, int(travel // period))
+    if folds < 2:
+        return False, (f"the joint's travel ({travel:.3g} rad) covers less than two periods of {period:.3g} rad: a "
+                       "torque periodic in the angle cannot be told from a trend over the range")
+    edges = np.linspace(jd.q_rad.min(), jd.q_rad.max(), folds + 1)        # angle ranges of a period or more
+    part = np.clip(np.searchsorted(edges, jd.q_rad, side="right") - 1, 0, folds - 1)
+    others = [t for t in terms if t["name"] != "position_ripple"]
+    y1, X1 = target_and_design(des, jd, terms, None)
+    y0, X0 = target_and_design(des, jd, others, None)
+    ss1 = ss0 = 0.0
+    for a in range(folds):
+        te, tr = part == a, part != a
+        if te.sum() < 20 or tr.sum() < X1.shape[1] + 20:
+            continue
+        r1 = y1[te] - X1[te] @ fit_theta(X1[tr], y1[tr], des.bounded)
+        r0 = y0[te] - X0[te] @ fit_theta(X0[tr], y0[tr], des.bounded)
+        ss1 += float(r1 @ r1)
+        ss0 += float(r0 @ r0)
+    if ss0 > 0 and ss1 >= ss0 * (1.0 - MIN_EFFECT):
+        return False, (f"a ripple of period {period:.3g} rad fitted on part of the joint's range does not predict "
+                       f"the rest (held-out angle ranges: {ss1 / ss0:.2f} of the residual without it): a trend "
+                       "over the range, not a torque periodic in the angle")
     return True, ""
 
 
+MIN_DELAY_S = 1.5e-3       # three quarters of a control period: below, the loop's own timing (ZOH, ticks)
+
+
 def _delay_plausible(h: float, dt_s: float) -> tuple[bool, str]:
-    """A delay inside the range searched and longer than one sample period."""
+    """A delay inside the range searched and longer than the timing conventions of the loop and the log can
+    account for (``MIN_DELAY_S``; at a log of the loop's rate or faster, one sample period)."""
     if h >= DELAY_GRID_S[-1] - 1e-12:
         return False, f"fitted delay at the end of the range searched ({h * 1e3:.1f} ms): not a delay"
-    if h < dt_s * (1 + 1e-9):
-        return False, (f"fitted delay {h * 1e3:.1f} ms is not longer than one sample period "
-                       f"({dt_s * 1e3:.1f} ms): within the timing convention of the log")
+    floor = max(MIN_DELAY_S, min(dt_s, 1.0 / P.CONTROL_RATE_HZ))
+    if h < floor * (1 + 1e-9):
+        return False, (f"fitted delay {h * 1e3:.1f} ms is not longer than {floor * 1e3:.1f} ms: within the "
+                       "timing conventions of the control loop and the log")
     return True, ""

@@ -12,26 +12,37 @@ threshold of the torque tests.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from wamctl.analysis.diagnosis.backlash import MIN_ONSETS, MIN_REVERSALS, onset_test
 from wamctl.analysis.diagnosis.candidates import MAX_BREAKAWAY_RATIO
 from wamctl.analysis.diagnosis.crossval import cv_residual
-from wamctl.analysis.diagnosis.joint import EVIDENCE_KEYS, UNTESTED, set_after, set_rms, why_rejected
+from wamctl.analysis.diagnosis.joint import (
+    EVIDENCE_KEYS,
+    UNTESTED,
+    breakaway_shape,
+    set_after,
+    set_rms,
+    why_rejected,
+)
 from wamctl.analysis.diagnosis.onsets import (
     direction_breakaway_ratio,
     geometric_mean,
     joint_onsets,
     onset_model,
-    slip_vs,
     stall_residual,
 )
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
 
+MIN_BREAKAWAY_RATIO = 1.2     # the breakaway is seen a sample or two late: a joint without Stribeck reads ~1.1
+
 
 def _stribeck_log_ratio_plausible(coef: float) -> bool:
-    """A breakaway above the Coulomb level, by at most ``MAX_BREAKAWAY_RATIO`` (``coef``: its log)."""
-    return 0 < coef <= np.log(MAX_BREAKAWAY_RATIO)
+    """A breakaway clearly above the Coulomb level (``MIN_BREAKAWAY_RATIO``: below, the detection's own lateness
+    can account for it), by at most ``MAX_BREAKAWAY_RATIO`` (``coef``: its log)."""
+    return np.log(MIN_BREAKAWAY_RATIO) <= coef <= np.log(MAX_BREAKAWAY_RATIO)
 
 
 def _public(r: dict) -> dict:
@@ -70,16 +81,25 @@ def onset_candidate(values: np.ndarray, rev: np.ndarray | None, fold: np.ndarray
     return out
 
 
-def stribeck_at_breakaways(diag, j: int) -> tuple[dict, dict] | None:
+def stribeck_at_breakaways(diag, j: int, extra_delay_s: float = 0.0, test_only: bool = False,
+                           model=None) -> tuple[dict, dict] | dict | None:
     """(test, onsets) when the breakaway ratios of 0-based joint ``j`` under the declared model show a
-    Stribeck effect, else None."""
-    ons = joint_onsets(diag.design_, diag.dynamics_, diag.jd_[j], onset_model(diag, j, declared=True))
+    Stribeck effect, else None. ``extra_delay_s``: a measurement delay added to the declared model (a late
+    measurement makes every breakaway look later, at a higher torque); ``test_only``: the test whatever it says
+    (None when there are too few onsets); ``model``: an :class:`~wamctl.analysis.diagnosis.onsets.OnsetModel`
+    other than the declared one."""
+    model = model or onset_model(diag, j, declared=True)
+    if extra_delay_s:
+        model = replace(model, delay_s=model.delay_s + float(extra_delay_s))
+    ons = joint_onsets(diag.design_, diag.dynamics_, diag.jd_[j], model)
     ratio = ons["breakaway_ratio"]
     ok = np.isfinite(ratio)
     if ok.sum() < MIN_ONSETS:
         return None
     r = onset_candidate(np.log(ratio[ok]), None, ons["fold"][ok], diag.n_folds, diag.threshold_,
                         _stribeck_log_ratio_plausible, lambda c: "")
+    if test_only:
+        return r
     return (r, ons) if r["kept"] else None
 
 
@@ -108,7 +128,7 @@ def onset_tests(diag, j: int, tests: list[str]) -> None:
         # Stribeck kept from the sliding samples: the breakaways measure its static level directly
         use = np.isfinite(ons["breakaway_ratio"]) & (~rev if found else True)
         t = next(t for t in res.kept if t["name"] == "stribeck")
-        if use.sum() >= MIN_ONSETS and not t.get("onset_ratio"):
+        if use.sum() >= MIN_ONSETS and not t.get("onset_ratio") and not isinstance(t.get("fixed_h"), tuple):
             rho = geometric_mean(ons["breakaway_ratio"][use])
             if 1.0 < rho <= MAX_BREAKAWAY_RATIO:
                 t["onset_ratio"] = rho
@@ -140,7 +160,8 @@ def _test_stribeck(diag, ons: dict, exclude_reversals: bool) -> dict:
     return onset_candidate(
         np.log(ons["breakaway_ratio"][same]), None, ons["fold"][same], diag.n_folds, diag.threshold_,
         _stribeck_log_ratio_plausible,
-        lambda coef: f"breakaway ratio {np.exp(coef):.2f} is not between 1 and {MAX_BREAKAWAY_RATIO:g}")
+        lambda coef: (f"breakaway ratio {np.exp(coef):.2f} is not between {MIN_BREAKAWAY_RATIO:g} (the lateness of "
+                      f"the detection) and {MAX_BREAKAWAY_RATIO:g}"))
 
 
 def _stribeck_levels_per_direction(res, ons: dict, backlash: bool) -> None:
@@ -148,7 +169,7 @@ def _stribeck_levels_per_direction(res, ons: dict, backlash: bool) -> None:
     slips one way only has few sliding samples there, and a ratio shared by both directions would inherit
     their Coulomb fit."""
     t = next((t for t in res.kept if t["name"] == "stribeck"), None)
-    if t is None:
+    if t is None or isinstance(t.get("fixed_h"), tuple):
         return
     use = np.isfinite(ons["breakaway_ratio"]) & (~ons["reversal"] if backlash else True)
     ons["use_breakaway"] = use
@@ -166,9 +187,8 @@ def add_onset_effect(diag, j: int, name: str, r: dict, ons: dict) -> None:
     if name == "backlash":
         extra["width_rad"] = float(r["coef"])
     else:
-        extra["onset_ratio"] = float(np.exp(r["coef"]))
-        extra["onset_vs"] = slip_vs(ons["windows"], des.sig.dt_s, extra["onset_ratio"])
-        extra["fixed_h"] = extra["onset_vs"]
+        extra["fixed_h"] = breakaway_shape(ons, float(np.exp(r["coef"])), des.sig.dt_s)
+        extra.update(onset_test=True, seen="breakaways")
     e1, h_fold = cv_residual(des, jd, res.kept, name, extra.get("fixed_h"))
     term = {"name": name, "h_fold": h_fold, "evidence": ev, "gain": 1.0 - r["ssr_ratio"], **extra}
     if finite_ss(e1) > finite_ss(res.e_after):

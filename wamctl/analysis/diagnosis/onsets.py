@@ -21,6 +21,7 @@ from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
 
 EXTEND_SAMPLES = 100        # samples of the slip kept after each stall (the slip velocity is fitted on them)
+MAX_ONSETS = 250            # onsets analysed per joint at most
 
 
 @dataclass
@@ -60,15 +61,15 @@ def payload_dynamics(declared: Payload | None, found: dict) -> WamDynamics:
     return WamDynamics(Payload(m, tuple(com)))
 
 
-def onset_model(diag, j: int, declared: bool = False) -> OnsetModel:
+def onset_model(diag, j: int, declared: bool = False, exclude: tuple[str, ...] = ()) -> OnsetModel:
     """The model of 0-based joint ``j`` of a fitted ``ModelDiagnosis`` at onsets: the final one (its kept
-    effects), or with ``declared`` the declared model fitted."""
+    effects but ``exclude``), or with ``declared`` the declared model fitted."""
     if declared:
         fr = levels_dict(levels(diag.declared_.friction, j, diag.jd_[j].extra["theta_before"]))
         kept = {}
     else:
         fr = diag.friction_after(j)
-        kept = {t["name"]: t for t in diag.joints_[j].kept}
+        kept = {t["name"]: t for t in diag.joints_[j].kept if t["name"] not in exclude}
 
     def params(name):
         return diag.effect_params(j, name) if name in kept else None
@@ -106,14 +107,26 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
     sig, j = des.sig, jd.j
     q_raw = sig.q_raw_rad[:, j]
     quantum, tol = detection_tolerance(sig, j)
-    ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, 2 * sig.reach)
-    tau_c = zoh_centred(sig.tau_raw_Nm[:, j])      # as for the sliding residual
+    cache = jd.extra.setdefault("_onsets", {})
+    if tol not in cache:     # the measured onsets depend on the signals only
+        ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, 2 * sig.reach)
+        if len(ons) > MAX_ONSETS:          # a long run: evenly spread over it, plenty for the tests
+            ons = [ons[i] for i in np.unique(np.linspace(0, len(ons) - 1, MAX_ONSETS).round().astype(int))]
+        cache[tol] = ons
+    ons = cache[tol]
+    tau_c = zoh_centred(sig.tau_raw_Nm[:, j], sig.zoh_share)      # as for the sliding residual
     tau_c_decl = delayed(sig.t_s, tau_c, model.delay_declared_s) if model.delay_declared_s > 0 else tau_c
     if model.delay_s > 0:   # positions measured d late: the torque that moved the link to q_meas(t) acted at t - d
         tau_c = delayed(sig.t_s, tau_c, model.delay_s)
     travel, ratio, windows = [], [], []
-    for o in ons:
-        w = _onset_window(des, dyn0, j, o, model, tau_c, tau_c_decl, extend)
+    # the smoothed state the windows need, evaluated at once (a long run has no full-rate arrays)
+    spans = [np.arange(o.start, min(o.end + extend, sig.n)) for o in ons]
+    cut = np.cumsum([0] + [len(ii) for ii in spans])
+    qdd_all = sig.smooth_at(sig.q_raw_rad[:, j], np.concatenate(spans), 0.0, 2) if ons else np.zeros(0)
+    q_ends = sig.at("q", np.array([o.end for o in ons], int)) if ons else np.zeros((0, 7))
+    for k, o in enumerate(ons):
+        state = {"ii": spans[k], "qdd_j": qdd_all[cut[k]:cut[k + 1]], "q_end": q_ends[k]}
+        w = _onset_window(des, dyn0, j, o, model, tau_c, tau_c_decl, state)
         stall = o.end - o.start
         f = w["friction"]
         fsp = f["fc_pos_Nm"] * model.fs_ratio[0] if model.fs_ratio else None
@@ -132,15 +145,16 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
 
 
 def _onset_window(des: Design, dyn0: WamDynamics, j: int, o, model: OnsetModel, tau_c: np.ndarray,
-                  tau_c_decl: np.ndarray, extend: int) -> dict:
+                  tau_c_decl: np.ndarray, state: dict) -> dict:
     """Torque available (final and declared model), inertia, friction and measured travel through onset
-    ``o`` (a :class:`wamctl.analysis.diagnosis.backlash.Onset`) and ``extend`` samples after it."""
+    ``o`` (a :class:`wamctl.analysis.diagnosis.backlash.Onset`) and the samples after it: ``state`` holds the
+    window's samples ``ii``, the joint's smoothed acceleration there ``qdd_j`` and the position ``q_end``."""
     sig = des.sig
     q_raw = sig.q_raw_rad[:, j]
-    ii = np.arange(o.start, min(o.end + extend, sig.n))
-    b_jj = float(dyn0.mass_matrix(sig.q_rad[o.end])[j, j])
+    ii, q_end = state["ii"], state["q_end"]
+    b_jj = float(dyn0.mass_matrix(q_end)[j, j])
     # the rigid body without the joint's own acceleration (its velocity is ~0 in a stall)
-    rigid = des.rnea_Nm[ii, j] - b_jj * sig.qdd_rad_s2[ii, j] + des.known_other_Nm[ii, j]
+    rigid = des.rnea_Nm[ii, j] - b_jj * state["qdd_j"] + des.known_other_Nm[ii, j]
     u_decl = tau_c_decl[ii] - rigid
     u = tau_c[ii] - rigid
     dyn = model.dynamics
@@ -154,7 +168,7 @@ def _onset_window(des: Design, dyn0: WamDynamics, j: int, o, model: OnsetModel, 
         scale = float(friction_drift_scale(o.t_s - sig.t_s[0], model.drift["fraction"],
                                            model.drift["time_constant_s"]))
     f = {k: max(v, 0.0) * scale for k, v in model.friction.items()}
-    inertia = b_jj if dyn is dyn0 else float(dyn.mass_matrix(sig.q_rad[o.end])[j, j])
+    inertia = b_jj if dyn is dyn0 else float(dyn.mass_matrix(q_end)[j, j])
     stall = o.end - o.start
     return {"u": u, "u_declared": u_decl[:stall], "inertia": inertia, "friction": f, "start": o.start,
             "end": o.end, "sign": o.sign_new, "q": q_raw[ii] - q_raw[o.start], "reversal": o.reversal,
@@ -165,12 +179,10 @@ def _payload_torque(dyn: WamDynamics, dyn0: WamDynamics, sig: Signals, ii: np.nd
     """(len(ii),) torque a kept payload adds at joint ``j`` along samples ``ii`` (the joint's own velocity and
     acceleration zeroed), computed every 10 ms and interpolated."""
     pts = np.unique(np.r_[ii[::5], ii[-1]])
-    extra_t = []
-    for i in pts:
-        qd_i, qdd_i = sig.qd_rad_s[i].copy(), sig.qdd_rad_s2[i].copy()
-        qd_i[j] = qdd_i[j] = 0.0
-        extra_t.append(dyn.inverse_dynamics(sig.q_rad[i], qd_i, qdd_i)[j]
-                       - dyn0.inverse_dynamics(sig.q_rad[i], qd_i, qdd_i)[j])
+    Q, QD, QDD = sig.at("q", pts), sig.at("qd", pts).copy(), sig.at("qdd", pts).copy()
+    QD[:, j] = QDD[:, j] = 0.0
+    extra_t = [dyn.inverse_dynamics(Q[k], QD[k], QDD[k])[j] - dyn0.inverse_dynamics(Q[k], QD[k], QDD[k])[j]
+               for k in range(len(pts))]
     return np.interp(ii, pts, extra_t)
 
 

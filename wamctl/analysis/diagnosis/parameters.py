@@ -64,6 +64,10 @@ def kept_effect_params(diag, j: int, name: str, theta: np.ndarray | None = None)
                             declared_levels(diag.design_, jd), h)
     if name == "backlash":
         return backlash_params(t, coef, diag.onsets_.get(j, {}))
+    if name == "link_parameters":
+        rep = getattr(diag, "links_report_", None) or {"params": {}}
+        return dict(rep["params"], joints_fitted=[jj + 1 for jj, r in diag.joints_.items()
+                                                  if any(k["name"] == "link_parameters" for k in r.kept)])
     raise ValueError(name)
 
 
@@ -71,8 +75,15 @@ def stribeck_params(fr: np.ndarray, coef: np.ndarray, vs_rad_s: float, term: dic
     """Breakaway and Coulomb levels per direction and the Stribeck velocity, from the absolute classic levels
     ``fr`` (4,) and the breakaway excess ``coef`` (2,); a term found at the breakaways takes the levels the
     joint withstood there."""
+    shape = term.get("fixed_h")
+    if isinstance(shape, tuple):        # measured at the breakaways or on the friction map
+        rp, rn, vs, delta = shape
+        return {"Fs_pos_Nm": float(rp * fr[0]), "Fs_neg_Nm": float(rn * fr[1]), "Fc_pos_Nm": float(fr[0]),
+                "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(vs), "stribeck_delta": float(delta),
+                "Fs_from": term.get("seen", "breakaways")}
     out = {"Fs_pos_Nm": float(fr[0] + coef[0]), "Fs_neg_Nm": float(fr[1] + coef[1]),
-           "Fc_pos_Nm": float(fr[0]), "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(vs_rad_s)}
+           "Fc_pos_Nm": float(fr[0]), "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(vs_rad_s),
+           "stribeck_delta": 2.0}
     if term.get("onset_ratio"):
         rho = term.get("onset_ratio_dir", {})
         out["Fs_pos_Nm"] = rho.get("pos", term["onset_ratio"]) * out["Fc_pos_Nm"]
@@ -111,12 +122,47 @@ def backlash_params(term: dict, coef: np.ndarray, ons: dict) -> dict:
 
 
 def report_effects(diag) -> None:
-    """Set every joint's report-ready ``effects`` (name, parameters, evidence) of a fitted ``ModelDiagnosis``."""
+    """Set every joint's report-ready ``effects`` (name, parameters, their 95 % intervals and what the data
+    cannot determine, evidence, held-out RMS before and after the effect) of a fitted ``ModelDiagnosis``."""
+    from wamctl.analysis.diagnosis.intervals import joint_intervals
+
     for j, res in diag.joints_.items():
         res.effects = []
+        intervals = joint_intervals(diag, j)
         for t in res.kept:
             ev = t["evidence"]
             test = TEST_NAME if t["name"] != "backlash" else ONSET_TEST_NAME
-            res.effects.append({"name": t["name"], "params": kept_effect_params(diag, j, t["name"]),
-                                "evidence": {"test": test, "p_value": float(ev["p_value"]),
-                                             "delta_bic": float(ev["delta_bic"])}})
+            params = kept_effect_params(diag, j, t["name"])
+            if t["name"] == "payload":
+                ci, ni = getattr(diag, "payload_ci_", ({}, []))
+                params = payload_params(params, ni)
+            elif t["name"] == "link_parameters":
+                rep = diag.links_report_
+                ci, ni = rep["params_ci"], rep["not_identified"]
+            else:
+                ci, ni = intervals[t["name"]]["params_ci"], intervals[t["name"]]["not_identified"]
+                params = {k: (None if k in ni else v) for k, v in params.items()}
+            entry = {"name": t["name"], "params": params, "params_ci": ci, "not_identified": list(ni),
+                     "evidence": {"test": test, "p_value": float(ev["p_value"]), "delta_bic": float(ev["delta_bic"])}}
+            if t.get("onset_test") and t["name"] == "stribeck":
+                entry["evidence"]["test"] = ONSET_TEST_NAME
+            for k in ("rms_before_Nm", "rms_after_Nm"):
+                if k in t:
+                    entry[f"torque_{k}"] = float(t[k])
+            res.effects.append(entry)
+
+
+def payload_params(p: dict, not_identified: list[str]) -> dict:
+    """A payload's parameters with the centre of mass also by component (``com_x_m`` ...), the ones the data
+    cannot determine set to None (also in ``com_m``)."""
+    out = dict(p)
+    com = list(p["com_m"])
+    for i, ax in enumerate("xyz"):
+        key = f"com_{ax}_m"
+        out[key] = None if key in not_identified else float(com[i])
+        if key in not_identified:
+            com[i] = None
+    out["com_m"] = com
+    if "mass_kg" in not_identified:
+        out["mass_kg"] = None
+    return out

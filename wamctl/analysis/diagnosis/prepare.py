@@ -14,7 +14,7 @@ import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import ripple_gain
 from wamctl.analysis.diagnosis.design import Design, JointData
-from wamctl.analysis.diagnosis.signals import Signals, delayed, interp_columns
+from wamctl.analysis.diagnosis.signals import Signals, interp_columns
 from wamctl.model import params as P
 from wamctl.model.dynamics import WamDynamics
 from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
@@ -22,7 +22,7 @@ from wamctl.model.friction import FrictionModel
 
 N7 = P.N_JOINTS
 MAX_SAMPLES_PER_JOINT = 8000      # decimation above this (smoothed signals: little information is lost)
-MAX_RNEA_GRID = 60000             # full-rate rigid-body torque: interpolated from at most this many samples
+MAX_RNEA_GRID = 30000             # full-rate rigid-body torque: interpolated from at most this many samples
 MAX_STIFFNESS_GRID = 3000         # gravity stiffness: computed at about this many samples, interpolated
 PAYLOAD_REGRESSOR = slice(60, 70)   # the link-7 columns of the joint torque regressor (m, m c, inertia)
 
@@ -50,35 +50,52 @@ def prepare_design(sig: Signals, dyn: WamDynamics, friction_given: FrictionModel
     dgdq_c = _gravity_stiffness(dyn, sig, coarse)
     known, known_other = declared_torque(sig, friction_given, effects)
     delay = declared_delay_s(effects)
-    tau = delayed(sig.t_s, sig.tau_Nm, delay) if delay > 0 else sig.tau_Nm
-    des = Design(sig, _rigid_body_full(dyn, sig), known, known_other, tau, friction_given, n_folds, dec, union)
+    des = Design(sig, _rigid_body_full(dyn, sig), known, known_other, None, friction_given, n_folds, dec, union)
     pos = np.searchsorted(union, np.arange(sig.n))
     jds = {}
     for j in sig.joints:
         idx = np.flatnonzero(keep & sig.moving[:, j])
         u = pos[idx]
         block = np.minimum((np.arange(len(idx)) * n_blocks) // max(len(idx), 1), n_blocks - 1)
-        y = tau[idx, j] - rnea[u, j] - known[idx, j]
-        extra = {"t_rel": sig.t_s[idx] - sig.t_s[0], "block": block,
+        tau_j = sig.at("tau", idx, -delay / sig.dt_s)[:, j]      # a declared delay: the torque d earlier
+        y = tau_j - rnea[u, j] - known[idx, j]
+        extra = {"t_rel": sig.t_s[idx] - sig.t_s[0], "block": block, "tau": tau_j,
                  "dgdq_full": np.interp(sig.t_s, sig.t_s[coarse], dgdq_c[:, j])}
         if want_payload:
-            extra["payload"] = reg[u, j, :]
-        jds[j] = JointData(j, idx, sig.t_s[idx], sig.q_rad[idx, j], sig.qd_rad_s[idx, j], sig.qdd_rad_s2[idx, j],
-                           y, block % n_folds, extra)
+            extra["payload"] = reg[u, j, PAYLOAD_REGRESSOR]
+            extra["links_base"] = link_base_rows(reg[u, j, :], sig.at("qdd", idx)[:, j], j)
+        jds[j] = JointData(j, idx, sig.t_s[idx], sig.at("q", idx)[:, j], sig.qd_rad_s[idx, j],
+                           sig.at("qdd", idx)[:, j], y, block % n_folds, extra)
+    if want_payload:
+        del reg
     return des, jds
 
 
 def _rigid_body_rows(dyn: WamDynamics, sig: Signals, rows: np.ndarray,
                      want_payload: bool) -> tuple[np.ndarray, np.ndarray | None]:
-    """Rigid-body torque (r, 7) at the samples ``rows`` (r,), and the payload regressor (r, 7, 10) there."""
-    q, qd, qdd = sig.q_rad, sig.qd_rad_s, sig.qdd_rad_s2
+    """Rigid-body torque (r, 7) at the samples ``rows`` (r,), and the inertial regressor (r, 7, 70) there."""
+    q, qd, qdd = sig.at("q", rows), sig.at("qd", rows), sig.at("qdd", rows)
     rnea = np.empty((len(rows), N7))
-    reg = np.empty((len(rows), N7, 10)) if want_payload else None
-    for k, i in enumerate(rows):
-        rnea[k] = dyn.inverse_dynamics(q[i], qd[i], qdd[i])
+    reg = np.empty((len(rows), N7, 70)) if want_payload else None
+    for k in range(len(rows)):
+        rnea[k] = dyn.inverse_dynamics(q[k], qd[k], qdd[k])
         if want_payload:
-            reg[k] = dyn.regressor_basis(q[i], qd[i], qdd[i])[:, PAYLOAD_REGRESSOR]
+            reg[k] = dyn.regressor_basis(q[k], qd[k], qdd[k])
     return rnea, reg
+
+
+def link_base_rows(inertial: np.ndarray, qdd_j: np.ndarray, j: int) -> np.ndarray:
+    """(m, nb) the rigid-body base columns (links and armature; :mod:`wamctl.analysis.identification.base`) of
+    joint ``j``'s torque rows, from its inertial regressor rows (m, 70) and its acceleration (m,): what a refit
+    of the arm's own parameters can change in that joint's torque."""
+    from wamctl.analysis.identification.base import N_INERTIAL, N_STANDARD, base_parameters
+
+    base = base_parameters()
+    Y = np.zeros((len(inertial), N_STANDARD))
+    Y[:, :N_INERTIAL] = inertial
+    Y[:, N_INERTIAL + j] = qdd_j
+    cols = base.independent < N_INERTIAL + N7          # not the friction, which each joint's model fits
+    return base.regressor(Y)[:, cols]
 
 
 def _rigid_body_full(dyn: WamDynamics, sig: Signals) -> np.ndarray:
@@ -87,21 +104,22 @@ def _rigid_body_full(dyn: WamDynamics, sig: Signals) -> np.ndarray:
     grid = np.arange(0, sig.n, stride)
     if grid[-1] != sig.n - 1:
         grid = np.append(grid, sig.n - 1)
-    rg = np.array([dyn.inverse_dynamics(sig.q_rad[i], sig.qd_rad_s[i], sig.qdd_rad_s2[i]) for i in grid])
+    q, qd, qdd = sig.at("q", grid), sig.at("qd", grid), sig.at("qdd", grid)
+    rg = np.array([dyn.inverse_dynamics(q[k], qd[k], qdd[k]) for k in range(len(grid))])
     return interp_columns(np.arange(sig.n), grid, rg)
 
 
 def _gravity_stiffness(dyn: WamDynamics, sig: Signals, rows: np.ndarray, eps: float = 1e-4) -> np.ndarray:
     """(r, 7) gravity stiffness ``dg_j / dq_j`` of the diagnosed joints at the samples ``rows`` (r,) (backlash:
     the link sits w/2 away from the encoder), by forward differences."""
-    q = sig.q_rad
+    q = sig.at("q", rows)
     out = np.zeros((len(rows), N7))
-    for k, i in enumerate(rows):
-        g0 = dyn.gravity(q[i])
+    for k in range(len(rows)):
+        g0 = dyn.gravity(q[k])
         for j in sig.joints:
             dq = np.zeros(N7)
             dq[j] = eps
-            out[k, j] = (dyn.gravity(q[i] + dq)[j] - g0[j]) / eps
+            out[k, j] = (dyn.gravity(q[k] + dq)[j] - g0[j]) / eps
     return out
 
 
@@ -110,10 +128,11 @@ def declared_torque(sig: Signals, friction: FrictionModel | None, effects: dict 
     """(n, 7) torque of the declared model beyond the rigid body when a model file gives it (friction,
     ripple; zero when friction is fitted from the data), and (n, 7) its part that is not friction (at rest,
     the friction is what the stall analysis estimates)."""
+    if friction is None:       # nothing declared beyond the rigid body: read-only zeros, no memory
+        zero = np.broadcast_to(0.0, (sig.n, N7))
+        return zero, zero
     out = np.zeros((sig.n, N7))
     other = np.zeros((sig.n, N7))
-    if friction is None:
-        return out, other
     fx = effects or {}
     fr = friction
     if fx.get("stribeck"):

@@ -21,12 +21,19 @@ def _num(x):
     return None if not np.isfinite(x) else x
 
 
+def _candidate(c: str, d: dict) -> dict:
+    out = {"name": c, "p_value": _num(d.get("p_value")), "delta_bic": _num(d.get("delta_bic")),
+           "kept": bool(d.get("kept")), "reason": d.get("reason", "")}
+    if d.get("head_to_head"):
+        out["head_to_head"] = [{"vs": r["vs"], "outcome": r["outcome"], "p_this_beyond": _num(r["p_this_beyond"]),
+                                "p_other_beyond": _num(r["p_other_beyond"])} for r in d["head_to_head"]]
+    return out
+
+
 def _joint_dict(diag, j: int, res) -> dict:
-    return {
+    out = {
         "effects": res.effects,
-        "candidates": [{"name": c, "p_value": _num(d.get("p_value")), "delta_bic": _num(d.get("delta_bic")),
-                        "kept": bool(d.get("kept")), "reason": d.get("reason", "")}
-                       for c, d in res.candidates.items()],
+        "candidates": [_candidate(c, d) for c, d in res.candidates.items()],
         "torque_rms_before_Nm": _num(res.torque_rms_before_Nm),
         "torque_rms_after_Nm": _num(res.torque_rms_after_Nm),
         "position_rms_before_rad": _num(res.position_rms_before_rad),
@@ -36,6 +43,11 @@ def _joint_dict(diag, j: int, res) -> dict:
         "friction_before": friction_levels_before(diag, j),
         "friction_after": friction_levels_after(diag, j),
     }
+    if res.ambiguous:
+        out["ambiguous"] = [g["names"] for g in res.ambiguous]
+    if res.unexplained:
+        out["unexplained"] = res.unexplained
+    return out
 
 
 def diagnosis_dict(diag, data_path: str = "") -> dict:
@@ -45,7 +57,14 @@ def diagnosis_dict(diag, data_path: str = "") -> dict:
         f"{DECLARED_MODEL}, parameters from {diag.declared_.source}"
     out = {"format": FORMAT, "data": data_path, "declared_model": declared,
            "effects_found": list(diag.effects_found_), "joints": joints,
+           "ambiguous": [list(g) for g in getattr(diag, "ambiguous_", [])],
            "conclusive": bool(diag.conclusive_), "reason": diag.reason_}
+    if getattr(diag, "warnings_", None):
+        out["warnings"] = list(diag.warnings_)
+    gains = getattr(diag, "gains_", None)
+    if gains is not None or getattr(diag, "position_skipped_", None):
+        out["position_check"] = {"controller_gains": gains,
+                                 "skipped": getattr(diag, "position_skipped_", None)}
     sig = getattr(diag, "signals_", None)
     if sig is not None:
         out["skipped_joints"] = {str(j + 1): r for j, r in sig.skipped.items()}
@@ -53,6 +72,8 @@ def diagnosis_dict(diag, data_path: str = "") -> dict:
                          "alpha_per_run": diag.alpha, "folds": diag.n_folds, "blocks": diag.n_blocks,
                          "savgol_window_samples": sig.window, "gauss_sigma_samples": sig.gauss,
                          "sample_rate_hz": 1.0 / sig.dt_s,
-                         "samples": sig.n, "resampled": sig.resampled,
+                         "samples": sig.n, "resampled": sig.resampled, "time_base": sig.time_base,
+                         "velocities": "measured (qd columns)" if sig.qd_raw_rad_s is not None else
+                         "differentiated positions",
                          "decimation": getattr(diag, "decimation_", 1)}
     return out

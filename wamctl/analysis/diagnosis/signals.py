@@ -26,7 +26,7 @@ from dataclasses import dataclass, field
 from functools import lru_cache
 
 import numpy as np
-from scipy.ndimage import binary_dilation, gaussian_filter1d
+from scipy.ndimage import correlate1d, gaussian_filter1d, maximum_filter1d
 from scipy.signal import savgol_coeffs, savgol_filter
 
 from wamctl.errors import DataFormatError
@@ -67,10 +67,8 @@ class Signals:
     dt_s: float
     window: int
     gauss: float
-    q_rad: np.ndarray
     qd_rad_s: np.ndarray
-    qdd_rad_s2: np.ndarray
-    tau_Nm: np.ndarray
+    tau_centred_Nm: np.ndarray
     q_raw_rad: np.ndarray
     q_ref_rad: np.ndarray
     tau_raw_Nm: np.ndarray
@@ -80,6 +78,53 @@ class Signals:
     v_stick_rad_s: np.ndarray = field(default_factory=lambda: np.zeros(N7))
     resampled: bool = False
     q_noise_rad: np.ndarray = field(default_factory=lambda: np.zeros(N7))
+    time_base: str = "as logged"
+    qd_raw_rad_s: np.ndarray | None = None       # measured velocities (the log's qd_* columns), when given
+    _full: dict = field(default_factory=dict, repr=False)
+
+    # The smoothed position, acceleration and torque at the full rate are computed on first use only: a long
+    # run is analysed at its joints' (decimated) samples, where :meth:`at` evaluates the filter.
+    @property
+    def q_rad(self) -> np.ndarray:
+        """(n, 7) smoothed position."""
+        if "q" not in self._full:
+            self._full["q"] = self.smooth(self.q_raw_rad)
+        return self._full["q"]
+
+    @property
+    def qdd_rad_s2(self) -> np.ndarray:
+        """(n, 7) smoothed acceleration."""
+        if "qdd" not in self._full:
+            self._full["qdd"] = self.smooth(self.q_raw_rad, 2) if self.qd_raw_rad_s is None else \
+                self.smooth(self.qd_raw_rad_s, 1)
+        return self._full["qdd"]
+
+    @property
+    def tau_Nm(self) -> np.ndarray:
+        """(n, 7) logged torque, aligned to the zero-order hold and smoothed like ``q``."""
+        if "tau" not in self._full:
+            self._full["tau"] = self.smooth(self.tau_centred_Nm)
+        return self._full["tau"]
+
+    def at(self, what: str, idx: np.ndarray, shift: float = 0.0) -> np.ndarray:
+        """(m, 7) smoothed ``"q"``, ``"qd"``, ``"qdd"`` or ``"tau"`` at the samples ``idx`` (``shift`` samples
+        later), from the full-rate array when it exists, else by the filter evaluated there."""
+        key = {"q": "q", "qdd": "qdd", "tau": "tau"}.get(what)
+        if what == "qd" or key in self._full:
+            full = self.qd_rad_s if what == "qd" else self._full[key]
+            if not shift:
+                return full[idx]
+            return _interp_rows(full, idx, shift)
+        raw = self.tau_centred_Nm if what == "tau" else self.q_raw_rad
+        deriv = {"q": 0, "qdd": 2, "tau": 0}[what]
+        if what == "qdd" and self.qd_raw_rad_s is not None:
+            raw, deriv = self.qd_raw_rad_s, 1
+        return self.smooth_at(raw, idx, shift, deriv)
+
+    @property
+    def zoh_share(self) -> float:
+        """See :func:`zoh_share`."""
+        return zoh_share(self.dt_s)
 
     @property
     def n(self) -> int:
@@ -94,37 +139,76 @@ class Signals:
         """The analysis filter (Gaussian pre-filter, then Savitzky-Golay) along axis 0, or its derivative."""
         return smooth(X, self.window, self.gauss, deriv, self.dt_s)
 
-    def smooth_at(self, X: np.ndarray, idx: np.ndarray) -> np.ndarray:
-        """The analysis filter of ``X`` (n, p) evaluated at the samples ``idx`` only (m, p): the same
-        convolution as :meth:`smooth` away from the ends (which the masks leave out), at a fraction of the
-        cost when ``m`` is much smaller than ``n``."""
-        r = self.window // 2 + int(np.ceil(4 * self.gauss)) + 1     # the Gaussian is truncated at 4 sigma
-        imp = np.zeros(4 * r + 1)
-        imp[2 * r] = 1.0
-        k = smooth(imp, self.window, self.gauss)[r:3 * r + 1]          # symmetric kernel, 2 r + 1 taps
-        pos = np.clip(np.asarray(idx)[:, None] + np.arange(-r, r + 1)[None, :], 0, len(X) - 1)
-        X = np.asarray(X, float)
-        if X.ndim == 1:
-            return X[pos] @ k
-        return np.einsum("mkp,k->mp", X[pos], k)
+    def kernel(self, deriv: int = 0) -> np.ndarray:
+        """The analysis filter (or its ``deriv``-th derivative) as one FIR correlation kernel (2 r + 1 taps, the
+        Gaussian truncated at 4 sigma): ``y[i] = sum_k kernel[k] x[i - r + k]``."""
+        return _kernel(self.window, float(self.gauss), deriv, self.dt_s)
+
+    def smooth_at(self, X, idx: np.ndarray, shift: float = 0.0, deriv: int = 0) -> np.ndarray:
+        """The analysis filter of a full-rate feature evaluated at the samples ``idx`` only (m, p) or (m,): the
+        same convolution as :meth:`smooth` away from the ends (which the masks leave out).
+
+        ``X`` is an (n, p) / (n,) array, or a function ``pos -> values`` of full-rate sample indices (then the
+        feature is only evaluated where the filter needs it: long runs are not computed at the full rate).
+        ``shift``: the filtered feature ``shift`` samples later (fractional: linear interpolation between the two
+        neighbouring samples, as ``np.interp`` of the filtered feature)."""
+        k = self.kernel(deriv)
+        r = len(k) // 2
+        idx = np.asarray(idx)
+        base = int(np.floor(shift))
+        frac = float(shift - base)
+        offs = [base] if frac < 1e-12 else [base, base + 1]
+        fn = X if callable(X) else np.asarray(X, float).__getitem__
+        if len(idx) * len(k) * len(offs) > self.n:       # cheaper at the full rate
+            return _interp_rows(self.smooth(np.asarray(fn(np.arange(self.n)), float), deriv), idx, shift)
+        out = None
+        for w, o in zip(([1.0] if len(offs) == 1 else [1.0 - frac, frac]), offs):
+            pos = np.clip(idx[:, None] + o + np.arange(-r, r + 1)[None, :], 0, self.n - 1)
+            vals = np.asarray(fn(pos.ravel()), float)
+            if vals.ndim == 1:
+                y = vals.reshape(pos.shape) @ k
+            else:
+                y = np.einsum("mkp,k->mp", vals.reshape(pos.shape + (vals.shape[1],)), k)
+            out = w * y if out is None else out + w * y
+        return out
 
     @property
     def duration_s(self) -> float:
         return float(self.t_s[-1] - self.t_s[0])
 
 
-def uniform_grid(t_s: np.ndarray, *arrays: np.ndarray, rate_hz: float) -> tuple[np.ndarray, list, bool]:
-    """Resample (n, k) arrays onto a uniform grid at ``rate_hz`` when the time stamps jitter.
+TIME_AS_LOGGED = "as logged"
+TIME_RESAMPLED = "resampled from the time stamps"
+TIME_TICKS = "uniform ticks (the time stamps' jitter is the logger's, not the samples')"
 
-    Returns ``(t_uniform, arrays, resampled)``. Jitter below 1 % of the period is left alone.
+
+def uniform_grid(t_s: np.ndarray, *arrays: np.ndarray, rate_hz: float) -> tuple[np.ndarray, list, str]:
+    """(n, k) arrays on a uniform grid at ``rate_hz``; the first array holds the measured positions.
+
+    Jitter below 1 % of the period is left alone. Larger jitter is either the loop's (the samples were taken
+    late or early and stamped truthfully: resample from the stamps) or the logger's (the samples were taken on
+    exact ticks and stamped with jitter: keep them, on uniform ticks). Without gaps, the time base under which
+    the measured positions are smoother (the smaller sum of squared second differences; a moving joint is
+    smooth at the sample rate, a wrong time base is not) is taken. Returns ``(t_uniform, arrays, time_base)``.
     """
     dt = 1.0 / rate_hz
     steps = np.diff(t_s)
     if np.abs(steps - dt).max() <= 0.01 * dt:
-        return t_s - 0.0, list(arrays), False
+        return t_s - 0.0, list(arrays), TIME_AS_LOGGED
     n = int(np.floor((t_s[-1] - t_s[0]) / dt)) + 1
     tu = t_s[0] + np.arange(n) * dt
-    return tu, [interp_columns(tu, t_s, a) for a in arrays], True
+    out = [interp_columns(tu, t_s, a) for a in arrays]
+    if len(steps) and steps.min() > 0.5 * dt and steps.max() < 1.5 * dt:
+        k = np.arange(len(t_s))
+        slope, icpt = np.polyfit(k, t_s, 1)
+        ticks = icpt + slope * k
+        if abs(slope / dt - 1) < 0.01 and np.abs(t_s - ticks).max() < 0.5 * dt:
+            q = np.asarray(arrays[0], float)
+            rough_ticks = float(np.sum(np.diff(q, 2, axis=0) ** 2))
+            rough_stamps = float(np.sum(np.diff(out[0], 2, axis=0) ** 2))
+            if rough_ticks <= rough_stamps:
+                return ticks, list(arrays), TIME_TICKS
+    return tu, out, TIME_RESAMPLED
 
 
 def interp_columns(x_new: np.ndarray, x: np.ndarray, Y: np.ndarray) -> np.ndarray:
@@ -139,11 +223,23 @@ def delayed(t_s: np.ndarray, Y: np.ndarray, delay_s: float) -> np.ndarray:
     return interp_columns(t_s - delay_s, t_s, Y)
 
 
-def zoh_centred(tau: np.ndarray) -> np.ndarray:
-    """Torque acting around each sample of a zero-order hold, ``(tau[k-1] + tau[k]) / 2`` along axis 0 (the
-    first sample kept): (n,) or (n, p), a new array."""
-    out = np.array(tau, dtype=float)
-    out[1:] = 0.5 * (tau[1:] + tau[:-1])
+def zoh_share(dt_s: float) -> float:
+    """Share of the previous sample in :func:`zoh_centred` for a log at period ``dt_s``: a logged torque was set
+    at its sample and held for one period of the arm's control loop (libbarrett's 500 Hz), so it acts around
+    half a control period later; a log slower than the loop (every second tick at 250 Hz, ...) keeps that half
+    control period, not half its own period."""
+    return 0.5 * min(1.0, (1.0 / P.CONTROL_RATE_HZ) / dt_s)
+
+
+def zoh_centred(tau: np.ndarray, share: float = 0.5) -> np.ndarray:
+    """Torque acting around each sample of a zero-order hold, ``(1 - share) tau[k] + share tau[k-1]`` along
+    axis 0 (the first sample kept; ``share`` from :func:`zoh_share`, 1/2 at the loop's own rate): (n,) or
+    (n, p), a new array."""
+    tau = np.asarray(tau, float)
+    out = np.empty_like(tau)
+    out[:1] = tau[:1]
+    np.multiply(tau[1:], 1.0 - share, out=out[1:])
+    out[1:] += share * tau[:-1]
     return out
 
 
@@ -166,6 +262,24 @@ def window_samples(rate_hz: float, window_s: float = DEFAULT_WINDOW_S) -> int:
     return w + 1 - w % 2
 
 
+@lru_cache(maxsize=32)
+def _kernel(window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
+    r = window // 2 + int(np.ceil(4 * gauss)) + 1     # the Gaussian is truncated at 4 sigma
+    imp = np.zeros(4 * r + 1)
+    imp[2 * r] = 1.0
+    # the impulse response, reversed: a correlation kernel (symmetric for deriv 0)
+    return _two_pass(imp, window, gauss, deriv, dt_s)[r:3 * r + 1][::-1].copy()
+
+
+def _interp_rows(full: np.ndarray, idx: np.ndarray, shift: float) -> np.ndarray:
+    """Rows of ``full`` (n,) or (n, p) at the fractional positions ``idx + shift`` (linear interpolation)."""
+    n = len(full)
+    p = np.clip(np.asarray(idx, float) + shift, 0, n - 1)
+    i0 = np.minimum(np.floor(p).astype(int), n - 2)
+    f = (p - i0) if full.ndim == 1 else (p - i0)[:, None]
+    return full[i0] * (1.0 - f) + full[i0 + 1] * f
+
+
 @lru_cache(maxsize=16)
 def _gain_table(window: int) -> tuple[np.ndarray, np.ndarray]:
     f = np.linspace(0.0, 0.5, 2049)
@@ -183,10 +297,23 @@ def savgol_gain(window: int, f_cycles_per_sample: np.ndarray, gauss: float = 0.0
     return np.interp(f, ft, gt) * np.exp(-0.5 * (2 * np.pi * f * gauss) ** 2)
 
 
-def smooth(X: np.ndarray, window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
+def _two_pass(X: np.ndarray, window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
     """Gaussian pre-filter (sigma ``gauss`` samples, edges held) then Savitzky-Golay (cubic) along axis 0."""
     Y = gaussian_filter1d(np.asarray(X, float), gauss, axis=0, mode="nearest") if gauss > 0 else X
     return savgol_filter(Y, window, POLYORDER, deriv=deriv, delta=dt_s, axis=0)
+
+
+def smooth(X: np.ndarray, window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
+    """The analysis filter along axis 0: a Gaussian pre-filter (sigma ``gauss`` samples) then a cubic
+    Savitzky-Golay filter of ``window`` samples (its ``deriv``-th derivative), applied as one FIR kernel (the
+    two filters composed; the ends held)."""
+    X = np.asarray(X, float)
+    if len(X) < 4 * window + 8 * int(np.ceil(gauss)) + 4:
+        return _two_pass(X, window, gauss, deriv, dt_s)
+    k = _kernel(window, float(gauss), deriv, dt_s)
+    if X.ndim == 1:
+        return correlate1d(X, k, mode="nearest")
+    return correlate1d(np.ascontiguousarray(X.T), k, axis=1, mode="nearest").T
 
 
 def derivative_noise_gain(window: int, gauss: float, dt_s: float) -> float:
@@ -197,11 +324,23 @@ def derivative_noise_gain(window: int, gauss: float, dt_s: float) -> float:
     return float(np.sqrt(np.sum(smooth(imp, window, gauss, 1, dt_s) ** 2)))
 
 
+def _spread_chunks(x: np.ndarray, n_max: int = 200_000, chunks: int = 20) -> np.ndarray:
+    """``x`` (n, ...) itself, or for a long run ``chunks`` contiguous pieces spread over it, ``n_max`` samples
+    together (noise statistics need not read an hour of data)."""
+    n = len(x)
+    if n <= n_max:
+        return x
+    L = n_max // chunks
+    starts = np.linspace(0, n - L, chunks).astype(int)
+    return np.concatenate([x[s:s + L] for s in starts])
+
+
 def position_noise_rad(q_raw: np.ndarray) -> np.ndarray:
     """(7,) standard deviation of the measured positions about the motion: position noise, or quantisation.
 
     Estimated from the part of ``q`` a short cubic fit does not explain (robust MAD); quantised signals whose
     high-pass is mostly zero get the smallest step over root 12 instead."""
+    q_raw = _spread_chunks(q_raw)
     short = 7 if len(q_raw) > 7 else POLYORDER + 2
     short += 1 - short % 2
     hf = q_raw - savgol_filter(q_raw, short, POLYORDER, axis=0)
@@ -221,7 +360,8 @@ def velocity_noise_rad_s(q_raw: np.ndarray, dt_s: float, window: int, gauss: flo
 
 def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, tau_Nm: np.ndarray,
                     rate_hz: float, joints_hint: list[int] | None = None,
-                    window_s: float = DEFAULT_WINDOW_S, gauss_s: float = DEFAULT_GAUSS_S) -> Signals:
+                    window_s: float = DEFAULT_WINDOW_S, gauss_s: float = DEFAULT_GAUSS_S,
+                    qd_rad_s: np.ndarray | None = None) -> Signals:
     """Align, smooth and mask a run's samples.
 
     Parameters
@@ -230,6 +370,8 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     q_rad, q_ref_rad, tau_Nm : (n, 7) measured positions, reference, logged torque.
     rate_hz : nominal sample rate.
     joints_hint : 0-based joints the metadata says moved (others are also diagnosed if they moved).
+    qd_rad_s : (n, 7) measured velocities, when the log has them: smoothed (and differentiated once for the
+        acceleration) instead of differentiating the positions.
 
     Raises
     ------
@@ -250,19 +392,18 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
         raise DataFormatError(f"t: a gap of {steps[k]:.4g} s after t = {t_s[k]:.6g} s ({steps[k] * rate_hz:.0f} "
                               "sample periods); the diagnosis differentiates positions and needs contiguous "
                               "samples (gaps of up to 5 samples are interpolated)")
-    t, (q, q_ref, tau), resampled = uniform_grid(np.asarray(t_s, float), q_rad, q_ref_rad, tau_Nm,
-                                                 rate_hz=rate_hz)
+    arrays = [q_rad, q_ref_rad, tau_Nm] + ([qd_rad_s] if qd_rad_s is not None else [])
+    t, out, time_base = uniform_grid(np.asarray(t_s, float), *arrays, rate_hz=rate_hz)
+    q, q_ref, tau = out[:3]
+    qd_meas = out[3] if qd_rad_s is not None else None
     dt = 1.0 / rate_hz
     w = window_samples(rate_hz, window_s)
     gs = gauss_s * rate_hz
     if len(t) < 4 * w:
         raise DataFormatError(f"only {len(t)} samples; the diagnosis needs at least {4 * w} "
                               f"({4 * w * dt:.2f} s at {rate_hz:g} Hz)")
-    tau_c = zoh_centred(tau)
-    qs = smooth(q, w, gs)
-    qd = smooth(q, w, gs, 1, dt)
-    qdd = smooth(q, w, gs, 2, dt)
-    taus = smooth(tau_c, w, gs)
+    tau_c = zoh_centred(tau, zoh_share(1.0 / rate_hz))
+    qd = smooth(q, w, gs, 1, dt) if qd_meas is None else smooth(qd_meas, w, gs)
 
     q_noise = position_noise_rad(q)
     v_noise = q_noise * derivative_noise_gain(w, gs, dt)
@@ -270,7 +411,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     v_stick = np.maximum(4.0 * v_noise, 1e-3)
     stuck = np.abs(qd) < v_stick[None, :]
     reach = filter_reach(w, gs)
-    moving = ~binary_dilation(stuck, structure=np.ones((4 * reach + 1, 1), bool))
+    moving = maximum_filter1d(stuck.view(np.uint8), 4 * reach + 1, axis=0, mode="constant") == 0
     edge = 2 * reach  # the filter's edge samples are extrapolations
     moving[:edge] = False
     moving[-edge:] = False
@@ -291,5 +432,5 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
                 skipped[j] = why
             continue
         joints.append(j)
-    return Signals(t, dt, w, gs, qs, qd, qdd, taus, q, q_ref, tau, moving, joints, skipped, v_stick, resampled,
-                   q_noise)
+    return Signals(t, dt, w, gs, qd, tau_c, q, q_ref, tau, moving, joints, skipped, v_stick,
+                   time_base == TIME_RESAMPLED, q_noise, time_base, qd_meas)

@@ -44,6 +44,8 @@ class MapOptions:
     derivative_window_s: float = 0.04
     stick_fraction_max: float = 0.1   # reject stages where the joint stands still more than this
     velocity_tolerance: float = 0.03  # with a commanded speed: reject stages off it by more (not steady)
+    max_moves: int | None = None      # per joint at most this many moves, evenly spread over the run (long runs)
+    max_stage_samples: int | None = None   # the friction of a stage from at most this many of its samples
 
 
 def friction_samples(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, rows: np.ndarray, dynamics,
@@ -90,6 +92,8 @@ def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndar
             moves = moves_from_reference(t_s, q_ref[:, j - 1])
         else:
             moves = detect_moves(t_s, x, sig)
+        if o.max_moves is not None and len(moves) > o.max_moves:
+            moves = [moves[i] for i in np.unique(np.linspace(0, len(moves) - 1, o.max_moves).round().astype(int))]
         v_fine = savgol_derivative(x, dt, 0.05, 1)
         for k, m in enumerate(moves):
             st = constant_velocity_stage(t_s, x, m.i0, m.i1, sig, step, o.min_stage_s, o.guard_s,
@@ -100,7 +104,11 @@ def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndar
                    "n_samples": st.s1 - st.s0, "accepted": st.ok, "reason": st.reason}
             if st.ok:
                 row.update(_stage_velocity(t_s, x, v_fine, m, st, o))
-                stage_rows.append(np.arange(st.s0, st.s1))
+                rows_k = np.arange(st.s0, st.s1)
+                if o.max_stage_samples is not None and len(rows_k) > o.max_stage_samples:
+                    rows_k = rows_k[np.linspace(0, len(rows_k) - 1, o.max_stage_samples).round().astype(int)]
+                    row["n_samples"] = len(rows_k)
+                stage_rows.append(rows_k)
             rows.append(row)
     df = pd.DataFrame(rows, columns=MAP_COLUMNS)
     if not len(df):

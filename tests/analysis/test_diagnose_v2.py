@@ -1,0 +1,285 @@
+"""wamctl diagnose, second round (issue 15): honest about what it cannot tell, right on data it was not tuned to.
+
+* a real-style recording (noise, no gains in meta.yaml) where a payload is moved by two joints only: the mass with
+  an interval, the centre-of-mass component the motion cannot feel reported as not identified;
+* the controller's gains estimated from the log when missing or wrong; torques beyond the limits kept as data;
+  measured velocities used;
+* a delay measured at 100 Hz to 1 kHz, with jittered time stamps;
+* the head-to-head decision table, the block bootstrap's coverage, the profile interval, the rank test;
+* a small fixed subset of the independent generator's study (the full study is benchmarks/bench_diagnose.py).
+
+Tolerances were fixed before the runs were looked at (each is stated where it is used); the seeds are not the
+benchmark's.
+"""
+
+from __future__ import annotations
+
+import json
+import logging
+
+import numpy as np
+import pandas as pd
+import pytest
+import yaml
+from diagnosis_gen import DT_S, generate_run, simulate, write_measured
+
+from wamctl.analysis.diagnosis import headtohead
+from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
+from wamctl.analysis.diagnosis.uncertainty import estimable, group_bootstrap, percentile_ci, profile_ci
+from wamctl.control.trajectory import ReferenceBuilder
+from wamctl.experiments.diagnose import simulate_positions
+from wamctl.model import params as P
+from wamctl.model.dynamics import WamDynamics
+from wamctl.runs.measured import load_run_data
+
+PAYLOAD = {"mass_kg": 1.0, "com_m": [0.03, -0.02, 0.08]}
+Q0_PLANAR = np.array([0.0, -0.1, 0.0, 1.9, 0.0, 0.0, 0.0])   # joint 3 at zero: the axes of joints 2 and 4 parallel
+
+
+def _two_joint_run(root, seed: int):
+    """A recording where only joints 2 and 4 move (LSPB back and forth), with a payload the model does not
+    declare, position and torque noise, and meta.yaml without the controller's gains."""
+    rng = np.random.default_rng(seed)
+    b = ReferenceBuilder(Q0_PLANAR, DT_S).hold(0.3)
+    for k in range(24):
+        sgn = 1 if k % 2 else -1
+        b.move({1: sgn * float(rng.uniform(0.2, 0.35)), 3: sgn * float(rng.uniform(0.3, 0.6))},
+               float(rng.uniform(0.1, 0.3)), 0.25)
+    plant = {"friction": "table_4_1", "effects": {"payload": PAYLOAD},
+             "sensors": {"encoder_counts_per_rev": 4096, "position_noise_rad": 2e-5, "torque_noise_Nm": 0.02}}
+    rows = simulate(plant, b.build(), Q0_PLANAR, seed)
+    path = write_measured(root / f"two-joints-{seed}", rows, Q0_PLANAR)
+    meta = yaml.safe_load((path / "meta.yaml").read_text())
+    meta["controller"] = {"kind": "pd_g"}                      # the gains are not known
+    (path / "meta.yaml").write_text(yaml.safe_dump(meta))
+    return path
+
+
+@pytest.fixture(scope="module")
+def two_joints(tmp_path_factory):
+    path = _two_joint_run(tmp_path_factory.mktemp("two"), 8)
+    diag = ModelDiagnosis(simulator=simulate_positions).fit(load_run_data(path))
+    return path, diag, json.loads(json.dumps(diag.to_dict(str(path))))
+
+
+def test_payload_moved_by_two_joints_reports_what_it_cannot_determine(two_joints):
+    """Mass: named, its interval contains the truth and is narrower than 10 % of it. Centre of mass: the component
+    along the common axis of joints 2 and 4 (the frame-7 axis parallel to it, at q0) is reported as not
+    identified (None, and listed); every component reported is within 1 cm of the truth."""
+    _, diag, out = two_joints
+    assert out["effects_found"] == ["payload"], out["effects_found"]
+    e = next(e for e in out["joints"]["2"]["effects"] if e["name"] == "payload")
+    lo, hi = e["params_ci"]["mass_kg"]
+    assert lo <= PAYLOAD["mass_kg"] <= hi and hi - lo < 0.1 * PAYLOAD["mass_kg"]
+    assert lo <= e["params"]["mass_kg"] <= hi
+    R = WamDynamics().link7_pose(Q0_PLANAR)[:3, :3]
+    axis_in_7 = R.T @ np.array([0.0, 1.0, 0.0])     # joint 2's axis (world y at q1 = 0) in frame-7 axes
+    blind = "xyz"[int(np.argmax(np.abs(axis_in_7)))]
+    assert np.abs(axis_in_7).max() > 0.99
+    assert f"com_{blind}_m" in e["not_identified"] and e["params"][f"com_{blind}_m"] is None
+    for i, ax in enumerate("xyz"):
+        v = e["params"][f"com_{ax}_m"]
+        if v is not None:
+            assert abs(v - PAYLOAD["com_m"][i]) < 0.01, (ax, v)
+            assert e["params_ci"][f"com_{ax}_m"][0] <= v <= e["params_ci"][f"com_{ax}_m"][1]
+
+
+def test_missing_gains_are_estimated_from_the_log(two_joints):
+    """Gains absent from meta.yaml: estimated from the log within 2 % at the moving joints, said so, and the
+    closed-loop check runs with them (the position error drops with the payload found)."""
+    _, diag, out = two_joints
+    pc = out["position_check"]
+    g = pc["controller_gains"]
+    assert pc["skipped"] is None and "estimated from the log" in g["source"]
+    for j in (1, 3):
+        assert g["kp"][j] == pytest.approx(P.KP[j], rel=0.02)
+        assert g["kd"][j] == pytest.approx(P.KD[j], rel=0.02)
+    for j in ("2", "4"):
+        d = out["joints"][j]
+        assert d["position_rms_after_rad"] < d["position_rms_before_rad"]
+
+
+def test_wrong_gains_are_replaced_and_said(two_joints, tmp_path):
+    path, _, _ = two_joints
+    meta = yaml.safe_load((path / "meta.yaml").read_text())
+    meta["controller"] = {"kind": "pd_g", "kp": (2 * P.KP).tolist(), "kd": P.KD.tolist()}
+    d = tmp_path / "wrong"
+    d.mkdir()
+    (d / "meta.yaml").write_text(yaml.safe_dump(meta))
+    (d / "data.parquet").write_bytes((path / "data.parquet").read_bytes())
+    diag = ModelDiagnosis(simulator=simulate_positions).fit(load_run_data(d))
+    g = diag.gains_
+    assert "do not fit the log" in g["source"]
+    assert g["kp"][1] == pytest.approx(P.KP[1], rel=0.02)
+
+
+@pytest.fixture(scope="module")
+def short_delay(tmp_path_factory):
+    """A 6 ms delay (first generator), 20 s at 500 Hz."""
+    root = tmp_path_factory.mktemp("delay")
+    g = generate_run(root, "delay", 61, duration_s=20.0)
+    return g, pd.read_parquet(g.path / "data.parquet"), yaml.safe_load((g.path / "meta.yaml").read_text())
+
+
+def _resampled(df: pd.DataFrame, rate: int, rng) -> pd.DataFrame:
+    """The 500 Hz log as a logger at ``rate`` would have written it: every k-th row (100, 250 Hz), or at 1 kHz the
+    positions interpolated and the held torque repeated; time stamps with a jitter of 2 % of the period."""
+    if rate <= 500:
+        out = df.iloc[:: 500 // rate].reset_index(drop=True)
+    else:
+        t = np.arange(0, df["t"].iloc[-1], 1.0 / rate)
+        out = pd.DataFrame({"t": t})
+        k = np.minimum(np.searchsorted(df["t"].to_numpy(), t, side="right") - 1, len(df) - 1)
+        for c in df.columns[1:]:
+            out[c] = np.interp(t, df["t"], df[c]) if not c.startswith("tau") else df[c].to_numpy()[k]
+    out["t"] = out["t"] + rng.uniform(-0.02, 0.02, len(out)) / rate
+    return out
+
+
+@pytest.mark.parametrize("rate", [100, 250, 1000])
+def test_delay_is_measured_at_any_rate_with_jittered_stamps(short_delay, tmp_path, rate):
+    """The delay named, within 1.5 ms of the truth, from the same run logged at 100, 250 and 1000 Hz."""
+    g, df, meta = short_delay
+    d = tmp_path / f"r{rate}"
+    d.mkdir()
+    _resampled(df, rate, np.random.default_rng(rate)).to_parquet(d / "data.parquet", index=False)
+    (d / "meta.yaml").write_text(yaml.safe_dump(dict(meta, sample_rate_hz=rate)))
+    diag = ModelDiagnosis().fit(load_run_data(d))
+    assert "delay" in diag.effects_found_, diag.to_dict()["effects_found"]
+    found = [diag.effect_params(j, "delay")["delay_s"] for j, r in diag.joints_.items()
+             if any(t["name"] == "delay" for t in r.kept)]
+    assert np.median(found) == pytest.approx(g.effect_spec["delay_s"], abs=1.5e-3)
+
+
+def test_torque_beyond_the_limits_is_data_and_velocities_are_used(tmp_path):
+    g = generate_run(tmp_path, None, 62, duration_s=10.0)
+    df = pd.read_parquet(g.path / "data.parquet")
+    df.loc[100:120, "tau_2"] = 1.5 * P.TAU_MAX_NM[1]
+    q = df[[f"q_{j}" for j in range(1, 8)]].to_numpy()
+    qd = np.gradient(q, df["t"].to_numpy(), axis=0)
+    for j in range(7):
+        df[f"qd_{j + 1}"] = qd[:, j]
+    df.to_parquet(g.path / "data.parquet", index=False)
+    with caplog_off():
+        diag = ModelDiagnosis().fit(load_run_data(g.path))
+    out = diag.to_dict()
+    assert diag.conclusive_
+    assert any("joint 2" in w and "limit" in w for w in out["warnings"])
+    assert out["method"]["velocities"] == "measured (qd columns)"
+
+
+class caplog_off:
+    def __enter__(self):
+        logging.disable(logging.WARNING)
+
+    def __exit__(self, *a):
+        logging.disable(logging.NOTSET)
+
+
+# ------------------------------------------------------------------------------------- statistics
+def test_head_to_head_decision_table(monkeypatch):
+    """a | b and b | a decide: wins, loses, both (the stronger now), neither (ambiguous)."""
+    def test(p):
+        return {"p_value": p, "delta_bic": -10.0 if p < 0.01 else 5.0}
+
+    table = {("a", "b"): (test(1e-9), test(0.5)), ("a", "c"): (test(0.5), test(0.5)),
+             ("a", "d"): (test(0.5), test(1e-9)), ("d", "c"): (test(1e-9), test(0.5)),
+             ("a", "e"): (test(1e-9), test(1e-9))}
+    monkeypatch.setattr(headtohead, "beyond_tests",
+                        lambda des, jd, terms, a, b, e_base, rc=None: table[(a["name"], b["name"])])
+    ent = {n: {"name": n} for n in "abcde"}
+    winner, group, _ = headtohead.tournament(None, None, [], [ent["a"], ent["b"]], None, 0.01)
+    assert winner["name"] == "a" and not group
+    winner, group, _ = headtohead.tournament(None, None, [], [ent["a"], ent["c"]], None, 0.01)
+    assert winner is None and [g["name"] for g in group] == ["a", "c"]
+    winner, group, _ = headtohead.tournament(None, None, [], [ent["a"], ent["d"]], None, 0.01)
+    assert winner["name"] == "d"
+    # a and c tie, then d beats a and c: the new champion meets the ambiguous one again
+    winner, group, _ = headtohead.tournament(None, None, [], [ent["a"], ent["c"], ent["d"]], None, 0.01)
+    assert winner["name"] == "d" and not group
+    winner, group, _ = headtohead.tournament(None, None, [], [ent["a"], ent["e"]], None, 0.01)
+    assert winner["name"] == "a" and not group
+
+
+def test_block_bootstrap_covers_the_truth():
+    """Linear regression with AR(1) noise in 10 contiguous blocks: the t-widened percentile interval of the slope
+    covers the truth in at least 85 % of 100 data sets (nominal 95 %; a bootstrap over 10 blocks is rough)."""
+    rng = np.random.default_rng(4)
+    hits = 0
+    for _ in range(100):
+        n = 2000
+        x = np.sin(np.arange(n) / 37.0) + rng.normal(size=n)
+        e = np.zeros(n)
+        w = rng.normal(size=n)
+        for i in range(1, n):
+            e[i] = 0.9 * e[i - 1] + w[i]
+        y = 2.0 * x + e
+        X = np.column_stack([np.ones(n), x])
+        blocks = np.arange(n) * 10 // n
+        reps = group_bootstrap(X, y, blocks, 200, rng)
+        est = np.linalg.lstsq(X, y, rcond=None)[0][1]
+        lo, hi = percentile_ci(reps[:, 1], center=est, n_groups=10)
+        hits += lo <= 2.0 <= hi
+    assert hits >= 85
+
+
+def test_profile_interval_and_rank():
+    h = np.linspace(0.0, 2.0, 201)
+    ssr = 100.0 * (1 + 0.01 * (h - 1.0) ** 2)          # n_eff 1000: chi2 3.84 -> |h - 1| < 0.62
+    lo, hi = profile_ci(h, ssr, 1000.0)
+    assert lo == pytest.approx(1 - 0.62, abs=0.02) and hi == pytest.approx(1 + 0.62, abs=0.02)
+    lo, hi = profile_ci(h, 100.0 * (1 + 1e-6 * (h - 1.0) ** 2), 1000.0)
+    assert lo is None and hi is None                     # flat: open at both ends
+    rng = np.random.default_rng(5)
+    a = rng.normal(size=200)
+    X = np.column_stack([a, 2 * a, rng.normal(size=200)])  # the first two cannot be told apart
+    assert estimable(X, [0, 1, 2]) == [False, False, True]
+
+
+# ------------------------------------------------------------------------------------- independent data
+INDEPENDENT_SUBSET = ("stribeck-001", "position_ripple-000", "payload-002", "delay-001", "friction_drift-000",
+                      "clean-heavier_3_4-001", "clean-random_10pct-002")
+
+
+@pytest.fixture(scope="module")
+def independent(tmp_path_factory):
+    """A fixed subset of the independent generator's plan (seed 7, neither the benchmark's dev nor its report
+    split), each run diagnosed once."""
+    from gen_independent import cases, generate
+
+    root = tmp_path_factory.mktemp("ind")
+    plan = {c["id"]: c for c in cases(3, 3, seed=7, n_pairs=0)}
+    out = {}
+    for cid in INDEPENDENT_SUBSET:
+        r = generate(plan[cid], root / cid)
+        with caplog_off():
+            out[cid] = (r.truth, ModelDiagnosis().fit(load_run_data(r.path)).to_dict())
+    return out
+
+
+def test_independent_subset_names_nothing_that_is_not_there(independent):
+    """On data from the independent generator: no effect that is not there is named (first or at all), clean runs
+    with perturbed links name nothing but possibly link_parameters, and at least 4 of the 5 effect runs name
+    their effect first. A payload is a change of link 7's parameters (docs/diagnosis-report.md), so on a payload
+    run link_parameters is not an effect that is not there (it is not the right name either)."""
+    right = 0
+    for cid, (truth, out) in independent.items():
+        ok = set(truth["expected_effects"]) | set(truth["acceptable_extra"])
+        if "payload" in ok:
+            ok.add("link_parameters")
+        assert set(out["effects_found"]) <= ok, (cid, out["effects_found"])
+        if truth["expected_effects"]:
+            right += bool(out["effects_found"]) and out["effects_found"][0] in truth["expected_effects"]
+    assert right >= 4
+
+
+def test_every_effect_carries_intervals(independent):
+    for cid, (_, out) in independent.items():
+        for d in out["joints"].values():
+            for e in d["effects"]:
+                assert set(e["params_ci"]) <= set(e["params"]) | {"com_x_m", "com_y_m", "com_z_m"}
+                for k, (lo, hi) in e["params_ci"].items():
+                    v = e["params"].get(k)
+                    if v is not None and lo is not None and hi is not None:
+                        assert lo <= v <= hi, (cid, e["name"], k)
+                assert "not_identified" in e

@@ -1,0 +1,167 @@
+"""95 % intervals of the parameters of every effect kept at a joint, and the ones the data cannot determine
+(no I/O; the statistics are in :mod:`wamctl.analysis.diagnosis.uncertainty`)."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.candidates import DELAY_GRID_S, DRIFT_T_GRID_FRACTION, STRIBECK_VS_GRID_RAD_S
+from wamctl.analysis.diagnosis.design import target_and_design
+from wamctl.analysis.diagnosis.parameters import kept_effect_params
+from wamctl.analysis.diagnosis.stats import effective_tau, lstsq
+from wamctl.analysis.diagnosis.uncertainty import N_BOOT, group_bootstrap, percentile_ci, profile_ci
+
+SHAPE_KEY = {"stribeck": "vs_rad_s", "position_ripple": "period_rad", "delay": "delay_s",
+             "friction_drift": "time_constant_s"}
+N_BOOT_ONSETS = 60           # onset bootstraps integrate the joint through every stall: fewer replicates
+
+
+def _numeric(v) -> bool:
+    return isinstance(v, (int, float)) and not isinstance(v, bool)
+
+
+def joint_intervals(diag, j: int) -> dict:
+    """{effect name: {"params_ci": {key: [low, high]}, "not_identified": [keys]}} of every effect kept at 0-based
+    joint ``j`` of a fitted ``ModelDiagnosis`` (the arm's payload is :func:`...arm.payload_uncertainty`'s)."""
+    res, jd, des = diag.joints_[j], diag.jd_[j], diag.design_
+    if not res.kept:
+        return {}
+    y, X = target_and_design(des, jd, res.kept, None)
+    reps = group_bootstrap(X, y, jd.extra["block"], N_BOOT, np.random.default_rng(1000 + j))
+    e = res.e_after[np.isfinite(res.e_after)]
+    n_eff = len(e) / max(effective_tau(res.e_after, jd.fold), 1.0)
+    out = {}
+    for i, t in enumerate(res.kept):
+        name = t["name"]
+        if name in ("payload", "link_parameters"):       # the arm's: their intervals come with the arm's fit
+            continue
+        base = kept_effect_params(diag, j, name)
+        samples = [kept_effect_params(diag, j, name, th) for th in reps]
+        nb = len(np.unique(jd.extra["block"]))
+        ci = {k: percentile_ci([s.get(k) for s in samples], center=v, n_groups=nb) for k, v in base.items()
+              if _numeric(v) and np.ptp([s.get(k, v) for s in samples]) > 0}
+        ni = []
+        key = SHAPE_KEY.get(name)
+        if isinstance(t.get("fixed_h"), tuple):           # a Stribeck shape measured at onsets or on the map
+            ci.update(_stribeck_elsewhere_ci(diag, j, t, samples, base))
+            if not t.get("seen", "").startswith("on the friction map"):
+                # its velocity was fitted to the sliding samples (with the ratios measured at the onsets)
+                rp, rn, vs, delta = t["fixed_h"]
+                grid = _profile_grid(des, "stribeck", vs)
+                ssr = [_ssr_with(des, jd, res.kept, i, (rp, rn, float(h), delta)) for h in grid]
+                lo, hi = profile_ci(grid, ssr, n_eff)
+                ci["vs_rad_s"] = [None if lo is None else min(lo, vs), None if hi is None else max(hi, vs)]
+        elif key:
+            h0 = float(t["h_all"])
+            grid = _profile_grid(des, name, h0)
+            ssr = [_ssr_with(des, jd, res.kept, i, h) for h in grid]
+            lo, hi = profile_ci(grid, ssr, n_eff)
+            if (lo, hi) != (None, None):      # the estimate is in its interval (a grid's resolution aside)
+                lo = None if lo is None else min(lo, h0)
+                hi = None if hi is None else max(hi, h0)
+            ci[key] = [lo, hi]
+        if name == "backlash":
+            ci["width_rad"] = _backlash_ci(diag.onsets_.get(j, {}))
+        for k, v in ci.items():
+            if k.startswith(("Fc_", "Fs_")) and v[0] is not None:
+                v[0] = max(v[0], 0.0)                     # friction levels are magnitudes
+            if v == [None, None] and k in base and _numeric(base[k]):
+                ni.append(k)
+        out[name] = {"params_ci": ci, "not_identified": ni}
+    return out
+
+
+def _profile_grid(des, name: str, h: float) -> np.ndarray:
+    """Shape values the profile likelihood is evaluated at: the candidate's grid and a fine one around ``h``."""
+    if name == "delay":
+        g = np.r_[DELAY_GRID_S, h + np.linspace(-2e-3, 2e-3, 41)]
+        g = g[(g >= DELAY_GRID_S[0]) & (g <= DELAY_GRID_S[-1])]
+    elif name == "stribeck":
+        g = np.r_[STRIBECK_VS_GRID_RAD_S, np.geomspace(h / 4, h * 4, 41)]
+        g = g[(g >= STRIBECK_VS_GRID_RAD_S[0]) & (g <= STRIBECK_VS_GRID_RAD_S[-1])]
+    elif name == "position_ripple":
+        g = h * (1 + np.linspace(-0.1, 0.1, 81))
+    else:
+        T = DRIFT_T_GRID_FRACTION * max(des.sig.duration_s, 1e-3)
+        g = np.r_[T, np.geomspace(h / 3, h * 3, 41)]
+        g = g[(g >= T[0]) & (g <= T[-1])]
+    return np.unique(np.r_[g, h])
+
+
+def _ssr_with(des, jd, terms: list[dict], i: int, h) -> float:
+    """Residual sum of squares of the final model on all data with term ``i``'s shape set to ``h``."""
+    ts = [dict(t) for t in terms]
+    ts[i]["h_all"] = h
+    if isinstance(h, tuple):
+        ts[i]["fixed_h"] = h
+    y, X = target_and_design(des, jd, ts, None)
+    r = y - X @ lstsq(X, y)
+    return float(r @ r)
+
+
+def _stribeck_elsewhere_ci(diag, j: int, term: dict, samples: list[dict], base: dict) -> dict:
+    """Intervals of a Stribeck effect whose shape was measured at the breakaways or on the friction map: the
+    breakaway ratios and the velocity by a bootstrap over the onsets (or the map's segments), the Coulomb levels
+    from the block bootstrap (``samples``)."""
+    rng = np.random.default_rng(2000 + j)
+    fc_pos = np.array([s["Fc_pos_Nm"] for s in samples])
+    fc_neg = np.array([s["Fc_neg_Nm"] for s in samples])
+    mp = (getattr(diag, "map_tests_", {}) or {}).get(j)
+    ratios, vss = [], []
+    if term.get("seen", "").startswith("on the friction map") and mp is not None:
+        from wamctl.analysis.diagnosis.sweeps import map_bootstrap
+
+        ratios, vss = map_bootstrap(mp, N_BOOT_ONSETS, rng)
+    else:
+        ons = term.get("onsets") or diag.onsets_.get(j) or {}
+        ratios, vss = _onset_ratio_bootstrap(diag, ons, N_BOOT_ONSETS, rng)
+    if not ratios:
+        return {"Fs_pos_Nm": [None, None], "Fs_neg_Nm": [None, None]}
+    k = min(len(ratios), len(fc_pos))
+    rp = np.array([r[0] for r in ratios[:k]])
+    rn = np.array([r[1] for r in ratios[:k]])
+    out = {"Fs_pos_Nm": percentile_ci(rp * fc_pos[:k], center=base["Fs_pos_Nm"]),
+           "Fs_neg_Nm": percentile_ci(rn * fc_neg[:k], center=base["Fs_neg_Nm"])}
+    if vss:
+        out["vs_rad_s"] = percentile_ci(vss, center=base["vs_rad_s"])
+    return out
+
+
+def _onset_ratio_bootstrap(diag, ons: dict, n_boot: int, rng) -> tuple[list, list]:
+    """Breakaway ratios per direction over onsets resampled with replacement (no velocity: that one is fitted
+    to the sliding samples, its interval is a profile's)."""
+    r = ons.get("breakaway_ratio")
+    if r is None or len(r) < 4:
+        return [], []
+    use = np.flatnonzero(np.isfinite(r))
+    if len(use) < 4:
+        return [], []
+    ratios, vss = [], []
+    for _ in range(n_boot):
+        pick = rng.choice(use, size=len(use), replace=True)
+        per = []
+        for sgn in (1.0, -1.0):
+            m = pick[ons["sign"][pick] == sgn]
+            g = np.exp(np.mean(np.log(r[pick])))
+            per.append(float(np.exp(np.mean(np.log(r[m])))) if len(m) >= 2 else float(g))
+        ratios.append(tuple(per))
+    return ratios, vss
+
+
+def _backlash_ci(ons: dict) -> list[float | None]:
+    """Interval of the dead band: the reversal term of the hidden travel over onsets resampled with replacement
+    (reversals and same-direction onsets resampled apart)."""
+    d, rev = ons.get("travel_rad"), ons.get("reversal")
+    if d is None or rev is None or rev.sum() < 3:
+        return [None, None]
+    rng = np.random.default_rng(3000)
+    idx_r, idx_s = np.flatnonzero(rev), np.flatnonzero(~rev)
+    out = []
+    for _ in range(N_BOOT):
+        pr = rng.choice(idx_r, size=len(idx_r), replace=True)
+        if len(idx_s) >= 2:
+            ps = rng.choice(idx_s, size=len(idx_s), replace=True)
+            out.append(float(np.mean(d[pr]) - np.mean(d[ps])))
+        else:
+            out.append(float(np.mean(d[pr])))
+    return percentile_ci(out)
