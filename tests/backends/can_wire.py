@@ -6,6 +6,8 @@ acceptance criteria from those frames only.
 
 from __future__ import annotations
 
+import time
+
 import can
 import numpy as np
 
@@ -141,3 +143,14 @@ def wake_pacing(frames: list[can.Message]) -> dict:
                 and not m.is_error_frame), None)
     return {"n": len(wakes), "gaps_s": np.diff([t for _, t in wakes]).tolist(),
             "silence_s": None if nxt is None else nxt - last_t}
+
+
+def wait_for(predicate, timeout_s: float = 5.0) -> bool:
+    """Poll ``predicate`` until it holds (True) or ``timeout_s`` passed (its last value): a deadline for an
+    event, generous so that a loaded machine only makes the wait longer."""
+    deadline = time.monotonic() + timeout_s
+    while time.monotonic() < deadline:
+        if predicate():
+            return True
+        time.sleep(0.002)
+    return predicate()

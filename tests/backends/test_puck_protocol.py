@@ -10,6 +10,7 @@ import uuid
 import can
 import numpy as np
 import pytest
+from can_wire import wait_for
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
@@ -314,11 +315,34 @@ def test_transmission_constants() -> None:
     assert not J2MP.flags.writeable
 
 
-def test_j2mp_matches_model_params() -> None:
-    params = pytest.importorskip("wamctl.model.params")
-    if not hasattr(params, "J2MP"):
-        pytest.skip("wamctl.model.params has no J2MP")
-    np.testing.assert_array_equal(J2MP, params.J2MP)
+# libbarrett (BarrettTechnology/libbarrett 109faf60) config/wam7w.conf, low_level.j2mp: typed from the file,
+# not from our code
+LIBBARRETT_WAM7W_J2MP = [
+    [-42.0, 0, 0, 0, 0, 0, 0],
+    [0, 28.25, -16.8155, 0, 0, 0, 0],
+    [0, -28.25, -16.8155, 0, 0, 0, 0],
+    [0, 0, 0, -18.0, 0, 0, 0],
+    [0, 0, 0, 0, 9.7, -9.7, 0],
+    [0, 0, 0, 0, 9.7, 9.7, 0],
+    [0, 0, 0, 0, 0, 0, -14.93],
+]
+
+
+def test_j2mp_is_libbarretts_wam7w_matrix() -> None:
+    np.testing.assert_array_equal(J2MP, np.array(LIBBARRETT_WAM7W_J2MP))
+
+
+def test_group_ids_are_libbarretts() -> None:
+    """include/barrett/products/puck.h GROUP_MASK 0x400; puck_group.h BGRP_WHOLE_BUS 0, BGRP_LOWER_WAM 1,
+    BGRP_UPPER_WAM 2, BGRP_WAM 4, BGRP_HAND 5 (each | GROUP_MASK)."""
+    from wamctl.backends.can.protocol.addressing import (
+        GROUP_HAND,
+        GROUP_LOWER_WAM,
+        GROUP_UPPER_WAM,
+        GROUP_WHOLE_BUS,
+    )
+    assert (GROUP_FLAG, GROUP_WHOLE_BUS, GROUP_LOWER_WAM, GROUP_UPPER_WAM, GROUP_WAM, GROUP_HAND) == (
+        0x400, 0x400, 0x401, 0x402, 0x404, 0x405)
 
 
 @given(q=q_within_limits(), cts=st.sampled_from([4096, 40960]))
@@ -409,15 +433,6 @@ def get_property(bus: can.BusABC, puck: int, prop: int) -> int | None:
 def read_positions(bus: can.BusABC, expected: int = 7) -> dict[int, int]:
     bus.send(make_position_request())
     return dict(parse_position_reply(m) for m in recv_until(bus, expected))
-
-
-def wait_for(predicate, timeout_s: float = 2.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.002)
-    return predicate()
 
 
 Q_TEST = np.array([0.3, -1.2, 0.8, 2.0, -0.5, 0.4, -2.2])

@@ -12,6 +12,7 @@ import uuid
 import can
 import numpy as np
 import pytest
+from can_wire import wait_for
 from conftest import Q0
 
 from wamctl.backends.can.bus_tools import read_property, wake_pucks
@@ -72,15 +73,6 @@ def positions(bus: can.BusABC, n: int = 7, timeout_s: float = 0.25) -> dict[int,
         if m.arbitration_id != SAFETY_BROADCAST_ID:
             out[parse_position_reply(m)[0]] = m
     return out
-
-
-def wait_for(predicate, timeout_s: float = 5.0) -> bool:
-    deadline = time.monotonic() + timeout_s
-    while time.monotonic() < deadline:
-        if predicate():
-            return True
-        time.sleep(0.002)
-    return predicate()
 
 
 def module(bus, prop):
