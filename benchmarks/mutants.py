@@ -102,7 +102,7 @@ MUTANTS: tuple[Mutant, ...] = (
     Mutant("diagnosis-no-autocorrelation", "wamctl/analysis/diagnosis/stats.py",
            "tau = 1.0 if independent else effective_tau(e1, None if groups is None else np.asarray(groups)[ok])",
            "tau = 1.0",
-           ("tests/analysis/test_diagnose.py", "tests/analysis/test_diagnose_v2.py"),
+           ("tests/analysis/test_diagnosis_stats.py", "tests/analysis/test_diagnose.py"),
            "held-out samples counted as independent although the residual is autocorrelated"),
     Mutant("diagnosis-no-minimum-effect", "wamctl/analysis/diagnosis/stats.py",
            "lam = n_eff * min_effect / (1.0 - min_effect)",
