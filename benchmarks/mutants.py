@@ -68,8 +68,8 @@ MUTANTS: tuple[Mutant, ...] = (
            ("tests/analysis/test_friction_id.py",), "viscous columns of the two directions swapped"),
     # ---------------------------------------------------------------- dynamics
     Mutant("dynamics-no-armature", "wamctl/model/dynamics.py",
-           "model.armature = P.ARMATURE_KG_M2.copy()",
-           "model.armature = 0.0 * P.ARMATURE_KG_M2",
+           "model.armature = np.array(links.armature_kg_m2)",
+           "model.armature = 0.0 * np.array(links.armature_kg_m2)",
            ("tests/model/",), "reflected rotor inertia left out of the rigid-body model"),
     # ---------------------------------------------------------------- CAN wire (libbarrett's puck protocol)
     Mutant("can-position-no-sign-extension", "wamctl/backends/can/protocol/positions.py",
