@@ -239,5 +239,9 @@ def test_replay_raw_source_reruns_the_session_offline(block_run, tmp_path, via):
     t_live = pd.read_csv(outcome.path / "trials.csv")
     t_again = pd.read_csv(again.path / "trials.csv")
     assert t_again.loc[0, "outcome"] == t_live.loc[0, "outcome"]
-    assert t_again.loc[0, "time_s"] == pytest.approx(t_live.loc[0, "time_s"], abs=0.05)
+    # within a sample and a tick, plus however differently the two runs' samples were stamped: a live run on a
+    # loaded machine takes its samples late, and the trial's times follow the stamps (both are in the runs' tables,
+    # so this holds on any machine and stays as tight as the stamps on a quiet one)
+    stamps_differ_s = float(np.ptp(rerun["t_s"].to_numpy()[:n] - live["t_s"].to_numpy()[:n]))
+    assert t_again.loc[0, "time_s"] == pytest.approx(t_live.loc[0, "time_s"], abs=0.05 + stamps_differ_s)
     assert (again.path / "gaze_capture.txt").read_text().count("\n# section") == 1  # the bytes it decoded, kept
