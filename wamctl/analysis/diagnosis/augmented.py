@@ -190,6 +190,8 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
     same = not diag.effects_found_
     # up to BOTH_HALVES_MAX samples, both halves are scored (four simulations); above, one half (two)
     for h in ((0, 1) if n <= BOTH_HALVES_MAX else (1,)):
+        if not any((half == h).any() for half in half_t.values()):
+            continue        # no sample of this half in the window simulated (a long run's first block)
         thetas = diag.refit(lambda jd, h=h: half_fit[jd.j] != h)       # fit on the other half
         for which in ("before", "after"):
             if which == "after" and same:

@@ -16,7 +16,7 @@ import numpy as np
 from wamctl.analysis.diagnosis.backlash import breakaway_ratio, find_onsets, hidden_travel, resolution_rad
 from wamctl.analysis.diagnosis.candidates import MAX_BREAKAWAY_RATIO, STRIBECK_VS_GRID_RAD_S
 from wamctl.analysis.diagnosis.design import Design, block_of, levels, levels_dict
-from wamctl.analysis.diagnosis.signals import Signals, delayed, zoh_centred
+from wamctl.analysis.diagnosis.signals import Signals, delayed
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
 
@@ -114,7 +114,7 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
             ons = [ons[i] for i in np.unique(np.linspace(0, len(ons) - 1, MAX_ONSETS).round().astype(int))]
         cache[tol] = ons
     ons = cache[tol]
-    tau_c = zoh_centred(sig.tau_raw_Nm[:, j], sig.zoh_share)      # as for the sliding residual
+    tau_c = sig.tau_centred_Nm[:, j]           # aligned to the zero-order hold, as for the sliding residual
     tau_c_decl = delayed(sig.t_s, tau_c, model.delay_declared_s) if model.delay_declared_s > 0 else tau_c
     if model.delay_s > 0:   # positions measured d late: the torque that moved the link to q_meas(t) acted at t - d
         tau_c = delayed(sig.t_s, tau_c, model.delay_s)

@@ -57,15 +57,16 @@ def prepare_design(sig: Signals, dyn: WamDynamics, friction_given: FrictionModel
         idx = np.flatnonzero(keep & sig.moving[:, j])
         u = pos[idx]
         block = np.minimum((np.arange(len(idx)) * n_blocks) // max(len(idx), 1), n_blocks - 1)
-        tau_j = sig.at("tau", idx, -delay / sig.dt_s)[:, j]      # a declared delay: the torque d earlier
+        tau_j = sig.at("tau", idx, -delay / sig.dt_s, j)      # a declared delay: the torque d earlier
         y = tau_j - rnea[u, j] - known[idx, j]
+        qdd_j = sig.at("qdd", idx, joint=j)
         extra = {"t_rel": sig.t_s[idx] - sig.t_s[0], "block": block, "tau": tau_j,
                  "dgdq_full": np.interp(sig.t_s, sig.t_s[coarse], dgdq_c[:, j])}
         if want_payload:
             extra["payload"] = reg[u, j, PAYLOAD_REGRESSOR]
-            extra["links_base"] = link_base_rows(reg[u, j, :], sig.at("qdd", idx)[:, j], j)
-        jds[j] = JointData(j, idx, sig.t_s[idx], sig.at("q", idx)[:, j], sig.qd_rad_s[idx, j],
-                           sig.at("qdd", idx)[:, j], y, block % n_folds, extra)
+            extra["links_base"] = link_base_rows(reg[u, j, :], qdd_j, j)
+        jds[j] = JointData(j, idx, sig.t_s[idx], sig.at("q", idx, joint=j), sig.qd_rad_s[idx, j], qdd_j, y,
+                           block % n_folds, extra)
     if want_payload:
         del reg
     return des, jds

@@ -41,6 +41,8 @@ DEFAULT_GAUSS_S = 0.008         # 4 samples at 500 Hz: together about 10 Hz of b
 MIN_RATE_HZ = 50.0             # below this, accelerations cannot be estimated over a window this short
 MIN_MOVING_SAMPLES = 200       # a joint needs this many sliding samples to be diagnosed
 MIN_TRAVEL_RAD = 0.02
+STRETCH_RATIO = 8              # Signals.smooth_at: convolve stretches covering this many times fewer positions
+SMOOTH_CHUNK = 2048            # Signals.smooth_at: samples evaluated together, window by window
 
 
 @dataclass
@@ -106,12 +108,14 @@ class Signals:
             self._full["tau"] = self.smooth(self.tau_centred_Nm)
         return self._full["tau"]
 
-    def at(self, what: str, idx: np.ndarray, shift: float = 0.0) -> np.ndarray:
+    def at(self, what: str, idx: np.ndarray, shift: float = 0.0, joint: int | None = None) -> np.ndarray:
         """(m, 7) smoothed ``"q"``, ``"qd"``, ``"qdd"`` or ``"tau"`` at the samples ``idx`` (``shift`` samples
-        later), from the full-rate array when it exists, else by the filter evaluated there."""
+        later), from the full-rate array when it exists, else by the filter evaluated there; (m,) of one 0-based
+        ``joint`` only."""
         key = {"q": "q", "qdd": "qdd", "tau": "tau"}.get(what)
+        cols = slice(None) if joint is None else joint
         if what == "qd" or key in self._full:
-            full = self.qd_rad_s if what == "qd" else self._full[key]
+            full = (self.qd_rad_s if what == "qd" else self._full[key])[:, cols]
             if not shift:
                 return full[idx]
             return _interp_rows(full, idx, shift)
@@ -119,7 +123,7 @@ class Signals:
         deriv = {"q": 0, "qdd": 2, "tau": 0}[what]
         if what == "qdd" and self.qd_raw_rad_s is not None:
             raw, deriv = self.qd_raw_rad_s, 1
-        return self.smooth_at(raw, idx, shift, deriv)
+        return self.smooth_at(raw[:, cols], idx, shift, deriv)
 
     @property
     def zoh_share(self) -> float:
@@ -151,26 +155,30 @@ class Signals:
         ``X`` is an (n, p) / (n,) array, or a function ``pos -> values`` of full-rate sample indices (then the
         feature is only evaluated where the filter needs it: long runs are not computed at the full rate).
         ``shift``: the filtered feature ``shift`` samples later (fractional: linear interpolation between the two
-        neighbouring samples, as ``np.interp`` of the filtered feature)."""
+        neighbouring samples, as ``np.interp`` of the filtered feature).
+
+        Sparse samples (a long run's decimated ones) are evaluated window by window, one matrix-vector product
+        over the taps; runs of nearby samples (stretches around onsets) by one convolution over the stretches
+        they cover; samples covering most of the run by the convolution at the full rate."""
         k = self.kernel(deriv)
-        r = len(k) // 2
-        idx = np.asarray(idx)
+        idx = np.asarray(idx, int)
         base = int(np.floor(shift))
         frac = float(shift - base)
-        offs = [base] if frac < 1e-12 else [base, base + 1]
-        fn = X if callable(X) else np.asarray(X, float).__getitem__
-        if len(idx) * len(k) * len(offs) > self.n:       # cheaper at the full rate
+        fn, width = _feature_fn(X)
+        if frac >= 1e-12:         # two neighbouring shifts, interpolated: one kernel a tap longer
+            k = np.r_[(1.0 - frac) * k, 0.0] + np.r_[0.0, frac * k]
+        first = base - len(self.kernel(deriv)) // 2       # the window of sample i starts at i + first
+        if len(idx) == 0:
+            return _smooth_windows(fn, width, idx, k, first, self.n)
+        gaps = np.flatnonzero(np.diff(idx) > len(k)) + 1    # between stretches whose windows do not touch
+        starts, ends = idx[np.r_[0, gaps]], idx[np.r_[gaps - 1, len(idx) - 1]]
+        covered = int(np.sum(ends - starts + len(k)))
+        # a convolution costs about len(k) / STRETCH_RATIO evaluations of the feature per position it covers
+        if STRETCH_RATIO * covered > len(idx) * len(k):
+            return _smooth_windows(fn, width, idx, k, first, self.n)
+        if 2 * covered > self.n:
             return _interp_rows(self.smooth(np.asarray(fn(np.arange(self.n)), float), deriv), idx, shift)
-        out = None
-        for w, o in zip(([1.0] if len(offs) == 1 else [1.0 - frac, frac]), offs):
-            pos = np.clip(idx[:, None] + o + np.arange(-r, r + 1)[None, :], 0, self.n - 1)
-            vals = np.asarray(fn(pos.ravel()), float)
-            if vals.ndim == 1:
-                y = vals.reshape(pos.shape) @ k
-            else:
-                y = np.einsum("mkp,k->mp", vals.reshape(pos.shape + (vals.shape[1],)), k)
-            out = w * y if out is None else out + w * y
-        return out
+        return _smooth_stretches(fn, idx, k, first, starts, ends, self.n)
 
     @property
     def duration_s(self) -> float:
@@ -278,6 +286,59 @@ def _interp_rows(full: np.ndarray, idx: np.ndarray, shift: float) -> np.ndarray:
     i0 = np.minimum(np.floor(p).astype(int), n - 2)
     f = (p - i0) if full.ndim == 1 else (p - i0)[:, None]
     return full[i0] * (1.0 - f) + full[i0 + 1] * f
+
+
+def _feature_fn(X) -> tuple:
+    """(``pos -> values``, columns) of a full-rate feature: a function as given (one column assumed for the
+    chunk size), or the rows of an (n,) / (n, p) array."""
+    if callable(X):
+        return X, 1
+    Xa = np.asarray(X, float)
+    if Xa.ndim == 1:
+        return Xa.__getitem__, 1
+    if Xa.flags.f_contiguous:   # column by column (a table's columns, a filter's output), column-major out
+
+        def columns(p):
+            out = np.empty((Xa.shape[1], len(p)))
+            for c in range(Xa.shape[1]):
+                np.take(Xa[:, c], p, out=out[c])
+            return out.T
+        return columns, Xa.shape[1]
+    return (lambda p: np.take(Xa, p, axis=0)), Xa.shape[1]     # several times faster than fancy indexing
+
+
+def _smooth_windows(fn, width: int, idx: np.ndarray, k: np.ndarray, first: int, n: int) -> np.ndarray:
+    """``sum_t k[t] fn(i + first + t)`` (m,) / (m, p) at samples ``idx`` (m,) far apart: the feature evaluated
+    on each window (positions held at the ends of the run), one matrix-vector product over the taps."""
+    taps = first + np.arange(len(k))[:, None]
+    out = []
+    chunk = max(64, SMOOTH_CHUNK // width)       # chunks: the (taps, m) arrays stay in the cache
+    for c in range(0, max(len(idx), 1), chunk):
+        ii = idx[c:c + chunk]
+        pos = np.clip(ii[None, :] + taps, 0, n - 1)
+        vals = np.asarray(fn(pos.ravel()), float)
+        if vals.ndim == 1:
+            out.append(k @ vals.reshape(pos.shape))
+        elif vals.flags.f_contiguous:          # features built column by column
+            out.append((k @ vals.T.reshape(vals.shape[1], len(k), len(ii))).T)
+        else:
+            out.append((k @ vals.reshape(len(k), -1)).reshape(len(ii), vals.shape[1]))
+    return out[0] if len(out) == 1 else np.concatenate(out)
+
+
+def _smooth_stretches(fn, idx: np.ndarray, k: np.ndarray, first: int, starts: np.ndarray, ends: np.ndarray,
+                      n: int) -> np.ndarray:
+    """:func:`_smooth_windows` for samples ``idx`` that come in stretches ``[starts, ends]`` (inclusive, in
+    order, their windows apart): the feature evaluated once on each stretch's span, one convolution over the
+    spans laid end to end (each output reads its own span only)."""
+    lengths = ends - starts + len(k)
+    offsets = np.r_[0, np.cumsum(lengths)[:-1]]
+    within = np.arange(int(lengths.sum())) - np.repeat(offsets, lengths)
+    pos = np.clip(np.repeat(starts + first, lengths) + within, 0, n - 1)
+    vals = np.asarray(fn(pos), float)
+    conv = correlate1d(vals, k, axis=0, mode="nearest")      # conv[c + L // 2] = sum_t k[t] vals[c + t]
+    stretch = np.searchsorted(starts, idx, side="right") - 1
+    return conv[offsets[stretch] + (idx - starts[stretch]) + len(k) // 2]
 
 
 @lru_cache(maxsize=16)
