@@ -76,13 +76,7 @@ def _rigid_body_rows(dyn: WamDynamics, sig: Signals, rows: np.ndarray,
                      want_payload: bool) -> tuple[np.ndarray, np.ndarray | None]:
     """Rigid-body torque (r, 7) at the samples ``rows`` (r,), and the inertial regressor (r, 7, 70) there."""
     q, qd, qdd = sig.at("q", rows), sig.at("qd", rows), sig.at("qdd", rows)
-    rnea = np.empty((len(rows), N7))
-    reg = np.empty((len(rows), N7, 70)) if want_payload else None
-    for k in range(len(rows)):
-        rnea[k] = dyn.inverse_dynamics(q[k], qd[k], qdd[k])
-        if want_payload:
-            reg[k] = dyn.regressor_basis(q[k], qd[k], qdd[k])
-    return rnea, reg
+    return dyn.inverse_dynamics_many(q, qd, qdd), (dyn.torque_regressor(q, qd, qdd) if want_payload else None)
 
 
 def link_base_rows(inertial: np.ndarray, qdd_j: np.ndarray, j: int) -> np.ndarray:
@@ -106,7 +100,7 @@ def _rigid_body_full(dyn: WamDynamics, sig: Signals) -> np.ndarray:
     if grid[-1] != sig.n - 1:
         grid = np.append(grid, sig.n - 1)
     q, qd, qdd = sig.at("q", grid), sig.at("qd", grid), sig.at("qdd", grid)
-    rg = np.array([dyn.inverse_dynamics(q[k], qd[k], qdd[k]) for k in range(len(grid))])
+    rg = dyn.inverse_dynamics_many(q, qd, qdd)
     return interp_columns(np.arange(sig.n), grid, rg)
 
 
@@ -115,12 +109,11 @@ def _gravity_stiffness(dyn: WamDynamics, sig: Signals, rows: np.ndarray, eps: fl
     the link sits w/2 away from the encoder), by forward differences."""
     q = sig.at("q", rows)
     out = np.zeros((len(rows), N7))
-    for k in range(len(rows)):
-        g0 = dyn.gravity(q[k])
-        for j in sig.joints:
-            dq = np.zeros(N7)
-            dq[j] = eps
-            out[k, j] = (dyn.gravity(q[k] + dq)[j] - g0[j]) / eps
+    g0 = dyn.gravity_many(q)
+    for j in sig.joints:
+        qj = q.copy()
+        qj[:, j] += eps
+        out[:, j] = (dyn.gravity_many(qj)[:, j] - g0[:, j]) / eps
     return out
 
 
