@@ -84,7 +84,9 @@ def plant_dict(diag, which: str = "after", thetas: dict | None = None) -> dict:
     if which == "after":
         effects.update(_effects_after(diag, thetas, joints))
     sensors = dict(declared.sensors or {})
-    sensors.setdefault("encoder_counts_per_rev", encoder_counts(diag.signals_.q_raw_rad, diag.signals_.joints))
+    sig = diag.signals_
+    sensors.setdefault("encoder_counts_per_rev", sig.memo("encoder_counts",
+                                                         lambda: encoder_counts(sig.q_raw_rad, sig.joints)))
     out = {"friction": {"joints": joints}, "effects": effects, "sensors": sensors}
     if declared.links is not None:          # an identified arm (`wamctl identify`) stays the plant's rigid body
         out["links"] = declared.links.to_mapping()

@@ -449,7 +449,7 @@ class ModelDiagnosis:
 
         mp = self.meta_.payload
         ctl = WamDynamics(Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None)
-        self.gains_ = controller_gains(self.signals_, self.meta_, ctl.gravity)
+        self.gains_ = controller_gains(self.signals_, self.meta_, ctl.gravity_many)
         if self.gains_["kp"] is None:
             self.position_skipped_ = self.gains_["reason"]
             log.warning("closed-loop position check skipped: %s", self.position_skipped_)

@@ -87,7 +87,7 @@ def onset_model(diag, j: int, declared: bool = False, exclude: tuple[str, ...] =
 def detection_tolerance(sig: Signals, j: int) -> tuple[float, float]:
     """(encoder step, tolerance) rad: the measurement has moved once it left the stall value by two encoder
     steps (or four noise sigmas)."""
-    quantum = resolution_rad(sig.q_raw_rad[:, j])
+    quantum = sig.memo(("resolution_rad", j), lambda: resolution_rad(sig.q_raw_rad[:, j]))
     return quantum, max(2.0 * quantum, 4.0 * float(sig.q_noise_rad[j]), 1e-6)
 
 

@@ -14,7 +14,7 @@ import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import ripple_gain
 from wamctl.analysis.diagnosis.design import Design, JointData
-from wamctl.analysis.diagnosis.signals import Signals, interp_columns
+from wamctl.analysis.diagnosis.signals import GridSignal, Signals
 from wamctl.model import params as P
 from wamctl.model.dynamics import WamDynamics
 from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
@@ -61,7 +61,7 @@ def prepare_design(sig: Signals, dyn: WamDynamics, friction_given: FrictionModel
         y = tau_j - rnea[u, j] - known[idx, j]
         qdd_j = sig.at("qdd", idx, joint=j)
         extra = {"t_rel": sig.t_s[idx] - sig.t_s[0], "block": block, "tau": tau_j,
-                 "dgdq_full": np.interp(sig.t_s, sig.t_s[coarse], dgdq_c[:, j])}
+                 "dgdq_full": GridSignal(coarse, dgdq_c[:, [j]])}
         if want_payload:
             extra["payload"] = reg[u, j, PAYLOAD_REGRESSOR]
             extra["links_base"] = link_base_rows(reg[u, j, :], qdd_j, j)
@@ -93,15 +93,14 @@ def link_base_rows(inertial: np.ndarray, qdd_j: np.ndarray, j: int) -> np.ndarra
     return base.regressor(Y)[:, cols]
 
 
-def _rigid_body_full(dyn: WamDynamics, sig: Signals) -> np.ndarray:
+def _rigid_body_full(dyn: WamDynamics, sig: Signals) -> GridSignal:
     """Rigid-body torque (n, 7) at every sample (interpolated from a uniform grid: the delay shifts it in time)."""
     stride = max(1, sig.n // MAX_RNEA_GRID)
     grid = np.arange(0, sig.n, stride)
     if grid[-1] != sig.n - 1:
         grid = np.append(grid, sig.n - 1)
     q, qd, qdd = sig.at("q", grid), sig.at("qd", grid), sig.at("qdd", grid)
-    rg = dyn.inverse_dynamics_many(q, qd, qdd)
-    return interp_columns(np.arange(sig.n), grid, rg)
+    return GridSignal(grid, dyn.inverse_dynamics_many(q, qd, qdd))
 
 
 def _gravity_stiffness(dyn: WamDynamics, sig: Signals, rows: np.ndarray, eps: float = 1e-4) -> np.ndarray:

@@ -83,6 +83,14 @@ class Signals:
     time_base: str = "as logged"
     qd_raw_rad_s: np.ndarray | None = None       # measured velocities (the log's qd_* columns), when given
     _full: dict = field(default_factory=dict, repr=False)
+    _memo: dict = field(default_factory=dict, repr=False)
+
+    def memo(self, key, compute):
+        """``compute()`` once per ``key``: a statistic of the run's signals that several steps read (a joint's
+        encoder step, say), computed over the full run only once."""
+        if key not in self._memo:
+            self._memo[key] = compute()
+        return self._memo[key]
 
     # The smoothed position, acceleration and torque at the full rate are computed on first use only: a long
     # run is analysed at its joints' (decimated) samples, where :meth:`at` evaluates the filter.
@@ -183,6 +191,30 @@ class Signals:
     @property
     def duration_s(self) -> float:
         return float(self.t_s[-1] - self.t_s[0])
+
+
+@dataclass
+class GridSignal:
+    """A full-rate (n, p) signal kept at a grid of its samples and interpolated linearly between them (a long run's
+    rigid-body torque is not stored at every sample). ``sig[rows, j]`` reads it like an array (``rows`` sample
+    indices, ``j`` one column); :meth:`at` at fractional sample positions.
+
+    Attributes
+    ----------
+    grid : (g,) increasing full-rate sample indices (beyond the first and the last, the signal is held).
+    values : (g, p) the signal there.
+    """
+
+    grid: np.ndarray
+    values: np.ndarray
+
+    def at(self, pos: np.ndarray, j: int) -> np.ndarray:
+        """Column ``j`` at the (fractional) sample positions ``pos`` (held at the ends)."""
+        return np.interp(pos, self.grid, self.values[:, j])
+
+    def __getitem__(self, key) -> np.ndarray:
+        rows, j = key           # rows: sample indices (an array or one); j: one column
+        return self.at(rows, j)
 
 
 TIME_AS_LOGGED = "as logged"

@@ -47,7 +47,8 @@ def moves_from_reference(t_s: np.ndarray, q_ref: np.ndarray, min_travel_rad: flo
     starts = []
     for a, b in _runs(moving):
         # split where the direction flips without a hold
-        cuts = [a] + [k for k in range(a + 1, b) if sgn[k] != sgn[k - 1] and sgn[k] != 0] + [b]
+        flips = a + 1 + np.flatnonzero((sgn[a + 1:b] != sgn[a:b - 1]) & (sgn[a + 1:b] != 0))
+        cuts = [a, *flips.tolist(), b]
         for s0, s1 in zip(cuts[:-1], cuts[1:]):
             travel = q_ref[s1] - q_ref[s0]
             if abs(travel) < min_travel_rad:

@@ -162,12 +162,11 @@ def _add_stage_friction(df: pd.DataFrame, t_s: np.ndarray, q: np.ndarray, tau: n
         return
     f = friction_samples(t_s, q, tau, all_rows, dynamics, window_s)
     pos = 0
-    for idx in df.index[df["n_samples"] > 0]:
-        if pd.isna(df.at[idx, "velocity_rad_s"]):
-            continue
-        n = int(df.at[idx, "n_samples"])
-        fj = f[pos:pos + n, int(df.at[idx, "joint"]) - 1]
+    rows = df.index[(df["n_samples"] > 0) & df["velocity_rad_s"].notna()]
+    stats_ = []                 # (mean, std, se, ci95) per stage, written to the table at once
+    for n, joint in zip(df.loc[rows, "n_samples"].astype(int), df.loc[rows, "joint"].astype(int)):
+        fj = f[pos:pos + n, joint - 1]
         pos += n
-        df.at[idx, "friction_Nm"] = float(fj.mean())
-        df.at[idx, "friction_std_Nm"] = float(fj.std(ddof=1))
-        df.at[idx, "friction_se_Nm"], df.at[idx, "friction_ci95_Nm"] = batch_mean_se(fj)
+        stats_.append((float(fj.mean()), float(fj.std(ddof=1)), *batch_mean_se(fj)))
+    if stats_:
+        df.loc[rows, ["friction_Nm", "friction_std_Nm", "friction_se_Nm", "friction_ci95_Nm"]] = stats_
