@@ -215,10 +215,14 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
         """The smoothed feature ``fn(full-rate indices)`` at the joint's samples (``d`` seconds later)."""
         return sig.smooth_at(fn, jd.idx, shift)
 
+    def of_speed(fn):
+        """The smoothed feature ``fn(speeds)`` of the joint's velocity at its samples (``d`` seconds later)."""
+        return sig.smooth_at(fn, jd.idx, shift, source=(("qd", j), qd_f))
+
     if name == "friction":
-        return sample(lambda p: friction_columns(qd_f[p], h))
+        return of_speed(lambda v: friction_columns(v, h))
     if name == "stribeck":
-        return sample(lambda p: stribeck_columns(qd_f[p], h))
+        return of_speed(lambda v: stribeck_columns(v, h))
     if name == "position_ripple":
         q_f = sig.q_raw_rad[:, j]          # the angle as measured (the filter then smooths the feature)
 

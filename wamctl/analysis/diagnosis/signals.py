@@ -43,6 +43,7 @@ MIN_MOVING_SAMPLES = 200       # a joint needs this many sliding samples to be d
 MIN_TRAVEL_RAD = 0.02
 STRETCH_RATIO = 8              # Signals.smooth_at: convolve stretches covering this many times fewer positions
 SMOOTH_CHUNK = 2048            # Signals.smooth_at: samples evaluated together, window by window
+KEPT_WINDOWS = 6               # Signals.smooth_at: sets of gathered windows kept for the next features
 
 
 @dataclass
@@ -156,14 +157,16 @@ class Signals:
         Gaussian truncated at 4 sigma): ``y[i] = sum_k kernel[k] x[i - r + k]``."""
         return _kernel(self.window, float(self.gauss), deriv, self.dt_s)
 
-    def smooth_at(self, X, idx: np.ndarray, shift: float = 0.0, deriv: int = 0) -> np.ndarray:
+    def smooth_at(self, X, idx: np.ndarray, shift: float = 0.0, deriv: int = 0, source=None) -> np.ndarray:
         """The analysis filter of a full-rate feature evaluated at the samples ``idx`` only (m, p) or (m,): the
         same convolution as :meth:`smooth` away from the ends (which the masks leave out).
 
         ``X`` is an (n, p) / (n,) array, or a function ``pos -> values`` of full-rate sample indices (then the
-        feature is only evaluated where the filter needs it: long runs are not computed at the full rate).
-        ``shift``: the filtered feature ``shift`` samples later (fractional: linear interpolation between the two
-        neighbouring samples, as ``np.interp`` of the filtered feature).
+        feature is only evaluated where the filter needs it: long runs are not computed at the full rate), or with
+        ``source = (key, x)`` a function of the values of the full-rate signal ``x`` (n,) (its values around a
+        long run's samples are then gathered once for every feature of ``x`` at those samples: ``key`` names
+        ``x``). ``shift``: the filtered feature ``shift`` samples later (fractional: linear interpolation between
+        the two neighbouring samples, as ``np.interp`` of the filtered feature).
 
         Sparse samples (a long run's decimated ones) are evaluated window by window, one matrix-vector product
         over the taps; runs of nearby samples (stretches around onsets) by one convolution over the stretches
@@ -172,7 +175,11 @@ class Signals:
         idx = np.asarray(idx, int)
         base = int(np.floor(shift))
         frac = float(shift - base)
-        fn, width = _feature_fn(X)
+        if source is not None:
+            values_fn, x = X, source[1]
+            fn, width = (lambda p: values_fn(x[p])), 1
+        else:
+            fn, width = _feature_fn(X)
         if frac >= 1e-12:         # two neighbouring shifts, interpolated: one kernel a tap longer
             k = np.r_[(1.0 - frac) * k, 0.0] + np.r_[0.0, frac * k]
         first = base - len(self.kernel(deriv)) // 2       # the window of sample i starts at i + first
@@ -183,10 +190,27 @@ class Signals:
         covered = int(np.sum(ends - starts + len(k)))
         # a convolution costs about len(k) / STRETCH_RATIO evaluations of the feature per position it covers
         if STRETCH_RATIO * covered > len(idx) * len(k):
+            if source is not None:
+                return _smooth_windows(values_fn, width, idx, k, first, self.n,
+                                       self._windows(source, idx, first, len(k)))
             return _smooth_windows(fn, width, idx, k, first, self.n)
         if 2 * covered > self.n:
             return _interp_rows(self.smooth(np.asarray(fn(np.arange(self.n)), float), deriv), idx, shift)
         return _smooth_stretches(fn, idx, k, first, starts, ends, self.n)
+
+    def _windows(self, source: tuple, idx: np.ndarray, first: int, taps: int) -> list[np.ndarray]:
+        """The values of ``source = (key, x)`` on the windows of the samples ``idx`` (chunks of
+        :func:`_smooth_windows`), gathered once and kept for the next features (the last few sets)."""
+        key = ("windows", source[0], first, taps, len(idx), int(idx[0]), int(idx[-1]))
+        kept = self._memo.setdefault("windows", {})
+        if key not in kept:
+            if len(kept) >= KEPT_WINDOWS:
+                del kept[next(iter(kept))]           # the oldest
+            x = source[1]
+            tap = first + np.arange(taps)[:, None]
+            kept[key] = [x[np.clip(idx[None, c:c + SMOOTH_CHUNK] + tap, 0, self.n - 1).ravel()]
+                         for c in range(0, len(idx), SMOOTH_CHUNK)]
+        return kept[key]
 
     @property
     def duration_s(self) -> float:
@@ -207,6 +231,9 @@ class GridSignal:
 
     grid: np.ndarray
     values: np.ndarray
+
+    def __post_init__(self):
+        self.values = np.asfortranarray(self.values, dtype=float)     # a column is read at a time
 
     def at(self, pos: np.ndarray, j: int) -> np.ndarray:
         """Column ``j`` at the (fractional) sample positions ``pos`` (held at the ends)."""
@@ -339,18 +366,22 @@ def _feature_fn(X) -> tuple:
     return (lambda p: np.take(Xa, p, axis=0)), Xa.shape[1]     # several times faster than fancy indexing
 
 
-def _smooth_windows(fn, width: int, idx: np.ndarray, k: np.ndarray, first: int, n: int) -> np.ndarray:
+def _smooth_windows(fn, width: int, idx: np.ndarray, k: np.ndarray, first: int, n: int,
+                    windows: list[np.ndarray] | None = None) -> np.ndarray:
     """``sum_t k[t] fn(i + first + t)`` (m,) / (m, p) at samples ``idx`` (m,) far apart: the feature evaluated
-    on each window (positions held at the ends of the run), one matrix-vector product over the taps."""
+    on each window (positions held at the ends of the run), one matrix-vector product over the taps. With
+    ``windows`` (the chunks of a source's values there, see ``Signals._windows``) ``fn`` maps those values."""
     taps = first + np.arange(len(k))[:, None]
     out = []
-    chunk = max(64, SMOOTH_CHUNK // width)       # chunks: the (taps, m) arrays stay in the cache
-    for c in range(0, max(len(idx), 1), chunk):
+    chunk = SMOOTH_CHUNK if windows is not None else max(64, SMOOTH_CHUNK // width)   # the arrays stay in cache
+    for i, c in enumerate(range(0, max(len(idx), 1), chunk)):
         ii = idx[c:c + chunk]
-        pos = np.clip(ii[None, :] + taps, 0, n - 1)
-        vals = np.asarray(fn(pos.ravel()), float)
+        if windows is not None:
+            vals = np.asarray(fn(windows[i]), float) if len(ii) else np.zeros(0)
+        else:
+            vals = np.asarray(fn(np.clip(ii[None, :] + taps, 0, n - 1).ravel()), float)
         if vals.ndim == 1:
-            out.append(k @ vals.reshape(pos.shape))
+            out.append(k @ vals.reshape(len(k), len(ii)))
         elif vals.flags.f_contiguous:          # features built column by column
             out.append((k @ vals.T.reshape(vals.shape[1], len(k), len(ii))).T)
         else:
