@@ -226,10 +226,10 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
     if name == "position_ripple":
         q_f = sig.q_raw_rad[:, j]          # the angle as measured (the filter then smooths the feature)
 
-        def ripple(p):
-            ph = 2 * np.pi * q_f[p] / h
+        def ripple(q):
+            ph = 2 * np.pi * q / h
             return np.column_stack([np.sin(ph), np.cos(ph)])
-        return sample(ripple)
+        return sig.smooth_at(ripple, jd.idx, shift, source=(("q", j), q_f))
     if name == "payload":
         X = jd.extra["payload"]
         if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold

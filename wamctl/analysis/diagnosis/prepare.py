@@ -51,11 +51,10 @@ def prepare_design(sig: Signals, dyn: WamDynamics, friction_given: FrictionModel
     known, known_other = declared_torque(sig, friction_given, effects)
     delay = declared_delay_s(effects)
     des = Design(sig, _rigid_body_full(dyn, sig), known, known_other, None, friction_given, n_folds, dec, union)
-    pos = np.searchsorted(union, np.arange(sig.n))
     jds = {}
     for j in sig.joints:
         idx = np.flatnonzero(keep & sig.moving[:, j])
-        u = pos[idx]
+        u = np.searchsorted(union, idx)          # the joint's samples among the union's
         block = np.minimum((np.arange(len(idx)) * n_blocks) // max(len(idx), 1), n_blocks - 1)
         tau_j = sig.at("tau", idx, -delay / sig.dt_s, j)      # a declared delay: the torque d earlier
         y = tau_j - rnea[u, j] - known[idx, j]

@@ -43,6 +43,7 @@ MIN_MOVING_SAMPLES = 200       # a joint needs this many sliding samples to be d
 MIN_TRAVEL_RAD = 0.02
 STRETCH_RATIO = 8              # Signals.smooth_at: convolve stretches covering this many times fewer positions
 SMOOTH_CHUNK = 2048            # Signals.smooth_at: samples evaluated together, window by window
+ROW_CHUNK = 1 << 16            # full-rate arithmetic on long runs in pieces of this many samples
 KEPT_WINDOWS = 6               # Signals.smooth_at: sets of gathered windows kept for the next features
 
 
@@ -305,8 +306,10 @@ def zoh_centred(tau: np.ndarray, share: float = 0.5) -> np.ndarray:
     tau = np.asarray(tau, float)
     out = np.empty_like(tau)
     out[:1] = tau[:1]
-    np.multiply(tau[1:], 1.0 - share, out=out[1:])
-    out[1:] += share * tau[:-1]
+    for a in range(1, len(tau), ROW_CHUNK):     # in pieces: no temporary the size of an hour's log
+        b = min(a + ROW_CHUNK, len(tau))
+        np.multiply(tau[a:b], 1.0 - share, out=out[a:b])
+        out[a:b] += share * tau[a - 1:b - 1]
     return out
 
 
@@ -404,9 +407,12 @@ def _smooth_stretches(fn, idx: np.ndarray, k: np.ndarray, first: int, starts: np
     return conv[offsets[stretch] + (idx - starts[stretch]) + len(k) // 2]
 
 
+GAIN_TABLE_STEPS = 4096          # per cycle/sample: the table's step is a power of two, so indexing it is exact
+
+
 @lru_cache(maxsize=16)
 def _gain_table(window: int) -> tuple[np.ndarray, np.ndarray]:
-    f = np.linspace(0.0, 0.5, 2049)
+    f = np.arange(GAIN_TABLE_STEPS // 2 + 2) / GAIN_TABLE_STEPS        # 0 to 0.5, and one step beyond
     c = savgol_coeffs(window, POLYORDER)
     k = np.arange(window) - window // 2
     return f, np.cos(2 * np.pi * np.outer(f, k)) @ c
@@ -416,9 +422,13 @@ def savgol_gain(window: int, f_cycles_per_sample: np.ndarray, gauss: float = 0.0
     """Amplitude response of the smoothing filter (real, zero phase) at normalised frequencies (cycles/sample);
     frequencies above Nyquist are folded back (aliasing). ``gauss``: the Gaussian pre-filter's sigma."""
     f = np.abs(np.asarray(f_cycles_per_sample, float)) % 1.0
-    f = np.where(f > 0.5, 1.0 - f, f)
-    ft, gt = _gain_table(window)
-    return np.interp(f, ft, gt) * np.exp(-0.5 * (2 * np.pi * f * gauss) ** 2)
+    f = np.minimum(f, 1.0 - f)
+    _, gt = _gain_table(window)
+    # linear interpolation in the table (uniform steps: the index is computed, not searched)
+    x = f * GAIN_TABLE_STEPS
+    i = x.astype(np.intp)
+    g = gt[i] + (gt[i + 1] - gt[i]) * (x - i)
+    return g * np.exp(-0.5 * (2 * np.pi * f * gauss) ** 2)
 
 
 def _two_pass(X: np.ndarray, window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
@@ -533,7 +543,9 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     v_noise = q_noise * derivative_noise_gain(w, gs, dt)
     # stuck: slower than 4 sigma of the velocity noise, and never faster than a floor of 1 mrad/s
     v_stick = np.maximum(4.0 * v_noise, 1e-3)
-    stuck = np.abs(qd) < v_stick[None, :]
+    stuck = np.empty(qd.shape, bool)
+    for a in range(0, len(qd), ROW_CHUNK):      # in pieces: no temporary the size of an hour's log
+        np.less(np.abs(qd[a:a + ROW_CHUNK]), v_stick[None, :], out=stuck[a:a + ROW_CHUNK])
     reach = filter_reach(w, gs)
     moving = maximum_filter1d(stuck.view(np.uint8), 4 * reach + 1, axis=0, mode="constant") == 0
     edge = 2 * reach  # the filter's edge samples are extrapolations
