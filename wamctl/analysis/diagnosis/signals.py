@@ -337,8 +337,9 @@ def _kernel(window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.
     r = window // 2 + int(np.ceil(4 * gauss)) + 1     # the Gaussian is truncated at 4 sigma
     imp = np.zeros(4 * r + 1)
     imp[2 * r] = 1.0
-    # the impulse response, reversed: a correlation kernel (symmetric for deriv 0)
-    return _two_pass(imp, window, gauss, deriv, dt_s)[r:3 * r + 1][::-1].copy()
+    # the impulse response, reversed: a correlation kernel (symmetric for deriv 0); its outermost taps (one
+    # beyond the support on either side) are exactly zero and left out
+    return _two_pass(imp, window, gauss, deriv, dt_s)[r + 1:3 * r][::-1].copy()
 
 
 def _interp_rows(full: np.ndarray, idx: np.ndarray, shift: float) -> np.ndarray:

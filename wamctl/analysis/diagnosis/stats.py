@@ -42,12 +42,13 @@ def _column_scale(X: np.ndarray) -> np.ndarray:
 
 def lstsq(X: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Minimum-norm least squares (normal equations on scaled columns, pseudo-inverse for rank deficiency)."""
-    scale = _column_scale(X)
-    Xs = X / scale
-    G = Xs.T @ Xs
+    G = X.T @ X                    # the Gram matrix of the scaled columns from the unscaled one (one pass)
+    scale = np.sqrt(np.diag(G))
+    scale[scale == 0] = 1.0
+    G = G / np.outer(scale, scale)
     lam, V = np.linalg.eigh(G)
     keep = lam > max(lam.max(), 1e-300) * 1e-12
-    theta = V[:, keep] @ ((V[:, keep].T @ (Xs.T @ y)) / lam[keep])
+    theta = V[:, keep] @ ((V[:, keep].T @ ((X.T @ y) / scale)) / lam[keep])
     return theta / scale
 
 
