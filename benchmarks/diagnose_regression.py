@@ -7,7 +7,8 @@ every effect, clean runs and false-alarm runs) with whatever ``wamctl`` is on th
 by side: effects found, ambiguous groups, per-joint torque RMS before/after (relative tolerance), the position
 check's RMS, and the kept effects' main parameters. The position RMS is shown, not judged: near the encoder's
 resolution the closed loop (quantisation, stick-slip) turns differences in the model's last digits into
-differences of several per cent (scaling the logged torque by 1 + 1e-13 does as much with the same code).
+differences of up to half of an error below one encoder count (scaling the logged torque by 1 + 1e-13 does as
+much with the same code).
 
 Usage (run the old version with its own tree first on the path)::
 
