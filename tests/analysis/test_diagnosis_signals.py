@@ -78,6 +78,7 @@ def test_grid_signal_interpolates_between_its_samples():
     np.testing.assert_array_equal(g.at(pos, 0), np.interp(pos, grid, values[:, 0]))
     np.testing.assert_array_equal(g[np.array([3, 500]), 1], np.interp([3, 500], grid, values[:, 1]))
     assert g.at(np.array([-5.0, 2000.0]), 1).tolist() == [0.0, 999.0 ** 2]      # held beyond the grid
+    np.testing.assert_array_equal(g[:, 0], np.interp(np.arange(1000), grid, values[:, 0]))
 
 
 def test_whiteness_is_statsmodels_ljung_box():

@@ -222,7 +222,7 @@ class Signals:
 class GridSignal:
     """A full-rate (n, p) signal kept at a grid of its samples and interpolated linearly between them (a long run's
     rigid-body torque is not stored at every sample). ``sig[rows, j]`` reads it like an array (``rows`` sample
-    indices, ``j`` one column); :meth:`at` at fractional sample positions.
+    indices or a slice, ``j`` one column); :meth:`at` at fractional sample positions.
 
     Attributes
     ----------
@@ -241,7 +241,9 @@ class GridSignal:
         return np.interp(pos, self.grid, self.values[:, j])
 
     def __getitem__(self, key) -> np.ndarray:
-        rows, j = key           # rows: sample indices (an array or one); j: one column
+        rows, j = key           # rows: sample indices (an array, one, or a slice of 0 .. grid[-1]); j: one column
+        if isinstance(rows, slice):
+            rows = np.arange(int(self.grid[-1]) + 1)[rows]
         return self.at(rows, j)
 
 
