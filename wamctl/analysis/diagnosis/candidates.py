@@ -41,8 +41,13 @@ MAX_BREAKAWAY_RATIO = 10.0        # Stribeck breakaway / Coulomb (the plant's ow
 
 def stribeck_columns(qd: np.ndarray, vs: float) -> np.ndarray:
     """Stribeck regressor (m, 2): breakaway excess per direction, decaying with speed as exp(-(qd/vs)^2)."""
-    e = stribeck_decay(np.asarray(qd, float), vs, 2.0)
-    return np.column_stack([(qd > 0) * e, -1.0 * (qd < 0) * e])
+    qd = np.asarray(qd, float)
+    e = stribeck_decay(qd, vs, 2.0)
+    out = np.empty((2, len(qd)))       # filled row by row (contiguous writes), returned transposed
+    np.multiply(qd > 0, e, out=out[0])
+    np.multiply(qd < 0, e, out=out[1])
+    np.negative(out[1], out=out[1])
+    return out.T
 
 
 def ripple_gain(qd: np.ndarray, period: float, window: int, gauss: float, dt_s: float) -> np.ndarray:

@@ -113,10 +113,12 @@ class DeclaredModel:
 def torque_warnings(sig: Signals) -> list[str]:
     """Torques beyond the model's limits are data (a real arm's log, another controller), not errors: said."""
     out = []
-    over = np.abs(sig.tau_raw_Nm) > P.TAU_MAX_NM * (1 + 1e-6)
-    for j in np.flatnonzero(over.any(axis=0)):
-        out.append(f"joint {j + 1}: {int(over[:, j].sum())} samples with |tau| above the model's limit of "
-                   f"{P.TAU_MAX_NM[j]:g} N m (up to {np.abs(sig.tau_raw_Nm[:, j]).max():.3g} N m); kept as data")
+    for j in range(P.N_JOINTS):        # joint by joint: no temporary the size of the whole log
+        tau = np.abs(sig.tau_raw_Nm[:, j])
+        over = int(np.count_nonzero(tau > P.TAU_MAX_NM[j] * (1 + 1e-6)))
+        if over:
+            out.append(f"joint {j + 1}: {over} samples with |tau| above the model's limit of "
+                       f"{P.TAU_MAX_NM[j]:g} N m (up to {tau.max():.3g} N m); kept as data")
     return out
 
 
@@ -449,7 +451,7 @@ class ModelDiagnosis:
 
         mp = self.meta_.payload
         ctl = WamDynamics(Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None)
-        self.gains_ = controller_gains(self.signals_, self.meta_, ctl.gravity)
+        self.gains_ = controller_gains(self.signals_, self.meta_, ctl.gravity_many)
         if self.gains_["kp"] is None:
             self.position_skipped_ = self.gains_["reason"]
             log.warning("closed-loop position check skipped: %s", self.position_skipped_)
