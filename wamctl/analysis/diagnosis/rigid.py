@@ -36,7 +36,12 @@ from wamctl.analysis.diagnosis.design import Design
 LINK_PRIOR_SHARE = 0.10
 LINK_PRIOR_COM_M = 0.005
 MAX_GRAM_ROWS = 20000        # rows per joint in the normal equations (evenly spaced): the refit has <= 77 unknowns
-PAYLOAD_BASE = slice(60, 70)  # link 7's standard parameters: a payload is part of link 7
+PAYLOAD_BASE = slice(60, 70)
+# directions of the parameters the training folds excite less than this share of the best (columns equilibrated,
+# eigenvalues of the normal equations: singular values below 1e-3) are held near zero by a ridge: a refit must
+# not move what the data do not show (and then mispredict the held-out fold that shows it)
+RIDGE_RTOL = 1e-6
+LIVE_RTOL = 1e-8             # a column with less than this share left once the joints' own columns are fitted  # link 7's standard parameters: a payload is part of link 7
 
 
 @dataclass
@@ -76,11 +81,11 @@ def _pinv_sym(S: np.ndarray) -> np.ndarray:
     return (V[:, keep] / lam[keep]) @ V[:, keep].T / np.outer(d, d)
 
 
-def _reduced(sys_: ArmSystem, fold: int | None) -> tuple[np.ndarray, np.ndarray, dict]:
+def _reduced(sys_: ArmSystem, fold: int | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict]:
     """(H (nb, nb), g (nb,)) of the weighted training rows (all folds but ``fold``) with each joint's own
-    coefficients profiled out, and {j: (Sxx^+, Sxz, Sxy)} to recover them."""
+    coefficients profiled out, H before the profiling, and {j: (Sxx^+, Sxz, Sxy)} to recover them."""
     nb = sys_.n_base
-    H, g, parts = np.zeros((nb, nb)), np.zeros(nb), {}
+    H, H_raw, g, parts = np.zeros((nb, nb)), np.zeros((nb, nb)), np.zeros(nb), {}
     for j in sys_.js:
         S = sys_.grams[j].sum(axis=0) - (sys_.grams[j][fold] if fold is not None else 0.0)
         p = sys_.own[j][1].shape[1]
@@ -88,30 +93,35 @@ def _reduced(sys_: ArmSystem, fold: int | None) -> tuple[np.ndarray, np.ndarray,
         Pxx = _pinv_sym(Sxx)
         w2 = sys_.w[j] ** 2
         H += w2 * (S[p:p + nb, p:p + nb] - Sxz.T @ Pxx @ Sxz)
+        H_raw += w2 * S[p:p + nb, p:p + nb]
         g += w2 * (S[p:p + nb, -1] - Sxz.T @ Pxx @ Sxy)
         parts[j] = (Pxx, Sxz, Sxy)
-    return H, g, parts
+    return H, g, H_raw, parts
 
 
-def _solve(H: np.ndarray, g: np.ndarray, A: np.ndarray, bound: np.ndarray | None) -> np.ndarray:
-    """argmin_v 1/2 v' A'HA v - g'A v, with |v| <= bound where given (inf: free)."""
-    Hv, gv = A.T @ H @ A, A.T @ g
-    d = np.sqrt(np.clip(np.diag(Hv), 1e-300, None))
-    Hs, gs = Hv / np.outer(d, d), gv / d
-    lam, V = np.linalg.eigh(Hs)
-    keep = lam > max(lam.max(), 1e-300) * 1e-10
-    x = V[:, keep] @ ((V[:, keep].T @ gs) / lam[keep])
-    if bound is None or np.all(np.abs(x / d) <= bound):
-        return x / d
-    from scipy.optimize import lsq_linear
+def _solve(H: np.ndarray, g: np.ndarray, H_raw: np.ndarray, A: np.ndarray, bound: np.ndarray | None) -> np.ndarray:
+    """argmin_v 1/2 v' A'HA v - g'A v (+ a ridge of ``RIDGE_RTOL``, columns equilibrated), with |v| <= bound
+    where given (inf: free). A column the data do not excite (zero, or all but ``LIVE_RTOL`` of it in the span
+    of the joints' own columns: ``H`` against ``H_raw``) stays at zero."""
+    v = np.zeros(A.shape[1])
+    raw = np.einsum("ij,ik,kj->j", A, H_raw, A)
+    Hv = A.T @ H @ A
+    live = (np.diag(Hv) > LIVE_RTOL * raw) & (raw > LIVE_RTOL * max(raw.max(), 1e-300))
+    if not live.any():
+        return v
+    Hv, gv = Hv[np.ix_(live, live)], (A.T @ g)[live]
+    d = np.sqrt(np.diag(Hv))
+    lam, V = np.linalg.eigh(Hv / np.outer(d, d))
+    lam = np.clip(lam, 0.0, None) + RIDGE_RTOL * max(lam.max(), 1e-300)
+    proj = V.T @ (gv / d)
+    x = V @ (proj / lam)
+    if bound is not None and np.any(np.abs(x / d) > np.asarray(bound)[live]):
+        from scipy.optimize import lsq_linear
 
-    # the square root of the quadratic form, with a ridge of 1e-9 (scaled units) so that the solution is unique
-    lam_c = np.clip(lam, 0.0, None)
-    R = np.vstack([np.sqrt(lam_c)[:, None] * V.T, np.sqrt(1e-9 * max(lam.max(), 1e-300)) * np.eye(len(lam))])
-    rhs = np.concatenate([np.where(keep, (V.T @ gs) / np.sqrt(np.where(keep, lam_c, 1.0)), 0.0), np.zeros(len(lam))])
-    lim = np.asarray(bound, float) * d
-    r = lsq_linear(R, rhs, bounds=(-lim, lim), method="bvls")
-    return r.x / d
+        lim = np.asarray(bound, float)[live] * d        # R'R = the ridged form, R'rhs = the scaled gradient
+        x = lsq_linear(np.sqrt(lam)[:, None] * V.T, proj / np.sqrt(lam), bounds=(-lim, lim), method="bvls").x
+    v[live] = x / d
+    return v
 
 
 def arm_cv(sys_: ArmSystem, jds: dict, A: np.ndarray | None, bound: np.ndarray | None = None) -> tuple[dict, dict]:
@@ -123,8 +133,8 @@ def arm_cv(sys_: ArmSystem, jds: dict, A: np.ndarray | None, bound: np.ndarray |
     e = {j: np.full(jds[j].n, np.nan) for j in sys_.js}
     vs = {}
     for f in [None] + list(range(sys_.n_folds)):
-        H, g, parts = _reduced(sys_, f)
-        v = _solve(H, g, A, bound) if A.shape[1] else np.zeros(0)
+        H, g, H_raw, parts = _reduced(sys_, f)
+        v = _solve(H, g, H_raw, A, bound) if A.shape[1] else np.zeros(0)
         vs[f] = v
         if f is None:
             continue
