@@ -161,3 +161,68 @@ def links_test(des: Design, joints: dict, jds: dict, threshold: float) -> dict |
              cols=cols, not_identified=undetermined, e=e_l, betas=betas, joints=js, has_payload=has_payload,
              helped=helped)
     return t
+
+
+WIDE_PRIOR = 2.0       # the grey zone: link errors up to twice the declared accuracy may still be the arm's own
+
+
+def payload_or_links(des: Design, joints: dict, jds: dict, threshold: float, link_map: np.ndarray) -> dict | None:
+    """A wrist payload, or the arm's own links within their declared accuracy? On the held-out residuals of every
+    diagnosed joint together (each joint's own model, the payload and link terms left out; joints weighted by
+    the RMS of their residual), nested tests:
+
+    * ``beyond_links``: does a payload (ten free inertial parameters of link 7) add to link errors within the
+      declared accuracy (``link_map``, :func:`~wamctl.analysis.diagnosis.rigid.plausible_link_map`, each
+      physical parameter within its bound)?
+    * ``beyond_wide_links``: does it add to link errors within ``WIDE_PRIOR`` times the declared accuracy?
+
+    ``outcome``: ``"payload"`` when both pass (a wrist mass explains what plausible link errors cannot),
+    ``"ambiguous"`` when only the first does (beyond the declared accuracy, within twice it: the data cannot tell
+    a payload from a datasheet worse than assumed), ``"link_parameters"`` when a payload does not add to plausible
+    link errors (they explain the data as well). None without link regressors."""
+    from wamctl.analysis.diagnosis.rigid import arm_cv, arm_system, payload_map
+
+    js = [j for j in joints if "links_base" in jds[j].extra]
+    if not js:
+        return None
+    own = {j: target_and_design(des, jds[j], _own_terms(joints[j]), None) for j in js}
+    sys_ = arm_system(des, jds, own, dict.fromkeys(js, 1.0))
+    e_own, _ = arm_cv(sys_, jds, None)
+    sys_.w = {j: 1.0 / max(float(np.sqrt(np.nanmean(e_own[j] ** 2))), 1e-9) for j in js}
+    P = payload_map()
+    free = np.full(P.shape[1], np.inf)
+    nl = link_map.shape[1]
+    fits = {}
+    for name, scale in (("links", 1.0), ("wide_links", WIDE_PRIOR)):
+        fits[name] = arm_cv(sys_, jds, link_map, np.full(nl, scale))
+        fits["payload+" + name] = arm_cv(sys_, jds, np.hstack([P, link_map]), np.r_[free, np.full(nl, scale)])
+    w = sys_.w
+    pool = lambda e: np.concatenate([e[j] * w[j] for j in js])             # noqa: E731
+    groups = np.concatenate([jds[j].fold + 10 * j for j in js])
+    base_ss = sum(finite_ss(joints[j].e_base) * w[j] ** 2 for j in js)
+    k_own = sum(own[j][1].shape[1] for j in js)
+    p_pay = max(_payload_rank(des, jds, js, P), 1)
+    tests = {}
+    for name in ("links", "wide_links"):
+        e0, e1 = pool(fits[name][0]), pool(fits["payload+" + name][0])
+        share = base_ss / max(finite_ss(e0), 1e-300)
+        tests["beyond_" + name] = nested_test(e0, e1, p_pay, k_own + p_pay + nl, min(MIN_EFFECT * share, 0.9),
+                                              groups)
+    ok = {k: bool(t["p_value"] < threshold and t["delta_bic"] < 0) for k, t in tests.items()}
+    outcome = ("payload" if ok["beyond_wide_links"] and ok["beyond_links"] else
+               "ambiguous" if ok["beyond_links"] else "link_parameters")
+    return {"outcome": outcome, "tests": tests, "passes": ok, "joints": js, "payload_params_seen": p_pay,
+            "ssr_ratio": {k: finite_ss(pool(v[0])) / max(finite_ss(pool(e_own)), 1e-300) for k, v in fits.items()}}
+
+
+def _payload_rank(des: Design, jds: dict, js: list[int], P: np.ndarray) -> int:
+    """How many payload parameters (combinations) the diagnosed joints' motion excites."""
+    from wamctl.analysis.diagnosis.uncertainty import RANK_RTOL as RTOL
+
+    Z = np.vstack([jds[j].extra["links_base"][:: max(1, jds[j].n // 3000)] @ P for j in js])
+    scale = np.sqrt((Z ** 2).sum(axis=0))
+    live = scale > 1e-12 * max(scale.max(), 1e-300)
+    if not live.any():
+        return 0
+    sv = np.linalg.svd(Z[:, live] / scale[live], compute_uv=False)
+    return int(np.sum(sv > sv[0] * RTOL))

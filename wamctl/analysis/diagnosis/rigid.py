@@ -37,10 +37,10 @@ LINK_PRIOR_SHARE = 0.10
 LINK_PRIOR_COM_M = 0.005
 MAX_GRAM_ROWS = 20000        # rows per joint in the normal equations (evenly spaced): the refit has <= 77 unknowns
 PAYLOAD_BASE = slice(60, 70)
-# directions of the parameters the training folds excite less than this share of the best (columns equilibrated,
-# eigenvalues of the normal equations: singular values below 1e-3) are held near zero by a ridge: a refit must
-# not move what the data do not show (and then mispredict the held-out fold that shows it)
-RIDGE_RTOL = 1e-6
+# a refit changes only the combinations of base parameters the training folds determine (columns equilibrated,
+# singular values at least this share of the largest): moving what the data do not show would mispredict a
+# held-out fold that shows it
+RANK_RTOL = 1e-3
 LIVE_RTOL = 1e-8             # a column with less than this share left once the joints' own columns are fitted  # link 7's standard parameters: a payload is part of link 7
 
 
@@ -99,46 +99,69 @@ def _reduced(sys_: ArmSystem, fold: int | None) -> tuple[np.ndarray, np.ndarray,
     return H, g, H_raw, parts
 
 
-def _solve(H: np.ndarray, g: np.ndarray, H_raw: np.ndarray, A: np.ndarray, bound: np.ndarray | None) -> np.ndarray:
-    """argmin_v 1/2 v' A'HA v - g'A v (+ a ridge of ``RIDGE_RTOL``, columns equilibrated), with |v| <= bound
-    where given (inf: free). A column the data do not excite (zero, or all but ``LIVE_RTOL`` of it in the span
-    of the joints' own columns: ``H`` against ``H_raw``) stays at zero."""
+def _determined(H: np.ndarray, H_raw: np.ndarray) -> np.ndarray:
+    """(nb, nb) projector onto the changes of the base parameters the training rows determine: columns
+    equilibrated, directions whose singular value is at least ``RANK_RTOL`` of the largest; a column with less
+    than ``LIVE_RTOL`` of its norm left once the joints' own columns are fitted (``H`` against ``H_raw``) is not
+    determined."""
+    hd, raw = np.diag(H), np.diag(H_raw)
+    live = (hd > LIVE_RTOL * raw) & (raw > LIVE_RTOL * max(raw.max(), 1e-300))
+    out = np.zeros_like(H)
+    if not live.any():
+        return out
+    d = np.sqrt(hd[live])
+    lam, V = np.linalg.eigh(H[np.ix_(live, live)] / np.outer(d, d))
+    U = V[:, lam > max(lam.max(), 1e-300) * RANK_RTOL ** 2]
+    out[np.ix_(live, live)] = (U @ U.T) / d[:, None] * d[None, :]
+    return out
+
+
+def _solve(H: np.ndarray, g: np.ndarray, Pr: np.ndarray, A: np.ndarray, bounds: tuple | None) -> np.ndarray:
+    """argmin_v 1/2 v' B'HB v - g'B v with ``B = Pr A`` (the change restricted to what the data determine),
+    ``lo <= v <= hi`` where ``bounds = (lo, hi)`` (None: free); among equal solutions one near zero (a ridge of
+    1e-10, columns equilibrated)."""
+    B = Pr @ A
+    Hv, gv = B.T @ H @ B, B.T @ g
     v = np.zeros(A.shape[1])
-    raw = np.einsum("ij,ik,kj->j", A, H_raw, A)
-    Hv = A.T @ H @ A
-    live = (np.diag(Hv) > LIVE_RTOL * raw) & (raw > LIVE_RTOL * max(raw.max(), 1e-300))
+    dv = np.diag(Hv)
+    live = dv > 1e-12 * max(dv.max(), 1e-300)
     if not live.any():
         return v
-    Hv, gv = Hv[np.ix_(live, live)], (A.T @ g)[live]
-    d = np.sqrt(np.diag(Hv))
-    lam, V = np.linalg.eigh(Hv / np.outer(d, d))
-    lam = np.clip(lam, 0.0, None) + RIDGE_RTOL * max(lam.max(), 1e-300)
-    proj = V.T @ (gv / d)
+    d = np.sqrt(dv[live])
+    lam, V = np.linalg.eigh(Hv[np.ix_(live, live)] / np.outer(d, d))
+    lam = np.clip(lam, 0.0, None) + 1e-10 * max(lam.max(), 1e-300)
+    proj = V.T @ (gv[live] / d)
     x = V @ (proj / lam)
-    if bound is not None and np.any(np.abs(x / d) > np.asarray(bound)[live]):
-        from scipy.optimize import lsq_linear
+    if bounds is not None:
+        lo, hi = (np.asarray(b, float)[live] * d for b in bounds)
+        if np.any(x < lo) or np.any(x > hi):
+            from scipy.optimize import lsq_linear
 
-        lim = np.asarray(bound, float)[live] * d        # R'R = the ridged form, R'rhs = the scaled gradient
-        x = lsq_linear(np.sqrt(lam)[:, None] * V.T, proj / np.sqrt(lam), bounds=(-lim, lim), method="bvls").x
+            # R'R = the ridged form, R'rhs = the scaled gradient
+            x = lsq_linear(np.sqrt(lam)[:, None] * V.T, proj / np.sqrt(lam), bounds=(lo, hi), method="bvls").x
     v[live] = x / d
     return v
 
 
-def arm_cv(sys_: ArmSystem, jds: dict, A: np.ndarray | None, bound: np.ndarray | None = None) -> tuple[dict, dict]:
+def arm_cv(sys_: ArmSystem, jds: dict, A: np.ndarray | None,
+           bounds: tuple | None = None) -> tuple[dict, dict, dict]:
     """Held-out residuals {j: (m,)} of every joint's own model plus the shared change ``delta_beta = A v``
-    (``A`` None: no change), ``v`` fitted without each fold; and ``v`` per fold {fold: (k,)}, on all data under
-    key None."""
+    (``A`` None: no change; only what the training folds determine is changed), ``v`` fitted without each fold
+    (within ``bounds = (lo, hi)``, None: free);
+    the change of the base parameters {fold: (nb,)} and ``v`` {fold: (k,)} per fold, on all data under key
+    None."""
     nb = sys_.n_base
     A = np.zeros((nb, 0)) if A is None else A
     e = {j: np.full(jds[j].n, np.nan) for j in sys_.js}
-    vs = {}
+    vs, betas = {}, {}
     for f in [None] + list(range(sys_.n_folds)):
         H, g, H_raw, parts = _reduced(sys_, f)
-        v = _solve(H, g, H_raw, A, bound) if A.shape[1] else np.zeros(0)
+        Pr = _determined(H, H_raw)
+        v = _solve(H, g, Pr, A, bounds) if A.shape[1] else np.zeros(0)
         vs[f] = v
+        betas[f] = db = Pr @ (A @ v)
         if f is None:
             continue
-        db = A @ v
         for j in sys_.js:
             jd = jds[j]
             y, X = sys_.own[j]
@@ -147,12 +170,24 @@ def arm_cv(sys_: ArmSystem, jds: dict, A: np.ndarray | None, bound: np.ndarray |
             te = np.flatnonzero(jd.fold == f)
             e[j][te] = y[te] - X[te] @ theta - jd.extra["links_base"][te] @ db
             e[j][unpredictable(jd, np.flatnonzero(jd.fold != f), te)] = np.nan
-    return e, vs
+    return e, betas, vs
 
 
 def payload_map() -> np.ndarray:
     """(nb, 10) change of the rigid-body base parameters per inertial parameter of a payload on link 7."""
     return _base_map()[:, PAYLOAD_BASE]
+
+
+def payload_cone(max_com_m: float) -> np.ndarray:
+    """(nb, 8) the wrist payloads as a cone: a positive mass whose centre lies within ``max_com_m`` of the flange
+    (in each coordinate of the flange frame), its own inertia left out (small beside the mass's at the levers of
+    the joints). Mass and first moment ``(m, m (c + d7 z))`` are the non-negative combinations of the eight
+    rays ``(1, d7 z + max_com_m (+-1, +-1, +-1))``: coefficients in [0, inf)."""
+    from wamctl.analysis.diagnosis.candidates import D7_M
+
+    corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
+    rays = np.column_stack([np.ones(8), corners * max_com_m + np.array([0.0, 0.0, D7_M])])   # (8, 4)
+    return payload_map()[:, :4] @ rays.T
 
 
 @lru_cache(maxsize=1)
@@ -166,7 +201,7 @@ def _base_map() -> np.ndarray:
 
 def plausible_link_map(links=None, payload=None) -> np.ndarray:
     """(nb, 77) change of the rigid-body base parameters when one physical parameter of the declared arm moves
-    to the bound of its declared accuracy (``LINK_PRIOR_SHARE``, ``LINK_PRIOR_COM_M``): per link its mass, the
+    to the bound of its declared accuracy (coefficients in [-1, 1]) (``LINK_PRIOR_SHARE``, ``LINK_PRIOR_COM_M``): per link its mass, the
     three coordinates of its centre of mass (DH frame; the share of its distance from the frame's origin plus the
     absolute allowance), the six entries of its inertia about the centre (the share of its largest diagonal
     entry); per joint its armature. Central differences through the rigid body (linear to within the share
