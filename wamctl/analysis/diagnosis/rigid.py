@@ -36,12 +36,12 @@ from wamctl.analysis.diagnosis.design import Design
 LINK_PRIOR_SHARE = 0.10
 LINK_PRIOR_COM_M = 0.005
 MAX_GRAM_ROWS = 20000        # rows per joint in the normal equations (evenly spaced): the refit has <= 77 unknowns
-PAYLOAD_BASE = slice(60, 70)
+PAYLOAD_BASE = slice(60, 70)  # link 7's standard parameters: a payload is part of link 7
 # a refit changes only the combinations of base parameters the training folds determine (columns equilibrated,
 # singular values at least this share of the largest): moving what the data do not show would mispredict a
 # held-out fold that shows it
 RANK_RTOL = 1e-3
-LIVE_RTOL = 1e-8             # a column with less than this share left once the joints' own columns are fitted  # link 7's standard parameters: a payload is part of link 7
+LIVE_RTOL = 1e-8             # a column with less than this share left once the joints' own columns are fitted
 
 
 @dataclass
@@ -116,6 +116,18 @@ def _determined(H: np.ndarray, H_raw: np.ndarray) -> np.ndarray:
     return out
 
 
+def determined_parameters(sys_: ArmSystem, share_tol: float = 0.01) -> tuple[np.ndarray, int]:
+    """(nb,) whether each base parameter is determined by all the rows once the joints' own columns are fitted
+    (at most ``share_tol`` of it, columns equilibrated, outside the determined directions), and how many
+    directions are determined."""
+    H, _, H_raw, _ = _reduced(sys_, None)
+    Pr = _determined(H, H_raw)
+    d = np.sqrt(np.clip(np.diag(H), 1e-300, None))
+    S = Pr * d[:, None] / d[None, :]               # the projector in equilibrated coordinates (symmetric)
+    rank = int(round(float(np.trace(S))))
+    return np.diag(S) >= 1.0 - share_tol, rank
+
+
 def _solve(H: np.ndarray, g: np.ndarray, Pr: np.ndarray, A: np.ndarray, bounds: tuple | None) -> np.ndarray:
     """argmin_v 1/2 v' B'HB v - g'B v with ``B = Pr A`` (the change restricted to what the data determine),
     ``lo <= v <= hi`` where ``bounds = (lo, hi)`` (None: free); among equal solutions one near zero (a ridge of
@@ -178,16 +190,17 @@ def payload_map() -> np.ndarray:
     return _base_map()[:, PAYLOAD_BASE]
 
 
-def payload_cone(max_com_m: float) -> np.ndarray:
+def payload_cone(max_com_m: float) -> tuple[np.ndarray, np.ndarray]:
     """(nb, 8) the wrist payloads as a cone: a positive mass whose centre lies within ``max_com_m`` of the flange
     (in each coordinate of the flange frame), its own inertia left out (small beside the mass's at the levers of
     the joints). Mass and first moment ``(m, m (c + d7 z))`` are the non-negative combinations of the eight
-    rays ``(1, d7 z + max_com_m (+-1, +-1, +-1))``: coefficients in [0, inf)."""
+    rays ``(1, d7 z + max_com_m (+-1, +-1, +-1))``: coefficients in [0, inf). Returns the cone's base map
+    (nb, 8) and the rays as (4, 8) columns (``(m, m c7) = rays @ coefficients``)."""
     from wamctl.analysis.diagnosis.candidates import D7_M
 
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
     rays = np.column_stack([np.ones(8), corners * max_com_m + np.array([0.0, 0.0, D7_M])])   # (8, 4)
-    return payload_map()[:, :4] @ rays.T
+    return payload_map()[:, :4] @ rays.T, rays.T
 
 
 @lru_cache(maxsize=1)
@@ -201,12 +214,12 @@ def _base_map() -> np.ndarray:
 
 def plausible_link_map(links=None, payload=None) -> np.ndarray:
     """(nb, 77) change of the rigid-body base parameters when one physical parameter of the declared arm moves
-    to the bound of its declared accuracy (coefficients in [-1, 1]) (``LINK_PRIOR_SHARE``, ``LINK_PRIOR_COM_M``): per link its mass, the
-    three coordinates of its centre of mass (DH frame; the share of its distance from the frame's origin plus the
-    absolute allowance), the six entries of its inertia about the centre (the share of its largest diagonal
-    entry); per joint its armature. Central differences through the rigid body (linear to within the share
-    squared). ``links``: :class:`~wamctl.model.params.LinkParameters` (None: the datasheet); ``payload``: a
-    declared :class:`~wamctl.model.dynamics.Payload`, kept as it is."""
+    to the bound of its declared accuracy (``LINK_PRIOR_SHARE``, ``LINK_PRIOR_COM_M``; coefficients in [-1, 1]):
+    per link its mass, the three coordinates of its centre of mass (DH frame; the share of its distance from the
+    frame's origin plus the absolute allowance), the six entries of its inertia about the centre (the share of
+    its largest diagonal entry); per joint its armature. Central differences through the rigid body (linear to
+    within the share squared). ``links``: :class:`~wamctl.model.params.LinkParameters` (None: the datasheet);
+    ``payload``: a declared :class:`~wamctl.model.dynamics.Payload`, kept as it is."""
     from wamctl.model.params import LinkParameters
 
     return _plausible_link_map(links if links is not None else LinkParameters.datasheet(), payload)
