@@ -522,7 +522,8 @@ class ModelDiagnosis:
 
         Returns
         -------
-        {joint: (theta_before, theta_after)}, and under key ``"payload"`` the payload fitted on the subset.
+        {joint: (theta_before, theta_after)}, and under key ``"payload"`` the payload fitted on the subset (None
+        when there is none, or when the motion does not determine its mass).
         """
         des = self.design_
         out = {}
@@ -535,7 +536,10 @@ class ModelDiagnosis:
             tb = fit_theta(columns(des, "friction", jd, None)[rows], jd.y_Nm[rows], des.bounded)
             y, X = target_and_design(des, jd, res.kept, None)
             out[j] = (tb, fit_theta(X[rows], y[rows], des.bounded))
-        out["payload"] = payload_fit(des, self.joints_, self.jd_, rows_of) if self.payload_ is not None else None
+        # a payload whose mass the motion does not determine is the model's one (its refit on a subset is not)
+        blind = "mass_kg" in getattr(self, "payload_ci_", ({}, []))[1]
+        out["payload"] = payload_fit(des, self.joints_, self.jd_, rows_of) \
+            if self.payload_ is not None and not blind else None
         return out
 
     def to_dict(self, data_path: str = "") -> dict:

@@ -217,9 +217,11 @@ def plausible_link_map(links=None, payload=None) -> np.ndarray:
     to the bound of its declared accuracy (``LINK_PRIOR_SHARE``, ``LINK_PRIOR_COM_M``; coefficients in [-1, 1]):
     per link its mass, the three coordinates of its centre of mass (DH frame; the share of its distance from the
     frame's origin plus the absolute allowance), the six entries of its inertia about the centre (the share of
-    its largest diagonal entry); per joint its armature. Central differences through the rigid body (linear to
-    within the share squared). ``links``: :class:`~wamctl.model.params.LinkParameters` (None: the datasheet);
-    ``payload``: a declared :class:`~wamctl.model.dynamics.Payload`, kept as it is."""
+    its largest diagonal entry); per joint its armature. Central differences through the rigid body: exact for the
+    masses, inertias and armatures; for a centre of mass the inertia about the joint grows with its square, which
+    the map leaves out (at the bound about half the shift over the centre's distance). ``links``:
+    :class:`~wamctl.model.params.LinkParameters` (None: the datasheet); ``payload``: a declared
+    :class:`~wamctl.model.dynamics.Payload`, kept as it is."""
     from wamctl.model.params import LinkParameters
 
     return _plausible_link_map(links if links is not None else LinkParameters.datasheet(), payload)
