@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import payload_from_pi
-from wamctl.analysis.diagnosis.design import Design, columns, target_and_design
+from wamctl.analysis.diagnosis.design import Design, target_and_design
 from wamctl.analysis.diagnosis.stats import finite_ss, lstsq
 
 # a wrist payload the WAM can carry (its rated payload is about 4 kg; PayloadEffect allows up to 5 kg), held
@@ -67,7 +67,7 @@ def payload_system(des: Design, joints: dict, jds: dict, rows_of=None):
         others = [t for t in res.kept if t["name"] != "payload"]
         y_o, X_o = target_and_design(des, jd, others, None)
         blocks.append(X_o[sub])
-        shared.append(columns(des, "payload", jd, None)[sub])
+        shared.append(jd.extra["payload"][sub])
         ys.append(y_o[sub])
         wts.append(np.full(len(sub), 1.0 / max(res.torque_rms_after_Nm, 1e-9)))
         groups.append(np.column_stack([np.full(len(sub), j), jd.extra["block"][sub]]))

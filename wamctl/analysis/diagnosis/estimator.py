@@ -225,10 +225,11 @@ class ModelDiagnosis:
         for j in sig.joints:
             self.joints_[j] = self._diagnose_joint(self.jd_[j], torque_tests)
         r2 = self._declared_r2()
-        if r2 < MIN_DECLARED_R2:
+        if r2 < MIN_DECLARED_R2 and self._rigid_body_r2() < MIN_DECLARED_R2:
             self.reason_ = (f"the declared model explains only {max(r2, 0.0):.0%} of the torque of the moving "
-                            f"joints (at least {MIN_DECLARED_R2:.0%} expected): the data do not look like this "
-                            "arm under this model (torque units? joint order? gravity?), so no effect is named")
+                            f"joints (at least {MIN_DECLARED_R2:.0%} expected, also with a wrist payload and link "
+                            "errors): the data do not look like this arm under this model (torque units? joint "
+                            "order? gravity?), so no effect is named")
             log.warning(self.reason_)
             self.joints_ = {}
             return self
@@ -293,6 +294,16 @@ class ModelDiagnosis:
             ss_res += finite_ss(res.e_base)
             ss_tot += float(np.sum((tau - tau.mean()) ** 2))
         return 1.0 - ss_res / ss_tot if ss_tot > 0 else 0.0
+
+    def _rigid_body_r2(self) -> float:
+        """The declared model's share of the torque variance once the arm may carry a wrist payload and its links
+        may be off by up to twice their declared accuracy (:func:`~wamctl.analysis.diagnosis.links.
+        rigid_body_r2`; -inf without the rigid-body regressors)."""
+        from wamctl.analysis.diagnosis.links import rigid_body_r2
+        from wamctl.analysis.diagnosis.rigid import plausible_link_map
+
+        return rigid_body_r2(self.design_, self.jd_, list(self.joints_),
+                             plausible_link_map(self.declared_.links, self.payload_declared_), PAYLOAD_COM_BOX_M)
 
     def _diagnose_joint(self, jd: JointData, tests: list[str], rejected: dict | None = None) -> JointResult:
         """Forward selection of the torque-domain candidates ``tests`` at one joint (``rejected``: candidates

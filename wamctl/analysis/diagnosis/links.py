@@ -218,3 +218,22 @@ def _excited_rank(jds: dict, js: list[int], P: np.ndarray) -> int:
         return 0
     sv = np.linalg.svd(Z[:, live] / scale[live], compute_uv=False)
     return int(np.sum(sv > sv[0] * RTOL))
+
+
+def rigid_body_r2(des: Design, jds: dict, js: list[int], link_map: np.ndarray, com_box_m: float) -> float:
+    """Share of the torque variance of joints ``js`` the declared model explains (held-out, friction fitted) once
+    the arm may carry a wrist payload (any positive mass within ``com_box_m`` of the flange) and its links may be
+    off by up to ``WIDE_PRIOR`` times their declared accuracy: a large payload is still this arm."""
+    from wamctl.analysis.diagnosis.rigid import arm_cv, arm_system, payload_cone
+
+    js = [j for j in js if "links_base" in jds[j].extra]
+    if not js:
+        return float("-inf")
+    sys_ = arm_system(des, jds, {j: target_and_design(des, jds[j], [], None) for j in js}, dict.fromkeys(js, 1.0))
+    cone, _ = payload_cone(com_box_m)
+    nc, lim = cone.shape[1], np.full(link_map.shape[1], WIDE_PRIOR)
+    bounds = (np.r_[np.zeros(nc), -lim], np.r_[np.full(nc, np.inf), lim])
+    e, _, _ = arm_cv(sys_, jds, np.hstack([cone, link_map]), bounds)
+    ss_res = sum(finite_ss(e[j]) for j in js)
+    ss_tot = sum(float(np.sum((jds[j].extra["tau"] - jds[j].extra["tau"].mean()) ** 2)) for j in js)
+    return 1.0 - ss_res / ss_tot if ss_tot > 0 else 0.0
