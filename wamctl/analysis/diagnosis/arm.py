@@ -106,6 +106,8 @@ def payload_uncertainty(des: Design, joints: dict, jds: dict) -> tuple[dict, lis
         wide = lo is None or hi - lo > COM_CI_MAX_WIDTH_M
         if not (mass_ok and ok[1 + i]) or wide:
             ni.append(f"com_{ax}_m")
+    for k in ni:                  # what the data cannot determine has no interval either
+        ci[k] = [None, None]
     return ci, ni
 
 
