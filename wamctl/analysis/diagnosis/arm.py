@@ -148,11 +148,12 @@ def payload_links_reason(dec: dict | None) -> str | None:
 
     if dec is None or dec["outcome"] == "payload":
         return None
-    t1, t2 = dec["tests"]["beyond_links"], dec["tests"]["beyond_wide_links"]
+    t1 = dec["tests"]["beyond_links"]
     acc = f"+-{LINK_PRIOR_SHARE:.0%} of each link's mass, centre of mass and inertia"
     if dec["outcome"] == "link_parameters":
         return (f"link errors within the declared accuracy ({acc}) explain the held-out torques as well: a wrist "
                 f"payload does not add to them (p = {t1['p_value']:.3g})")
+    t2 = dec["tests"]["beyond_wide_links"]
     return (f"ambiguous: a wrist payload adds to link errors within the declared accuracy ({acc}; p = "
             f"{t1['p_value']:.3g}) but not to link errors within {WIDE_PRIOR:g} times it (p = {t2['p_value']:.3g}): "
             "the data cannot tell a payload from a datasheet worse than declared")

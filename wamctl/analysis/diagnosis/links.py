@@ -173,10 +173,10 @@ def payload_or_links(des: Design, joints: dict, jds: dict, threshold: float, lin
     * ``beyond_wide_links``: does it add to link errors within ``WIDE_PRIOR`` times that accuracy?
 
     ``outcome``: ``"payload"`` when both pass, ``"ambiguous"`` when only the first does, ``"link_parameters"``
-    when a payload does not add to plausible link errors. Also ``payload_seen`` (the mass and first-moment
-    combinations the motion excites), ``cone_fit`` (a wrist payload that explains the data on its own, all data:
-    ``mass_kg``, ``com_m``) and ``ssr_ratio`` {model: held-out SSR / the own models'}. None without link
-    regressors."""
+    when a payload does not add to plausible link errors (the second test is then not made). Also
+    ``payload_seen`` (the mass and first-moment combinations the motion excites), ``cone_fit`` (a wrist payload
+    that explains the data on its own, all data: ``mass_kg``, ``com_m``) and ``ssr_ratio`` {model: held-out SSR /
+    the own models'}. None without link regressors."""
     from wamctl.analysis.diagnosis.candidates import payload_from_pi
     from wamctl.analysis.diagnosis.rigid import arm_cv, payload_cone, payload_map
 
@@ -187,20 +187,21 @@ def payload_or_links(des: Design, joints: dict, jds: dict, threshold: float, lin
     cone, rays = payload_cone(com_box_m)
     nl, nc = link_map.shape[1], cone.shape[1]
     pos = (np.zeros(nc), np.full(nc, np.inf))
-    fits = {"payload": arm_cv(sys_, jds, cone, pos)}
+    p_pay = max(_excited_rank(jds, js, payload_map()[:, :4]), 1)
+    fits, tests, ok = {}, {}, {}
     for name, scale in (("links", 1.0), ("wide_links", WIDE_PRIOR)):
         lim = np.full(nl, scale)
         fits[name] = arm_cv(sys_, jds, link_map, (-lim, lim))
         fits["payload+" + name] = arm_cv(sys_, jds, np.hstack([cone, link_map]),
                                          (np.r_[pos[0], -lim], np.r_[pos[1], lim]))
-    p_pay = max(_excited_rank(jds, js, payload_map()[:, :4]), 1)
-    tests = {"beyond_" + k: _pooled_test(sys_, joints, jds, fits[k][0], fits["payload+" + k][0], p_pay, False)
-             for k in ("links", "wide_links")}
-    ok = {k: bool(t["p_value"] < threshold and t["delta_bic"] < 0) for k, t in tests.items()}
-    outcome = ("payload" if ok["beyond_wide_links"] and ok["beyond_links"] else
+        t = _pooled_test(sys_, joints, jds, fits[name][0], fits["payload+" + name][0], p_pay, False)
+        tests["beyond_" + name], ok["beyond_" + name] = t, bool(t["p_value"] < threshold and t["delta_bic"] < 0)
+        if not ok["beyond_" + name]:
+            break                   # within the declared accuracy already, or ambiguous
+    outcome = ("payload" if ok.get("beyond_wide_links") else
                "ambiguous" if ok["beyond_links"] else "link_parameters")
     ss0 = sum(finite_ss(e_own[j]) * sys_.w[j] ** 2 for j in js)
-    mh = rays @ fits["payload"][2][None]
+    mh = rays @ arm_cv(sys_, jds, cone, pos, folds=False)[2][None]
     return {"outcome": outcome, "tests": tests, "passes": ok, "joints": js, "payload_seen": p_pay,
             "cone_fit": payload_from_pi(mh) if mh[0] > 0 else None,
             "ssr_ratio": {k: sum(finite_ss(v[0][j]) * sys_.w[j] ** 2 for j in js) / max(ss0, 1e-300)

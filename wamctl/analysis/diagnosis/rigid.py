@@ -155,18 +155,18 @@ def _solve(H: np.ndarray, g: np.ndarray, Pr: np.ndarray, A: np.ndarray, bounds: 
     return v
 
 
-def arm_cv(sys_: ArmSystem, jds: dict, A: np.ndarray | None,
-           bounds: tuple | None = None) -> tuple[dict, dict, dict]:
+def arm_cv(sys_: ArmSystem, jds: dict, A: np.ndarray | None, bounds: tuple | None = None,
+           folds: bool = True) -> tuple[dict, dict, dict]:
     """Held-out residuals {j: (m,)} of every joint's own model plus the shared change ``delta_beta = A v``
     (``A`` None: no change; only what the training folds determine is changed), ``v`` fitted without each fold
     (within ``bounds = (lo, hi)``, None: free);
     the change of the base parameters {fold: (nb,)} and ``v`` {fold: (k,)} per fold, on all data under key
-    None."""
+    None (``folds`` False: on all data only, no held-out residuals)."""
     nb = sys_.n_base
     A = np.zeros((nb, 0)) if A is None else A
     e = {j: np.full(jds[j].n, np.nan) for j in sys_.js}
     vs, betas = {}, {}
-    for f in [None] + list(range(sys_.n_folds)):
+    for f in [None] + (list(range(sys_.n_folds)) if folds else []):
         H, g, H_raw, parts = _reduced(sys_, f)
         Pr = _determined(H, H_raw)
         v = _solve(H, g, Pr, A, bounds) if A.shape[1] else np.zeros(0)
