@@ -233,8 +233,8 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
     if name == "payload":
         X = jd.extra["payload"]
         if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold
-            X = (X @ des.payload_pi[h[1]])[:, None]
-        return X
+            return (X @ des.payload_pi[h[1]])[:, None]
+        return X @ jd.extra["payload_basis"] if "payload_basis" in jd.extra else X
     if name == "link_parameters":       # ("links", fold): the arm's one refit, fitted without fold
         return (jd.extra["links_base"][:, des.links_cols] @ des.links_beta[h[1]])[:, None]
     if name == "friction_drift":

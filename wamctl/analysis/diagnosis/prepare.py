@@ -12,7 +12,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.candidates import ripple_gain
+from wamctl.analysis.diagnosis.candidates import payload_basis, ripple_gain
 from wamctl.analysis.diagnosis.design import Design, JointData
 from wamctl.analysis.diagnosis.signals import GridSignal, Signals
 from wamctl.model import params as P
@@ -63,6 +63,7 @@ def prepare_design(sig: Signals, dyn: WamDynamics, friction_given: FrictionModel
                  "dgdq_full": GridSignal(coarse, dgdq_c[:, [j]])}
         if want_payload:
             extra["payload"] = reg[u, j, PAYLOAD_REGRESSOR]
+            extra["payload_basis"] = payload_basis(extra["payload"])
             extra["links_base"] = link_base_rows(reg[u, j, :], qdd_j, j)
         jds[j] = JointData(j, idx, sig.t_s[idx], sig.at("q", idx, joint=j), sig.qd_rad_s[idx, j], qdd_j, y,
                            block % n_folds, extra)
