@@ -14,8 +14,9 @@ position_ripple    sin, cos of 2 pi q / P                                       
 payload            link-7 columns of the joint torque regressor (m, m c, inertia)     none             10
 delay              the whole model evaluated at the positions d later                 d 1-20 ms        0
 friction_drift     Coulomb and viscous torque of the declared fit x exp(-t / T)       T 0.05-4 x run   2
-backlash           (at onsets, :mod:`wamctl.analysis.diagnosis.backlash`) and the      none             1
-                   gravity stiffness x direction (the link sits w/2 off the encoder)
+backlash           (at onsets, :mod:`wamctl.analysis.diagnosis.backlash`, either side  none             1
+                   of the gap) and the gravity stiffness x direction (the link sits
+                   w/2 off the encoder; no column for a gap on the motor side)
 =================  =================================================================  ==============  =====
 """
 

@@ -186,7 +186,6 @@ def _onset_window(des: Design, dyn0: WamDynamics, j: int, o, model: OnsetModel, 
                                            model.drift["time_constant_s"]))
     f = {k: max(v, 0.0) * scale for k, v in model.friction.items()}
     inertia = b_jj if dyn is dyn0 else float(dyn.mass_matrix(q_end)[j, j])
-    stall = o.end - o.start
     turn = o.turn if o.turn >= 0 else o.start
     return {"u": u, "u_declared": u_decl, "inertia": inertia, "friction": f, "start": o.start,
             "end": o.end, "sign": o.sign_new, "q": q_raw[ii] - q_raw[o.start], "reversal": o.reversal,
