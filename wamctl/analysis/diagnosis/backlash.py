@@ -23,10 +23,10 @@ started (a lead, negative). Without backlash ``d`` is about zero (a count or two
 same direction as the previous motion (a gravity-loaded drive may also keep one flank through a reversal). Onsets
 are dealt into the same time folds as the samples; the nested tests are made on held-out onsets:
 
-* backlash: ``l = c + v [reversal]`` against the model without the reversal term, on the logarithmic scale
-  ``l = sign(d) log(1 + |d| / tol)`` (the size of the lead varies with where in a reversal the gap is crossed,
-  and a handful of onsets carries the test: large values must not swamp it); the width is the reversal term of
-  ``d`` itself;
+* backlash: ``d = c + v [reversal]`` against the model without the reversal term; when the measurement leads,
+  on the logarithmic scale ``l = sign(d) log(1 + |d| / tol)`` (the lead varies with where in a reversal the gap
+  is crossed, wholly, partly or not at all, and a handful of onsets carries the test: large values must not
+  swamp it); the width is :func:`band_width`;
 * Stribeck, seen at breakaway (stick-slip leaves few sliding samples for the torque residual): ``d = c`` at
   every onset against ``d = 0``: the model breaks away too early, the joint withstood more than ``Fc``.
 """

@@ -1,10 +1,10 @@
 """Effects seen where a joint starts to move: backlash, and Stribeck at the breakaways (no I/O).
 
 * backlash: the signed hidden travel ``d`` at reversals (:func:`wamctl.analysis.diagnosis.backlash.signed_travel`:
-  positive when the measurement lags the link, negative when it leads it), ``l = c + v [reversal]`` against
-  ``l = c`` on its logarithmic scale ``l`` (``c`` only when there are same-direction onsets to estimate it); the
-  dead band ``w`` is the reversal term of ``d`` itself, at least ``MIN_BAND_TOLERANCES`` detection tolerances;
-  its sign says on which side of the gap the encoder is;
+  positive when the measurement lags the link, negative when it leads it), ``d = c + v [reversal]`` against
+  ``d = c`` (on the logarithmic scale of ``d`` when it leads; ``c`` only when there are same-direction onsets
+  to estimate it); the dead band ``w`` (:func:`~wamctl.analysis.diagnosis.backlash.band_width`) at least
+  ``MIN_BAND_TOLERANCES`` detection tolerances; its sign says on which side of the gap the encoder is;
 * Stribeck at breakaway (when the torque residual did not already keep it): the log breakaway ratio
   ``l = log(rho)``, ``l = c`` against ``l = 0``, at every onset (at same-direction onsets only when backlash
   was kept: a dead band also delays the measured breakaway at reversals).
@@ -159,24 +159,29 @@ def onset_tests(diag, j: int, tests: list[str]) -> None:
 
 
 def _test_backlash(diag, ons: dict) -> dict:
-    """Signed hidden travel at reversals beyond the same-direction onsets', tested on its logarithmic scale: a
-    dead band behind the encoder (positive) or a gap on the motor side (negative) of at least
-    ``MIN_BAND_TOLERANCES`` detection tolerances. Onsets where the model's link never moved are left out."""
+    """Signed hidden travel at reversals beyond the same-direction onsets': a dead band behind the encoder (the
+    measurement lags: positive) or a gap on the motor side (it leads: negative) of at least
+    ``MIN_BAND_TOLERANCES`` detection tolerances. A dead band behind the encoder is crossed by the same amount at
+    every reversal: the travel is tested as it is; a gap on the motor side is crossed where the torque passed to
+    the link changes sign, wholly, partly or not at all: tested on its logarithmic scale. Each side is tested one
+    way (the fitted term must have that side's sign), so the pair keeps the false-alarm rate of one test. Onsets
+    where the model's link never moved are left out."""
     tol = ons["tol_rad"]
     ok = np.isfinite(ons["travel_rad"])
     d, rev, fold = ons["travel_rad"][ok], ons["reversal"][ok], ons["fold"][ok]
-    r = onset_candidate(log_travel(d, tol), rev, fold, diag.n_folds, diag.threshold_, lambda c: True,
-                        lambda c: "")
+    w = band_width(d, rev) if rev.any() else 0.0
+    side = "motor" if w < 0 else "link"
+    r = onset_candidate(log_travel(d, tol) if side == "motor" else d, rev, fold, diag.n_folds, diag.threshold_,
+                        lambda c: True, lambda c: "")
     if "coef" not in r:
         return r
-    w, log_coef = band_width(d, rev), r["coef"]
-    side = "motor" if w < 0 else "link"
+    same_sign = np.sign(r["coef"]) == np.sign(w)
     r.update(coef=w, coef_fold={f: band_width(d[fold != f], rev[fold != f]) for f in np.unique(fold)},
              encoder_side=side)
     if not r["kept"]:
         return r
-    if np.sign(w) != np.sign(log_coef):
-        r.update(kept=False, reason="the travel at reversals and its logarithm disagree on its sign")
+    if not same_sign:
+        r.update(kept=False, reason="the reversal term and the dead band fitted disagree on its sign")
     elif abs(w) < MIN_BAND_TOLERANCES * tol:
         r.update(kept=False, reason=(f"fitted dead band {abs(w):.2g} rad is below {MIN_BAND_TOLERANCES:g} detection "
                                      f"tolerances ({MIN_BAND_TOLERANCES * tol:.2g} rad)"))
