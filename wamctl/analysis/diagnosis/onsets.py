@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wamctl.analysis.diagnosis.backlash import (
+    MIN_BAND_TOLERANCES,
     breakaway_ratio,
     find_onsets,
     hidden_travel,
@@ -339,9 +340,10 @@ def stall_gap_residual(u: np.ndarray, x: np.ndarray, q: np.ndarray, sign: float,
     window opens while the joint may still settle by a count or two); travel toward the new direction may use
     a dead band behind the encoder, back along the old one may not; the residual is the torque beyond the
     breakaway level. Measurement ahead (once it has left the stall, within which it is still by a count or two,
-    and while the model's link is at rest): its travel from the turning point beyond the model's may use a gap
-    on the motor side; the residual is the torque short of the breakaway level of the new direction. Else
-    zero."""
+    and while the model's link is at rest): its travel from the turning point beyond the model's, less the
+    resolution of the backlash test (``MIN_BAND_TOLERANCES`` tolerances: a light joint's measurement may lead the
+    model by a sample or two), may use a gap on the motor side; the residual is the torque short of the breakaway
+    level of the new direction. Else zero."""
     away = np.flatnonzero(np.abs(x) > 0.5 * tol)
     k0 = max(away[0] - 1, 0) if len(away) else 0
     gap = (x - x[k0]) - (q - q[k0])
@@ -354,6 +356,6 @@ def stall_gap_residual(u: np.ndarray, x: np.ndarray, q: np.ndarray, sign: float,
     q_turn, left = turn
     lead = sign * (q - q_turn) - sign * x
     short = np.maximum((fs_pos if sign > 0 else fs_neg) - sign * u, 0.0)
-    ahead = (lead > tol + max(-band, 0.0)) & (out == 0.0) & (sign * x < tol) & (np.arange(len(u)) >= left) & \
-        (left >= 0)
+    at_rest = (sign * x < tol) & (np.arange(len(u)) >= left) & (left >= 0)
+    ahead = (lead > MIN_BAND_TOLERANCES * tol + max(-band, 0.0)) & (out == 0.0) & at_rest
     return np.where(ahead, -sign * short, out)
