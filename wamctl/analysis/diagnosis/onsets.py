@@ -272,9 +272,9 @@ def stall_residual(diag, j: int, ons: dict, after: bool) -> np.ndarray:
     sample when its link, integrated from rest through the stall with the applied torque, has already
     moved further than the measurement allows (two encoder steps; plus the dead band for a model with
     backlash behind the encoder): the residual there is the torque beyond the level the model holds a joint
-    with; or when the measurement has moved further from its turning point than the model's link (plus the
-    gap of a model with backlash on the motor side): the residual is the torque short of the breakaway level
-    (the model's link could not have moved). The window runs from the stall's start until both have moved. The
+    with; or when the measurement has moved further from its turning point than the model's link, by more
+    than the backlash test resolves (plus the gap of a model with backlash on the motor side): the residual is
+    the torque short of the breakaway level (the model's link could not have moved). The window runs from the stall's start until both have moved. The
     declared model uses its Coulomb levels; the augmented one its breakaway levels, dead band, and the
     torque of its other effects. Breakaway ratio and dead band come from the onsets of the other folds.
     Sets the stall samples' times on the joint's result (``stall_t``).
