@@ -266,17 +266,19 @@ def slip_vs(windows: list[dict], dt_s: float, ratio: float) -> float | None:
 
 # ---------------------------------------------------------------------------------------------- stalls
 def stall_residual(diag, j: int, ons: dict, after: bool) -> np.ndarray:
-    """Torque residual (m,) at the samples where the measured joint or the model's link stood still at an onset.
+    """Torque residual (m,) at the samples where the measured joint stood still at an onset.
 
     At rest, friction is set-valued: anything up to the breakaway level. The model is wrong at a stall
     sample when its link, integrated from rest through the stall with the applied torque, has already
     moved further than the measurement allows (two encoder steps; plus the dead band for a model with
     backlash behind the encoder): the residual there is the torque beyond the level the model holds a joint
-    with; or when the measurement has moved further from its turning point than the model's link, by more
-    than the backlash test resolves (plus the gap of a model with backlash on the motor side): the residual is
-    the torque short of the breakaway level (the model's link could not have moved). The window runs from the stall's start until both have moved. The
-    declared model uses its Coulomb levels; the augmented one its breakaway levels, dead band, and the
-    torque of its other effects. Breakaway ratio and dead band come from the onsets of the other folds.
+    with. The declared model uses its Coulomb levels; the augmented one its breakaway levels, dead band, and
+    the torque of its other effects. Breakaway ratio and dead band come from the onsets of the other folds.
+    On a joint where a gap on the motor side was found (the measurement leads the link), the windows run on
+    while the model's link is at rest, and a sample also counts where the measurement has moved further from
+    its turning point than the model's link, by more than the backlash test resolves (plus the gap, for the
+    augmented model): the residual there is the torque short of the breakaway level. Elsewhere a model whose
+    link starts late is not counted (a breakaway level fitted too high is the Stribeck tests' to judge).
     Sets the stall samples' times on the joint's result (``stall_t``).
     """
     sig, res = diag.signals_, diag.joints_[j]
@@ -285,8 +287,9 @@ def stall_residual(diag, j: int, ons: dict, after: bool) -> np.ndarray:
     kept = {t["name"]: t for t in res.kept} if after else {}
     p_ratio = stribeck_ratio(diag.effect_params(j, "stribeck")) if "stribeck" in kept else None
     fb = diag.friction_before(j)
+    leads = any(t["name"] == "backlash" and t.get("encoder_side") == "motor" for t in res.kept)
     out = []
-    stops = [stall_stop(w) for w in ons["windows"]]
+    stops = [stall_stop(w, leads) for w in ons["windows"]]
     res.stall_t = np.concatenate([sig.t_s[w["start"]:w["start"] + m] for w, m in zip(ons["windows"], stops)])
     for w, f_on, m in zip(ons["windows"], ons["fold"], stops):
         if after:
@@ -297,15 +300,16 @@ def stall_residual(diag, j: int, ons: dict, after: bool) -> np.ndarray:
             ratio, band = (1.0, 1.0), 0.0
         fsp, fsn = ratio[0] * f["fc_pos_Nm"], ratio[1] * f["fc_neg_Nm"]
         x = travel_with(u, sig.dt_s, w["inertia"], f, fsp, fsn)
-        out.append(stall_gap_residual(u, x, w["q"][:m], w["sign"], ons["tol_rad"], band, fsp, fsn,
-                                      (w["q_turn"], w["end"] - w["start"])))
+        turn = (w["q_turn"], w["end"] - w["start"] if leads else -1)
+        out.append(stall_gap_residual(u, x, w["q"][:m], w["sign"], ons["tol_rad"], band, fsp, fsn, turn))
     return np.concatenate(out) if out else np.zeros(0)
 
 
-def stall_stop(w: dict) -> int:
-    """Samples of an onset window ``w`` the stall residual covers: until the measurement moved (``end``), and on
-    while the model's link has not moved by the tolerance (before ``moved``)."""
-    return int(min(max(w["end"] - w["start"], w.get("moved", 0)), len(w["u"])))
+def stall_stop(w: dict, leads: bool = True) -> int:
+    """Samples of an onset window ``w`` the stall residual covers: until the measurement moved (``end``), and
+    with ``leads`` on while the model's link has not moved by the tolerance (before ``moved``)."""
+    stall = w["end"] - w["start"]
+    return int(min(max(stall, w.get("moved", 0)), len(w["u"]))) if leads else stall
 
 
 def _held_out_levels(ons: dict, w: dict, fold: int, kept: dict,
