@@ -115,13 +115,15 @@ def drift_params(X: np.ndarray, fr: np.ndarray, coef: np.ndarray, tb: np.ndarray
 
 
 def backlash_params(term: dict, coef: np.ndarray, ons: dict) -> dict:
-    """Dead band (from the onsets), the side of the gap the encoder is on, its gravity offset coefficient (1,;
-    none for a gap on the motor side) and the onsets it was measured at."""
+    """Dead band (from the onsets), the side of the gap the encoder is on, the onsets it was measured at, and
+    for a dead band behind the encoder its gravity offset coefficient (1,; a gap on the motor side has none)."""
     rev = np.asarray(ons.get("reversal", []), bool)
     used = np.isfinite(ons.get("travel_rad", np.zeros(len(rev))))
-    return {"width_rad": float(term["width_rad"]), "encoder_side": term.get("encoder_side", "link"),
-            "gravity_offset_rad": float(coef[0]) if len(coef) else None,
-            "reversals": int(np.sum(rev & used)), "same_direction_onsets": int(np.sum(~rev & used))}
+    out = {"width_rad": float(term["width_rad"]), "encoder_side": term.get("encoder_side", "link"),
+           "reversals": int(np.sum(rev & used)), "same_direction_onsets": int(np.sum(~rev & used))}
+    if len(coef):
+        out["gravity_offset_rad"] = float(coef[0])
+    return out
 
 
 def report_effects(diag) -> None:
