@@ -21,6 +21,7 @@ import numpy as np
 import pytest
 from gen_independent import generate
 
+from wamctl.analysis.diagnosis.augmented import plant_dict
 from wamctl.analysis.diagnosis.backlash import band_width, signed_travel, turning_point
 from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
 from wamctl.runs.measured import load_run_data
@@ -60,7 +61,8 @@ def test_motor_side_backlash_is_named_with_its_width(motor_side):
     assert 0.5 * GAP_RAD <= p["width_rad"] <= 2.0 * GAP_RAD, p
     assert ci[0] <= p["width_rad"] <= ci[1] and ci[1] - ci[0] < p["width_rad"]
     assert joint["torque_rms_after_Nm"] <= 0.8 * joint["torque_rms_before_Nm"]
-    assert any("motor side" in w for w in out["warnings"])       # the plant cannot write it: said
+    assert any("motor side" in w for w in out["warnings"])       # the plant cannot write it: said, and left out
+    assert "backlash" not in plant_dict(diag)["effects"]
 
 
 def test_same_run_without_the_gap_names_no_backlash(motor_side):
