@@ -105,6 +105,7 @@ def test_effect_parameters_are_recovered(generated):
     g, diag = generated["backlash"]
     p = diag.effect_params(g.joint - 1, "backlash")
     assert p["width_rad"] == pytest.approx(g.effect_spec["width_rad"], rel=0.25)
+    assert p["encoder_side"] == "link"             # the plant's dead band: the measurement lags the link
 
 
 @pytest.mark.slow

@@ -135,7 +135,9 @@ def _effects_after(diag, thetas, joints_friction) -> dict:
         elif name == "friction_drift":
             out["friction_drift"] = {"joints": [j + 1], "fraction": _clip(p["fraction"], -0.9, 3.0),
                                      "time_constant_s": max(float(p["time_constant_s"]), 1e-3)}
-        elif name == "backlash":
+        elif name == "backlash" and p.get("encoder_side", "link") == "link":
+            # the plant's backlash is a dead band between link and encoder; a gap on the motor side (the
+            # measurement leads the link) it cannot represent (said in the diagnosis' warnings)
             out["backlash"] = {"joints": [j + 1], "width_rad": _clip(p["width_rad"], 1e-7, 0.1)}
     return out
 

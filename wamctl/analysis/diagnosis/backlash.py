@@ -1,22 +1,32 @@
-"""Backlash test of the model diagnosis: hidden travel at direction reversals (no I/O).
+"""Backlash test of the model diagnosis: lost motion at direction reversals (no I/O).
 
-A dead band of width ``w`` between the link and its encoder (a play operator on the measured position) is
-nearly invisible in the torque residual: once the joint slides, the measurement is the link position shifted
-by ``w/2``. It shows where the joint reverses: the measurement stands still while the link crosses the band.
+A dead band of width ``w`` in the drive is nearly invisible in the torque residual: once the joint slides, the
+measurement is the link position shifted by ``w/2``. It shows where the joint reverses, in one of two ways:
+
+* the dead band lies between the link and its encoder (a play operator on the measured position): the
+  measurement stands still while the link crosses the band, it *lags* the link;
+* the encoder sits on the motor and the gap lies between motor and link (a two-inertia drive): the motor
+  crosses the gap with only its own inertia and friction before it takes the link along, the measurement
+  *leads* the link.
 
 For every *onset* (the measured position stands still, then moves again) the joint's own dynamics are
-integrated through the measured stall with the logged torque and the fitted friction (stick until the
-torque beats the Coulomb level, then slide; the same implicit stick/slip step the simulator uses)::
+integrated from rest with the logged torque and the fitted friction (stick until the torque beats the Coulomb
+level, then slide; the same implicit stick/slip step the simulator uses)::
 
     B_jj x'' = u(t) - F(x'),     u = tau - rnea_j(q, qd, qdd with joint j's own velocity and acceleration zeroed)
 
-``d = sigma_new x(t_b)`` is the link travel the model says happened before the measurement moved at ``t_b``.
-Without backlash it is about the detection tolerance (one or two encoder counts); with backlash it is about
-``w`` larger at reversals, and unchanged at onsets in the same direction as the previous motion. Onsets are
-dealt into the same time folds as the samples; the nested tests are made on held-out onsets:
+and compared with the measured travel (:func:`signed_travel`): when the model's link moved first, ``d`` is how
+far it had travelled when the measurement moved (the existing *hidden travel*, positive); when the measurement
+moved first, ``d`` is minus how far the measurement had travelled from its turning point when the model's link
+started (a lead, negative). Without backlash ``d`` is about zero (a count or two); with backlash it is about
+``+w`` (encoder behind the band) or ``-w`` (encoder on the motor) at reversals, and unchanged at onsets in the
+same direction as the previous motion (a gravity-loaded drive may also keep one flank through a reversal). Onsets
+are dealt into the same time folds as the samples; the nested tests are made on held-out onsets:
 
-* backlash: ``d = w [reversal]`` (plus ``c`` when Stribeck was kept) against the model without the
-  reversal term;
+* backlash: ``d = c + v [reversal]`` against the model without the reversal term; when the measurement leads,
+  on the logarithmic scale ``l = sign(d) log(1 + |d| / tol)`` (the lead varies with where in a reversal the gap
+  is crossed, wholly, partly or not at all, and a handful of onsets carries the test: large values must not
+  swamp it); the width is :func:`band_width`;
 * Stribeck, seen at breakaway (stick-slip leaves few sliding samples for the torque residual): ``d = c`` at
   every onset against ``d = 0``: the model breaks away too early, the joint withstood more than ``Fc``.
 """
@@ -35,6 +45,10 @@ from wamctl.model.friction import stribeck_decay
 MIN_ONSETS = 4
 MIN_REVERSALS = 3
 TRAVEL_CAP_RAD = 0.1        # the model's link is stopped here: beyond, the travel says nothing more
+# A dead band must be at least this many detection tolerances (ten measurement steps) wide: a measurement that
+# moves a sample or two before the model's link does (a light joint reverses within a few milliseconds) leads
+# it by up to about four tolerances without any gap.
+MIN_BAND_TOLERANCES = 5.0
 
 
 @dataclass
@@ -46,6 +60,7 @@ class Onset:
     reversal: bool      # the new direction is opposite to the previous motion
     sign_new: float
     t_s: float
+    turn: int = -1      # the measured turning point of a reversal (the old direction's extreme), else ``start``
 
 
 def resolution_rad(q_raw: np.ndarray, min_steps: int = 1) -> float:
@@ -104,8 +119,57 @@ def find_onsets(t_s: np.ndarray, q_raw: np.ndarray, qd_s: np.ndarray, v_stick: f
             continue
         if np.sign(q_raw[b] - q_stall) != d_new:
             continue
-        out.append(Onset(a, b, d_new != d_prev, d_new, float(t_s[b])))
+        rev = d_new != d_prev
+        out.append(Onset(a, b, rev, d_new, float(t_s[b]), turning_point(q_raw, a, b, d_new, min_len) if rev else a))
     return out
+
+
+def turning_point(q_raw: np.ndarray, start: int, end: int, sign_new: float, reach: int) -> int:
+    """The measured turning point of a reversal: the last sample where the measured position (n,) is furthest
+    in the old direction, from ``reach`` samples before the stall's ``start`` to its ``end`` (a motor that
+    crosses a gap may reverse before the measured speed counts as stopped)."""
+    lo = max(start - reach, 0)
+    seg = sign_new * q_raw[lo:end + 1]
+    return lo + len(seg) - 1 - int(np.argmin(seg[::-1]))
+
+
+def signed_travel(x: np.ndarray, q: np.ndarray, stall: int, q_turn: float, sign: float, tol: float) -> float:
+    """Signed hidden travel of one onset, rad (NaN when the model's link never moves in the window).
+
+    ``x`` (m,) is the model's link travel from rest, ``q`` (m,) the measured travel from the window's start,
+    ``stall`` the first sample where the measurement has moved, ``q_turn`` the measured position of the turning
+    point (relative to the start), ``sign`` the new direction, ``tol`` the detection tolerance. Positive: the
+    model's link had travelled that far beyond ``tol`` when the measurement moved (the measurement lags).
+    Negative: the measurement had travelled that far beyond ``tol`` from its turning point when the model's link
+    moved by ``tol`` (it leads)."""
+    moved = np.flatnonzero(sign * x >= tol)
+    if not len(moved):
+        return float("nan")
+    k = int(moved[0])
+    if k < stall:
+        return float(sign * x[stall - 1] - tol)
+    return float(-(sign * (q[k] - q_turn) - tol))
+
+
+def band_width(d: np.ndarray, rev: np.ndarray) -> float:
+    """Signed dead band (rad) from the signed travel ``d`` (k,) of onsets and whether each reversed ``rev`` (k,),
+    beyond the same-direction onsets' mean (when there are two or more): the mean over the reversals when the
+    measurement lags (a dead band behind the encoder is crossed at every reversal); when it leads, the mean over
+    the larger half of the leads (a gap on the motor side is crossed only where the torque the drive passes to the
+    link changes sign, and gravity may keep one flank through a reversal: a dead band bounds the lead)."""
+    d, rev = np.asarray(d, float), np.asarray(rev, bool)
+    c = float(np.mean(d[~rev])) if (~rev).sum() >= 2 else 0.0
+    v = np.sort(d[rev] - c)
+    if not len(v):
+        return float("nan")
+    w = float(np.mean(v))
+    return w if w >= 0 else float(np.mean(v[: (len(v) + 1) // 2]))
+
+
+def log_travel(d: np.ndarray, tol: float) -> np.ndarray:
+    """Signed travel (k,) on the logarithmic scale of the backlash test: ``sign(d) log(1 + |d| / tol)``."""
+    d = np.asarray(d, float)
+    return np.sign(d) * np.log1p(np.abs(d) / tol)
 
 
 def hidden_travel(u_Nm: np.ndarray, dt_s: float, inertia: float, fc_pos: float, fc_neg: float,

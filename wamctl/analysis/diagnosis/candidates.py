@@ -15,8 +15,9 @@ payload            link-7 columns of the joint torque regressor (m, m c, inertia
                    the directions the joint's motion excites
 delay              the whole model evaluated at the positions d later                 d 1-20 ms        0
 friction_drift     Coulomb and viscous torque of the declared fit x exp(-t / T)       T 0.05-4 x run   2
-backlash           (at onsets, :mod:`wamctl.analysis.diagnosis.backlash`) and the      none             1
-                   gravity stiffness x direction (the link sits w/2 off the encoder)
+backlash           (at onsets, :mod:`wamctl.analysis.diagnosis.backlash`, either side  none             1
+                   of the gap) and the gravity stiffness x direction (the link sits
+                   w/2 off the encoder; no column for a gap on the motor side)
 =================  =================================================================  ==============  =====
 """
 

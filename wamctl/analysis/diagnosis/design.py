@@ -102,6 +102,8 @@ def ncols(term: dict) -> int:
         return 1
     if term["name"] == "stribeck" and isinstance(term.get("fixed_h"), tuple):
         return 0
+    if term["name"] == "backlash" and term.get("encoder_side") == "motor":
+        return 0      # a gap on the motor side: seen at the onsets only (:mod:`.onset_tests`)
     return N_COLUMNS[term["name"]]
 
 

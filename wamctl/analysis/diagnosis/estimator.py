@@ -29,7 +29,8 @@ Method
    minimum effect is a share of the declared model's residual, so that the imperfections of a strong
    effect's model are not named as further effects. Friction levels are fitted non-negative.
 5. **Onsets.** Backlash (and Stribeck, when the joint sticks and slips so that few sliding samples remain)
-   shows where a joint starts to move: the link travel the model predicts before the measurement moved, and
+   shows where a joint starts to move: the link travel the model predicts before the measurement moved (or how
+   far the measurement led the model's link: an encoder on the motor side of a gap), and
    the breakaway level the joint withstood (:mod:`wamctl.analysis.diagnosis.onsets`), tested the same way
    on held-out onsets (:mod:`wamctl.analysis.diagnosis.onset_tests`).
 6. **After.** All parameters (friction and the kept effects) are refitted; the held-out torque RMS and the

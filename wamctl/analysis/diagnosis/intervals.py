@@ -149,19 +149,28 @@ def _onset_ratio_bootstrap(diag, ons: dict, n_boot: int, rng) -> tuple[list, lis
 
 
 def _backlash_ci(ons: dict) -> list[float | None]:
-    """Interval of the dead band: the reversal term of the hidden travel over onsets resampled with replacement
-    (reversals and same-direction onsets resampled apart)."""
+    """Interval of the dead band (:func:`~wamctl.analysis.diagnosis.backlash.band_width`) over onsets resampled
+    with replacement (reversals and same-direction onsets resampled apart; onsets where the model's link never
+    moved left out, as in the test), widened for the few reversals resampled; of its magnitude (a gap on the motor
+    side has a negative band)."""
+    from wamctl.analysis.diagnosis.backlash import band_width
+
     d, rev = ons.get("travel_rad"), ons.get("reversal")
-    if d is None or rev is None or rev.sum() < 3:
+    if d is None or rev is None:
+        return [None, None]
+    d, rev = d[np.isfinite(d)], rev[np.isfinite(d)]
+    if rev.sum() < 3:
         return [None, None]
     rng = np.random.default_rng(3000)
     idx_r, idx_s = np.flatnonzero(rev), np.flatnonzero(~rev)
     out = []
     for _ in range(N_BOOT):
-        pr = rng.choice(idx_r, size=len(idx_r), replace=True)
-        if len(idx_s) >= 2:
-            ps = rng.choice(idx_s, size=len(idx_s), replace=True)
-            out.append(float(np.mean(d[pr]) - np.mean(d[ps])))
-        else:
-            out.append(float(np.mean(d[pr])))
-    return percentile_ci(out)
+        pick = np.r_[rng.choice(idx_r, size=len(idx_r)), rng.choice(idx_s, size=len(idx_s)) if len(idx_s) else idx_s]
+        out.append(band_width(d[pick], rev[pick]))
+    w = band_width(d, rev)
+    lo, hi = percentile_ci(out, center=w, n_groups=len(idx_r))
+    if lo is None or hi is None:
+        return [lo, hi]
+    if w < 0:
+        lo, hi = -hi, -lo
+    return [max(lo, 0.0), hi]

@@ -1,7 +1,10 @@
 """Effects seen where a joint starts to move: backlash, and Stribeck at the breakaways (no I/O).
 
-* backlash: hidden travel ``d`` at reversals, ``d = c + w [reversal]`` against ``d = c`` (``c`` only when
-  there are same-direction onsets to estimate it);
+* backlash: the signed hidden travel ``d`` at reversals (:func:`wamctl.analysis.diagnosis.backlash.signed_travel`:
+  positive when the measurement lags the link, negative when it leads it), ``d = c + v [reversal]`` against
+  ``d = c`` (on the logarithmic scale of ``d`` when it leads; ``c`` only when there are same-direction onsets
+  to estimate it); the dead band ``w`` (:func:`~wamctl.analysis.diagnosis.backlash.band_width`) at least
+  ``MIN_BAND_TOLERANCES`` detection tolerances; its sign says on which side of the gap the encoder is;
 * Stribeck at breakaway (when the torque residual did not already keep it): the log breakaway ratio
   ``l = log(rho)``, ``l = c`` against ``l = 0``, at every onset (at same-direction onsets only when backlash
   was kept: a dead band also delays the measured breakaway at reversals).
@@ -16,7 +19,14 @@ from dataclasses import replace
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.backlash import MIN_ONSETS, MIN_REVERSALS, onset_test
+from wamctl.analysis.diagnosis.backlash import (
+    MIN_BAND_TOLERANCES,
+    MIN_ONSETS,
+    MIN_REVERSALS,
+    band_width,
+    log_travel,
+    onset_test,
+)
 from wamctl.analysis.diagnosis.candidates import MAX_BREAKAWAY_RATIO
 from wamctl.analysis.diagnosis.crossval import cv_residual
 from wamctl.analysis.diagnosis.joint import (
@@ -63,11 +73,7 @@ def onset_candidate(values: np.ndarray, rev: np.ndarray | None, fold: np.ndarray
         have = n if rev is None else int(rev.sum())
         need = MIN_ONSETS if rev is None else MIN_REVERSALS
         return dict(UNTESTED, kept=False, reason=f"not testable: {have} {what} measured (at least {need} needed)")
-    if rev is None:
-        X0, X1 = np.zeros((n, 0)), np.ones((n, 1))
-    else:
-        X0 = np.ones((n, 1)) if (~rev).sum() >= 2 else np.zeros((n, 0))
-        X1 = np.column_stack([X0, rev.astype(float)])
+    X0, X1 = _onset_design(n, rev)
     t = onset_test(values, X0, X1, fold, n_folds, MIN_EFFECT)
     coef = float(t["coef"][-1])
     out = {k: v for k, v in t.items() if k not in ("e0", "e1", "coef", "coef_fold")}
@@ -79,6 +85,15 @@ def onset_candidate(values: np.ndarray, rev: np.ndarray | None, fold: np.ndarray
     else:
         out.update(kept=kept, reason="kept (seen at onsets)" if kept else why_rejected(t, threshold))
     return out
+
+
+def _onset_design(n: int, rev: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    """(X0, X1) of an onset test over ``n`` onsets: a common offset against zero (``rev is None``), or a reversal
+    term against a common offset (zero without two same-direction onsets to estimate it)."""
+    if rev is None:
+        return np.zeros((n, 0)), np.ones((n, 1))
+    X0 = np.ones((n, 1)) if (~rev).sum() >= 2 else np.zeros((n, 0))
+    return X0, np.column_stack([X0, rev.astype(float)])
 
 
 def stribeck_at_breakaways(diag, j: int, extra_delay_s: float = 0.0, test_only: bool = False,
@@ -144,11 +159,37 @@ def onset_tests(diag, j: int, tests: list[str]) -> None:
 
 
 def _test_backlash(diag, ons: dict) -> dict:
-    """Hidden travel at reversals beyond the same-direction onsets': a dead band of at least the tolerance."""
+    """Signed hidden travel at reversals beyond the same-direction onsets': a dead band behind the encoder (the
+    measurement lags: positive) or a gap on the motor side (it leads: negative) of at least
+    ``MIN_BAND_TOLERANCES`` detection tolerances. A dead band behind the encoder is crossed by the same amount at
+    every reversal: the travel is tested as it is; a gap on the motor side is crossed where the torque passed to
+    the link changes sign, wholly, partly or not at all: tested on its logarithmic scale. Each side is tested one
+    way (the fitted term must have that side's sign), so the pair keeps the false-alarm rate of one test. Onsets
+    where the model's link never moved are left out."""
     tol = ons["tol_rad"]
-    return onset_candidate(
-        ons["travel_rad"], ons["reversal"], ons["fold"], diag.n_folds, diag.threshold_, lambda coef: coef >= tol,
-        lambda coef: f"fitted dead band {coef:.2g} rad is below two measurement steps ({tol:.2g} rad)")
+    ok = np.isfinite(ons["travel_rad"])
+    d, rev, fold = ons["travel_rad"][ok], ons["reversal"][ok], ons["fold"][ok]
+    w = band_width(d, rev) if rev.any() else 0.0
+    side = "motor" if w < 0 else "link"
+    r = onset_candidate(log_travel(d, tol) if side == "motor" else d, rev, fold, diag.n_folds, diag.threshold_,
+                        lambda c: True, lambda c: "")
+    if "coef" not in r:
+        return r
+    same_sign = np.sign(r["coef"]) == np.sign(w)
+    r.update(coef=w, coef_fold={f: band_width(d[fold != f], rev[fold != f]) for f in np.unique(fold)},
+             encoder_side=side)
+    if not r["kept"]:
+        return r
+    if not same_sign:
+        r.update(kept=False, reason="the reversal term and the dead band fitted disagree on its sign")
+    elif abs(w) < MIN_BAND_TOLERANCES * tol:
+        r.update(kept=False, reason=(f"fitted dead band {abs(w):.2g} rad is below {MIN_BAND_TOLERANCES:g} detection "
+                                     f"tolerances ({MIN_BAND_TOLERANCES * tol:.2g} rad)"))
+    else:
+        where = ("the measurement leads the link at reversals: the encoder is on the motor side of the gap"
+                 if side == "motor" else "the measurement lags the link at reversals: a dead band behind the encoder")
+        r["reason"] = f"kept (seen at onsets: {where})"
+    return r
 
 
 def _test_stribeck(diag, ons: dict, exclude_reversals: bool) -> dict:
@@ -185,11 +226,19 @@ def add_onset_effect(diag, j: int, name: str, r: dict, ons: dict) -> None:
     ev = {k: v for k, v in r.items() if k in EVIDENCE_KEYS}
     extra = {}
     if name == "backlash":
-        extra["width_rad"] = float(r["coef"])
+        extra.update(width_rad=abs(float(r["coef"])), encoder_side=r["encoder_side"])
     else:
         extra["fixed_h"] = breakaway_shape(ons, float(np.exp(r["coef"])), des.sig.dt_s)
         extra.update(onset_test=True, seen="breakaways")
-    e1, h_fold = cv_residual(des, jd, res.kept, name, extra.get("fixed_h"))
+    if extra.get("encoder_side") == "motor":
+        # a gap on the motor side leaves the sliding samples as they are (the link follows the measurement at
+        # a constant offset on the driven flank): no torque-domain term
+        e1, h_fold = res.e_after, [None] * des.n_folds
+        diag.warnings_.append(f"joint {j + 1}: backlash with the encoder on the motor side of the gap (the "
+                              "measurement leads the link at reversals); the plant's backlash effect (a dead band "
+                              "between link and encoder) cannot represent it, so model.yaml leaves it out")
+    else:
+        e1, h_fold = cv_residual(des, jd, res.kept, name, extra.get("fixed_h"))
     term = {"name": name, "h_fold": h_fold, "evidence": ev, "gain": 1.0 - r["ssr_ratio"], **extra}
     if finite_ss(e1) > finite_ss(res.e_after):
         e1 = res.e_after

@@ -13,9 +13,17 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.backlash import breakaway_ratio, find_onsets, hidden_travel, resolution_rad
+from wamctl.analysis.diagnosis.backlash import (
+    MIN_BAND_TOLERANCES,
+    breakaway_ratio,
+    find_onsets,
+    hidden_travel,
+    resolution_rad,
+    signed_travel,
+)
 from wamctl.analysis.diagnosis.candidates import MAX_BREAKAWAY_RATIO, STRIBECK_VS_GRID_RAD_S
 from wamctl.analysis.diagnosis.design import Design, block_of, levels, levels_dict
+from wamctl.analysis.diagnosis.prepare import link_base_rows
 from wamctl.analysis.diagnosis.signals import Signals, delayed
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
@@ -36,6 +44,7 @@ class OnsetModel:
     dynamics : the rigid body with a kept payload (else the declared one).
     delay_s : the delay of the measurement (declared plus kept).
     delay_declared_s : its declared part.
+    links : (base columns, coefficients) of a kept ``link_parameters`` refit (the torque it adds), else None.
     """
 
     friction: dict
@@ -45,6 +54,7 @@ class OnsetModel:
     dynamics: WamDynamics
     delay_s: float
     delay_declared_s: float
+    links: tuple[np.ndarray, np.ndarray] | None = None
 
 
 def stribeck_ratio(p: dict) -> tuple[float, float]:
@@ -80,8 +90,10 @@ def onset_model(diag, j: int, declared: bool = False, exclude: tuple[str, ...] =
         dyn = payload_dynamics(diag.payload_declared_, diag.payload_)
     delay_decl = diag.declared_.delay_s
     delay = delay_decl + (params("delay")["delay_s"] if "delay" in kept else 0.0)
+    des = diag.design_
+    links = (des.links_cols, des.links_beta[None]) if "link_parameters" in kept and None in des.links_beta else None
     return OnsetModel(fr, stribeck_ratio(stri) if stri else None, params("friction_drift"),
-                      params("position_ripple"), dyn, delay, delay_decl)
+                      params("position_ripple"), dyn, delay, delay_decl, links)
 
 
 def detection_tolerance(sig: Signals, j: int) -> tuple[float, float]:
@@ -100,9 +112,11 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
 
     Returns
     -------
-    dict of (k,) arrays over the k onsets: ``travel_rad``, ``reversal``, ``t_s``, ``fold``, ``breakaway_ratio``,
-    ``sign``; and ``resolution_rad``, ``tol_rad``, ``windows`` (per onset: the torques, inertia, friction,
-    measured travel of its window).
+    dict of (k,) arrays over the k onsets: ``travel_rad`` (the signed hidden travel,
+    :func:`~wamctl.analysis.diagnosis.backlash.signed_travel`), ``reversal``, ``t_s``, ``fold``,
+    ``breakaway_ratio``, ``sign``; and ``resolution_rad``, ``tol_rad``, ``windows`` (per onset: the torques,
+    inertia, friction, measured travel of its window, the turning point ``q_turn`` and the sample ``moved`` where
+    the model's link has moved by the tolerance).
     """
     sig, j = des.sig, jd.j
     q_raw = sig.q_raw_rad[:, j]
@@ -131,8 +145,10 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
         f = w["friction"]
         fsp = f["fc_pos_Nm"] * model.fs_ratio[0] if model.fs_ratio else None
         fsn = f["fc_neg_Nm"] * model.fs_ratio[1] if model.fs_ratio else None
-        x = travel_with(w["u"][:stall], sig.dt_s, w["inertia"], f, fsp, fsn)
-        travel.append(o.sign_new * x[-1] - tol)
+        x = travel_with(w["u"], sig.dt_s, w["inertia"], f, fsp, fsn)
+        moved = np.flatnonzero(o.sign_new * x >= tol)
+        w["moved"] = int(moved[0]) if len(moved) else len(x)
+        travel.append(signed_travel(x, w["q"], stall, w["q_turn"], o.sign_new, tol))
         ratio.append(breakaway_ratio(w["u"][:stall], sig.dt_s, w["inertia"], max(f["fc_pos_Nm"], 1e-6),
                                      max(f["fc_neg_Nm"], 1e-6), f["viscous_pos_Nm_s_rad"],
                                      f["viscous_neg_Nm_s_rad"], tol))
@@ -160,6 +176,8 @@ def _onset_window(des: Design, dyn0: WamDynamics, j: int, o, model: OnsetModel, 
     dyn = model.dynamics
     if dyn is not dyn0:
         u = u - _payload_torque(dyn, dyn0, sig, ii, j)
+    if model.links is not None:
+        u = u - _links_torque(model.links, dyn0, sig, ii, j)
     if model.ripple:
         r = model.ripple
         u += ripple_torque_Nm(q_raw[ii], r["amplitude_Nm"], 2 * np.pi / r["period_rad"], r["phase_rad"])
@@ -169,10 +187,10 @@ def _onset_window(des: Design, dyn0: WamDynamics, j: int, o, model: OnsetModel, 
                                            model.drift["time_constant_s"]))
     f = {k: max(v, 0.0) * scale for k, v in model.friction.items()}
     inertia = b_jj if dyn is dyn0 else float(dyn.mass_matrix(q_end)[j, j])
-    stall = o.end - o.start
-    return {"u": u, "u_declared": u_decl[:stall], "inertia": inertia, "friction": f, "start": o.start,
+    turn = o.turn if o.turn >= 0 else o.start
+    return {"u": u, "u_declared": u_decl, "inertia": inertia, "friction": f, "start": o.start,
             "end": o.end, "sign": o.sign_new, "q": q_raw[ii] - q_raw[o.start], "reversal": o.reversal,
-            "t_s": o.t_s}
+            "t_s": o.t_s, "q_turn": float(q_raw[turn] - q_raw[o.start])}
 
 
 def _payload_torque(dyn: WamDynamics, dyn0: WamDynamics, sig: Signals, ii: np.ndarray, j: int) -> np.ndarray:
@@ -183,6 +201,19 @@ def _payload_torque(dyn: WamDynamics, dyn0: WamDynamics, sig: Signals, ii: np.nd
     QD[:, j] = QDD[:, j] = 0.0
     extra_t = [dyn.inverse_dynamics(Q[k], QD[k], QDD[k])[j] - dyn0.inverse_dynamics(Q[k], QD[k], QDD[k])[j]
                for k in range(len(pts))]
+    return np.interp(ii, pts, extra_t)
+
+
+def _links_torque(links: tuple[np.ndarray, np.ndarray], dyn0: WamDynamics, sig: Signals, ii: np.ndarray,
+                  j: int) -> np.ndarray:
+    """(len(ii),) torque a kept link refit (base columns, coefficients) adds at joint ``j`` along samples ``ii``
+    (the joint's own velocity and acceleration zeroed), computed every 10 ms and interpolated."""
+    cols, beta = links
+    pts = np.unique(np.r_[ii[::5], ii[-1]])
+    Q, QD, QDD = sig.at("q", pts), sig.at("qd", pts).copy(), sig.at("qdd", pts).copy()
+    QD[:, j] = QDD[:, j] = 0.0
+    rows = np.array([dyn0.regressor_basis(Q[k], QD[k], QDD[k])[j] for k in range(len(pts))])
+    extra_t = link_base_rows(rows, np.zeros(len(pts)), j)[:, cols] @ beta
     return np.interp(ii, pts, extra_t)
 
 
@@ -235,14 +266,19 @@ def slip_vs(windows: list[dict], dt_s: float, ratio: float) -> float | None:
 
 # ---------------------------------------------------------------------------------------------- stalls
 def stall_residual(diag, j: int, ons: dict, after: bool) -> np.ndarray:
-    """Torque residual (m,) at the samples where the measured joint stood still before an onset.
+    """Torque residual (m,) at the samples where the measured joint stood still at an onset.
 
     At rest, friction is set-valued: anything up to the breakaway level. The model is wrong at a stall
     sample when its link, integrated from rest through the stall with the applied torque, has already
     moved further than the measurement allows (two encoder steps; plus the dead band for a model with
-    backlash); the residual there is the torque beyond the level the model holds a joint with. The
-    declared model uses its Coulomb levels; the augmented one its breakaway levels, dead band, and the
-    torque of its other effects. Breakaway ratio and dead band come from the onsets of the other folds.
+    backlash behind the encoder): the residual there is the torque beyond the level the model holds a joint
+    with. The declared model uses its Coulomb levels; the augmented one its breakaway levels, dead band, and
+    the torque of its other effects. Breakaway ratio and dead band come from the onsets of the other folds.
+    On a joint where a gap on the motor side was found (the measurement leads the link), the windows run on
+    while the model's link is at rest, and a sample also counts where the measurement has moved further from
+    its turning point than the model's link, by more than the backlash test resolves (plus the gap, for the
+    augmented model): the residual there is the torque short of the breakaway level. Elsewhere a model whose
+    link starts late is not counted (a breakaway level fitted too high is the Stribeck tests' to judge).
     Sets the stall samples' times on the joint's result (``stall_t``).
     """
     sig, res = diag.signals_, diag.joints_[j]
@@ -251,26 +287,36 @@ def stall_residual(diag, j: int, ons: dict, after: bool) -> np.ndarray:
     kept = {t["name"]: t for t in res.kept} if after else {}
     p_ratio = stribeck_ratio(diag.effect_params(j, "stribeck")) if "stribeck" in kept else None
     fb = diag.friction_before(j)
+    leads = any(t["name"] == "backlash" and t.get("encoder_side") == "motor" for t in res.kept)
     out = []
-    res.stall_t = np.concatenate([sig.t_s[w["start"]:w["end"]] for w in ons["windows"]])
-    for w, f_on in zip(ons["windows"], ons["fold"]):
-        stall = w["end"] - w["start"]
+    stops = [stall_stop(w, leads) for w in ons["windows"]]
+    res.stall_t = np.concatenate([sig.t_s[w["start"]:w["start"] + m] for w, m in zip(ons["windows"], stops)])
+    for w, f_on, m in zip(ons["windows"], ons["fold"], stops):
         if after:
-            u, f = w["u"][:stall], w["friction"]
+            u, f = w["u"][:m], w["friction"]
             ratio, band = _held_out_levels(ons, w, int(f_on), kept, p_ratio)
         else:
-            u, f = w["u_declared"], {k: max(v, 0.0) for k, v in fb.items()}
+            u, f = w["u_declared"][:m], {k: max(v, 0.0) for k, v in fb.items()}
             ratio, band = (1.0, 1.0), 0.0
         fsp, fsn = ratio[0] * f["fc_pos_Nm"], ratio[1] * f["fc_neg_Nm"]
         x = travel_with(u, sig.dt_s, w["inertia"], f, fsp, fsn)
-        out.append(stall_gap_residual(u, x, w["q"][:stall], w["sign"], ons["tol_rad"], band, fsp, fsn))
+        turn = (w["q_turn"], w["end"] - w["start"] if leads else -1)
+        out.append(stall_gap_residual(u, x, w["q"][:m], w["sign"], ons["tol_rad"], band, fsp, fsn, turn))
     return np.concatenate(out) if out else np.zeros(0)
+
+
+def stall_stop(w: dict, leads: bool = True) -> int:
+    """Samples of an onset window ``w`` the stall residual covers: until the measurement moved (``end``), and
+    with ``leads`` on while the model's link has not moved by the tolerance (before ``moved``)."""
+    stall = w["end"] - w["start"]
+    return int(min(max(stall, w.get("moved", 0)), len(w["u"]))) if leads else stall
 
 
 def _held_out_levels(ons: dict, w: dict, fold: int, kept: dict,
                      p_ratio: tuple[float, float] | None) -> tuple[tuple[float, float], float]:
-    """(breakaway ratio per direction, dead band) of the final model at onset window ``w`` of ``fold``: from
-    the onsets of the other folds where they give them, else from the fit on all data (``p_ratio``)."""
+    """(breakaway ratio per direction, signed dead band) of the final model at onset window ``w`` of ``fold``:
+    from the onsets of the other folds where they give them, else from the fit on all data (``p_ratio``). The
+    band is positive behind the encoder (the measurement lags), negative for a gap on the motor side."""
     fold_coef = ons.get("fold_coef", {})
     ratio = (1.0, 1.0)
     if "stribeck" in kept:
@@ -280,26 +326,40 @@ def _held_out_levels(ons: dict, w: dict, fold: int, kept: dict,
         ratio = tuple(rr if h is None else h for h, rr in zip(held_out, ratio))
     band = 0.0
     if "backlash" in kept and w["reversal"]:
+        t = kept["backlash"]
+        side = -1.0 if t.get("encoder_side") == "motor" else 1.0
         wf = fold_coef.get("backlash", {}).get(fold)
-        band = max(wf if wf is not None else kept["backlash"]["width_rad"], 0.0)
+        band = side * max(side * wf if wf is not None else t["width_rad"], 0.0)
     return ratio, band
 
 
 def stall_gap_residual(u: np.ndarray, x: np.ndarray, q: np.ndarray, sign: float, tol: float, band: float,
-                       fs_pos: float, fs_neg: float) -> np.ndarray:
+                       fs_pos: float, fs_neg: float, turn: tuple[float, int] = (0.0, -1)) -> np.ndarray:
     """Torque residual (m,) of one stall: ``u`` (m,) torque available, ``x`` (m,) the model's travel, ``q`` (m,)
-    the measured one, ``sign`` the new direction, ``band`` a dead band, ``fs_*`` the breakaway levels.
+    the measured one, ``sign`` the new direction, ``band`` a dead band (positive: behind the encoder; negative:
+    a gap on the motor side), ``fs_*`` the breakaway levels, ``turn`` the measured turning point (relative to the
+    window's start) and the first sample where the measurement has left the stall (-1: none in the window).
 
-    Both travels are counted from the sample before the model moved by half the tolerance (the window opens
-    while the joint may still settle by a count or two); travel toward the new direction may use the dead
-    band, back along the old one may not. Where the gap exceeds what is allowed, the residual is the torque
-    beyond the breakaway level, else zero."""
+    Model ahead: both travels are counted from the sample before the model moved by half the tolerance (the
+    window opens while the joint may still settle by a count or two); travel toward the new direction may use
+    a dead band behind the encoder, back along the old one may not; the residual is the torque beyond the
+    breakaway level. Measurement ahead (once it has left the stall, within which it is still by a count or two,
+    and while the model's link is at rest): its travel from the turning point beyond the model's, less the
+    resolution of the backlash test (``MIN_BAND_TOLERANCES`` tolerances: a light joint's measurement may lead the
+    model by a sample or two), may use a gap on the motor side; the residual is the torque short of the breakaway
+    level of the new direction. Else zero."""
     away = np.flatnonzero(np.abs(x) > 0.5 * tol)
     k0 = max(away[0] - 1, 0) if len(away) else 0
     gap = (x - x[k0]) - (q - q[k0])
     gap[:k0] = 0.0
     along = sign * gap
-    allowed = tol + np.where(along > 0, band, 0.0)
+    allowed = tol + np.where(along > 0, max(band, 0.0), 0.0)
     wrong = np.abs(gap) > allowed
     level = np.where(u > 0, fs_pos, fs_neg)
-    return np.where(wrong, np.sign(u) * np.maximum(np.abs(u) - level, 0.0), 0.0)
+    out = np.where(wrong, np.sign(u) * np.maximum(np.abs(u) - level, 0.0), 0.0)
+    q_turn, left = turn
+    lead = sign * (q - q_turn) - sign * x
+    short = np.maximum((fs_pos if sign > 0 else fs_neg) - sign * u, 0.0)
+    at_rest = (sign * x < tol) & (np.arange(len(u)) >= left) & (left >= 0)
+    ahead = (lead > MIN_BAND_TOLERANCES * tol + max(-band, 0.0)) & (out == 0.0) & at_rest
+    return np.where(ahead, -sign * short, out)

@@ -116,10 +116,15 @@ def drift_params(X: np.ndarray, fr: np.ndarray, coef: np.ndarray, tb: np.ndarray
 
 
 def backlash_params(term: dict, coef: np.ndarray, ons: dict) -> dict:
-    """Dead band (from the onsets), its gravity offset coefficient (1,) and the onsets it was measured at."""
-    rev = ons.get("reversal", [])
-    return {"width_rad": float(term["width_rad"]), "gravity_offset_rad": float(coef[0]),
-            "reversals": int(np.sum(rev)), "same_direction_onsets": int(np.sum(~np.asarray(rev, bool)))}
+    """Dead band (from the onsets), the side of the gap the encoder is on, the onsets it was measured at, and
+    for a dead band behind the encoder its gravity offset coefficient (1,; a gap on the motor side has none)."""
+    rev = np.asarray(ons.get("reversal", []), bool)
+    used = np.isfinite(ons.get("travel_rad", np.zeros(len(rev))))
+    out = {"width_rad": float(term["width_rad"]), "encoder_side": term.get("encoder_side", "link"),
+           "reversals": int(np.sum(rev & used)), "same_direction_onsets": int(np.sum(~rev & used))}
+    if len(coef):
+        out["gravity_offset_rad"] = float(coef[0])
+    return out
 
 
 def report_effects(diag) -> None:
