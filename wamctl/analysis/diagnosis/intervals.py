@@ -38,6 +38,8 @@ def joint_intervals(diag, j: int) -> dict:
         base = kept_effect_params(diag, j, name)
         samples = [kept_effect_params(diag, j, name, th) for th in reps]
         nb = len(np.unique(jd.extra["block"]))
+        if name == "position_ripple":
+            samples = [_phases_near(s, base) for s in samples]
         ci = {k: percentile_ci([s.get(k) for s in samples], center=v, n_groups=nb) for k, v in base.items()
               if _numeric(v) and np.ptp([s.get(k, v) for s in samples]) > 0}
         ni = []
@@ -52,9 +54,11 @@ def joint_intervals(diag, j: int) -> dict:
                 lo, hi = profile_ci(grid, ssr, n_eff)
                 ci["vs_rad_s"] = [None if lo is None else min(lo, vs), None if hi is None else max(hi, vs)]
         elif key:
-            h0 = float(t["h_all"])
+            h0 = float(t["h_all"][0] if name == "position_ripple" else t["h_all"])
             grid = _profile_grid(des, name, h0)
-            ssr = [_ssr_with(des, jd, res.kept, i, h) for h in grid]
+            # a ripple's period is profiled with its number of harmonics fixed
+            ssr = [_ssr_with(des, jd, res.kept, i, (h, t["h_all"][1]) if name == "position_ripple" else h)
+                   for h in grid]
             lo, hi = profile_ci(grid, ssr, n_eff)
             if (lo, hi) != (None, None):      # the estimate is in its interval (a grid's resolution aside)
                 lo = None if lo is None else min(lo, h0)
@@ -68,6 +72,16 @@ def joint_intervals(diag, j: int) -> dict:
             if v == [None, None] and k in base and _numeric(base[k]):
                 ni.append(k)
         out[name] = {"params_ci": ci, "not_identified": ni}
+    return out
+
+
+def _phases_near(sample: dict, base: dict) -> dict:
+    """A bootstrap replicate of a ripple's parameters with each phase taken within pi of the estimate's (a phase
+    is an angle: its interval is the arc around the estimate, its ends may lie below 0 or above 2 pi)."""
+    out = dict(sample)
+    for k, v in sample.items():
+        if k.startswith("phase") and _numeric(v) and _numeric(base.get(k)):
+            out[k] = base[k] + (v - base[k] + np.pi) % (2 * np.pi) - np.pi
     return out
 
 

@@ -160,7 +160,7 @@ def _backward(des: Design, jd: JointData, terms: list[dict], hidden: list[dict],
             e0 = cv_terms(des, jd, others + hidden)
             k1 = N_FRICTION + sum(ncols(x) for x in terms + hidden)
             share = finite_ss(e_base) / max(finite_ss(e0), 1e-300)
-            test = nested_test(e0, e_full, p_extra(t["name"]), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
+            test = nested_test(e0, e_full, p_extra(t["name"], t), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
             if not passes(test, threshold) and test["p_value"] > worst_p:
                 worst, worst_p = i, test["p_value"]
         if worst is None:
@@ -191,12 +191,14 @@ def _entries(des: Design, jd: JointData, terms: list[dict], remaining: list[str]
         if c == "payload" and "payload" not in jd.extra:
             continue
         e1, h_fold = cv_residual(des, jd, terms, c)
-        k1 = N_FRICTION + sum(ncols(t) for t in terms) + N_COLUMNS[c]
+        term = {"name": c, "h_fold": h_fold}
+        extra = ncols(term) if c == "position_ripple" else N_COLUMNS[c]     # a ripple: 2 per harmonic
+        k1 = N_FRICTION + sum(ncols(t) for t in terms) + extra
         # the minimum effect is a share of what the declared model left, not of what is left now: after a
         # strong effect, the traces of its imperfect model are not new effects
         share = finite_ss(e_base) / max(finite_ss(current), 1e-300)
-        t = nested_test(current, e1, p_extra(c), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
-        out[c] = {"name": c, "test": t, "e": e1, "term": {"name": c, "h_fold": h_fold}}
+        t = nested_test(current, e1, p_extra(c, term), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
+        out[c] = {"name": c, "test": t, "e": e1, "term": term}
         last[c] = dict(t, step=step)
     return out
 
@@ -357,18 +359,21 @@ def _stribeck_plausible(jd: JointData, c: dict) -> tuple[bool, str]:
 def _ripple_plausible(des: Design, jd: JointData, terms: list[dict]) -> tuple[bool, str]:
     """Torque periodic in the angle is the same whichever way the joint turns; a periodic trace of the
     control loop (hunting at a speed-dependent frequency) is not."""
-    h = next(t["h_all"] for t in terms if t["name"] == "position_ripple")
-    amps = []
+    i = [t["name"] for t in terms].index("position_ripple")
+    h = float(terms[i]["h_all"][0])
+    k = N_FRICTION + sum(ncols(t) for t in terms[:i])
+    coefs = []                           # the sin/cos coefficients of every harmonic, per direction
     for m in (jd.qd_rad_s > 0, jd.qd_rad_s < 0):
         if m.sum() < 100 or np.ptp(jd.q_rad[m]) < h:
             continue
         y, X = target_and_design(des, jd, terms, None)
         th = fit_theta(X[m], y[m], des.bounded)
-        k = N_FRICTION + sum(ncols(t) for t in terms[: [t["name"] for t in terms].index("position_ripple")])
-        amps.append(complex(th[k], th[k + 1]))
-    if len(amps) == 2 and abs(amps[0] - amps[1]) > 0.5 * max(abs(amps[0]), abs(amps[1])):
-        return False, (f"the ripple differs between the two directions of motion (amplitudes "
-                       f"{abs(amps[0]):.3g} and {abs(amps[1]):.3g} N m): not a torque periodic in the angle")
+        coefs.append(th[k:k + ncols(terms[i])])
+    if len(coefs) == 2:
+        a0, a1 = (float(np.linalg.norm(c)) for c in coefs)
+        if np.linalg.norm(coefs[0] - coefs[1]) > 0.5 * max(a0, a1):
+            return False, (f"the ripple differs between the two directions of motion (amplitudes {a0:.3g} and "
+                           f"{a1:.3g} N m): not a torque periodic in the angle")
     return _ripple_repeats(des, jd, terms, h)
 
 
