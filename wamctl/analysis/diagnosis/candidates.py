@@ -35,6 +35,7 @@ STRIBECK_VS_GRID_RAD_S = np.geomspace(0.004, 0.4, 13)
 RIPPLE_PERIOD_MIN_RAD = 0.01
 RIPPLE_PERIOD_MAX_RAD = 2.0
 RIPPLE_MAX_HARMONICS = 4          # a ripple's fundamental and up to three harmonics
+RIPPLE_MIN_PERIODS = 1.25         # a ripple is named only where the joint's travel covers this many periods
 DELAY_GRID_S = np.arange(2, 41) * 0.5e-3                # 1 to 20 ms
 DRIFT_T_GRID_FRACTION = np.geomspace(0.05, 4.0, 12)    # time constants as fractions of the run length
 D7_M = float(P.DH_D_M[6])

@@ -13,6 +13,7 @@ from wamctl.analysis.diagnosis.candidates import (
     DELAY_GRID_S,
     DRIFT_T_GRID_FRACTION,
     RIPPLE_MAX_HARMONICS,
+    RIPPLE_MIN_PERIODS,
     RIPPLE_PERIOD_MAX_RAD,
     RIPPLE_PERIOD_MIN_RAD,
     STRIBECK_VS_GRID_RAD_S,
@@ -27,7 +28,14 @@ from wamctl.analysis.diagnosis.design import (
     fit_theta,
     target_and_design,
 )
-from wamctl.analysis.diagnosis.stats import effective_tau, lstsq, orth_basis, project_out, projection_gain
+from wamctl.analysis.diagnosis.stats import (
+    MIN_EFFECT,
+    effective_tau,
+    lstsq,
+    orth_basis,
+    project_out,
+    projection_gain,
+)
 
 
 # ---------------------------------------------------------------------------------------------- shapes
@@ -123,14 +131,20 @@ def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.nd
     2. The strongest peak may be the fundamental or one of its harmonics (a harmonic can be stronger than the
        fundamental): the candidate fundamentals are its frequency divided by 1 .. ``RIPPLE_MAX_HARMONICS``.
     3. Fundamental and H are chosen together by BIC over the series' in-sample gain, with the effective sample
-       count of the residual: a longer period must explain more than its harmonic that is already the peak,
-       and each harmonic (2 columns) must be worth its columns. The chosen period is then refined."""
+       count of the residual: each harmonic (2 columns) must be worth its columns, and a longer period ``m P``
+       must explain more than its harmonics that make the series of ``P``, by at least ``MIN_EFFECT`` of its gain
+       (else the ripple's period is ``P``: a fundamental that carries next to nothing is not the period). The
+       chosen period is then refined.
+    Periods are searched up to the joint's travel on ``rows`` over ``RIPPLE_MIN_PERIODS`` (a longer one cannot
+    be shown to repeat, see :func:`wamctl.analysis.diagnosis.joint.plausible`)."""
     sub = rows[:: max(1, len(rows) // 6000)]
     Us = orth_basis(Xb[sub])
     rs = project_out(Us, y_all[sub])
-    ks, step = _ripple_peaks(jd.q_rad[rows], project_out(orth_basis(Xb[rows]), y_all[rows]))
+    lo = max(1 / RIPPLE_PERIOD_MAX_RAD, RIPPLE_MIN_PERIODS / max(float(np.ptp(jd.q_rad[rows])), 1e-9))
+    hi = 1 / RIPPLE_PERIOD_MIN_RAD
+    ks, step = _ripple_peaks(jd.q_rad[rows], project_out(orth_basis(Xb[rows]), y_all[rows]), lo)
     if not len(ks):
-        return RIPPLE_PERIOD_MAX_RAD, 1
+        return 1 / lo, 1
     q, qd = jd.q_rad[sub], jd.qd_rad_s[sub]
     sig = des.sig
 
@@ -140,27 +154,39 @@ def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.nd
         return nested_gains(Z, rs)
 
     peak = ks[int(np.argmax([gains(k, 1)[0] for k in ks]))]
-    lo, hi = 1 / RIPPLE_PERIOD_MAX_RAD, 1 / RIPPLE_PERIOD_MIN_RAD
-    fund = [peak / m for m in range(1, RIPPLE_MAX_HARMONICS + 1) if lo <= peak / m <= hi]
-    table = {k: gains(k, RIPPLE_MAX_HARMONICS) for k in fund}
+    table = {m: gains(peak / m, RIPPLE_MAX_HARMONICS) for m in range(1, RIPPLE_MAX_HARMONICS + 1)
+             if lo <= peak / m <= hi}
     ss0 = float(rs @ rs)
     # the residual's effective sample count, once the fullest series is fitted (the ripple itself would count as
     # autocorrelation)
-    k_full = max(table, key=lambda k: table[k][-1])
-    Z = project_out(Us, ripple_columns(q, qd, 1 / k_full, sig.window, sig.gauss, sig.dt_s, RIPPLE_MAX_HARMONICS))
+    m_full = max(table, key=lambda m: table[m][-1])
+    Z = project_out(Us, ripple_columns(q, qd, m_full / peak, sig.window, sig.gauss, sig.dt_s, RIPPLE_MAX_HARMONICS))
     n_eff = len(sub) / max(effective_tau(project_out(orth_basis(Z), rs), jd.fold[sub]), 1.0)
-    crit = {(k, h + 1): n_eff * np.log(max(ss0 - g[h], 1e-300 * ss0) / ss0) + 2 * (h + 1) * np.log(n_eff)
-            for k, g in table.items() for h in range(len(g))}
-    k, nh = min(crit, key=crit.get)
-    fine = k * (1 + (step / peak) * np.linspace(-0.25, 0.25, 5))
+    crit = {(m, nh): n_eff * np.log(max(ss0 - table[m][nh - 1], 1e-300 * ss0) / ss0) + 2 * nh * np.log(n_eff)
+            for m in table for nh in range(1, RIPPLE_MAX_HARMONICS + 1) if _fundamental_carries(table, m, nh)}
+    m, nh = min(crit, key=crit.get)
+    fine = (peak / m) * (1 + (step / peak) * np.linspace(-0.25, 0.25, 5))
     k = float(fine[int(np.argmax([gains(kk, nh)[-1] for kk in fine]))])
     return float(1.0 / k), int(nh)
 
 
-def _ripple_peaks(q: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
-    """Candidate ripple frequencies (cycles/rad) of the residual ``r`` (m,) over the angle ``q`` (m,): the eight
-    highest peaks of its periodogram over the angle (in the band of periods searched), each with neighbours at a
-    quarter of the frequency resolution; and that resolution."""
+def _fundamental_carries(table: dict, m: int, nh: int) -> bool:
+    """Whether the series at fundamental ``peak / m`` with ``nh`` harmonics (``table[m]``: its prefix gains)
+    explains at least ``MIN_EFFECT`` of its gain beyond its harmonics that make the series of a shorter period
+    ``peak / (m / d)`` (every divisor ``d`` of ``m``)."""
+    g = table[m][nh - 1]
+    for d in range(2, m + 1):
+        if m % d == 0 and (m // d) in table:
+            g_short = table[m // d][nh // d - 1] if nh // d >= 1 else 0.0
+            if g - g_short < MIN_EFFECT * g:
+                return False
+    return True
+
+
+def _ripple_peaks(q: np.ndarray, r: np.ndarray, lo: float) -> tuple[np.ndarray, float]:
+    """Candidate ripple frequencies (cycles/rad, from ``lo``) of the residual ``r`` (m,) over the angle ``q`` (m,):
+    the eight highest peaks of its periodogram over the angle (in the band of periods searched), each with
+    neighbours at a quarter of the frequency resolution; and that resolution."""
     dq = RIPPLE_PERIOD_MIN_RAD / 10
     q0 = float(q.min())
     nb = int(np.ptp(q) / dq) + 2
@@ -169,7 +195,7 @@ def _ripple_peaks(q: np.ndarray, r: np.ndarray) -> tuple[np.ndarray, float]:
     L = min(L, 1 << 22)
     power = np.abs(np.fft.rfft(rb, L)) ** 2
     k = np.arange(len(power)) / (L * dq)                      # cycles per rad
-    lo, hi = 1 / RIPPLE_PERIOD_MAX_RAD, 1 / RIPPLE_PERIOD_MIN_RAD
+    hi = 1 / RIPPLE_PERIOD_MIN_RAD
     band = (k >= lo) & (k <= hi)
     step = 1.0 / (L * dq)
     if not band.any():

@@ -13,7 +13,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.candidates import DELAY_GRID_S, MAX_BREAKAWAY_RATIO, STRIBECK_VS_GRID_RAD_S
+from wamctl.analysis.diagnosis.candidates import (
+    DELAY_GRID_S,
+    MAX_BREAKAWAY_RATIO,
+    RIPPLE_MIN_PERIODS,
+    STRIBECK_VS_GRID_RAD_S,
+)
 from wamctl.analysis.diagnosis.crossval import cv_residual, cv_terms, fit_all
 from wamctl.analysis.diagnosis.design import (
     N_COLUMNS,
@@ -381,23 +386,33 @@ ANGLE_FOLDS = 4
 
 
 def _ripple_repeats(des: Design, jd: JointData, terms: list[dict], period: float) -> tuple[bool, str]:
-    """A torque periodic in the angle repeats: fitted on three quarters of the joint's range of angles, it
-    predicts the fourth (each in turn) better than the model without it. A smooth trend over the range (a
-    link's mass or centre of mass off its declared value), which a sinusoid of a period close to the travel can
-    follow, does not extrapolate to angles it was not fitted on."""
+    """A torque periodic in the angle repeats: fitted on part of the joint's range of angles, it predicts the rest
+    better than the model without it. A smooth trend over the range (a link's mass or centre of mass off its
+    declared value), which a sinusoid of a period close to the travel can follow, does not extrapolate to angles
+    it was not fitted on.
+
+    Over two periods of travel or more, the range is cut in up to ``ANGLE_FOLDS`` parts of a period or more and
+    each is predicted from the others; over ``RIPPLE_MIN_PERIODS`` to two periods, the angles beyond the first
+    period from each end are predicted from that one period (what it predicts there is the torque one period
+    away)."""
     travel = float(np.ptp(jd.q_rad))
+    if travel < RIPPLE_MIN_PERIODS * period:
+        return False, (f"the joint's travel ({travel:.3g} rad) covers less than {RIPPLE_MIN_PERIODS:g} periods of "
+                       f"{period:.3g} rad: a torque periodic in the angle cannot be told from a trend over the range")
     folds = min(ANGLE_FOLDS, int(travel // period))
-    if folds < 2:
-        return False, (f"the joint's travel ({travel:.3g} rad) covers less than two periods of {period:.3g} rad: a "
-                       "torque periodic in the angle cannot be told from a trend over the range")
-    edges = np.linspace(jd.q_rad.min(), jd.q_rad.max(), folds + 1)        # angle ranges of a period or more
-    part = np.clip(np.searchsorted(edges, jd.q_rad, side="right") - 1, 0, folds - 1)
+    q0, q1 = float(jd.q_rad.min()), float(jd.q_rad.max())
+    if folds >= 2:
+        edges = np.linspace(q0, q1, folds + 1)        # angle ranges of a period or more
+        part = np.clip(np.searchsorted(edges, jd.q_rad, side="right") - 1, 0, folds - 1)
+        held = [part == a for a in range(folds)]
+    else:
+        held = [jd.q_rad > q0 + period, jd.q_rad < q1 - period]
     others = [t for t in terms if t["name"] != "position_ripple"]
     y1, X1 = target_and_design(des, jd, terms, None)
     y0, X0 = target_and_design(des, jd, others, None)
     ss1 = ss0 = 0.0
-    for a in range(folds):
-        te, tr = part == a, part != a
+    for te in held:
+        tr = ~te
         if te.sum() < 20 or tr.sum() < X1.shape[1] + 20:
             continue
         r1 = y1[te] - X1[te] @ fit_theta(X1[tr], y1[tr], des.bounded)
