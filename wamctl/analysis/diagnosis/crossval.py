@@ -165,9 +165,22 @@ def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.nd
     crit = {(m, nh): n_eff * np.log(max(ss0 - table[m][nh - 1], 1e-300 * ss0) / ss0) + 2 * nh * np.log(n_eff)
             for m in table for nh in range(1, RIPPLE_MAX_HARMONICS + 1) if _fundamental_carries(table, m, nh)}
     m, nh = min(crit, key=crit.get)
-    fine = (peak / m) * (1 + (step / peak) * np.linspace(-0.25, 0.25, 5))
-    k = float(fine[int(np.argmax([gains(kk, nh)[-1] for kk in fine]))])
-    return float(1.0 / k), int(nh)
+    return 1.0 / _refine_peak(lambda kk: gains(kk, nh)[-1], peak / m, 0.25 * step / m), int(nh)
+
+
+def _refine_peak(f, k: float, half_width: float) -> float:
+    """The maximum of a smooth peak ``f`` near ``k``: the best of five points over ``k +- half_width``, then the
+    vertex of the parabola through it and its neighbours (kept when it is better)."""
+    ks = k + half_width * np.linspace(-1.0, 1.0, 5)
+    g = np.array([f(kk) for kk in ks])
+    i = int(np.argmax(g))
+    if 0 < i < len(ks) - 1:
+        den = g[i - 1] - 2 * g[i] + g[i + 1]
+        if den < 0:
+            kv = float(ks[i] + 0.5 * (ks[1] - ks[0]) * (g[i - 1] - g[i + 1]) / den)
+            if f(kv) > g[i]:
+                return kv
+    return float(ks[i])
 
 
 def _fundamental_carries(table: dict, m: int, nh: int) -> bool:
