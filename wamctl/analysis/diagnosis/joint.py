@@ -392,9 +392,10 @@ def _ripple_repeats(des: Design, jd: JointData, terms: list[dict], period: float
     it was not fitted on.
 
     Over two periods of travel or more, the range is cut in up to ``ANGLE_FOLDS`` parts of a period or more and
-    each is predicted from the others; over ``RIPPLE_MIN_PERIODS`` to two periods, the angles beyond the first
+    each is predicted from the others. Over ``RIPPLE_MIN_PERIODS`` to two periods, the angles beyond the first
     period from each end are predicted from that one period (what it predicts there is the torque one period
-    away)."""
+    away); one period determines a periodic torque, so there the ripple must also keep ``ENDS_RECOVERY`` of what
+    it explains at those angles when fitted on the whole range (a trend followed by a sinusoid keeps much less)."""
     travel = float(np.ptp(jd.q_rad))
     if travel < RIPPLE_MIN_PERIODS * period:
         return False, (f"the joint's travel ({travel:.3g} rad) covers less than {RIPPLE_MIN_PERIODS:g} periods of "
@@ -407,23 +408,40 @@ def _ripple_repeats(des: Design, jd: JointData, terms: list[dict], period: float
         held = [part == a for a in range(folds)]
     else:
         held = [jd.q_rad > q0 + period, jd.q_rad < q1 - period]
-    others = [t for t in terms if t["name"] != "position_ripple"]
-    y1, X1 = target_and_design(des, jd, terms, None)
-    y0, X0 = target_and_design(des, jd, others, None)
-    ss1 = ss0 = 0.0
-    for te in held:
-        tr = ~te
-        if te.sum() < 20 or tr.sum() < X1.shape[1] + 20:
-            continue
-        r1 = y1[te] - X1[te] @ fit_theta(X1[tr], y1[tr], des.bounded)
-        r0 = y0[te] - X0[te] @ fit_theta(X0[tr], y0[tr], des.bounded)
-        ss1 += float(r1 @ r1)
-        ss0 += float(r0 @ r0)
+    ss = _angle_held_out(des, jd, terms, held)
+    (ss1, ss0), (in1, in0) = ss["out"], ss["in"]
     if ss0 > 0 and ss1 >= ss0 * (1.0 - MIN_EFFECT):
         return False, (f"a ripple of period {period:.3g} rad fitted on part of the joint's range does not predict "
                        f"the rest (held-out angle ranges: {ss1 / ss0:.2f} of the residual without it): a trend "
                        "over the range, not a torque periodic in the angle")
+    if folds < 2 and ss0 - ss1 < ENDS_RECOVERY * (in0 - in1):
+        return False, (f"a ripple of period {period:.3g} rad fitted on one period of the joint's range explains "
+                       f"{(ss0 - ss1) / max(in0 - in1, 1e-300):.2f} of what it explains at the other angles when "
+                       "fitted on all of them: a trend over the range, not a torque periodic in the angle")
     return True, ""
+
+
+ENDS_RECOVERY = 0.75
+
+
+def _angle_held_out(des: Design, jd: JointData, terms: list[dict], held: list[np.ndarray]) -> dict:
+    """Residual sums of squares over the angle ranges ``held`` of the model with the ripple and without it:
+    ``out``: each range predicted by the models fitted on the other angles; ``in``: by the models fitted on all."""
+    others = [t for t in terms if t["name"] != "position_ripple"]
+    y1, X1 = target_and_design(des, jd, terms, None)
+    y0, X0 = target_and_design(des, jd, others, None)
+    th1, th0 = fit_theta(X1, y1, des.bounded), fit_theta(X0, y0, des.bounded)
+    out, inside = np.zeros(2), np.zeros(2)
+    for te in held:
+        tr = ~te
+        if te.sum() < 20 or tr.sum() < X1.shape[1] + 20:
+            continue
+        for k, (y, X, th) in enumerate(((y1, X1, th1), (y0, X0, th0))):
+            r = y[te] - X[te] @ fit_theta(X[tr], y[tr], des.bounded)
+            out[k] += float(r @ r)
+            r = y[te] - X[te] @ th
+            inside[k] += float(r @ r)
+    return {"out": tuple(out), "in": tuple(inside)}
 
 
 MIN_DELAY_S = 1.5e-3       # three quarters of a control period: below, the loop's own timing (ZOH, ticks)
