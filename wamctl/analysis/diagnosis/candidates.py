@@ -60,12 +60,15 @@ def ripple_columns(q: np.ndarray, qd: np.ndarray, period: float, window: int, ga
     attenuated as the smoothing filter attenuates it at the current speed (harmonic h passes at ``h |qd| /
     period``). Used to compare candidate periods and for a declared ripple; the kept columns are smoothed
     exactly."""
-    ph = 2 * np.pi * q / period
-    cols = []
+    z1 = np.exp(2j * np.pi * np.asarray(q, float) / period)      # cos + i sin of the fundamental's phase
+    z = np.ones_like(z1)
+    out = np.empty((len(z1), 2 * n_harmonics))
     for h in range(1, n_harmonics + 1):
+        z = z * z1                                                  # harmonic h: (cos + i sin)^h
         gain = ripple_gain(qd, period / h, window, gauss, dt_s)
-        cols += [gain * np.sin(h * ph), gain * np.cos(h * ph)]
-    return np.column_stack(cols)
+        out[:, 2 * h - 2] = gain * z.imag
+        out[:, 2 * h - 1] = gain * z.real
+    return out
 
 
 def ripple_key(h: int, what: str) -> str:

@@ -126,8 +126,8 @@ def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.nd
     ``rows``: a fundamental and its harmonics 2 .. H (a Fourier series in the angle).
 
     1. The residual is binned over the joint angle (bins of a tenth of the shortest period) and its periodogram
-       over the angle taken by FFT (zero-padded 4x); the highest peaks are refined by the exact least-squares
-       gain of one filter-attenuated sinusoid (see ``ripple_columns``).
+       over the angle taken by FFT (zero-padded 4x); the highest peaks are compared by the exact least-squares
+       gain of one filter-attenuated sinusoid (see ``ripple_columns``) and the best is refined.
     2. The strongest peak may be the fundamental or one of its harmonics (a harmonic can be stronger than the
        fundamental): the candidate fundamentals are its frequency divided by 1 .. ``RIPPLE_MAX_HARMONICS``.
     3. Fundamental and H are chosen together by BIC over the series' in-sample gain, with the effective sample
@@ -154,6 +154,7 @@ def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.nd
         return nested_gains(Z, rs)
 
     peak = ks[int(np.argmax([gains(k, 1)[0] for k in ks]))]
+    peak = float(np.clip(_refine_peak(lambda kk: gains(kk, 1)[0], peak, 0.5 * step), lo, hi))
     table = {m: gains(peak / m, RIPPLE_MAX_HARMONICS) for m in range(1, RIPPLE_MAX_HARMONICS + 1)
              if lo <= peak / m <= hi}
     ss0 = float(rs @ rs)
@@ -198,8 +199,8 @@ def _fundamental_carries(table: dict, m: int, nh: int) -> bool:
 
 def _ripple_peaks(q: np.ndarray, r: np.ndarray, lo: float) -> tuple[np.ndarray, float]:
     """Candidate ripple frequencies (cycles/rad, from ``lo``) of the residual ``r`` (m,) over the angle ``q`` (m,):
-    the eight highest peaks of its periodogram over the angle (in the band of periods searched), each with
-    neighbours at a quarter of the frequency resolution; and that resolution."""
+    the eight highest peaks of its periodogram over the angle (in the band of periods searched); and the
+    periodogram's frequency resolution."""
     dq = RIPPLE_PERIOD_MIN_RAD / 10
     q0 = float(q.min())
     nb = int(np.ptp(q) / dq) + 2
@@ -218,9 +219,7 @@ def _ripple_peaks(q: np.ndarray, r: np.ndarray, lo: float) -> tuple[np.ndarray, 
     cand = np.flatnonzero(peak) + 1
     if len(cand) == 0:
         cand = np.array([int(np.argmax(pb))])
-    cand = cand[np.argsort(pb[cand])[-8:]]
-    ks = np.unique(np.concatenate([k[c] + step * np.linspace(-0.5, 0.5, 5) for c in cand]))
-    return ks[(ks >= lo) & (ks <= hi)], step
+    return k[cand[np.argsort(pb[cand])[-8:]]], step
 
 
 def nested_gains(Z: np.ndarray, r: np.ndarray) -> np.ndarray:
