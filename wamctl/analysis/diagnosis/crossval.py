@@ -135,12 +135,14 @@ def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.nd
        must explain more than its harmonics that make the series of ``P``, by at least ``MIN_EFFECT`` of its gain
        (else the ripple's period is ``P``: a fundamental that carries next to nothing is not the period). The
        chosen period is then refined.
-    Periods are searched up to the joint's travel on ``rows`` over ``RIPPLE_MIN_PERIODS`` (a longer one cannot
-    be shown to repeat, see :func:`wamctl.analysis.diagnosis.joint.plausible`)."""
+    Periods are searched up to the joint's travel over ``RIPPLE_MIN_PERIODS`` (a longer one cannot be shown to
+    repeat, see :func:`wamctl.analysis.diagnosis.joint.plausible`)."""
     sub = rows[:: max(1, len(rows) // 6000)]
     Us = orth_basis(Xb[sub])
     rs = project_out(Us, y_all[sub])
-    lo = max(1 / RIPPLE_PERIOD_MAX_RAD, RIPPLE_MIN_PERIODS / max(float(np.ptp(jd.q_rad[rows])), 1e-9))
+    # the band: up to the joint's whole travel over RIPPLE_MIN_PERIODS (the angles visited are the design, not the
+    # held-out outcome: a fold whose training blocks happen to miss an end must not lose the true period)
+    lo = max(1 / RIPPLE_PERIOD_MAX_RAD, RIPPLE_MIN_PERIODS / max(float(np.ptp(jd.q_rad)), 1e-9))
     hi = 1 / RIPPLE_PERIOD_MIN_RAD
     ks, step = _ripple_peaks(jd.q_rad[rows], project_out(orth_basis(Xb[rows]), y_all[rows]), lo)
     if not len(ks):
@@ -154,7 +156,7 @@ def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.nd
         return nested_gains(Z, rs)
 
     peak = ks[int(np.argmax([gains(k, 1)[0] for k in ks]))]
-    peak = float(np.clip(_refine_peak(lambda kk: gains(kk, 1)[0], peak, 0.5 * step), lo, hi))
+    peak = float(np.clip(_refine_peak(lambda kk: gains(kk, 1)[0], peak, step), lo, hi))
     table = {m: gains(peak / m, RIPPLE_MAX_HARMONICS) for m in range(1, RIPPLE_MAX_HARMONICS + 1)
              if lo <= peak / m <= hi}
     ss0 = float(rs @ rs)
@@ -169,19 +171,32 @@ def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.nd
     return 1.0 / _refine_peak(lambda kk: gains(kk, nh)[-1], peak / m, 0.25 * step / m), int(nh)
 
 
-def _refine_peak(f, k: float, half_width: float) -> float:
-    """The maximum of a smooth peak ``f`` near ``k``: the best of five points over ``k +- half_width``, then the
-    vertex of the parabola through it and its neighbours (kept when it is better)."""
-    ks = k + half_width * np.linspace(-1.0, 1.0, 5)
-    g = np.array([f(kk) for kk in ks])
-    i = int(np.argmax(g))
-    if 0 < i < len(ks) - 1:
+def _refine_peak(f, k: float, half_width: float, rounds: int = 3) -> float:
+    """The maximum of a smooth peak ``f`` near ``k`` (within ``2 half_width``): five points over ``k +- half_width``,
+    the best one the centre of the next five at half the width (``rounds`` times), then the vertex of the parabola
+    through the best and its neighbours (kept when it is better)."""
+    seen = {}
+
+    def val(x):
+        if x not in seen:
+            seen[x] = f(x)
+        return seen[x]
+
+    hw = half_width
+    for _ in range(rounds):
+        ks = k + hw * np.linspace(-1.0, 1.0, 5)
+        g = np.array([val(kk) for kk in ks])
+        i = int(np.argmax(g))
+        k = float(ks[i])
+        if 0 < i < 4:
+            hw /= 2
+    if 0 < i < 4:
         den = g[i - 1] - 2 * g[i] + g[i + 1]
         if den < 0:
             kv = float(ks[i] + 0.5 * (ks[1] - ks[0]) * (g[i - 1] - g[i + 1]) / den)
-            if f(kv) > g[i]:
+            if val(kv) > g[i]:
                 return kv
-    return float(ks[i])
+    return k
 
 
 def _fundamental_carries(table: dict, m: int, nh: int) -> bool:

@@ -397,8 +397,8 @@ def _ripple_repeats(des: Design, jd: JointData, terms: list[dict], period: float
     away); one period determines a periodic torque, so there the ripple must also keep ``ENDS_RECOVERY`` of what
     it explains at those angles when fitted on the whole range (a trend followed by a sinusoid keeps much less)."""
     travel = float(np.ptp(jd.q_rad))
-    if travel < RIPPLE_MIN_PERIODS * period:
-        return False, (f"the joint's travel ({travel:.3g} rad) covers less than {RIPPLE_MIN_PERIODS:g} periods of "
+    if travel < RIPPLE_MIN_PERIODS * period * (1 + 1e-3):     # at the end of the periods searched, or beyond
+        return False, (f"the joint's travel ({travel:.3g} rad) covers no more than {RIPPLE_MIN_PERIODS:g} periods of "
                        f"{period:.3g} rad: a torque periodic in the angle cannot be told from a trend over the range")
     folds = min(ANGLE_FOLDS, int(travel // period))
     q0, q1 = float(jd.q_rad.min()), float(jd.q_rad.max())
