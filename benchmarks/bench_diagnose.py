@@ -240,40 +240,66 @@ def per_effect(df: pd.DataFrame) -> pd.DataFrame:
 # ---------------------------------------------------------------------------------------------- speed
 def timing(duration_s: float, cache: Path, profile: bool = False) -> dict:
     """One run of ``duration_s`` at 500 Hz with every joint moving (the first generator, a position ripple),
-    generated once into ``cache``, diagnosed with and without the closed-loop position check."""
+    generated once into ``cache``, loaded, and diagnosed with and then without the closed-loop position check.
+
+    Each step's wall time and this process's CPU time (all its threads; the figure an idle machine's wall time
+    approaches on one core) are returned with the load average (1 min) before and after, so that a figure taken
+    on a busy machine can be told from one taken on a quiet one. ``profile``: cProfile (CPU time) of the diagnosis
+    with the check, top entries printed."""
+    import os
+
     from diagnosis_gen import generate_run
 
     from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
     from wamctl.experiments.diagnose import simulate_positions
     from wamctl.runs.measured import load_run_data
 
+    def clock():
+        return time.perf_counter(), time.process_time()
+
     d = cache / f"long-{int(duration_s)}s"
-    t0 = time.perf_counter()
+    t0 = clock()
     if not (d / "path.txt").is_file():
         d.mkdir(parents=True, exist_ok=True)
         g = generate_run(d, "position_ripple", 99_000, duration_s=duration_s)
         (d / "path.txt").write_text(str(g.path))
-    t1 = time.perf_counter()
+    load_before = os.getloadavg()[0]
+    t1 = clock()
     data = load_run_data(Path((d / "path.txt").read_text()))
-    t2 = time.perf_counter()
+    t2 = clock()
     if profile:
         import cProfile
         import pstats
 
-        pr = cProfile.Profile()
+        pr = cProfile.Profile(time.process_time)
         pr.enable()
     diag = ModelDiagnosis(simulator=simulate_positions).fit(data)
-    t3 = time.perf_counter()
+    t3 = clock()
     if profile:
         pr.disable()
-        pstats.Stats(pr).sort_stats("cumulative").print_stats(40)
+        st = pstats.Stats(pr)
+        st.sort_stats("cumulative").print_stats(40)
+        st.sort_stats("tottime").print_stats(25)
     diag_nosim = ModelDiagnosis().fit(data)
-    t4 = time.perf_counter()
+    t4 = clock()
     moving = [j + 1 for j in diag.signals_.joints]
-    return {"samples": len(data.data), "duration_s": duration_s, "joints_diagnosed": moving,
-            "generate_s": t1 - t0, "load_s": t2 - t1, "diagnose_s": t3 - t2, "diagnose_without_position_check_s":
-            t4 - t3, "effects_found": diag.effects_found_, "same_without_check": diag_nosim.effects_found_ ==
-            diag.effects_found_}
+    out = {"samples": len(data.data), "duration_s": duration_s, "joints_diagnosed": moving,
+           "generate_s": t1[0] - t0[0], "load_s": t2[0] - t1[0], "load_cpu_s": t2[1] - t1[1],
+           "diagnose_s": t3[0] - t2[0], "diagnose_cpu_s": t3[1] - t2[1],
+           "diagnose_without_position_check_s": t4[0] - t3[0],
+           "diagnose_without_position_check_cpu_s": t4[1] - t3[1],
+           "load_average_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)], "cpus": os.cpu_count(),
+           "profiled": profile, "effects_found": diag.effects_found_,
+           "same_without_check": diag_nosim.effects_found_ == diag.effects_found_}
+    print(f"\n{out['samples']} samples ({duration_s:.0f} s at 500 Hz, joints {moving}); load average "
+          f"{out['load_average_1min'][0]} -> {out['load_average_1min'][1]} on {out['cpus']} CPUs"
+          + (" (profiled: cProfile slows it)" if profile else ""))
+    for what, w, c in (("load the run", out["load_s"], out["load_cpu_s"]),
+                       ("diagnose, with the position check", out["diagnose_s"], out["diagnose_cpu_s"]),
+                       ("diagnose, without it", out["diagnose_without_position_check_s"],
+                        out["diagnose_without_position_check_cpu_s"])):
+        print(f"  {what:<36} wall {w:6.2f} s   CPU {c:6.2f} s")
+    return out
 
 
 # ---------------------------------------------------------------------------------------------- the document
@@ -349,9 +375,11 @@ def markdown(studies: dict, fa: pd.DataFrame | None, speed: dict | None, split: 
         lines += ["## Speed", "",
                   f"`diagnose` on {speed['samples']} samples ({speed['duration_s']:.0f} s at 500 Hz, joints "
                   f"{speed['joints_diagnosed']} diagnosed): {speed['diagnose_s']:.1f} s including the closed-loop "
-                  f"position check, {speed['diagnose_without_position_check_s']:.1f} s without it (on the shared "
-                  "2-core machine; loading the parquet file is not counted: "
-                  f"{speed['load_s']:.1f} s).", ""]
+                  f"position check, {speed['diagnose_without_position_check_s']:.1f} s without it (wall time on "
+                  f"the 2-core machine, load average {speed.get('load_average_1min', ['?'])[0]}; CPU time "
+                  f"{speed.get('diagnose_cpu_s', float('nan')):.1f} s and "
+                  f"{speed.get('diagnose_without_position_check_cpu_s', float('nan')):.1f} s; loading the parquet "
+                  f"file is not counted: {speed['load_s']:.1f} s).", ""]
     return "\n".join(lines)
 
 
@@ -367,7 +395,7 @@ def main(argv=None) -> None:
     ap.add_argument("--long-s", type=float, default=3600.0)
     ap.add_argument("--no-timing", action="store_true")
     ap.add_argument("--only-timing", action="store_true")
-    ap.add_argument("--profile", action="store_true")
+    ap.add_argument("--profile", action="store_true", help="with the timing: cProfile (CPU time) of the diagnosis")
     ap.add_argument("--runs-dir", type=Path, default=None, help="keep generated runs here (default: temporary)")
     ap.add_argument("--write", type=Path, default=ROOT / "docs" / "diagnosis-validation.md",
                     help="Markdown file for the results ('-' to skip)")

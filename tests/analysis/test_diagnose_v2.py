@@ -65,7 +65,8 @@ def two_joints(tmp_path_factory):
 def test_payload_moved_by_two_joints_reports_what_it_cannot_determine(two_joints):
     """Mass: named, its interval contains the truth and is narrower than 10 % of it. Centre of mass: the component
     along the common axis of joints 2 and 4 (the frame-7 axis parallel to it, at q0) is reported as not
-    identified (None, and listed); every component reported is within 1 cm of the truth."""
+    identified (None, listed, no interval); every component reported is within 1 cm of the truth. The payload
+    was weighed against the arm's own link errors and won."""
     _, diag, out = two_joints
     assert out["effects_found"] == ["payload"], out["effects_found"]
     e = next(e for e in out["joints"]["2"]["effects"] if e["name"] == "payload")
@@ -77,6 +78,8 @@ def test_payload_moved_by_two_joints_reports_what_it_cannot_determine(two_joints
     blind = "xyz"[int(np.argmax(np.abs(axis_in_7)))]
     assert np.abs(axis_in_7).max() > 0.99
     assert f"com_{blind}_m" in e["not_identified"] and e["params"][f"com_{blind}_m"] is None
+    assert e["params_ci"][f"com_{blind}_m"] == [None, None]          # no interval for what is not determined
+    assert out["payload_or_links"]["outcome"] == "payload"           # beyond what the links' errors can make
     for i, ax in enumerate("xyz"):
         v = e["params"][f"com_{ax}_m"]
         if v is not None:

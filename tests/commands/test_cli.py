@@ -196,8 +196,11 @@ def test_isolated_nan_rows_are_dropped_with_a_count(finished_run, tmp_path):
 def test_killed_run_keeps_every_chunk_and_says_interrupted(tmp_path, sig):
     spec = write(tmp_path / "long.yaml", rotation_spec(rotation={"mode": "one_at_a_time"}))
     runs = tmp_path / "runs"
+    # a shell that runs this suite in the background (nohup, CI runners) hands its children SIGINT ignored, and
+    # Python then never installs its Ctrl-C handler: the child gets the terminal's default back, as a terminal has
     proc = subprocess.Popen([sys.executable, "-m", "wamctl", "run", str(spec), "--out", str(runs), "--quiet"],
-                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     deadline = time.monotonic() + 120
     chunk_dir = None
     while time.monotonic() < deadline:

@@ -167,3 +167,31 @@ def test_friction_torque_is_thesis_eq_2_8_at_hand_computed_points():
     # another exponent: at v = 2 vs with delta = 1 the excess is exp(-2)
     fm1 = FrictionModel(**{**fm.__dict__, "stribeck_delta": np.full(n, 1.0)})
     assert fm1.friction_torque(np.full((1, n), 0.2))[0, 0] == pytest.approx(2 + np.exp(-2) + 0.1, rel=1e-12)
+
+
+def test_batch_dynamics_match_the_per_sample_calls():
+    """The batch helpers (one pinocchio call per sample, no per-call copies) give the per-sample results."""
+    dyn = WamDynamics(Payload(0.4, (0.0, 0.02, 0.05)))
+    q = np.array(random_poses(30))
+    qd, qdd = RNG.normal(0, 1, q.shape), RNG.normal(0, 3, q.shape)
+    np.testing.assert_array_equal(dyn.inverse_dynamics_many(q, qd, qdd),
+                                  [dyn.inverse_dynamics(*s) for s in zip(q, qd, qdd)])
+    np.testing.assert_array_equal(dyn.gravity_many(q), [dyn.gravity(x) for x in q])
+    # column-major input (a table's columns) and a single state
+    np.testing.assert_array_equal(dyn.inverse_dynamics_many(np.asfortranarray(q), qd, qdd)[3],
+                                  dyn.inverse_dynamics(q[3], qd[3], qdd[3]))
+    assert dyn.gravity_many(q[0]).shape == (1, 7)
+
+
+def test_friction_shapes_fast_paths_are_the_formula():
+    """``stribeck_decay``'s exponents 1 and 2 (computed without pow) and the classic columns, against the
+    formulas written out here."""
+    from wamctl.model.friction import classic_friction_columns, stribeck_decay
+
+    v = np.array([-0.3, -0.05, 0.0, 0.01, 0.05, 0.2, 2.0])
+    for delta in (1.0, 1.5, 2.0, 3.0):
+        np.testing.assert_allclose(stribeck_decay(v, 0.05, delta), np.exp(-np.abs(v / 0.05) ** delta),
+                                   rtol=1e-14, atol=0)
+        assert stribeck_decay(0.1, 0.05, delta) == pytest.approx(np.exp(-(2.0 ** delta)), rel=1e-14)
+    np.testing.assert_array_equal(classic_friction_columns(v), np.column_stack(
+        [(v > 0) * 1.0, (v < 0) * -1.0, v * (v > 0), v * (v < 0)]))

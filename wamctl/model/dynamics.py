@@ -163,6 +163,26 @@ class WamDynamics:
             out[k] = np.linalg.norm(v.linear)
         return out
 
+    # ------------------------------------------------------------------------------------------ batches
+    # Along a trajectory, states (n, 7): one pinocchio call per sample, without the per-call copies.
+    def inverse_dynamics_many(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
+        """:meth:`inverse_dynamics` of states (n, 7): (n, 7)."""
+        q, qd, qdd = (np.ascontiguousarray(np.atleast_2d(x), dtype=float) for x in (q, qd, qdd))
+        out = np.empty((len(q), P.N_JOINTS))
+        model, data, rnea = self.model, self.data, pin.rnea
+        for k in range(len(q)):
+            out[k] = rnea(model, data, q[k], qd[k], qdd[k])
+        return out
+
+    def gravity_many(self, q: np.ndarray) -> np.ndarray:
+        """:meth:`gravity` of positions (n, 7): (n, 7)."""
+        q = np.ascontiguousarray(np.atleast_2d(q), dtype=float)
+        out = np.empty((len(q), P.N_JOINTS))
+        model, data, grav = self.model, self.data, pin.computeGeneralizedGravity
+        for k in range(len(q)):
+            out[k] = grav(model, data, q[k])
+        return out
+
     def regressor_basis(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """Joint torque regressor Y (7, 70) with tau = Y @ pi for the standard inertial parameters."""
         return pin.computeJointTorqueRegressor(self.model, self.data, q, qd, qdd).copy()

@@ -169,9 +169,13 @@ def classic_friction_columns(qd: np.ndarray) -> np.ndarray:
     """Regressor of the classic per-direction model (thesis eq. 4.1), (n, 4): ``F = X @ [fc_pos, fc_neg, b_pos,
     b_neg]`` with the levels as magnitudes. The one copy: the identification and the diagnosis both fit it."""
     qd = np.asarray(qd, float)
-    pos = (qd > 0).astype(float)
-    neg = (qd < 0).astype(float)
-    return np.column_stack([pos, -neg, qd * pos, qd * neg])
+    out = np.empty((4, len(qd)))       # filled row by row (contiguous writes), returned transposed
+    np.greater(qd, 0, out=out[0])
+    np.less(qd, 0, out=out[1])
+    np.multiply(qd, out[0], out=out[2])
+    np.multiply(qd, out[1], out=out[3])
+    np.negative(out[1], out=out[1])
+    return out.T
 
 
 @njit(cache=True)
@@ -180,7 +184,12 @@ def stribeck_decay(v, vs_rad_s, delta):
 
     Scalars or arrays (broadcast). The one copy of the Stribeck shape: the simulator's friction, the
     identification's fits and the diagnosis' regressors all call it."""
-    return np.exp(-np.abs(v / vs_rad_s) ** delta)
+    a = np.abs(v / vs_rad_s)
+    if delta == 2.0:               # the common exponents without pow (three times faster on long arrays)
+        return np.exp(-(a * a))
+    if delta == 1.0:
+        return np.exp(-a)
+    return np.exp(-a ** delta)
 
 
 @njit(cache=True)

@@ -154,14 +154,16 @@ def validate_samples(df: pd.DataFrame, sample_rate_hz: float, source: str) -> pd
         raise DataFormatError(f"{source}: missing column(s): {', '.join(shown)}" + _separator_hint(df.columns))
     cols = required + [c for c in df.columns if c.startswith("qd_") and c not in required]
     df = df[cols]
-    num = df.apply(pd.to_numeric, errors="coerce")
-    bad = num.isna() & df.notna()
-    if bad.to_numpy().any():
-        row, col = map(int, np.argwhere(bad.to_numpy())[0])
-        name = _external_name(cols[col])
-        raise DataFormatError(f"{source}: data row {row + 1}, column {name}: {str(df.iat[row, col])[:40]!r} is not "
-                              "a number")
-    df = num.astype(float)
+    if not all(pd.api.types.is_numeric_dtype(t) for t in df.dtypes):     # text (a CSV): every cell a number?
+        num = df.apply(pd.to_numeric, errors="coerce")
+        bad = num.isna() & df.notna()
+        if bad.to_numpy().any():
+            row, col = map(int, np.argwhere(bad.to_numpy())[0])
+            name = _external_name(cols[col])
+            raise DataFormatError(f"{source}: data row {row + 1}, column {name}: {str(df.iat[row, col])[:40]!r} is "
+                                  "not a number")
+        df = num
+    df = df.astype(float)
     inf = np.isinf(df.to_numpy())
     if inf.any():
         row, col = map(int, np.argwhere(inf)[0])

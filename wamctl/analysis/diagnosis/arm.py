@@ -10,13 +10,18 @@ from __future__ import annotations
 import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import payload_from_pi
-from wamctl.analysis.diagnosis.design import Design, columns, target_and_design
+from wamctl.analysis.diagnosis.design import Design, target_and_design
 from wamctl.analysis.diagnosis.stats import finite_ss, lstsq
 
 # a wrist payload the WAM can carry (its rated payload is about 4 kg; PayloadEffect allows up to 5 kg), held
 # within half a metre of the flange
 PAYLOAD_MASS_RANGE_KG = (0.01, 10.0)
 PAYLOAD_MAX_COM_M = 0.5
+# the payloads weighed against the arm's own link errors (links.payload_or_links): a hand, a tool and what it holds,
+# its centre within this distance of the flange in each coordinate of the flange frame. A sweep of one joint feels
+# the payload's first moment about that joint's axis only; a mass at the flange can make the sinusoid only at the
+# phase the flange's place allows, which is what tells it from the other joints' errors
+PAYLOAD_COM_BOX_M = 0.15
 N_PAYLOAD = 10                    # inertial parameters of the payload (m, m c, inertia)
 # a payload parameter whose 95 % interval is wider than this is reported as not identified: a centre of mass
 # known to 5 cm says little about a wrist payload (a few centimetres from the flange), a mass known to half
@@ -62,7 +67,7 @@ def payload_system(des: Design, joints: dict, jds: dict, rows_of=None):
         others = [t for t in res.kept if t["name"] != "payload"]
         y_o, X_o = target_and_design(des, jd, others, None)
         blocks.append(X_o[sub])
-        shared.append(columns(des, "payload", jd, None)[sub])
+        shared.append(jd.extra["payload"][sub])
         ys.append(y_o[sub])
         wts.append(np.full(len(sub), 1.0 / max(res.torque_rms_after_Nm, 1e-9)))
         groups.append(np.column_stack([np.full(len(sub), j), jd.extra["block"][sub]]))
@@ -101,6 +106,8 @@ def payload_uncertainty(des: Design, joints: dict, jds: dict) -> tuple[dict, lis
         wide = lo is None or hi - lo > COM_CI_MAX_WIDTH_M
         if not (mass_ok and ok[1 + i]) or wide:
             ni.append(f"com_{ax}_m")
+    for k in ni:                  # what the data cannot determine has no interval either
+        ci[k] = [None, None]
     return ci, ni
 
 
@@ -118,14 +125,55 @@ def _shared_design(blocks: list[np.ndarray], shared: list[np.ndarray]) -> np.nda
     return X
 
 
-def payload_rejection(fit: dict) -> str | None:
-    """Why a payload fitted over the arm (:func:`payload_fit`) is not a wrist payload, or None."""
-    far = float(np.linalg.norm(fit["com_m"]))
+def payload_rejection(fit: dict, not_identified: list[str] = ()) -> str | None:
+    """Why a payload fitted over the arm (:func:`payload_fit`) is not a wrist payload, or None. Only what the
+    data determine is judged: with the mass ``not_identified`` (a sweep of one joint), that a wrist payload
+    explains the data was shown against the link errors (:func:`~wamctl.analysis.diagnosis.links.
+    payload_or_links`)."""
+    if "mass_kg" in not_identified:
+        return None
+    com = [c for c, ax in zip(fit["com_m"], "xyz") if f"com_{ax}_m" not in not_identified]
+    far = float(np.linalg.norm(com))
     if not (PAYLOAD_MASS_RANGE_KG[0] <= fit["mass_kg"] <= PAYLOAD_MASS_RANGE_KG[1]) or far > PAYLOAD_MAX_COM_M:
         return (f"the payload fitted over joints {fit['joints_fitted']} is {fit['mass_kg']:.3g} kg at "
                 f"{far:.3g} m from the flange: not a wrist payload (mass {PAYLOAD_MASS_RANGE_KG[0]} to "
                 f"{PAYLOAD_MASS_RANGE_KG[1]} kg within {PAYLOAD_MAX_COM_M} m)")
     return None
+
+
+def payload_links_reason(dec: dict | None) -> str | None:
+    """Why the payload candidate is not named, from the payload-or-links decision (None: it stands)."""
+    from wamctl.analysis.diagnosis.links import WIDE_PRIOR
+    from wamctl.analysis.diagnosis.rigid import LINK_PRIOR_SHARE
+
+    if dec is None or dec["outcome"] == "payload":
+        return None
+    t1 = dec["tests"]["beyond_links"]
+    acc = f"+-{LINK_PRIOR_SHARE:.0%} of each link's mass, centre of mass and inertia"
+    if dec["outcome"] == "link_parameters":
+        return (f"link errors within the declared accuracy ({acc}) explain the held-out torques as well: a wrist "
+                f"payload does not add to them (p = {t1['p_value']:.3g})")
+    t2 = dec["tests"]["beyond_wide_links"]
+    return (f"ambiguous: a wrist payload adds to link errors within the declared accuracy ({acc}; p = "
+            f"{t1['p_value']:.3g}) but not to link errors within {WIDE_PRIOR:g} times it (p = {t2['p_value']:.3g}): "
+            "the data cannot tell a payload from a datasheet worse than declared")
+
+
+def payload_links_summary(dec: dict | None) -> dict | None:
+    """The payload-or-links decision as ``diagnosis.json`` reports it: the outcome, both tests, the held-out
+    SSR of each model against the joints' own models, and the assumptions (the declared accuracy)."""
+    from wamctl.analysis.diagnosis.links import WIDE_PRIOR
+    from wamctl.analysis.diagnosis.rigid import LINK_PRIOR_COM_M, LINK_PRIOR_SHARE
+
+    if dec is None:
+        return None
+    keys = ("p_value", "delta_bic", "ssr_ratio")
+    return {"outcome": dec["outcome"], "joints": [j + 1 for j in dec["joints"]],
+            "tests": {k: {x: float(t[x]) for x in keys} for k, t in dec["tests"].items()},
+            "ssr_ratio": {k: float(v) for k, v in dec["ssr_ratio"].items()},
+            "payload_combinations_seen": int(dec["payload_seen"]),
+            "assumptions": {"link_accuracy_share": LINK_PRIOR_SHARE, "link_com_allowance_m": LINK_PRIOR_COM_M,
+                            "wide_factor": WIDE_PRIOR, "payload_com_box_m": PAYLOAD_COM_BOX_M}}
 
 
 def payload_inconsistency(des: Design, joints: dict, jds: dict, fit: dict, factor: float = 2.0) -> str | None:

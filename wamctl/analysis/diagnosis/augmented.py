@@ -85,7 +85,9 @@ def plant_dict(diag, which: str = "after", thetas: dict | None = None) -> dict:
     if which == "after":
         effects.update(_effects_after(diag, thetas, joints))
     sensors = dict(declared.sensors or {})
-    sensors.setdefault("encoder_counts_per_rev", encoder_counts(diag.signals_.q_raw_rad, diag.signals_.joints))
+    sig = diag.signals_
+    sensors.setdefault("encoder_counts_per_rev", sig.memo("encoder_counts",
+                                                         lambda: encoder_counts(sig.q_raw_rad, sig.joints)))
     out = {"friction": {"joints": joints}, "effects": effects, "sensors": sensors}
     if declared.links is not None:          # an identified arm (`wamctl identify`) stays the plant's rigid body
         out["links"] = declared.links.to_mapping()
@@ -195,6 +197,8 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
     same = not diag.effects_found_
     # up to BOTH_HALVES_MAX samples, both halves are scored (four simulations); above, one half (two)
     for h in ((0, 1) if n <= BOTH_HALVES_MAX else (1,)):
+        if not any((half == h).any() for half in half_t.values()):
+            continue        # no sample of this half in the window simulated (a long run's first block)
         thetas = diag.refit(lambda jd, h=h: half_fit[jd.j] != h)       # fit on the other half
         for which in ("before", "after"):
             if which == "after" and same:

@@ -12,7 +12,8 @@ name               change of the model                                          
 stribeck           [qd>0] e^-(qd/vs)^2, -[qd<0] e^-(qd/vs)^2                          vs 4-400 mrad/s  2
 position_ripple    sin, cos of 2 pi h q / P, h = 1 .. H (a fundamental and harmonics)  P 0.01-2 rad,   2 H
                                                                                       H 1-4
-payload            link-7 columns of the joint torque regressor (m, m c, inertia)     none             10
+payload            link-7 columns of the joint torque regressor (m, m c, inertia),    none             10
+                   the directions the joint's motion excites
 delay              the whole model evaluated at the positions d later                 d 1-20 ms        0
 friction_drift     Coulomb and viscous torque of the declared fit x exp(-t / T)       T 0.05-4 x run   2
 backlash           (at onsets, :mod:`wamctl.analysis.diagnosis.backlash`) and the      none             1
@@ -44,8 +45,13 @@ MAX_BREAKAWAY_RATIO = 10.0        # Stribeck breakaway / Coulomb (the plant's ow
 
 def stribeck_columns(qd: np.ndarray, vs: float) -> np.ndarray:
     """Stribeck regressor (m, 2): breakaway excess per direction, decaying with speed as exp(-(qd/vs)^2)."""
-    e = stribeck_decay(np.asarray(qd, float), vs, 2.0)
-    return np.column_stack([(qd > 0) * e, -1.0 * (qd < 0) * e])
+    qd = np.asarray(qd, float)
+    e = stribeck_decay(qd, vs, 2.0)
+    out = np.empty((2, len(qd)))       # filled row by row (contiguous writes), returned transposed
+    np.multiply(qd > 0, e, out=out[0])
+    np.multiply(qd < 0, e, out=out[1])
+    np.negative(out[1], out=out[1])
+    return out.T
 
 
 def ripple_gain(qd: np.ndarray, period: float, window: int, gauss: float, dt_s: float) -> np.ndarray:
@@ -85,6 +91,26 @@ def ripple_harmonics(p: dict) -> tuple[np.ndarray, np.ndarray]:
     amps = np.array([float(p[ripple_key(h, "amplitude")]) for h in range(1, n + 1)])
     phases = np.array([float(p[ripple_key(h, "phase")]) for h in range(1, n + 1)])
     return amps, phases
+
+
+PAYLOAD_RANK_RTOL = 1e-3     # payload directions a joint's motion excites less than this (singular values) are left out
+
+
+def payload_basis(P: np.ndarray) -> np.ndarray:
+    """(10, 10) the payload's inertial-parameter directions a joint's regressor rows ``P`` (m, 10) excite: an
+    orthonormal basis of the row space of the equilibrated columns (singular values at least
+    ``PAYLOAD_RANK_RTOL`` of the largest), back in parameter units, padded with zero columns. The candidate's
+    columns are ``P @ basis``: what the motion does not show is not fitted (and then extrapolated to the held-out
+    folds that show a little of it)."""
+    scale = np.sqrt((P ** 2).sum(axis=0))
+    live = scale > 1e-9 * max(scale.max(), 1e-300)
+    out = np.zeros((P.shape[1], P.shape[1]))
+    if not live.any():
+        return out
+    _, sv, Vt = np.linalg.svd(P[:, live] / scale[live], full_matrices=False)
+    V = Vt[sv >= sv[0] * PAYLOAD_RANK_RTOL].T
+    out[np.ix_(live, np.arange(V.shape[1]))] = V / scale[live][:, None]
+    return out
 
 
 def payload_from_pi(pi: np.ndarray) -> dict:

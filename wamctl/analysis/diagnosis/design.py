@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import stribeck_columns
-from wamctl.analysis.diagnosis.signals import Signals
+from wamctl.analysis.diagnosis.signals import GridSignal, Signals
 from wamctl.analysis.diagnosis.stats import lstsq, lstsq_bounded
 from wamctl.model.friction import FrictionModel, classic_friction_columns, stribeck_decay
 
@@ -59,7 +59,8 @@ class Design:
     Attributes
     ----------
     sig : the prepared signals.
-    rnea_Nm : (n, 7) rigid-body torque of the declared model (a declared payload included).
+    rnea_Nm : (n, 7) rigid-body torque of the declared model (a declared payload included), a
+        :class:`~wamctl.analysis.diagnosis.signals.GridSignal`.
     known_Nm : (n, 7) torque a declared model file adds beyond the rigid body (zero when friction is fitted).
     known_other_Nm : (n, 7) its part that is not friction (ripple).
     tau_Nm : unused (None): each joint's smoothed torque is in ``JointData.extra["tau"]``.
@@ -74,7 +75,7 @@ class Design:
     """
 
     sig: Signals
-    rnea_Nm: np.ndarray
+    rnea_Nm: GridSignal
     known_Nm: np.ndarray
     known_other_Nm: np.ndarray
     tau_Nm: np.ndarray
@@ -224,23 +225,27 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
         """The smoothed feature ``fn(full-rate indices)`` at the joint's samples (``d`` seconds later)."""
         return sig.smooth_at(fn, jd.idx, shift)
 
+    def of_speed(fn):
+        """The smoothed feature ``fn(speeds)`` of the joint's velocity at its samples (``d`` seconds later)."""
+        return sig.smooth_at(fn, jd.idx, shift, source=(("qd", j), qd_f))
+
     if name == "friction":
-        return sample(lambda p: friction_columns(qd_f[p], h))
+        return of_speed(lambda v: friction_columns(v, h))
     if name == "stribeck":
-        return sample(lambda p: stribeck_columns(qd_f[p], h))
+        return of_speed(lambda v: stribeck_columns(v, h))
     if name == "position_ripple":        # h = (period, harmonics): sin, cos of each harmonic in turn
         q_f = sig.q_raw_rad[:, j]          # the angle as measured (the filter then smooths the feature)
         period, nh = float(h[0]), int(h[1])
 
-        def ripple(p):
-            ph = 2 * np.pi * q_f[p] / period
+        def ripple(q):
+            ph = 2 * np.pi * q / period
             return np.column_stack([f(k * ph) for k in range(1, nh + 1) for f in (np.sin, np.cos)])
-        return sample(ripple)
+        return sig.smooth_at(ripple, jd.idx, shift, source=(("q", j), q_f))
     if name == "payload":
         X = jd.extra["payload"]
         if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold
-            X = (X @ des.payload_pi[h[1]])[:, None]
-        return X
+            return (X @ des.payload_pi[h[1]])[:, None]
+        return X @ jd.extra["payload_basis"] if "payload_basis" in jd.extra else X
     if name == "link_parameters":       # ("links", fold): the arm's one refit, fitted without fold
         return (jd.extra["links_base"][:, des.links_cols] @ des.links_beta[h[1]])[:, None]
     if name == "friction_drift":
@@ -252,7 +257,7 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
         return np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * np.exp(-jd.extra["t_rel"] / h)[:, None]
     if name == "backlash":
         dg = jd.extra["dgdq_full"]
-        return sample(lambda p: (dg[p] * np.sign(qd_f[p]))[:, None])
+        return sample(lambda p: (dg[p, 0] * np.sign(qd_f[p]))[:, None])
     raise ValueError(name)
 
 
@@ -286,7 +291,7 @@ def shifted_target(des: Design, jd: JointData, d: float) -> np.ndarray:
     key = round(float(d), 9)
     if key not in cache:
         shift = d / des.sig.dt_s
-        model = at_shift(des.rnea_Nm[:, jd.j], jd.idx, shift)
+        model = des.rnea_Nm.at(np.clip(jd.idx + shift, 0, des.sig.n - 1), jd.j)
         if des.friction_given is not None:
             model += at_shift(des.known_Nm[:, jd.j], jd.idx, shift)
         if len(cache) > 100:

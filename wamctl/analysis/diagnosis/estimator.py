@@ -51,11 +51,14 @@ from dataclasses import dataclass, field
 import numpy as np
 
 from wamctl.analysis.diagnosis.arm import (
+    PAYLOAD_COM_BOX_M,
     delay_disagreements,
     fold_payloads,
     global_payload_terms,
     payload_fit,
     payload_inconsistency,
+    payload_links_reason,
+    payload_links_summary,
     payload_rejection,
     payload_uncertainty,
 )
@@ -113,10 +116,12 @@ class DeclaredModel:
 def torque_warnings(sig: Signals) -> list[str]:
     """Torques beyond the model's limits are data (a real arm's log, another controller), not errors: said."""
     out = []
-    over = np.abs(sig.tau_raw_Nm) > P.TAU_MAX_NM * (1 + 1e-6)
-    for j in np.flatnonzero(over.any(axis=0)):
-        out.append(f"joint {j + 1}: {int(over[:, j].sum())} samples with |tau| above the model's limit of "
-                   f"{P.TAU_MAX_NM[j]:g} N m (up to {np.abs(sig.tau_raw_Nm[:, j]).max():.3g} N m); kept as data")
+    for j in range(P.N_JOINTS):        # joint by joint: no temporary the size of the whole log
+        tau = np.abs(sig.tau_raw_Nm[:, j])
+        over = int(np.count_nonzero(tau > P.TAU_MAX_NM[j] * (1 + 1e-6)))
+        if over:
+            out.append(f"joint {j + 1}: {over} samples with |tau| above the model's limit of "
+                       f"{P.TAU_MAX_NM[j]:g} N m (up to {tau.max():.3g} N m); kept as data")
     return out
 
 
@@ -222,10 +227,11 @@ class ModelDiagnosis:
         for j in sig.joints:
             self.joints_[j] = self._diagnose_joint(self.jd_[j], torque_tests)
         r2 = self._declared_r2()
-        if r2 < MIN_DECLARED_R2:
+        if r2 < MIN_DECLARED_R2 and self._rigid_body_r2() < MIN_DECLARED_R2:
             self.reason_ = (f"the declared model explains only {max(r2, 0.0):.0%} of the torque of the moving "
-                            f"joints (at least {MIN_DECLARED_R2:.0%} expected): the data do not look like this "
-                            "arm under this model (torque units? joint order? gravity?), so no effect is named")
+                            f"joints (at least {MIN_DECLARED_R2:.0%} expected, also with a wrist payload and link "
+                            "errors): the data do not look like this arm under this model (torque units? joint "
+                            "order? gravity?), so no effect is named")
             log.warning(self.reason_)
             self.joints_ = {}
             return self
@@ -291,6 +297,16 @@ class ModelDiagnosis:
             ss_tot += float(np.sum((tau - tau.mean()) ** 2))
         return 1.0 - ss_res / ss_tot if ss_tot > 0 else 0.0
 
+    def _rigid_body_r2(self) -> float:
+        """The declared model's share of the torque variance once the arm may carry a wrist payload and its links
+        may be off by up to twice their declared accuracy (:func:`~wamctl.analysis.diagnosis.links.
+        rigid_body_r2`; -inf without the rigid-body regressors)."""
+        from wamctl.analysis.diagnosis.links import rigid_body_r2
+        from wamctl.analysis.diagnosis.rigid import plausible_link_map
+
+        return rigid_body_r2(self.design_, self.jd_, list(self.joints_),
+                             plausible_link_map(self.declared_.links, self.payload_declared_), PAYLOAD_COM_BOX_M)
+
     def _diagnose_joint(self, jd: JointData, tests: list[str], rejected: dict | None = None) -> JointResult:
         """Forward selection of the torque-domain candidates ``tests`` at one joint (``rejected``: candidates
         excluded beforehand, with the reason); Stribeck seen at the breakaways under the declared model is
@@ -333,23 +349,38 @@ class ModelDiagnosis:
             self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"delay": why})
 
     def _check_payload(self) -> None:
-        """A payload is one mass for the whole arm: reject it everywhere if the mass fitted over every joint
-        that kept it is not a wrist payload (and diagnose those joints again without it); else every joint
-        that kept it carries the arm's one payload."""
+        """A payload is one mass for the whole arm, beyond what the arm's own link errors can make: the payload
+        fitted over every joint that kept it must win against link errors within the declared accuracy
+        (:func:`~wamctl.analysis.diagnosis.links.payload_or_links`; else ``link_parameters`` is tested in its
+        place, or the two are ambiguous), be a wrist payload where the data determine it, and be consistent with
+        the other joints; else the joints that kept it are diagnosed again without it. Kept, every joint that
+        kept it carries the arm's one payload."""
+        from wamctl.analysis.diagnosis.links import payload_or_links
+        from wamctl.analysis.diagnosis.rigid import plausible_link_map
+
         self.payload_ = None
+        self.payload_vs_links_ = None
+        self.links_plausible_ = self.links_skip_ = False
         fit = payload_fit(self.design_, self.joints_, self.jd_)
         if fit is None:
             return
-        why = payload_rejection(fit) or payload_inconsistency(self.design_, self.joints_, self.jd_, fit)
+        dec = payload_or_links(self.design_, self.joints_, self.jd_, self.threshold_,
+                               plausible_link_map(self.declared_.links, self.payload_declared_), PAYLOAD_COM_BOX_M)
+        self.payload_vs_links_ = payload_links_summary(dec)
+        why = payload_links_reason(dec)
+        ci, ni = {}, []
+        if why is None:
+            ci, ni = payload_uncertainty(self.design_, self.joints_, self.jd_)
+            why = payload_rejection(fit, ni) or payload_inconsistency(self.design_, self.joints_, self.jd_, fit)
         if why is not None:
-            log.info(why)
-            tests = [c for c in self.candidates if c not in self.declared_effects_ and c != "backlash"
-                     and c not in ARM_ONLY]
-            for j in [jj - 1 for jj in fit["joints_fitted"]]:
-                self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"payload": why})
+            self._drop_payload(fit, why, dec)
             return
         self.payload_ = {k: v for k, v in fit.items() if k != "pi"}
-        self.payload_ci_ = payload_uncertainty(self.design_, self.joints_, self.jd_)
+        if "mass_kg" in ni and dec is not None and dec["cone_fit"] is not None:
+            # the motion does not determine the mass: the model carries a wrist payload that explains the data
+            # (reported as not identified)
+            self.payload_.update(dec["cone_fit"])
+        self.payload_ci_ = (ci, ni)
         # one column per joint (its torque), fitted without each fold for the held-out figures, and on all
         # data for the model
         self.payload_pi_ = self.design_.payload_pi = fold_payloads(self.design_, self.joints_, self.jd_, fit)
@@ -357,6 +388,22 @@ class ModelDiagnosis:
             res, jd = self.joints_[j], self.jd_[j]
             terms = global_payload_terms(res.kept, self.n_folds)
             set_after(self.design_, res, jd, terms, cv_terms(self.design_, jd, terms))
+
+    def _drop_payload(self, fit: dict, why: str, dec: dict | None) -> None:
+        """The joints that kept the payload ``fit`` diagnosed again without it (``why``); an ambiguous
+        payload-or-links decision is recorded at them, link errors within the declared accuracy are tested in its
+        place when they explain the data as well."""
+        log.info(why)
+        tests = [c for c in self.candidates if c not in self.declared_effects_ and c != "backlash"
+                 and c not in ARM_ONLY]
+        outcome = dec["outcome"] if dec is not None else None
+        for j in [jj - 1 for jj in fit["joints_fitted"]]:
+            self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"payload": why})
+            if outcome == "ambiguous":
+                self.joints_[j].ambiguous.append({"names": ["payload", "link_parameters"], "step": "arm",
+                                                  "evidence": self.payload_vs_links_["tests"]})
+        self.links_plausible_ = outcome == "link_parameters" and "link_parameters" in self.candidates
+        self.links_skip_ = outcome == "ambiguous"
 
     def _check_breakaways(self, tests: list[str]) -> None:
         """A Stribeck effect seen only at the breakaways is tested there again under the final model with the
@@ -377,15 +424,22 @@ class ModelDiagnosis:
             self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"stribeck": why})
 
     def _check_links(self) -> None:
-        """``link_parameters`` against the current model (see :mod:`wamctl.analysis.diagnosis.links`): named in
-        place of the payload (or on its own) where a refit of the arm's parameters adds to it; else, with a
-        payload kept, the payload wins and its candidates say so."""
+        """``link_parameters`` against the current model (see :mod:`wamctl.analysis.diagnosis.links`): the refit
+        within the declared accuracy when a payload candidate was found to be the links' (one joint is enough:
+        the payload candidate won that joint's selection), else the free refit (two joints or more); named where
+        it adds to the model, beside the arm's payload if one was kept."""
         from wamctl.analysis.diagnosis.crossval import cv_terms
         from wamctl.analysis.diagnosis.links import links_test, links_uncertainty
+        from wamctl.analysis.diagnosis.rigid import plausible_link_map
 
-        t = links_test(self.design_, self.joints_, self.jd_, self.threshold_)
-        self.links_test_ = None if t is None else {k: v for k, v in t.items() if k not in ("e", "betas")}
+        self.links_test_ = None
         self.links_report_ = None
+        if getattr(self, "links_skip_", False):
+            return
+        plausible = getattr(self, "links_plausible_", False)
+        link_map = plausible_link_map(self.declared_.links, self.payload_declared_) if plausible else None
+        t = links_test(self.design_, self.joints_, self.jd_, self.threshold_, link_map, 1 if plausible else 2)
+        self.links_test_ = None if t is None else {k: v for k, v in t.items() if k not in ("e", "e0", "betas")}
         if t is None:
             return
         evidence = {k: t[k] for k in ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")}
@@ -395,32 +449,27 @@ class ModelDiagnosis:
                 if "payload" in res.candidates and res.candidates["payload"].get("kept"):
                     res.candidates["payload"].setdefault("head_to_head", []).append(dict(record, outcome="wins"))
                 res.candidates["link_parameters"] = dict(evidence, kept=False, reason=(
-                    "a refit of the arm's link parameters does not add to the model of the joints "
-                    + ("with the payload " if t["has_payload"] else "") + f"(p = {t['p_value']:.3g})"))
+                    "a refit of the arm's link parameters " + ("within their declared accuracy " if plausible else "")
+                    + "does not add to the model of the joints " + ("with the payload " if t["has_payload"] else "")
+                    + f"(p = {t['p_value']:.3g})"))
             return
         params, ci = links_uncertainty(self.design_, self.joints_, self.jd_, t)
         self.links_report_ = {"params": params, "params_ci": ci,
-                              "not_identified": [f"d_{n}" for n in t["not_identified"]]}
+                              "not_identified": [f"d_{n}" for n in t["not_identified"]],
+                              "within_declared_accuracy": bool(plausible)}
         des = self.design_
-        des.links_beta, des.links_cols = t["betas"], t["cols"]
+        des.links_beta, des.links_cols = t["betas"], np.arange(len(t["betas"][None]))
+        why = "kept (refit over the arm" + (", within the declared accuracy)" if plausible else ")")
         for j in t["helped"]:
             res, jd = self.joints_[j], self.jd_[j]
-            gain = (finite_ss(res.e_after) - finite_ss(t["e"][j])) / max(finite_ss(res.e_base), 1e-300)
+            gain = (finite_ss(t["e0"][j]) - finite_ss(t["e"][j])) / max(finite_ss(res.e_base), 1e-300)
             term = {"name": "link_parameters", "h_fold": [("links", f) for f in range(self.n_folds)],
                     "h_all": ("links", None), "fixed_h": ("links", None), "evidence": evidence, "gain": gain,
-                    "rms_before_Nm": float(np.sqrt(np.nanmean(res.e_after ** 2))),
+                    "rms_before_Nm": float(np.sqrt(np.nanmean(t["e0"][j] ** 2))),
                     "rms_after_Nm": float(np.sqrt(np.nanmean(t["e"][j] ** 2)))}
-            had_payload = any(k["name"] == "payload" for k in res.kept)
-            terms = [k for k in res.kept if k["name"] != "payload"] + [term]
+            terms = list(res.kept) + [term]
             set_after(des, res, jd, terms, cv_terms(des, jd, terms))
-            res.candidates["link_parameters"] = dict(evidence, kept=True, reason="kept (refit over the arm)")
-            if had_payload:
-                res.candidates["payload"] = dict(res.candidates.get("payload", {}), kept=False, reason=(
-                    "a refit of the arm's link parameters explains the data better than a payload "
-                    f"(p = {t['p_value']:.3g} that it adds nothing to the payload)"),
-                    head_to_head=[dict(record, outcome="loses")])
-        if not any(any(k["name"] == "payload" for k in r.kept) for r in self.joints_.values()):
-            self.payload_ = None
+            res.candidates["link_parameters"] = dict(evidence, kept=True, reason=why)
 
     def _ranked_effects(self) -> list[str]:
         """Effect names kept anywhere, strongest evidence first: the smallest p-value of each name (p-values
@@ -449,7 +498,7 @@ class ModelDiagnosis:
 
         mp = self.meta_.payload
         ctl = WamDynamics(Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None)
-        self.gains_ = controller_gains(self.signals_, self.meta_, ctl.gravity)
+        self.gains_ = controller_gains(self.signals_, self.meta_, ctl.gravity_many)
         if self.gains_["kp"] is None:
             self.position_skipped_ = self.gains_["reason"]
             log.warning("closed-loop position check skipped: %s", self.position_skipped_)
@@ -486,7 +535,8 @@ class ModelDiagnosis:
 
         Returns
         -------
-        {joint: (theta_before, theta_after)}, and under key ``"payload"`` the payload fitted on the subset.
+        {joint: (theta_before, theta_after)}, and under key ``"payload"`` the payload fitted on the subset (None
+        when there is none, or when the motion does not determine its mass).
         """
         des = self.design_
         out = {}
@@ -499,7 +549,10 @@ class ModelDiagnosis:
             tb = fit_theta(columns(des, "friction", jd, None)[rows], jd.y_Nm[rows], des.bounded)
             y, X = target_and_design(des, jd, res.kept, None)
             out[j] = (tb, fit_theta(X[rows], y[rows], des.bounded))
-        out["payload"] = payload_fit(des, self.joints_, self.jd_, rows_of) if self.payload_ is not None else None
+        # a payload whose mass the motion does not determine is the model's one (its refit on a subset is not)
+        blind = "mass_kg" in getattr(self, "payload_ci_", ({}, []))[1]
+        out["payload"] = payload_fit(des, self.joints_, self.jd_, rows_of) \
+            if self.payload_ is not None and not blind else None
         return out
 
     def to_dict(self, data_path: str = "") -> dict:

@@ -19,14 +19,17 @@ MAX_ROWS = 20000             # samples the gains are estimated on (spread over t
 
 
 def _pd_system(sig, gravity, rows: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(u, e, de) (m, 7) at ``rows``: the torque beyond the controller's gravity model, the error and its
-    backward difference over one sample."""
-    e = sig.q_ref_rad - sig.q_raw_rad
-    de = np.zeros_like(e[rows])
+    """(u, e, de) (m, 7) at ``rows``: the torque beyond the controller's gravity model (``gravity``: positions
+    (m, 7) -> torques (m, 7), or None), the error and its backward difference over one sample."""
+    def error(r):
+        return sig.q_ref_rad[r] - sig.q_raw_rad[r]
+
+    e = error(rows)
+    de = np.zeros_like(e)
     ok = rows > 0
-    de[ok] = (e[rows[ok]] - e[rows[ok] - 1]) / sig.dt_s
-    g = np.array([gravity(sig.q_raw_rad[i]) for i in rows]) if gravity is not None else 0.0
-    return sig.tau_raw_Nm[rows] - g, e[rows], de
+    de[ok] = (e[ok] - error(rows[ok] - 1)) / sig.dt_s
+    g = gravity(sig.q_raw_rad[rows]) if gravity is not None else 0.0
+    return sig.tau_raw_Nm[rows] - g, e, de
 
 
 def _r2(u: np.ndarray, pred: np.ndarray) -> float:
@@ -35,7 +38,8 @@ def _r2(u: np.ndarray, pred: np.ndarray) -> float:
 
 
 def controller_gains(sig, meta, gravity) -> dict:
-    """The gains the closed-loop check uses and where they come from.
+    """The gains the closed-loop check uses and where they come from (``gravity``: the controller's gravity
+    model, positions (m, 7) -> torques (m, 7)).
 
     Returns ``{"kp", "kd"}`` (7,) lists or None (check skipped), ``source``, ``reason`` (why skipped, or None),
     ``kp_log``, ``kd_log``, ``r2_log`` (estimated), ``r2_declared`` (of the declared gains) per joint."""

@@ -2,51 +2,44 @@
 against ``payload`` (no I/O).
 
 Every real arm's links differ somewhat from their datasheet; a payload is the special case of an extra body on
-link 7. The refit uses the base parameters of the identification (:mod:`wamctl.analysis.identification.base`:
-the combinations of link parameters and armature any data could determine), restricted to those these data
-determine (:func:`~wamctl.analysis.identification.base.identifiability`), shared by every diagnosed joint (one
-arm), on top of each joint's own model (its friction and the other effects it kept). Held-out residuals: each
-joint's folds, the shared parameters fitted without the fold.
+link 7. The refits (:mod:`wamctl.analysis.diagnosis.rigid`) change the base parameters of the identification
+(:mod:`wamctl.analysis.identification.base`) shared by every diagnosed joint (one arm), on top of each joint's own
+model (its friction and the other effects it kept); held-out residuals: each joint's folds, the shared change
+fitted without the fold; the joints are pooled, each weighted by the RMS of its residual.
 
-The decision, on the held-out residuals of all diagnosed joints together (each joint weighted by its residual, as
-the payload's fit): does the link refit add to the current model (the arm's payload, if one was kept)? With a
-payload kept: no -> the payload stands (it explains the data as well as a refit of the links would, with ten
-parameters); yes -> ``link_parameters`` is named instead (the payload was the part of the links' errors a wrist
-mass can mimic). Without one: yes -> ``link_parameters``. The refit is one for the arm: it is tested when two
-joints or more are diagnosed and named only when it passes the nested test of two of them or more on their own
-(a refit that helps one joint only is just another function of that joint's angles, and takes up what another
-effect's model left there).
+**Payload or links** (:func:`payload_or_links`). On a sweep of one joint, a payload and an error of the distal
+links change the same two gravity coefficients and one inertia; on free motion of several joints a payload moves
+every joint's torque in its own way, but link errors can still mimic part of it. What tells them apart is size:
+the declared arm's parameters are known to a declared accuracy (:data:`~wamctl.analysis.diagnosis.rigid.
+LINK_PRIOR_SHARE`), so the change plausible link errors can make is bounded. A payload (a positive mass within
+``PAYLOAD_COM_BOX_M`` of the flange) is named only when it adds to the link errors within that accuracy, and to
+those within ``WIDE_PRIOR`` times it; between the two the data cannot tell a payload from a datasheet worse than
+declared (``ambiguous``); when it does not add to plausible link errors, they explain the data as well
+(``link_parameters``).
+
+**Links** (:func:`links_test`): does a refit of the arm's parameters add to the current model (the arm's payload,
+if one was kept)? The free refit (the base parameters these data determine) is tested when two joints or more are
+diagnosed and named only when it passes the nested test of two of them or more on their own (a refit that helps
+one joint only is just another function of that joint's angles, and takes up what another effect's model left
+there); the refit within the declared accuracy, after a payload candidate was found to be the links', needs one.
 """
 
 from __future__ import annotations
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.design import N_FRICTION, Design, ncols, target_and_design
+from wamctl.analysis.diagnosis.design import Design, target_and_design
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss, lstsq, nested_test
 
-RANK_RTOL = 1e-3
-SHARE_TOL = 0.01
+SHARE_TOL = 0.01        # a base parameter with more than this share outside the determined directions
 MIN_JOINTS = 2          # the arm's one refit must help two joints or more (each passing its own test)
+WIDE_PRIOR = 2.0       # up to twice the declared accuracy a datasheet may still be the arm's own (the grey zone)
 
 
-def _own_terms(res) -> list[dict]:
-    return [t for t in res.kept if t["name"] not in ("payload", "link_parameters")]
-
-
-def identified_columns(jds: dict, joints: list[int]) -> tuple[np.ndarray, list[str]]:
-    """(k,) indices of the rigid-body base columns these data determine, and the names of those they do not."""
-    from wamctl.analysis.identification.base import N7, N_INERTIAL, base_parameters, identifiability
-
-    base = base_parameters()
-    cols = base.independent < N_INERTIAL + N7
-    names = [n for n, c in zip(base.names, cols) if c]
-    W = np.vstack([jds[j].extra["links_base"][:: max(1, jds[j].n // 3000)] for j in joints])
-    # its columns: the rigid-body part of the base; a direction excited less than RANK_RTOL of the best (column
-    # equilibrated) is not determined well enough to be refitted, a parameter with more than SHARE_TOL of it in
-    # such directions neither
-    ok = np.asarray(identifiability(W, rank_tol=RANK_RTOL, share_tol=SHARE_TOL).identified)
-    return np.flatnonzero(ok), [n for n, k in zip(names, ok) if not k]
+def _own_terms(res, with_payload: bool = False) -> list[dict]:
+    """The joint's kept terms but the rigid-body ones (the arm's payload kept when ``with_payload``)."""
+    drop = ("link_parameters",) if with_payload else ("payload", "link_parameters")
+    return [t for t in res.kept if t["name"] not in drop]
 
 
 def base_names(cols: np.ndarray) -> list[str]:
@@ -59,51 +52,24 @@ def base_names(cols: np.ndarray) -> list[str]:
 
 
 def links_uncertainty(des: Design, joints: dict, jds: dict, test: dict) -> tuple[dict, dict]:
-    """The refit's change of each determined base parameter (``d_<name>``, estimate) and its 95 % interval (a
-    bootstrap over every joint's time blocks)."""
+    """The change of each base parameter these data determine (``d_<name>``: the free refit's estimate, on top of
+    the payload when one is kept) and its 95 % interval (a bootstrap over every joint's time blocks)."""
     from wamctl.analysis.diagnosis.uncertainty import group_bootstrap, percentile_ci
 
     js, cols = test["joints"], test["cols"]
     sub = {j: joints[j] for j in js}
     w = {j: 1.0 / max(sub[j].torque_rms_after_Nm, 1e-9) for j in js}
-    own = {j: target_and_design(des, jds[j], _own_terms(sub[j]), None) for j in js}
+    own = {j: target_and_design(des, jds[j], _own_terms(sub[j], test["has_payload"]), None) for j in js}
     Z = {j: jds[j].extra["links_base"][:, cols] for j in js}
     X, y = _stack(js, own, Z, {j: np.ones(jds[j].n, bool) for j in js}, w)
     groups = np.vstack([np.column_stack([np.full(jds[j].n, j), jds[j].extra["block"]]) for j in js])
     reps = group_bootstrap(X, y, groups, rng=np.random.default_rng(5000))[:, -len(cols):]
-    beta = test["betas"][None]
+    beta = lstsq(X, y)[-len(cols):]
     names = [f"d_{n}" for n in base_names(cols)]
     ng = len({tuple(g) for g in groups})
     params = {n: float(b) for n, b in zip(names, beta)}
     ci = {n: percentile_ci(reps[:, k], center=beta[k], n_groups=ng) for k, n in enumerate(names)}
     return params, ci
-
-
-def arm_links_cv(des: Design, joints: dict, jds: dict, cols: np.ndarray) -> tuple[dict, dict, np.ndarray]:
-    """Held-out residuals {joint: (m,)} of each joint's own model plus the shared link refit (columns ``cols``),
-    the refit per fold {fold: (k,)} and on all data (under key None), and the joints' weights (1 / residual)."""
-    js = list(joints)
-    w = {j: 1.0 / max(joints[j].torque_rms_after_Nm, 1e-9) for j in js}
-    own = {j: target_and_design(des, jds[j], _own_terms(joints[j]), None) for j in js}
-    Z = {j: jds[j].extra["links_base"][:, cols] for j in js}
-    e = {j: np.full(jds[j].n, np.nan) for j in js}
-    betas = {}
-    for f in [None] + list(range(des.n_folds)):
-        rows = {j: (np.ones(jds[j].n, bool) if f is None else jds[j].fold != f) for j in js}
-        X, y = _stack(js, own, Z, rows, w)
-        th = lstsq(X, y)
-        beta = th[-len(cols):]
-        betas[f] = beta
-        if f is None:
-            continue
-        c0 = 0
-        for j in js:
-            y_j, X_j = own[j]
-            p = X_j.shape[1]
-            te = jds[j].fold == f
-            e[j][te] = y_j[te] - X_j[te] @ th[c0:c0 + p] - Z[j][te] @ beta
-            c0 += p
-    return e, betas, np.array([w[j] for j in js])
 
 
 def _stack(js, own, Z, rows, w) -> tuple[np.ndarray, np.ndarray]:
@@ -126,38 +92,149 @@ def _stack(js, own, Z, rows, w) -> tuple[np.ndarray, np.ndarray]:
     return X, y
 
 
-def links_test(des: Design, joints: dict, jds: dict, threshold: float) -> dict | None:
-    """Does a refit of the arm's parameters add to the current model of the diagnosed joints? None when the data
-    carry no link regressor (no payload candidate) or too few joints moved.
+def arm_links(des: Design, joints: dict, jds: dict, js: list[int], with_payload: bool = False):
+    """The arm's normal equations (:func:`~wamctl.analysis.diagnosis.rigid.arm_system`) of joints ``js`` with
+    their own models (the payload kept when ``with_payload``), each weighted by the RMS of its held-out residual;
+    and that residual {j: (m,)}."""
+    from wamctl.analysis.diagnosis.rigid import arm_cv, arm_system
 
-    Returns the nested test (``p_value``, ``delta_bic``, ...) with ``passes``, ``cols`` (the base columns fitted),
-    ``not_identified`` (base parameters these data cannot determine), ``e`` {joint: held-out residual} and
-    ``betas``."""
+    own = {j: target_and_design(des, jds[j], _own_terms(joints[j], with_payload), None) for j in js}
+    sys_ = arm_system(des, jds, own, dict.fromkeys(js, 1.0))
+    e_own, _, _ = arm_cv(sys_, jds, None)
+    sys_.w = {j: 1.0 / max(float(np.sqrt(np.nanmean(e_own[j] ** 2))), 1e-9) for j in js}
+    return sys_, e_own
+
+
+def _pooled_test(sys_, joints: dict, jds: dict, e0: dict, e1: dict, p_extra: int, of_declared: bool = True) -> dict:
+    """Nested test of ``e1`` against ``e0`` ({j: held-out residual}) over the joints of ``sys_`` pooled (rows
+    weighted as fitted); the minimum effect is a share of the declared models' residual (``of_declared``) or of
+    ``e0``'s."""
+    js, w = sys_.js, sys_.w
+    pool = lambda e: np.concatenate([e[j] * w[j] for j in js])             # noqa: E731
+    a, b = pool(e0), pool(e1)
+    share = sum(finite_ss(joints[j].e_base) * w[j] ** 2 for j in js) / max(finite_ss(a), 1e-300) \
+        if of_declared else 1.0
+    k1 = sum(sys_.own[j][1].shape[1] for j in js) + p_extra
+    return nested_test(a, b, p_extra, k1, min(MIN_EFFECT * share, 0.9),
+                       np.concatenate([jds[j].fold + 10 * j for j in js]))
+
+
+def links_test(des: Design, joints: dict, jds: dict, threshold: float, link_map: np.ndarray | None = None,
+               min_joints: int = MIN_JOINTS) -> dict | None:
+    """Does a refit of the arm's parameters add to the current model of the diagnosed joints (the arm's payload
+    kept, if any)? ``link_map`` None: the free refit of the base parameters these data determine; else the refit
+    within the declared accuracy (``link_map``, coefficients in [-1, 1]). None when the data carry no link
+    regressor or fewer than ``min_joints`` joints moved.
+
+    Returns the nested test (``p_value``, ``delta_bic``, ...) with ``passes``, ``cols`` (the base columns the
+    free refit changes), ``not_identified`` (base parameters these data cannot determine), ``e`` {joint: held-out
+    residual with the refit}, ``e0`` (without it), ``betas`` {fold: the change of the base parameters},
+    ``helped`` (the joints whose own test it passes)."""
+    from wamctl.analysis.diagnosis.rigid import arm_cv, determined_parameters, payload_map
+
     js = [j for j in joints if "links_base" in jds[j].extra]
-    if len(js) < MIN_JOINTS:       # one joint alone: a refit is just another function of its angle
+    if len(js) < min_joints:       # one joint alone: a refit is just another function of its angle
         return None
-    cols, undetermined = identified_columns(jds, js)
-    if len(cols) == 0:
+    has_payload = any(t["name"] == "payload" for j in js for t in joints[j].kept)
+    sys_, e0 = arm_links(des, joints, jds, js, has_payload)
+    ok, rank = determined_parameters(sys_, SHARE_TOL)
+    cols, undetermined = np.flatnonzero(ok), [n for n, k in zip(base_names(np.arange(len(ok))), ok) if not k]
+    if rank == 0:
         return None
-    sub = {j: joints[j] for j in js}
-    e_l, betas, wts = arm_links_cv(des, sub, jds, cols)
-    e0 = np.concatenate([sub[j].e_after * wt for j, wt in zip(js, wts)])
-    e1 = np.concatenate([e_l[j] * wt for j, wt in zip(js, wts)])
-    groups = np.concatenate([jds[j].fold + 10 * j for j in js])
-    base_ss = sum(finite_ss(sub[j].e_base) * wt ** 2 for j, wt in zip(js, wts))
-    share = base_ss / max(finite_ss(e0), 1e-300)
-    has_payload = any(t["name"] == "payload" for j in js for t in sub[j].kept)
-    p_extra = max(len(cols) - (10 if has_payload else 0), 1)
-    k1 = sum(N_FRICTION + sum(ncols(t) for t in _own_terms(sub[j])) for j in js) + len(cols)
-    t = nested_test(e0, e1, p_extra, k1, min(MIN_EFFECT * share, 0.9), groups)
+    if link_map is None:
+        A, bounds = np.eye(sys_.n_base), None
+        p_extra = max(rank - (_excited_rank(jds, js, payload_map()) if has_payload else 0), 1)
+    else:
+        A, bounds = link_map, (-np.ones(link_map.shape[1]), np.ones(link_map.shape[1]))
+        p_extra = rank
+    e_l, betas, _ = arm_cv(sys_, jds, A, bounds)
+    t = _pooled_test(sys_, joints, jds, e0, e_l, p_extra)
     helped = []
     for j in js:           # each joint on its own: the refit must pass the joint's own nested test
-        share_j = finite_ss(sub[j].e_base) / max(finite_ss(sub[j].e_after), 1e-300)
-        k_j = N_FRICTION + sum(ncols(x) for x in _own_terms(sub[j])) + len(cols)
-        tj = nested_test(sub[j].e_after, e_l[j], p_extra, k_j, min(MIN_EFFECT * share_j, 0.9), jds[j].fold)
+        share_j = finite_ss(joints[j].e_base) / max(finite_ss(e0[j]), 1e-300)
+        k_j = sys_.own[j][1].shape[1] + p_extra
+        tj = nested_test(e0[j], e_l[j], p_extra, k_j, min(MIN_EFFECT * share_j, 0.9), jds[j].fold)
         if tj["p_value"] < threshold and tj["delta_bic"] < 0:
             helped.append(j)
-    t.update(passes=bool(t["p_value"] < threshold and t["delta_bic"] < 0 and len(helped) >= MIN_JOINTS),
-             cols=cols, not_identified=undetermined, e=e_l, betas=betas, joints=js, has_payload=has_payload,
-             helped=helped)
+    t.update(passes=bool(t["p_value"] < threshold and t["delta_bic"] < 0 and len(helped) >= min_joints),
+             cols=cols, not_identified=undetermined, e=e_l, e0=e0, betas=betas, joints=js, has_payload=has_payload,
+             helped=helped, bounded=link_map is not None)
     return t
+
+
+def payload_or_links(des: Design, joints: dict, jds: dict, threshold: float, link_map: np.ndarray,
+                     com_box_m: float) -> dict | None:
+    """A wrist payload, or the arm's own links within their declared accuracy? Nested tests on the held-out
+    residuals of every diagnosed joint together (each joint's own model, the rigid-body terms left out):
+
+    * ``beyond_links``: does a wrist payload (a positive mass within ``com_box_m`` of the flange in each
+      coordinate, :func:`~wamctl.analysis.diagnosis.rigid.payload_cone`) add to link errors within the declared
+      accuracy (``link_map``, :func:`~wamctl.analysis.diagnosis.rigid.plausible_link_map`)?
+    * ``beyond_wide_links``: does it add to link errors within ``WIDE_PRIOR`` times that accuracy?
+
+    ``outcome``: ``"payload"`` when both pass, ``"ambiguous"`` when only the first does, ``"link_parameters"``
+    when a payload does not add to plausible link errors (the second test is then not made). Also
+    ``payload_seen`` (the mass and first-moment combinations the motion excites), ``cone_fit`` (a wrist payload
+    that explains the data on its own, all data: ``mass_kg``, ``com_m``) and ``ssr_ratio`` {model: held-out SSR /
+    the own models'}. None without link regressors."""
+    from wamctl.analysis.diagnosis.candidates import payload_from_pi
+    from wamctl.analysis.diagnosis.rigid import arm_cv, payload_cone, payload_map
+
+    js = [j for j in joints if "links_base" in jds[j].extra]
+    if not js:
+        return None
+    sys_, e_own = arm_links(des, joints, jds, js)
+    cone, rays = payload_cone(com_box_m)
+    nl, nc = link_map.shape[1], cone.shape[1]
+    pos = (np.zeros(nc), np.full(nc, np.inf))
+    p_pay = max(_excited_rank(jds, js, payload_map()[:, :4]), 1)
+    fits, tests, ok = {}, {}, {}
+    for name, scale in (("links", 1.0), ("wide_links", WIDE_PRIOR)):
+        lim = np.full(nl, scale)
+        fits[name] = arm_cv(sys_, jds, link_map, (-lim, lim))
+        fits["payload+" + name] = arm_cv(sys_, jds, np.hstack([cone, link_map]),
+                                         (np.r_[pos[0], -lim], np.r_[pos[1], lim]))
+        t = _pooled_test(sys_, joints, jds, fits[name][0], fits["payload+" + name][0], p_pay, False)
+        tests["beyond_" + name], ok["beyond_" + name] = t, bool(t["p_value"] < threshold and t["delta_bic"] < 0)
+        if not ok["beyond_" + name]:
+            break                   # within the declared accuracy already, or ambiguous
+    outcome = ("payload" if ok.get("beyond_wide_links") else
+               "ambiguous" if ok["beyond_links"] else "link_parameters")
+    ss0 = sum(finite_ss(e_own[j]) * sys_.w[j] ** 2 for j in js)
+    mh = rays @ arm_cv(sys_, jds, cone, pos, folds=False)[2][None]
+    return {"outcome": outcome, "tests": tests, "passes": ok, "joints": js, "payload_seen": p_pay,
+            "cone_fit": payload_from_pi(mh) if mh[0] > 0 else None,
+            "ssr_ratio": {k: sum(finite_ss(v[0][j]) * sys_.w[j] ** 2 for j in js) / max(ss0, 1e-300)
+                          for k, v in fits.items()}}
+
+
+def _excited_rank(jds: dict, js: list[int], P: np.ndarray) -> int:
+    """How many combinations of the payload parameters ``P`` (base map columns) the joints' motion excites."""
+    from wamctl.analysis.diagnosis.uncertainty import RANK_RTOL as RTOL
+
+    Z = np.vstack([jds[j].extra["links_base"][:: max(1, jds[j].n // 3000)] @ P for j in js])
+    scale = np.sqrt((Z ** 2).sum(axis=0))
+    live = scale > 1e-12 * max(scale.max(), 1e-300)
+    if not live.any():
+        return 0
+    sv = np.linalg.svd(Z[:, live] / scale[live], compute_uv=False)
+    return int(np.sum(sv > sv[0] * RTOL))
+
+
+def rigid_body_r2(des: Design, jds: dict, js: list[int], link_map: np.ndarray, com_box_m: float) -> float:
+    """Share of the torque variance of joints ``js`` the declared model explains (held-out, friction fitted) once
+    the arm may carry a wrist payload (any positive mass within ``com_box_m`` of the flange) and its links may be
+    off by up to ``WIDE_PRIOR`` times their declared accuracy: a large payload is still this arm."""
+    from wamctl.analysis.diagnosis.rigid import arm_cv, arm_system, payload_cone
+
+    js = [j for j in js if "links_base" in jds[j].extra]
+    if not js:
+        return float("-inf")
+    sys_ = arm_system(des, jds, {j: target_and_design(des, jds[j], [], None) for j in js}, dict.fromkeys(js, 1.0))
+    cone, _ = payload_cone(com_box_m)
+    nc, lim = cone.shape[1], np.full(link_map.shape[1], WIDE_PRIOR)
+    bounds = (np.r_[np.zeros(nc), -lim], np.r_[np.full(nc, np.inf), lim])
+    e, _, _ = arm_cv(sys_, jds, np.hstack([cone, link_map]), bounds)
+    ss_res = sum(finite_ss(e[j]) for j in js)
+    ss_tot = sum(float(np.sum((jds[j].extra["tau"] - jds[j].extra["tau"].mean()) ** 2)) for j in js)
+    return 1.0 - ss_res / ss_tot if ss_tot > 0 else 0.0

@@ -16,7 +16,7 @@ import numpy as np
 from wamctl.analysis.diagnosis.backlash import breakaway_ratio, find_onsets, hidden_travel, resolution_rad
 from wamctl.analysis.diagnosis.candidates import MAX_BREAKAWAY_RATIO, STRIBECK_VS_GRID_RAD_S, ripple_harmonics
 from wamctl.analysis.diagnosis.design import Design, block_of, levels, levels_dict
-from wamctl.analysis.diagnosis.signals import Signals, delayed, zoh_centred
+from wamctl.analysis.diagnosis.signals import Signals, delayed
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
 
@@ -87,7 +87,7 @@ def onset_model(diag, j: int, declared: bool = False, exclude: tuple[str, ...] =
 def detection_tolerance(sig: Signals, j: int) -> tuple[float, float]:
     """(encoder step, tolerance) rad: the measurement has moved once it left the stall value by two encoder
     steps (or four noise sigmas)."""
-    quantum = resolution_rad(sig.q_raw_rad[:, j])
+    quantum = sig.memo(("resolution_rad", j), lambda: resolution_rad(sig.q_raw_rad[:, j]))
     return quantum, max(2.0 * quantum, 4.0 * float(sig.q_noise_rad[j]), 1e-6)
 
 
@@ -114,7 +114,7 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
             ons = [ons[i] for i in np.unique(np.linspace(0, len(ons) - 1, MAX_ONSETS).round().astype(int))]
         cache[tol] = ons
     ons = cache[tol]
-    tau_c = zoh_centred(sig.tau_raw_Nm[:, j], sig.zoh_share)      # as for the sliding residual
+    tau_c = sig.tau_centred_Nm[:, j]           # aligned to the zero-order hold, as for the sliding residual
     tau_c_decl = delayed(sig.t_s, tau_c, model.delay_declared_s) if model.delay_declared_s > 0 else tau_c
     if model.delay_s > 0:   # positions measured d late: the torque that moved the link to q_meas(t) acted at t - d
         tau_c = delayed(sig.t_s, tau_c, model.delay_s)

@@ -55,7 +55,8 @@ def kept_effect_params(diag, j: int, name: str, theta: np.ndarray | None = None)
     if name == "payload":
         if diag.payload_ is not None and (theta is None or len(coef) == 1):
             return dict(diag.payload_)
-        return payload_from_pi(coef)
+        basis = diag.jd_[j].extra.get("payload_basis")        # the joint's candidate: coefficients in its basis
+        return payload_from_pi(coef if basis is None else basis @ coef)
     if name == "delay":
         return {"delay_s": float(h)}
     if name == "friction_drift":

@@ -12,9 +12,9 @@ from __future__ import annotations
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.candidates import ripple_columns
+from wamctl.analysis.diagnosis.candidates import payload_basis, ripple_columns
 from wamctl.analysis.diagnosis.design import Design, JointData
-from wamctl.analysis.diagnosis.signals import Signals, interp_columns
+from wamctl.analysis.diagnosis.signals import GridSignal, Signals
 from wamctl.model import params as P
 from wamctl.model.dynamics import WamDynamics
 from wamctl.model.effects import friction_drift_scale, ripple_series, ripple_torque_Nm
@@ -51,21 +51,22 @@ def prepare_design(sig: Signals, dyn: WamDynamics, friction_given: FrictionModel
     known, known_other = declared_torque(sig, friction_given, effects)
     delay = declared_delay_s(effects)
     des = Design(sig, _rigid_body_full(dyn, sig), known, known_other, None, friction_given, n_folds, dec, union)
-    pos = np.searchsorted(union, np.arange(sig.n))
     jds = {}
     for j in sig.joints:
         idx = np.flatnonzero(keep & sig.moving[:, j])
-        u = pos[idx]
+        u = np.searchsorted(union, idx)          # the joint's samples among the union's
         block = np.minimum((np.arange(len(idx)) * n_blocks) // max(len(idx), 1), n_blocks - 1)
-        tau_j = sig.at("tau", idx, -delay / sig.dt_s)[:, j]      # a declared delay: the torque d earlier
+        tau_j = sig.at("tau", idx, -delay / sig.dt_s, j)      # a declared delay: the torque d earlier
         y = tau_j - rnea[u, j] - known[idx, j]
+        qdd_j = sig.at("qdd", idx, joint=j)
         extra = {"t_rel": sig.t_s[idx] - sig.t_s[0], "block": block, "tau": tau_j,
-                 "dgdq_full": np.interp(sig.t_s, sig.t_s[coarse], dgdq_c[:, j])}
+                 "dgdq_full": GridSignal(coarse, dgdq_c[:, [j]])}
         if want_payload:
             extra["payload"] = reg[u, j, PAYLOAD_REGRESSOR]
-            extra["links_base"] = link_base_rows(reg[u, j, :], sig.at("qdd", idx)[:, j], j)
-        jds[j] = JointData(j, idx, sig.t_s[idx], sig.at("q", idx)[:, j], sig.qd_rad_s[idx, j],
-                           sig.at("qdd", idx)[:, j], y, block % n_folds, extra)
+            extra["payload_basis"] = payload_basis(extra["payload"])
+            extra["links_base"] = link_base_rows(reg[u, j, :], qdd_j, j)
+        jds[j] = JointData(j, idx, sig.t_s[idx], sig.at("q", idx, joint=j), sig.qd_rad_s[idx, j], qdd_j, y,
+                           block % n_folds, extra)
     if want_payload:
         del reg
     return des, jds
@@ -75,13 +76,7 @@ def _rigid_body_rows(dyn: WamDynamics, sig: Signals, rows: np.ndarray,
                      want_payload: bool) -> tuple[np.ndarray, np.ndarray | None]:
     """Rigid-body torque (r, 7) at the samples ``rows`` (r,), and the inertial regressor (r, 7, 70) there."""
     q, qd, qdd = sig.at("q", rows), sig.at("qd", rows), sig.at("qdd", rows)
-    rnea = np.empty((len(rows), N7))
-    reg = np.empty((len(rows), N7, 70)) if want_payload else None
-    for k in range(len(rows)):
-        rnea[k] = dyn.inverse_dynamics(q[k], qd[k], qdd[k])
-        if want_payload:
-            reg[k] = dyn.regressor_basis(q[k], qd[k], qdd[k])
-    return rnea, reg
+    return dyn.inverse_dynamics_many(q, qd, qdd), (dyn.torque_regressor(q, qd, qdd) if want_payload else None)
 
 
 def link_base_rows(inertial: np.ndarray, qdd_j: np.ndarray, j: int) -> np.ndarray:
@@ -98,15 +93,14 @@ def link_base_rows(inertial: np.ndarray, qdd_j: np.ndarray, j: int) -> np.ndarra
     return base.regressor(Y)[:, cols]
 
 
-def _rigid_body_full(dyn: WamDynamics, sig: Signals) -> np.ndarray:
+def _rigid_body_full(dyn: WamDynamics, sig: Signals) -> GridSignal:
     """Rigid-body torque (n, 7) at every sample (interpolated from a uniform grid: the delay shifts it in time)."""
     stride = max(1, sig.n // MAX_RNEA_GRID)
     grid = np.arange(0, sig.n, stride)
     if grid[-1] != sig.n - 1:
         grid = np.append(grid, sig.n - 1)
     q, qd, qdd = sig.at("q", grid), sig.at("qd", grid), sig.at("qdd", grid)
-    rg = np.array([dyn.inverse_dynamics(q[k], qd[k], qdd[k]) for k in range(len(grid))])
-    return interp_columns(np.arange(sig.n), grid, rg)
+    return GridSignal(grid, dyn.inverse_dynamics_many(q, qd, qdd))
 
 
 def _gravity_stiffness(dyn: WamDynamics, sig: Signals, rows: np.ndarray, eps: float = 1e-4) -> np.ndarray:
@@ -114,12 +108,11 @@ def _gravity_stiffness(dyn: WamDynamics, sig: Signals, rows: np.ndarray, eps: fl
     the link sits w/2 away from the encoder), by forward differences."""
     q = sig.at("q", rows)
     out = np.zeros((len(rows), N7))
-    for k in range(len(rows)):
-        g0 = dyn.gravity(q[k])
-        for j in sig.joints:
-            dq = np.zeros(N7)
-            dq[j] = eps
-            out[k, j] = (dyn.gravity(q[k] + dq)[j] - g0[j]) / eps
+    g0 = dyn.gravity_many(q)
+    for j in sig.joints:
+        qj = q.copy()
+        qj[:, j] += eps
+        out[:, j] = (dyn.gravity_many(qj)[:, j] - g0[:, j]) / eps
     return out
 
 

@@ -61,6 +61,8 @@ def diagnosis_dict(diag, data_path: str = "") -> dict:
            "conclusive": bool(diag.conclusive_), "reason": diag.reason_}
     if getattr(diag, "warnings_", None):
         out["warnings"] = list(diag.warnings_)
+    if getattr(diag, "payload_vs_links_", None):
+        out["payload_or_links"] = diag.payload_vs_links_
     gains = getattr(diag, "gains_", None)
     if gains is not None or getattr(diag, "position_skipped_", None):
         out["position_check"] = {"controller_gains": gains,

@@ -41,6 +41,10 @@ DEFAULT_GAUSS_S = 0.008         # 4 samples at 500 Hz: together about 10 Hz of b
 MIN_RATE_HZ = 50.0             # below this, accelerations cannot be estimated over a window this short
 MIN_MOVING_SAMPLES = 200       # a joint needs this many sliding samples to be diagnosed
 MIN_TRAVEL_RAD = 0.02
+STRETCH_RATIO = 8              # Signals.smooth_at: convolve stretches covering this many times fewer positions
+SMOOTH_CHUNK = 2048            # Signals.smooth_at: samples evaluated together, window by window
+ROW_CHUNK = 1 << 16            # full-rate arithmetic on long runs in pieces of this many samples
+KEPT_WINDOWS = 6               # Signals.smooth_at: sets of gathered windows kept for the next features
 
 
 @dataclass
@@ -81,6 +85,14 @@ class Signals:
     time_base: str = "as logged"
     qd_raw_rad_s: np.ndarray | None = None       # measured velocities (the log's qd_* columns), when given
     _full: dict = field(default_factory=dict, repr=False)
+    _memo: dict = field(default_factory=dict, repr=False)
+
+    def memo(self, key, compute):
+        """``compute()`` once per ``key``: a statistic of the run's signals that several steps read (a joint's
+        encoder step, say), computed over the full run only once."""
+        if key not in self._memo:
+            self._memo[key] = compute()
+        return self._memo[key]
 
     # The smoothed position, acceleration and torque at the full rate are computed on first use only: a long
     # run is analysed at its joints' (decimated) samples, where :meth:`at` evaluates the filter.
@@ -106,12 +118,14 @@ class Signals:
             self._full["tau"] = self.smooth(self.tau_centred_Nm)
         return self._full["tau"]
 
-    def at(self, what: str, idx: np.ndarray, shift: float = 0.0) -> np.ndarray:
+    def at(self, what: str, idx: np.ndarray, shift: float = 0.0, joint: int | None = None) -> np.ndarray:
         """(m, 7) smoothed ``"q"``, ``"qd"``, ``"qdd"`` or ``"tau"`` at the samples ``idx`` (``shift`` samples
-        later), from the full-rate array when it exists, else by the filter evaluated there."""
+        later), from the full-rate array when it exists, else by the filter evaluated there; (m,) of one 0-based
+        ``joint`` only."""
         key = {"q": "q", "qdd": "qdd", "tau": "tau"}.get(what)
+        cols = slice(None) if joint is None else joint
         if what == "qd" or key in self._full:
-            full = self.qd_rad_s if what == "qd" else self._full[key]
+            full = (self.qd_rad_s if what == "qd" else self._full[key])[:, cols]
             if not shift:
                 return full[idx]
             return _interp_rows(full, idx, shift)
@@ -119,7 +133,7 @@ class Signals:
         deriv = {"q": 0, "qdd": 2, "tau": 0}[what]
         if what == "qdd" and self.qd_raw_rad_s is not None:
             raw, deriv = self.qd_raw_rad_s, 1
-        return self.smooth_at(raw, idx, shift, deriv)
+        return self.smooth_at(raw[:, cols], idx, shift, deriv)
 
     @property
     def zoh_share(self) -> float:
@@ -144,37 +158,93 @@ class Signals:
         Gaussian truncated at 4 sigma): ``y[i] = sum_k kernel[k] x[i - r + k]``."""
         return _kernel(self.window, float(self.gauss), deriv, self.dt_s)
 
-    def smooth_at(self, X, idx: np.ndarray, shift: float = 0.0, deriv: int = 0) -> np.ndarray:
+    def smooth_at(self, X, idx: np.ndarray, shift: float = 0.0, deriv: int = 0, source=None) -> np.ndarray:
         """The analysis filter of a full-rate feature evaluated at the samples ``idx`` only (m, p) or (m,): the
         same convolution as :meth:`smooth` away from the ends (which the masks leave out).
 
         ``X`` is an (n, p) / (n,) array, or a function ``pos -> values`` of full-rate sample indices (then the
-        feature is only evaluated where the filter needs it: long runs are not computed at the full rate).
-        ``shift``: the filtered feature ``shift`` samples later (fractional: linear interpolation between the two
-        neighbouring samples, as ``np.interp`` of the filtered feature)."""
+        feature is only evaluated where the filter needs it: long runs are not computed at the full rate), or with
+        ``source = (key, x)`` a function of the values of the full-rate signal ``x`` (n,) (its values around a
+        long run's samples are then gathered once for every feature of ``x`` at those samples: ``key`` names
+        ``x``). ``shift``: the filtered feature ``shift`` samples later (fractional: linear interpolation between
+        the two neighbouring samples, as ``np.interp`` of the filtered feature).
+
+        Sparse samples (a long run's decimated ones) are evaluated window by window, one matrix-vector product
+        over the taps; runs of nearby samples (stretches around onsets) by one convolution over the stretches
+        they cover; samples covering most of the run by the convolution at the full rate."""
         k = self.kernel(deriv)
-        r = len(k) // 2
-        idx = np.asarray(idx)
+        idx = np.asarray(idx, int)
         base = int(np.floor(shift))
         frac = float(shift - base)
-        offs = [base] if frac < 1e-12 else [base, base + 1]
-        fn = X if callable(X) else np.asarray(X, float).__getitem__
-        if len(idx) * len(k) * len(offs) > self.n:       # cheaper at the full rate
+        if source is not None:
+            values_fn, x = X, source[1]
+            fn, width = (lambda p: values_fn(x[p])), 1
+        else:
+            fn, width = _feature_fn(X)
+        if frac >= 1e-12:         # two neighbouring shifts, interpolated: one kernel a tap longer
+            k = np.r_[(1.0 - frac) * k, 0.0] + np.r_[0.0, frac * k]
+        first = base - len(self.kernel(deriv)) // 2       # the window of sample i starts at i + first
+        if len(idx) == 0:
+            return _smooth_windows(fn, width, idx, k, first, self.n)
+        gaps = np.flatnonzero(np.diff(idx) > len(k)) + 1    # between stretches whose windows do not touch
+        starts, ends = idx[np.r_[0, gaps]], idx[np.r_[gaps - 1, len(idx) - 1]]
+        covered = int(np.sum(ends - starts + len(k)))
+        # a convolution costs about len(k) / STRETCH_RATIO evaluations of the feature per position it covers
+        if STRETCH_RATIO * covered > len(idx) * len(k):
+            if source is not None:
+                return _smooth_windows(values_fn, width, idx, k, first, self.n,
+                                       self._windows(source, idx, first, len(k)))
+            return _smooth_windows(fn, width, idx, k, first, self.n)
+        if 2 * covered > self.n:
             return _interp_rows(self.smooth(np.asarray(fn(np.arange(self.n)), float), deriv), idx, shift)
-        out = None
-        for w, o in zip(([1.0] if len(offs) == 1 else [1.0 - frac, frac]), offs):
-            pos = np.clip(idx[:, None] + o + np.arange(-r, r + 1)[None, :], 0, self.n - 1)
-            vals = np.asarray(fn(pos.ravel()), float)
-            if vals.ndim == 1:
-                y = vals.reshape(pos.shape) @ k
-            else:
-                y = np.einsum("mkp,k->mp", vals.reshape(pos.shape + (vals.shape[1],)), k)
-            out = w * y if out is None else out + w * y
-        return out
+        return _smooth_stretches(fn, idx, k, first, starts, ends, self.n)
+
+    def _windows(self, source: tuple, idx: np.ndarray, first: int, taps: int) -> list[np.ndarray]:
+        """The values of ``source = (key, x)`` on the windows of the samples ``idx`` (chunks of
+        :func:`_smooth_windows`), gathered once and kept for the next features (the last few sets)."""
+        key = ("windows", source[0], first, taps, len(idx), int(idx[0]), int(idx[-1]))
+        kept = self._memo.setdefault("windows", {})
+        if key not in kept:
+            if len(kept) >= KEPT_WINDOWS:
+                del kept[next(iter(kept))]           # the oldest
+            x = source[1]
+            tap = first + np.arange(taps)[:, None]
+            kept[key] = [x[np.clip(idx[None, c:c + SMOOTH_CHUNK] + tap, 0, self.n - 1).ravel()]
+                         for c in range(0, len(idx), SMOOTH_CHUNK)]
+        return kept[key]
 
     @property
     def duration_s(self) -> float:
         return float(self.t_s[-1] - self.t_s[0])
+
+
+@dataclass
+class GridSignal:
+    """A full-rate (n, p) signal kept at a grid of its samples and interpolated linearly between them (a long run's
+    rigid-body torque is not stored at every sample). ``sig[rows, j]`` reads it like an array (``rows`` sample
+    indices or a slice, ``j`` one column); :meth:`at` at fractional sample positions.
+
+    Attributes
+    ----------
+    grid : (g,) increasing full-rate sample indices (beyond the first and the last, the signal is held).
+    values : (g, p) the signal there.
+    """
+
+    grid: np.ndarray
+    values: np.ndarray
+
+    def __post_init__(self):
+        self.values = np.asfortranarray(self.values, dtype=float)     # a column is read at a time
+
+    def at(self, pos: np.ndarray, j: int) -> np.ndarray:
+        """Column ``j`` at the (fractional) sample positions ``pos`` (held at the ends)."""
+        return np.interp(pos, self.grid, self.values[:, j])
+
+    def __getitem__(self, key) -> np.ndarray:
+        rows, j = key           # rows: sample indices (an array, one, or a slice of 0 .. grid[-1]); j: one column
+        if isinstance(rows, slice):
+            rows = np.arange(int(self.grid[-1]) + 1)[rows]
+        return self.at(rows, j)
 
 
 TIME_AS_LOGGED = "as logged"
@@ -238,8 +308,10 @@ def zoh_centred(tau: np.ndarray, share: float = 0.5) -> np.ndarray:
     tau = np.asarray(tau, float)
     out = np.empty_like(tau)
     out[:1] = tau[:1]
-    np.multiply(tau[1:], 1.0 - share, out=out[1:])
-    out[1:] += share * tau[:-1]
+    for a in range(1, len(tau), ROW_CHUNK):     # in pieces: no temporary the size of an hour's log
+        b = min(a + ROW_CHUNK, len(tau))
+        np.multiply(tau[a:b], 1.0 - share, out=out[a:b])
+        out[a:b] += share * tau[a - 1:b - 1]
     return out
 
 
@@ -267,8 +339,9 @@ def _kernel(window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.
     r = window // 2 + int(np.ceil(4 * gauss)) + 1     # the Gaussian is truncated at 4 sigma
     imp = np.zeros(4 * r + 1)
     imp[2 * r] = 1.0
-    # the impulse response, reversed: a correlation kernel (symmetric for deriv 0)
-    return _two_pass(imp, window, gauss, deriv, dt_s)[r:3 * r + 1][::-1].copy()
+    # the impulse response, reversed: a correlation kernel (symmetric for deriv 0); its outermost taps (one
+    # beyond the support on either side) are exactly zero and left out
+    return _two_pass(imp, window, gauss, deriv, dt_s)[r + 1:3 * r][::-1].copy()
 
 
 def _interp_rows(full: np.ndarray, idx: np.ndarray, shift: float) -> np.ndarray:
@@ -280,9 +353,69 @@ def _interp_rows(full: np.ndarray, idx: np.ndarray, shift: float) -> np.ndarray:
     return full[i0] * (1.0 - f) + full[i0 + 1] * f
 
 
+def _feature_fn(X) -> tuple:
+    """(``pos -> values``, columns) of a full-rate feature: a function as given (one column assumed for the
+    chunk size), or the rows of an (n,) / (n, p) array."""
+    if callable(X):
+        return X, 1
+    Xa = np.asarray(X, float)
+    if Xa.ndim == 1:
+        return Xa.__getitem__, 1
+    if Xa.flags.f_contiguous:   # column by column (a table's columns, a filter's output), column-major out
+
+        def columns(p):
+            out = np.empty((Xa.shape[1], len(p)))
+            for c in range(Xa.shape[1]):
+                np.take(Xa[:, c], p, out=out[c])
+            return out.T
+        return columns, Xa.shape[1]
+    return (lambda p: np.take(Xa, p, axis=0)), Xa.shape[1]     # several times faster than fancy indexing
+
+
+def _smooth_windows(fn, width: int, idx: np.ndarray, k: np.ndarray, first: int, n: int,
+                    windows: list[np.ndarray] | None = None) -> np.ndarray:
+    """``sum_t k[t] fn(i + first + t)`` (m,) / (m, p) at samples ``idx`` (m,) far apart: the feature evaluated
+    on each window (positions held at the ends of the run), one matrix-vector product over the taps. With
+    ``windows`` (the chunks of a source's values there, see ``Signals._windows``) ``fn`` maps those values."""
+    taps = first + np.arange(len(k))[:, None]
+    out = []
+    chunk = SMOOTH_CHUNK if windows is not None else max(64, SMOOTH_CHUNK // width)   # the arrays stay in cache
+    for i, c in enumerate(range(0, max(len(idx), 1), chunk)):
+        ii = idx[c:c + chunk]
+        if windows is not None:
+            vals = np.asarray(fn(windows[i]), float) if len(ii) else np.zeros(0)
+        else:
+            vals = np.asarray(fn(np.clip(ii[None, :] + taps, 0, n - 1).ravel()), float)
+        if vals.ndim == 1:
+            out.append(k @ vals.reshape(len(k), len(ii)))
+        elif vals.flags.f_contiguous:          # features built column by column
+            out.append((k @ vals.T.reshape(vals.shape[1], len(k), len(ii))).T)
+        else:
+            out.append((k @ vals.reshape(len(k), -1)).reshape(len(ii), vals.shape[1]))
+    return out[0] if len(out) == 1 else np.concatenate(out)
+
+
+def _smooth_stretches(fn, idx: np.ndarray, k: np.ndarray, first: int, starts: np.ndarray, ends: np.ndarray,
+                      n: int) -> np.ndarray:
+    """:func:`_smooth_windows` for samples ``idx`` that come in stretches ``[starts, ends]`` (inclusive, in
+    order, their windows apart): the feature evaluated once on each stretch's span, one convolution over the
+    spans laid end to end (each output reads its own span only)."""
+    lengths = ends - starts + len(k)
+    offsets = np.r_[0, np.cumsum(lengths)[:-1]]
+    within = np.arange(int(lengths.sum())) - np.repeat(offsets, lengths)
+    pos = np.clip(np.repeat(starts + first, lengths) + within, 0, n - 1)
+    vals = np.asarray(fn(pos), float)
+    conv = correlate1d(vals, k, axis=0, mode="nearest")      # conv[c + L // 2] = sum_t k[t] vals[c + t]
+    stretch = np.searchsorted(starts, idx, side="right") - 1
+    return conv[offsets[stretch] + (idx - starts[stretch]) + len(k) // 2]
+
+
+GAIN_TABLE_STEPS = 4096          # per cycle/sample: the table's step is a power of two, so indexing it is exact
+
+
 @lru_cache(maxsize=16)
 def _gain_table(window: int) -> tuple[np.ndarray, np.ndarray]:
-    f = np.linspace(0.0, 0.5, 2049)
+    f = np.arange(GAIN_TABLE_STEPS // 2 + 2) / GAIN_TABLE_STEPS        # 0 to 0.5, and one step beyond
     c = savgol_coeffs(window, POLYORDER)
     k = np.arange(window) - window // 2
     return f, np.cos(2 * np.pi * np.outer(f, k)) @ c
@@ -292,9 +425,13 @@ def savgol_gain(window: int, f_cycles_per_sample: np.ndarray, gauss: float = 0.0
     """Amplitude response of the smoothing filter (real, zero phase) at normalised frequencies (cycles/sample);
     frequencies above Nyquist are folded back (aliasing). ``gauss``: the Gaussian pre-filter's sigma."""
     f = np.abs(np.asarray(f_cycles_per_sample, float)) % 1.0
-    f = np.where(f > 0.5, 1.0 - f, f)
-    ft, gt = _gain_table(window)
-    return np.interp(f, ft, gt) * np.exp(-0.5 * (2 * np.pi * f * gauss) ** 2)
+    f = np.minimum(f, 1.0 - f)
+    _, gt = _gain_table(window)
+    # linear interpolation in the table (uniform steps: the index is computed, not searched)
+    x = f * GAIN_TABLE_STEPS
+    i = x.astype(np.intp)
+    g = gt[i] + (gt[i + 1] - gt[i]) * (x - i)
+    return g * np.exp(-0.5 * (2 * np.pi * f * gauss) ** 2)
 
 
 def _two_pass(X: np.ndarray, window: int, gauss: float, deriv: int = 0, dt_s: float = 1.0) -> np.ndarray:
@@ -409,7 +546,9 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     v_noise = q_noise * derivative_noise_gain(w, gs, dt)
     # stuck: slower than 4 sigma of the velocity noise, and never faster than a floor of 1 mrad/s
     v_stick = np.maximum(4.0 * v_noise, 1e-3)
-    stuck = np.abs(qd) < v_stick[None, :]
+    stuck = np.empty(qd.shape, bool)
+    for a in range(0, len(qd), ROW_CHUNK):      # in pieces: no temporary the size of an hour's log
+        np.less(np.abs(qd[a:a + ROW_CHUNK]), v_stick[None, :], out=stuck[a:a + ROW_CHUNK])
     reach = filter_reach(w, gs)
     moving = maximum_filter1d(stuck.view(np.uint8), 4 * reach + 1, axis=0, mode="constant") == 0
     edge = 2 * reach  # the filter's edge samples are extrapolations

@@ -54,9 +54,9 @@ def group_columns(diag, j: int, group: str) -> np.ndarray:
         k = LAG_S / sig.dt_s
         cols = []
         for what in ("qd", "qdd"):
-            now = sig.at(what, jd.idx)[:, j]
+            now = sig.at(what, jd.idx, joint=j)
             for s in (-k, k):
-                cols.append(sig.at(what, jd.idx, s)[:, j] - now)
+                cols.append(sig.at(what, jd.idx, s, j) - now)
         return _scaled(*cols)
     raise ValueError(group)
 

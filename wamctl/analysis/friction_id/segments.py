@@ -47,7 +47,8 @@ def moves_from_reference(t_s: np.ndarray, q_ref: np.ndarray, min_travel_rad: flo
     starts = []
     for a, b in _runs(moving):
         # split where the direction flips without a hold
-        cuts = [a] + [k for k in range(a + 1, b) if sgn[k] != sgn[k - 1] and sgn[k] != 0] + [b]
+        flips = a + 1 + np.flatnonzero((sgn[a + 1:b] != sgn[a:b - 1]) & (sgn[a + 1:b] != 0))
+        cuts = [a, *flips.tolist(), b]
         for s0, s1 in zip(cuts[:-1], cuts[1:]):
             travel = q_ref[s1] - q_ref[s0]
             if abs(travel) < min_travel_rad:
@@ -156,12 +157,10 @@ def constant_velocity_stage(t_s: np.ndarray, q: np.ndarray, i0: int, i1: int, si
         ok_s = np.convolve(ok.astype(float), np.ones(5) / 5, mode="same") >= 0.6
         if not ok_s[centre]:
             break
-        new_lo = centre
-        while new_lo > 0 and ok_s[new_lo - 1]:
-            new_lo -= 1
-        new_hi = centre + 1
-        while new_hi < len(x) and ok_s[new_hi]:
-            new_hi += 1
+        out_lo = np.flatnonzero(~ok_s[:centre])
+        new_lo = int(out_lo[-1]) + 1 if len(out_lo) else 0
+        out_hi = np.flatnonzero(~ok_s[centre + 1:])
+        new_hi = centre + 1 + int(out_hi[0]) if len(out_hi) else len(x)
         if (new_lo, new_hi) == (lo, hi):
             break
         lo, hi = new_lo, new_hi

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from functools import lru_cache
 
 import numpy as np
 import pandas as pd
@@ -64,10 +65,9 @@ def friction_samples(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, rows: np.n
     dt = float(np.median(np.diff(t_s)))
     qd = savgol_derivative(q, dt, window_s, 2, 1)
     qdd = savgol_derivative(q, dt, window_s, 2, 2)
-    out = np.empty((len(rows), q.shape[1]))
-    for k, i in enumerate(rows):
-        out[k] = tau[i] - dynamics.inverse_dynamics(q[i], qd[i], qdd[i])
-    return out
+    if hasattr(dynamics, "inverse_dynamics_many"):        # a WamDynamics: the batch helper
+        return tau[rows] - dynamics.inverse_dynamics_many(q[rows], qd[rows], qdd[rows])
+    return tau[rows] - np.array([dynamics.inverse_dynamics(q[i], qd[i], qdd[i]) for i in rows])
 
 
 def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndarray | None, joints,
@@ -119,6 +119,12 @@ def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndar
     return df
 
 
+@lru_cache(maxsize=64)
+def _t975(dof: int) -> float:
+    """The 97.5 % quantile of Student's t with ``dof`` degrees of freedom (one per stage: scipy's is slow)."""
+    return float(stats.t.ppf(0.975, dof))
+
+
 def _stage_velocity(t_s: np.ndarray, x: np.ndarray, v_fine: np.ndarray, m: Move, st: Stage,
                     o: MapOptions) -> dict:
     """The velocity columns of one stage of joint position ``x``, and its rejection when it was not in steady
@@ -130,7 +136,7 @@ def _stage_velocity(t_s: np.ndarray, x: np.ndarray, v_fine: np.ndarray, m: Move,
     if nb >= 3:
         blocks = np.array_split(np.arange(st.s0, st.s1), nb)
         bv = np.array([fit_line(t_s[b], x[b])[1] for b in blocks])
-        v_ci = float(stats.t.ppf(0.975, nb - 1) * bv.std(ddof=1) / math.sqrt(nb))
+        v_ci = float(_t975(nb - 1) * bv.std(ddof=1) / math.sqrt(nb))
     else:
         v_ci = float("nan")
     vf = v_fine[sl]
@@ -156,12 +162,11 @@ def _add_stage_friction(df: pd.DataFrame, t_s: np.ndarray, q: np.ndarray, tau: n
         return
     f = friction_samples(t_s, q, tau, all_rows, dynamics, window_s)
     pos = 0
-    for idx in df.index[df["n_samples"] > 0]:
-        if pd.isna(df.at[idx, "velocity_rad_s"]):
-            continue
-        n = int(df.at[idx, "n_samples"])
-        fj = f[pos:pos + n, int(df.at[idx, "joint"]) - 1]
+    rows = df.index[(df["n_samples"] > 0) & df["velocity_rad_s"].notna()]
+    stats_ = []                 # (mean, std, se, ci95) per stage, written to the table at once
+    for n, joint in zip(df.loc[rows, "n_samples"].astype(int), df.loc[rows, "joint"].astype(int)):
+        fj = f[pos:pos + n, joint - 1]
         pos += n
-        df.at[idx, "friction_Nm"] = float(fj.mean())
-        df.at[idx, "friction_std_Nm"] = float(fj.std(ddof=1))
-        df.at[idx, "friction_se_Nm"], df.at[idx, "friction_ci95_Nm"] = batch_mean_se(fj)
+        stats_.append((float(fj.mean()), float(fj.std(ddof=1)), *batch_mean_se(fj)))
+    if stats_:
+        df.loc[rows, ["friction_Nm", "friction_std_Nm", "friction_se_Nm", "friction_ci95_Nm"]] = stats_
