@@ -238,8 +238,12 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
         period, nh = float(h[0]), int(h[1])
 
         def ripple(q):
-            ph = 2 * np.pi * q / period
-            return np.column_stack([f(k * ph) for k in range(1, nh + 1) for f in (np.sin, np.cos)])
+            z1 = np.exp(2j * np.pi * np.asarray(q, float) / period)     # harmonic k: z1^k = cos + i sin
+            z, out = z1, np.empty(np.shape(q) + (2 * nh,))
+            for k in range(nh):
+                out[..., 2 * k], out[..., 2 * k + 1] = z.imag, z.real
+                z = z * z1
+            return out
         return sig.smooth_at(ripple, jd.idx, shift, source=(("q", j), q_f))
     if name == "payload":
         X = jd.extra["payload"]

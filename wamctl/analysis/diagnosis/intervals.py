@@ -111,19 +111,30 @@ def _ripple_over_period(des, jd, terms: list[dict], i: int, ci: dict) -> None:
             ci[key] = [min(lo, v), max(hi, v)]
 
 
-def _zoom_profile(hs, ssr, n_eff: float, ssr_of, rounds: int = 3, points: int = 21) -> tuple[np.ndarray,
+def _zoom_profile(hs, ssr, n_eff: float, ssr_of, rounds: int = 4, points: int = 9) -> tuple[np.ndarray,
                                                                                               np.ndarray]:
     """A profile (values ``hs``, SSRs ``ssr``) evaluated again, ``points`` values at a time, between the values
-    just outside the interval, until the interval spans five values (at most ``rounds`` times)."""
-    hs, ssr = np.asarray(hs, float), np.asarray(ssr, float)
-    for _ in range(rounds):
+    just outside the interval, until the interval spans five values (at most ``rounds`` times); then at each end
+    where the statistic crosses the threshold (linear between the last value inside and the first outside)."""
+    crit = stats.chi2.ppf(LEVEL, 1)
+
+    def inside_of(hs, ssr):
         o = np.argsort(hs)
         hs, ssr = hs[o], ssr[o]
-        inside = np.flatnonzero(n_eff * np.log(ssr / ssr.min()) <= stats.chi2.ppf(LEVEL, 1))
+        return hs, ssr, np.flatnonzero(n_eff * np.log(ssr / ssr.min()) <= crit)
+
+    hs, ssr, inside = inside_of(np.asarray(hs, float), np.asarray(ssr, float))
+    for _ in range(rounds):
         if len(inside) >= 5:
             break
         new = np.linspace(hs[max(inside[0] - 1, 0)], hs[min(inside[-1] + 1, len(hs) - 1)], points)[1:-1]
-        hs, ssr = np.r_[hs, new], np.r_[ssr, [ssr_of(h) for h in new]]
+        hs, ssr, inside = inside_of(np.r_[hs, new], np.r_[ssr, [ssr_of(h) for h in new]])
+    stat = n_eff * np.log(ssr / ssr.min())
+    ends = []
+    for a, b in ((inside[0], inside[0] - 1), (inside[-1], inside[-1] + 1)):
+        if 0 <= b < len(hs) and stat[b] > stat[a]:
+            ends.append(hs[a] + (hs[b] - hs[a]) * (crit - stat[a]) / (stat[b] - stat[a]))
+    hs, ssr, _ = inside_of(np.r_[hs, ends], np.r_[ssr, [ssr_of(h) for h in ends]])
     return hs, ssr
 
 
@@ -136,7 +147,7 @@ def _profile_grid(des, name: str, h: float) -> np.ndarray:
         g = np.r_[STRIBECK_VS_GRID_RAD_S, np.geomspace(h / 4, h * 4, 41)]
         g = g[(g >= STRIBECK_VS_GRID_RAD_S[0]) & (g <= STRIBECK_VS_GRID_RAD_S[-1])]
     elif name == "position_ripple":
-        g = h * (1 + np.linspace(-0.1, 0.1, 81))
+        g = h * (1 + np.linspace(-0.1, 0.1, 41))        # then zoomed where it crosses the threshold
     else:
         T = DRIFT_T_GRID_FRACTION * max(des.sig.duration_s, 1e-3)
         g = np.r_[T, np.geomspace(h / 3, h * 3, 41)]
