@@ -31,7 +31,9 @@ from wamctl.model.plant import Plant, SensorChain
 
 # Rows of the packed plant parameters the physics kernel reads (one array: numba's dispatch cost grows with the
 # number of arguments, and this kernel runs twice per tick): FrictionModel.as_array() rows 0-7, then these.
-ROW_SCALE, ROW_RIPPLE_A, ROW_RIPPLE_K, ROW_RIPPLE_PHASE = 8, 9, 10, 11
+# The position ripple: row ROW_RIPPLE_K the wavenumbers, then H rows of amplitudes and H rows of phases (harmonics
+# 1 .. H; H from the array's height).
+ROW_SCALE, ROW_RIPPLE_K, ROW_RIPPLE_A = 8, 9, 10
 
 
 @njit(cache=True)
@@ -43,16 +45,18 @@ def _physics_step(q, qd, tau, nle, minv, h, pp, work, sweeps):
     torque on one joint accelerates the others), so the per-joint stick/slip rule is solved jointly by
     projected Gauss-Seidel sweeps warm-started from the previous step's torques ``f = work[1]``: joint i sees
     ``qd_free_i - h sum_{j != i} (B^-1)_ij f_j`` and takes its own implicit friction for that.
-    ``pp`` packs the friction parameters (rows 0-7), the drift scale and the position ripple (rows 8-11).
+    ``pp`` packs the friction parameters (rows 0-7), the drift scale and the position ripple (rows 8 on).
     """
     n = q.shape[0]
     qd_free = work[0]
     f = work[1]
     u = work[2]
+    nh = (pp.shape[0] - ROW_RIPPLE_A) // 2
     for j in range(n):
         u[j] = tau[j] - nle[j]
-        if pp[ROW_RIPPLE_A, j] != 0.0:
-            u[j] += ripple_torque_Nm(q[j], pp[ROW_RIPPLE_A, j], pp[ROW_RIPPLE_K, j], pp[ROW_RIPPLE_PHASE, j])
+        if pp[ROW_RIPPLE_K, j] != 0.0:
+            u[j] += ripple_torque_Nm(q[j], pp[ROW_RIPPLE_A:ROW_RIPPLE_A + nh, j], pp[ROW_RIPPLE_K, j],
+                                     pp[ROW_RIPPLE_A + nh:ROW_RIPPLE_A + 2 * nh, j])
     for i in range(n):
         acc = 0.0
         for j in range(n):
@@ -96,8 +100,8 @@ class SimBackend(ArmBackend):
         self.h_s = self.control_period_s / self.substeps
         self.rng = rng
         self.q0 = np.asarray(q0_rad, float).copy()
-        self._pp = np.vstack([plant.friction.as_array(), np.ones(P.N_JOINTS), plant.ripple_amplitude_Nm,
-                              plant.ripple_wavenumber_rad, np.full(P.N_JOINTS, plant.ripple_phase_rad)])
+        self._pp = np.vstack([plant.friction.as_array(), np.ones(P.N_JOINTS), plant.ripple_wavenumber_rad,
+                              plant.ripple_amplitudes_Nm, plant.ripple_phases_rad])
         self._t = 0.0
         self._q = self.q0.copy()
         self._qd = np.zeros(P.N_JOINTS)

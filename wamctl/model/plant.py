@@ -5,7 +5,8 @@ Effects (each switchable in ``plant.effects``; see :mod:`wamctl.specs` for the p
 
 * ``stribeck``        breakaway friction ``breakaway_ratio * Fc`` decaying with speed (eq. 2.8), in the
                       plant's friction model.
-* ``position_ripple`` a torque ``A sin(2 pi q / period + phase)`` added at every physics step.
+* ``position_ripple`` a torque ``A sin(2 pi q / period + phase)`` and its harmonics (``harmonics``: the
+                      2nd, 3rd, ... ``A_h sin(2 pi h q / period + phase_h)``) added at every physics step.
 * ``links``           (not an effect: the rigid body itself) the plant's link masses, COMs, inertias and
                       armature in place of the datasheet's, e.g. an arm identified by ``wamctl identify``.
 * ``payload``         a point mass added to link 7 of the plant's rigid body (the controller does not know it
@@ -35,7 +36,7 @@ from wamctl.errors import SpecError
 from wamctl.io import resolve_path
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload
-from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
+from wamctl.model.effects import friction_drift_scale, ripple_series, ripple_torque_Nm
 from wamctl.model.friction import FrictionModel
 from wamctl.model.transmission import J2MP, M2JP, counts_per_rad, joint_rad_per_count, quantise_joint_rad
 
@@ -81,15 +82,18 @@ class Plant:
         self.payload = Payload(fx.payload.mass_kg, tuple(fx.payload.com_m)) if fx.payload else None
         # the rigid body: the datasheet's links unless the plant gives its own (`links:`, e.g. an identified arm)
         self.links = P.LinkParameters.datasheet().with_overrides(getattr(spec, "links", None))
-        self.ripple_amplitude_Nm = np.zeros(P.N_JOINTS)
-        self.ripple_wavenumber_rad = np.zeros(P.N_JOINTS)  # 2 pi / period
-        self.ripple_phase_rad = 0.0
+        # the position ripple: (H, 7) amplitudes and phases of harmonics 1 .. H, (7,) wavenumbers 2 pi / period
+        self.ripple_amplitudes_Nm = np.zeros((1, P.N_JOINTS))
+        self.ripple_phases_rad = np.zeros((1, P.N_JOINTS))
+        self.ripple_wavenumber_rad = np.zeros(P.N_JOINTS)
         if fx.position_ripple is not None:
-            m = joint_mask(fx.position_ripple.joints)
-            self.ripple_amplitude_Nm[m] = fx.position_ripple.amplitude_Nm
-            self.ripple_wavenumber_rad[m] = 2 * np.pi / fx.position_ripple.period_rad
-            self.ripple_phase_rad = fx.position_ripple.phase_rad
-        self.has_ripple = bool(self.ripple_amplitude_Nm.any())
+            r = fx.position_ripple
+            m = joint_mask(r.joints)
+            amps, phases = ripple_series(r.amplitude_Nm, r.phase_rad, r.harmonics)
+            self.ripple_amplitudes_Nm = np.where(m, amps[:, None], 0.0)
+            self.ripple_phases_rad = np.where(m, phases[:, None], 0.0)
+            self.ripple_wavenumber_rad[m] = 2 * np.pi / r.period_rad
+        self.has_ripple = bool(self.ripple_amplitudes_Nm.any())
         self.drift_fraction = np.zeros(P.N_JOINTS)
         self.drift_time_constant_s = 1.0
         if fx.friction_drift is not None:
@@ -104,7 +108,9 @@ class Plant:
 
     def ripple_torque_Nm(self, q: np.ndarray) -> np.ndarray:
         """Position ripple torque applied to the joints (7,) or (n, 7)."""
-        return ripple_torque_Nm(q, self.ripple_amplitude_Nm, self.ripple_wavenumber_rad, self.ripple_phase_rad)
+        q = np.asarray(q, float)
+        return np.stack([ripple_torque_Nm(q[..., j], self.ripple_amplitudes_Nm[:, j], self.ripple_wavenumber_rad[j],
+                                          self.ripple_phases_rad[:, j]) for j in range(P.N_JOINTS)], axis=-1)
 
     def friction_scale(self, t_s: float) -> np.ndarray:
         """(7,) friction multiplier at time t (1 without drift)."""

@@ -101,12 +101,21 @@ class StribeckEffect(Strict):
     delta: float = Field(2.0, gt=0.0, le=5.0)
 
 
+class RippleHarmonic(Strict):
+    """One harmonic above the fundamental of a position ripple."""
+    amplitude_Nm: float = Field(ge=0.0, le=20.0)
+    phase_rad: float = 0.0
+
+
 class RippleEffect(Strict):
-    """Torque periodic in the joint angle: ``tau = amplitude sin(2 pi q / period + phase)`` (cogging, cables)."""
+    """Torque periodic in the joint angle (cogging, cables, gears): ``tau = amplitude sin(2 pi q / period + phase)``
+    plus, optionally, its harmonics ``amplitude_h sin(2 pi h q / period + phase_h)``, h = 2, 3, ... in the order of
+    ``harmonics`` (none: one sinusoid)."""
     joints: list[Joint]
     amplitude_Nm: float = Field(0.5, gt=0.0, le=20.0)
     period_rad: float = Field(0.2, ge=0.005, le=6.3)
     phase_rad: float = 0.0
+    harmonics: list[RippleHarmonic] = Field(default_factory=list, max_length=7)
 
 
 class PayloadEffect(Strict):

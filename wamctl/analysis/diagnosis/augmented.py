@@ -11,10 +11,10 @@
   itself (the run's reference and controller on a simulated arm built from a plant mapping) is a callable
   the caller hands in.
 
-Documented approximations: a model file holds one parameter set per effect (one ripple period, one drift
-time constant, one dead band, one Stribeck ratio and velocity) even when the diagnosis found an effect at
-several joints with different parameters (the strongest joint's set is written); joints that did not move
-keep the declared friction (Table 4.1, or the given model file's).
+Documented approximations: a model file holds one parameter set per effect (one ripple period with its
+harmonics, one drift time constant, one dead band, one Stribeck ratio and velocity) even when the diagnosis found
+an effect at several joints with different parameters (the strongest joint's set is written); joints that did not
+move keep the declared friction (Table 4.1, or the given model file's).
 """
 
 from __future__ import annotations
@@ -24,6 +24,7 @@ import logging
 import numpy as np
 
 from wamctl.analysis.diagnosis.backlash import resolution_rad
+from wamctl.analysis.diagnosis.candidates import ripple_harmonics
 from wamctl.analysis.diagnosis.design import block_of, levels_dict, model_levels
 from wamctl.control.controllers import pid_torque_series_Nm
 from wamctl.io import MODEL_FILE_FORMAT
@@ -122,9 +123,13 @@ def _effects_after(diag, thetas, joints_friction) -> dict:
                                "vs_rad_s": _clip(float(np.median(vss)), 1e-4, 5.0),
                                "delta": _clip(float(p.get("stribeck_delta", 2.0)), 0.5, 4.0)}
         elif name == "position_ripple":
-            out["position_ripple"] = {"joints": [j + 1], "amplitude_Nm": _clip(p["amplitude_Nm"], 1e-6, 20.0),
+            amps, phases = ripple_harmonics(p)
+            out["position_ripple"] = {"joints": [j + 1], "amplitude_Nm": _clip(amps[0], 1e-6, 20.0),
                                       "period_rad": _clip(p["period_rad"], 0.005, 6.3),
-                                      "phase_rad": float(p["phase_rad"])}
+                                      "phase_rad": float(phases[0])}
+            if len(amps) > 1:         # the harmonics (a one-sinusoid ripple writes the model file as before)
+                out["position_ripple"]["harmonics"] = [{"amplitude_Nm": _clip(a, 0.0, 20.0), "phase_rad": float(ph)}
+                                                       for a, ph in zip(amps[1:], phases[1:])]
         elif name == "payload":
             pl = thetas.get("payload") if thetas and thetas.get("payload") else diag.payload_ or p
             if pl and pl["mass_kg"] > 0:

@@ -10,7 +10,8 @@ Columns are built at the full rate and smoothed like the torque.
 name               change of the model                                                grid            cols
 =================  =================================================================  ==============  =====
 stribeck           [qd>0] e^-(qd/vs)^2, -[qd<0] e^-(qd/vs)^2                          vs 4-400 mrad/s  2
-position_ripple    sin, cos of 2 pi q / P                                             P 0.01-2 rad     2
+position_ripple    sin, cos of 2 pi h q / P, h = 1 .. H (a fundamental and harmonics)  P 0.01-2 rad,   2 H
+                                                                                      H 1-4
 payload            link-7 columns of the joint torque regressor (m, m c, inertia),    none             10
                    the directions the joint's motion excites
 delay              the whole model evaluated at the positions d later                 d 1-20 ms        0
@@ -35,6 +36,8 @@ ARM_ONLY = ("link_parameters",)     # tested over the whole arm only (:mod:`wamc
 STRIBECK_VS_GRID_RAD_S = np.geomspace(0.004, 0.4, 13)
 RIPPLE_PERIOD_MIN_RAD = 0.01
 RIPPLE_PERIOD_MAX_RAD = 2.0
+RIPPLE_MAX_HARMONICS = 4          # a ripple's fundamental and up to three harmonics
+RIPPLE_MIN_PERIODS = 1.25         # a ripple is named only where the joint's travel covers this many periods
 DELAY_GRID_S = np.arange(2, 41) * 0.5e-3                # 1 to 20 ms
 DRIFT_T_GRID_FRACTION = np.geomspace(0.05, 4.0, 12)    # time constants as fractions of the run length
 D7_M = float(P.DH_D_M[6])
@@ -59,12 +62,36 @@ def ripple_gain(qd: np.ndarray, period: float, window: int, gauss: float, dt_s: 
 
 
 def ripple_columns(q: np.ndarray, qd: np.ndarray, period: float, window: int, gauss: float,
-                   dt_s: float) -> np.ndarray:
-    """sin/cos of 2 pi q / period (m, 2), attenuated as the smoothing filter attenuates them at the current
-    speed (used to compare candidate periods; the kept columns are smoothed exactly)."""
-    gain = ripple_gain(qd, period, window, gauss, dt_s)
-    ph = 2 * np.pi * q / period
-    return np.column_stack([gain * np.sin(ph), gain * np.cos(ph)])
+                   dt_s: float, n_harmonics: int = 1) -> np.ndarray:
+    """sin/cos of 2 pi h q / period, h = 1 .. ``n_harmonics`` (m, 2 H: sin and cos of each harmonic in turn), each
+    attenuated as the smoothing filter attenuates it at the current speed (harmonic h passes at ``h |qd| /
+    period``). Used to compare candidate periods and for a declared ripple; the kept columns are smoothed
+    exactly."""
+    z1 = np.exp(2j * np.pi * np.asarray(q, float) / period)      # cos + i sin of the fundamental's phase
+    z = np.ones_like(z1)
+    out = np.empty((len(z1), 2 * n_harmonics))
+    for h in range(1, n_harmonics + 1):
+        z = z * z1                                                  # harmonic h: (cos + i sin)^h
+        gain = ripple_gain(qd, period / h, window, gauss, dt_s)
+        out[:, 2 * h - 2] = gain * z.imag
+        out[:, 2 * h - 1] = gain * z.real
+    return out
+
+
+def ripple_key(h: int, what: str) -> str:
+    """The report's key of harmonic ``h`` (1: the fundamental) of a ripple: ``amplitude_Nm``, ``phase_rad`` for
+    the fundamental, ``amplitude_2_Nm``, ``phase_2_rad``, ... for the harmonics."""
+    unit = {"amplitude": "Nm", "phase": "rad"}[what]
+    return f"{what}_{unit}" if h == 1 else f"{what}_{h}_{unit}"
+
+
+def ripple_harmonics(p: dict) -> tuple[np.ndarray, np.ndarray]:
+    """(amplitudes (H,), phases (H,)) of harmonics 1 .. H of a ripple's report parameters ``p`` (a one-sinusoid
+    ripple without ``n_harmonics``)."""
+    n = int(p.get("n_harmonics") or 1)
+    amps = np.array([float(p[ripple_key(h, "amplitude")]) for h in range(1, n + 1)])
+    phases = np.array([float(p[ripple_key(h, "phase")]) for h in range(1, n + 1)])
+    return amps, phases
 
 
 PAYLOAD_RANK_RTOL = 1e-3     # payload directions a joint's motion excites less than this (singular values) are left out

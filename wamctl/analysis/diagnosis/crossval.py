@@ -12,6 +12,8 @@ import numpy as np
 from wamctl.analysis.diagnosis.candidates import (
     DELAY_GRID_S,
     DRIFT_T_GRID_FRACTION,
+    RIPPLE_MAX_HARMONICS,
+    RIPPLE_MIN_PERIODS,
     RIPPLE_PERIOD_MAX_RAD,
     RIPPLE_PERIOD_MIN_RAD,
     STRIBECK_VS_GRID_RAD_S,
@@ -26,7 +28,14 @@ from wamctl.analysis.diagnosis.design import (
     fit_theta,
     target_and_design,
 )
-from wamctl.analysis.diagnosis.stats import lstsq, orth_basis, project_out, projection_gain
+from wamctl.analysis.diagnosis.stats import (
+    MIN_EFFECT,
+    effective_tau,
+    lstsq,
+    orth_basis,
+    project_out,
+    projection_gain,
+)
 
 
 # ---------------------------------------------------------------------------------------------- shapes
@@ -47,6 +56,8 @@ def default_shape(des: Design, name: str | None):
     """Shape parameter of a fold with no samples of its own: the middle of the grid."""
     if name is None:
         return None
+    if name == "position_ripple":
+        return 0.2, 1
     g = shape_grid(des, name)
     return g[len(g) // 2] if g else 0.2
 
@@ -110,17 +121,101 @@ def select_delay(des: Design, jd: JointData, rows: np.ndarray, terms=()) -> floa
 
 
 def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.ndarray,
-                         y_all: np.ndarray) -> float:
-    """Period (rad) of the strongest position-periodic component of the base residual on ``rows``.
+                         y_all: np.ndarray) -> tuple[float, int]:
+    """Shape ``(period (rad), harmonics H)`` of the strongest position-periodic component of the base residual on
+    ``rows``: a fundamental and its harmonics 2 .. H (a Fourier series in the angle).
 
-    The residual is binned over the joint angle (bins of a tenth of the shortest period) and its
-    periodogram over the angle taken by FFT (zero-padded 4x); the highest peaks are then compared by
-    their exact least-squares gain (filter-attenuated sin/cos, see ``ripple_columns``)."""
+    1. The residual is binned over the joint angle (bins of a tenth of the shortest period) and its periodogram
+       over the angle taken by FFT (zero-padded 4x); the highest peaks are compared by the exact least-squares
+       gain of one filter-attenuated sinusoid (see ``ripple_columns``) and the best is refined.
+    2. The strongest peak may be the fundamental or one of its harmonics (a harmonic can be stronger than the
+       fundamental): the candidate fundamentals are its frequency divided by 1 .. ``RIPPLE_MAX_HARMONICS``.
+    3. Fundamental and H are chosen together by BIC over the series' in-sample gain, with the effective sample
+       count of the residual: each harmonic (2 columns) must be worth its columns, and a longer period ``m P``
+       must explain more than its harmonics that make the series of ``P``, by at least ``MIN_EFFECT`` of its gain
+       (else the ripple's period is ``P``: a fundamental that carries next to nothing is not the period). The
+       chosen period is then refined.
+    Periods are searched up to the joint's travel over ``RIPPLE_MIN_PERIODS`` (a longer one cannot be shown to
+    repeat, see :func:`wamctl.analysis.diagnosis.joint.plausible`)."""
+    sub = rows[:: max(1, len(rows) // 6000)]
+    Us = orth_basis(Xb[sub])
+    rs = project_out(Us, y_all[sub])
+    # the band: up to the joint's whole travel over RIPPLE_MIN_PERIODS (the angles visited are the design, not the
+    # held-out outcome: a fold whose training blocks happen to miss an end must not lose the true period)
+    lo = max(1 / RIPPLE_PERIOD_MAX_RAD, RIPPLE_MIN_PERIODS / max(float(np.ptp(jd.q_rad)), 1e-9))
+    hi = 1 / RIPPLE_PERIOD_MIN_RAD
+    ks, step = _ripple_peaks(jd.q_rad[rows], project_out(orth_basis(Xb[rows]), y_all[rows]), lo)
+    if not len(ks):
+        return 1 / lo, 1
+    q, qd = jd.q_rad[sub], jd.qd_rad_s[sub]
     sig = des.sig
-    U = orth_basis(Xb[rows])
-    y = y_all[rows]
-    r = project_out(U, y)
-    q = jd.q_rad[rows]
+
+    def gains(k: float, nh: int) -> np.ndarray:
+        """(nh,) in-sample gain of the series at fundamental ``k`` (cycles/rad) with 1 .. nh harmonics."""
+        Z = project_out(Us, ripple_columns(q, qd, 1 / k, sig.window, sig.gauss, sig.dt_s, nh))
+        return nested_gains(Z, rs)
+
+    peak = ks[int(np.argmax([gains(k, 1)[0] for k in ks]))]
+    peak = float(np.clip(_refine_peak(lambda kk: gains(kk, 1)[0], peak, step), lo, hi))
+    table = {m: gains(peak / m, RIPPLE_MAX_HARMONICS) for m in range(1, RIPPLE_MAX_HARMONICS + 1)
+             if lo <= peak / m <= hi}
+    ss0 = float(rs @ rs)
+    # the residual's effective sample count, once the fullest series is fitted (the ripple itself would count as
+    # autocorrelation)
+    m_full = max(table, key=lambda m: table[m][-1])
+    Z = project_out(Us, ripple_columns(q, qd, m_full / peak, sig.window, sig.gauss, sig.dt_s, RIPPLE_MAX_HARMONICS))
+    n_eff = len(sub) / max(effective_tau(project_out(orth_basis(Z), rs), jd.fold[sub]), 1.0)
+    crit = {(m, nh): n_eff * np.log(max(ss0 - table[m][nh - 1], 1e-300 * ss0) / ss0) + 2 * nh * np.log(n_eff)
+            for m in table for nh in range(1, RIPPLE_MAX_HARMONICS + 1) if _fundamental_carries(table, m, nh)}
+    m, nh = min(crit, key=crit.get)
+    return 1.0 / _refine_peak(lambda kk: gains(kk, nh)[-1], peak / m, 0.25 * step / m), int(nh)
+
+
+def _refine_peak(f, k: float, half_width: float, rounds: int = 3) -> float:
+    """The maximum of a smooth peak ``f`` near ``k`` (within ``2 half_width``): five points over ``k +- half_width``,
+    the best one the centre of the next five at half the width (``rounds`` times), then the vertex of the parabola
+    through the best and its neighbours (kept when it is better)."""
+    seen = {}
+
+    def val(x):
+        if x not in seen:
+            seen[x] = f(x)
+        return seen[x]
+
+    hw = half_width
+    for _ in range(rounds):
+        ks = k + hw * np.linspace(-1.0, 1.0, 5)
+        g = np.array([val(kk) for kk in ks])
+        i = int(np.argmax(g))
+        k = float(ks[i])
+        if 0 < i < 4:
+            hw /= 2
+    if 0 < i < 4:
+        den = g[i - 1] - 2 * g[i] + g[i + 1]
+        if den < 0:
+            kv = float(ks[i] + 0.5 * (ks[1] - ks[0]) * (g[i - 1] - g[i + 1]) / den)
+            if val(kv) > g[i]:
+                return kv
+    return k
+
+
+def _fundamental_carries(table: dict, m: int, nh: int) -> bool:
+    """Whether the series at fundamental ``peak / m`` with ``nh`` harmonics (``table[m]``: its prefix gains)
+    explains at least ``MIN_EFFECT`` of its gain beyond its harmonics that make the series of a shorter period
+    ``peak / (m / d)`` (every divisor ``d`` of ``m``)."""
+    g = table[m][nh - 1]
+    for d in range(2, m + 1):
+        if m % d == 0 and (m // d) in table:
+            g_short = table[m // d][nh // d - 1] if nh // d >= 1 else 0.0
+            if g - g_short < MIN_EFFECT * g:
+                return False
+    return True
+
+
+def _ripple_peaks(q: np.ndarray, r: np.ndarray, lo: float) -> tuple[np.ndarray, float]:
+    """Candidate ripple frequencies (cycles/rad, from ``lo``) of the residual ``r`` (m,) over the angle ``q`` (m,):
+    the eight highest peaks of its periodogram over the angle (in the band of periods searched); and the
+    periodogram's frequency resolution."""
     dq = RIPPLE_PERIOD_MIN_RAD / 10
     q0 = float(q.min())
     nb = int(np.ptp(q) / dq) + 2
@@ -129,25 +224,32 @@ def select_ripple_period(des: Design, jd: JointData, rows: np.ndarray, Xb: np.nd
     L = min(L, 1 << 22)
     power = np.abs(np.fft.rfft(rb, L)) ** 2
     k = np.arange(len(power)) / (L * dq)                      # cycles per rad
-    band = (k >= 1 / RIPPLE_PERIOD_MAX_RAD) & (k <= 1 / RIPPLE_PERIOD_MIN_RAD)
+    hi = 1 / RIPPLE_PERIOD_MIN_RAD
+    band = (k >= lo) & (k <= hi)
+    step = 1.0 / (L * dq)
     if not band.any():
-        return RIPPLE_PERIOD_MAX_RAD
+        return np.zeros(0), step
     pb = np.where(band, power, -1.0)
     peak = (pb[1:-1] >= pb[:-2]) & (pb[1:-1] >= pb[2:]) & band[1:-1]
     cand = np.flatnonzero(peak) + 1
     if len(cand) == 0:
         cand = np.array([int(np.argmax(pb))])
-    cand = cand[np.argsort(pb[cand])[-8:]]
-    step = 1.0 / (L * dq)
-    ks = np.unique(np.concatenate([k[c] + step * np.linspace(-0.5, 0.5, 5) for c in cand]))
-    ks = ks[(ks >= 1 / RIPPLE_PERIOD_MAX_RAD) & (ks <= 1 / RIPPLE_PERIOD_MIN_RAD)]
-    sub = rows[:: max(1, len(rows) // 6000)]
-    Us = orth_basis(Xb[sub])
-    ys = y_all[sub]
-    rs = project_out(Us, ys)
-    gains = [projection_gain(Us, rs, ripple_columns(jd.q_rad[sub], jd.qd_rad_s[sub], 1 / kk, sig.window,
-                                                     sig.gauss, sig.dt_s)) for kk in ks]
-    return float(1.0 / ks[int(np.argmax(gains))])
+    return k[cand[np.argsort(pb[cand])[-8:]]], step
+
+
+def nested_gains(Z: np.ndarray, r: np.ndarray) -> np.ndarray:
+    """(p / 2,) drop of the sum of squares of ``r`` when the first 2, 4, ... columns of ``Z`` (m, p; already
+    orthogonal to the model ``r`` is the residual of) are added: the gains of nested column blocks, from one
+    Cholesky-like pass over their Gram matrix (ill-conditioned directions dropped)."""
+    G = Z.T @ Z
+    a = Z.T @ r
+    out = []
+    for n in range(2, Z.shape[1] + 1, 2):
+        lam, V = np.linalg.eigh(G[:n, :n])
+        keep = lam > max(lam.max(), 1e-300) * 1e-10
+        b = V[:, keep].T @ a[:n]
+        out.append(float(b @ (b / lam[keep])) if keep.any() else 0.0)
+    return np.maximum.accumulate(np.array(out))
 
 
 # ---------------------------------------------------------------------------------------------- held out

@@ -20,7 +20,7 @@ from wamctl.model.friction import FrictionModel, classic_friction_columns, strib
 
 N_FRICTION = 4                    # classic friction: Coulomb and viscous, per direction
 N_COLUMNS = {"stribeck": 2, "position_ripple": 2, "payload": 10, "delay": 0, "friction_drift": 2,
-             "backlash": 1, "link_parameters": 1}
+             "backlash": 1, "link_parameters": 1}     # a ripple: 2 per harmonic (its term says how many)
 FRICTION_KEYS = ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad", "viscous_neg_Nm_s_rad")
 
 
@@ -104,7 +104,17 @@ def ncols(term: dict) -> int:
         return 0
     if term["name"] == "backlash" and term.get("encoder_side") == "motor":
         return 0      # a gap on the motor side: seen at the onsets only (:mod:`.onset_tests`)
+    if term["name"] == "position_ripple":
+        return 2 * ripple_harmonics_of(term)
     return N_COLUMNS[term["name"]]
+
+
+def ripple_harmonics_of(term: dict) -> int:
+    """Harmonics of a ripple term (shape ``(period, H)``): on all data, or before the refit the most of any fold."""
+    h = term.get("h_all")
+    if h is not None:
+        return int(h[1])
+    return max([int(x[1]) for x in term.get("h_fold", []) if x is not None] or [1])
 
 
 def split_coefs(terms: list[dict], theta: np.ndarray) -> dict:
@@ -225,12 +235,17 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
         return of_speed(lambda v: friction_columns(v, h))
     if name == "stribeck":
         return of_speed(lambda v: stribeck_columns(v, h))
-    if name == "position_ripple":
+    if name == "position_ripple":        # h = (period, harmonics): sin, cos of each harmonic in turn
         q_f = sig.q_raw_rad[:, j]          # the angle as measured (the filter then smooths the feature)
+        period, nh = float(h[0]), int(h[1])
 
         def ripple(q):
-            ph = 2 * np.pi * q / h
-            return np.column_stack([np.sin(ph), np.cos(ph)])
+            z1 = np.exp(2j * np.pi * np.asarray(q, float) / period)     # harmonic k: z1^k = cos + i sin
+            z, out = z1, np.empty(np.shape(q) + (2 * nh,))
+            for k in range(nh):
+                out[..., 2 * k], out[..., 2 * k + 1] = z.imag, z.real
+                z = z * z1
+            return out
         return sig.smooth_at(ripple, jd.idx, shift, source=(("q", j), q_f))
     if name == "payload":
         X = jd.extra["payload"]

@@ -34,11 +34,13 @@ HAS_GRID = {"stribeck": True, "position_ripple": True, "payload": False, "delay"
             "friction_drift": True, "backlash": False, "link_parameters": False}
 
 
-def p_extra(name: str) -> int:
-    """Parameters a candidate adds: its columns plus one per shape parameter chosen on a grid."""
+def p_extra(name: str, term: dict | None = None) -> int:
+    """Parameters a candidate adds: its columns plus one per shape parameter chosen on a grid (a ripple's columns,
+    2 per harmonic, are counted from its ``term``)."""
     from wamctl.analysis.diagnosis.design import N_COLUMNS
 
-    return N_COLUMNS[name] + (1 if HAS_GRID.get(name) else 0)
+    n = ncols(term) if name == "position_ripple" and term is not None else N_COLUMNS[name]
+    return n + (1 if HAS_GRID.get(name) else 0)
 
 
 def passes(t: dict, threshold: float) -> bool:
@@ -58,7 +60,7 @@ def beyond_tests(des: Design, jd: JointData, terms: list[dict], a: dict, b: dict
     out = []
     for x, y in ((a, b), (b, a)):
         share = finite_ss(e_base) / max(finite_ss(y["e"]), 1e-300)
-        t = nested_test(y["e"], e_ab, p_extra(x["name"]), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
+        t = nested_test(y["e"], e_ab, p_extra(x["name"], x["term"]), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
         if x["term"].get("onset_test") and onset_recheck is not None:
             t2 = onset_recheck(x["name"], y["term"])
             if t2 is not None:

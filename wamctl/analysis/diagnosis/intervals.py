@@ -4,12 +4,13 @@
 from __future__ import annotations
 
 import numpy as np
+from scipy import stats
 
 from wamctl.analysis.diagnosis.candidates import DELAY_GRID_S, DRIFT_T_GRID_FRACTION, STRIBECK_VS_GRID_RAD_S
-from wamctl.analysis.diagnosis.design import target_and_design
-from wamctl.analysis.diagnosis.parameters import kept_effect_params
+from wamctl.analysis.diagnosis.design import N_FRICTION, ncols, target_and_design
+from wamctl.analysis.diagnosis.parameters import kept_effect_params, ripple_params
 from wamctl.analysis.diagnosis.stats import effective_tau, lstsq
-from wamctl.analysis.diagnosis.uncertainty import N_BOOT, group_bootstrap, percentile_ci, profile_ci
+from wamctl.analysis.diagnosis.uncertainty import LEVEL, N_BOOT, group_bootstrap, percentile_ci, profile_ci
 
 SHAPE_KEY = {"stribeck": "vs_rad_s", "position_ripple": "period_rad", "delay": "delay_s",
              "friction_drift": "time_constant_s"}
@@ -38,6 +39,8 @@ def joint_intervals(diag, j: int) -> dict:
         base = kept_effect_params(diag, j, name)
         samples = [kept_effect_params(diag, j, name, th) for th in reps]
         nb = len(np.unique(jd.extra["block"]))
+        if name == "position_ripple":
+            samples = [_phases_near(s, base) for s in samples]
         ci = {k: percentile_ci([s.get(k) for s in samples], center=v, n_groups=nb) for k, v in base.items()
               if _numeric(v) and np.ptp([s.get(k, v) for s in samples]) > 0}
         ni = []
@@ -52,14 +55,21 @@ def joint_intervals(diag, j: int) -> dict:
                 lo, hi = profile_ci(grid, ssr, n_eff)
                 ci["vs_rad_s"] = [None if lo is None else min(lo, vs), None if hi is None else max(hi, vs)]
         elif key:
-            h0 = float(t["h_all"])
+            h0 = float(t["h_all"][0] if name == "position_ripple" else t["h_all"])
             grid = _profile_grid(des, name, h0)
-            ssr = [_ssr_with(des, jd, res.kept, i, h) for h in grid]
+            # a ripple's period is profiled with its number of harmonics fixed
+            ssr = [_ssr_with(des, jd, res.kept, i, (h, t["h_all"][1]) if name == "position_ripple" else h)
+                   for h in grid]
+            if name == "position_ripple":          # a sharp profile: resolved where it crosses the threshold
+                grid, ssr = _zoom_profile(grid, ssr, n_eff, lambda h, i=i, nh=t["h_all"][1]: _ssr_with(
+                    des, jd, res.kept, i, (h, nh)))
             lo, hi = profile_ci(grid, ssr, n_eff)
             if (lo, hi) != (None, None):      # the estimate is in its interval (a grid's resolution aside)
                 lo = None if lo is None else min(lo, h0)
                 hi = None if hi is None else max(hi, h0)
             ci[key] = [lo, hi]
+            if name == "position_ripple":
+                _ripple_over_period(des, jd, res.kept, i, ci)
         if name == "backlash":
             ci["width_rad"] = _backlash_ci(diag.onsets_.get(j, {}))
         for k, v in ci.items():
@@ -71,6 +81,63 @@ def joint_intervals(diag, j: int) -> dict:
     return out
 
 
+def _phases_near(sample: dict, base: dict) -> dict:
+    """A bootstrap replicate of a ripple's parameters with each phase taken within pi of the estimate's (a phase
+    is an angle: its interval is the arc around the estimate, its ends may lie below 0 or above 2 pi)."""
+    out = dict(sample)
+    for k, v in sample.items():
+        if k.startswith("phase") and _numeric(v) and _numeric(base.get(k)):
+            out[k] = base[k] + (v - base[k] + np.pi) % (2 * np.pi) - np.pi
+    return out
+
+
+def _ripple_over_period(des, jd, terms: list[dict], i: int, ci: dict) -> None:
+    """Widen the intervals of a ripple's amplitudes and phases (term ``i`` of ``terms``, bootstrapped at its
+    period) to the values they take at the ends of the period's interval: a phase is referred to the angle 0,
+    so the period's uncertainty moves it by ``2 pi h q / P`` times the period's relative change."""
+    period, nh = terms[i]["h_all"]
+    k = N_FRICTION + sum(ncols(t) for t in terms[:i])
+    for p in ci.get("period_rad", [None, None]):
+        if p is None:
+            continue
+        y, X = target_and_design(des, jd, [dict(t, h_all=(p, nh)) if n == i else t for n, t in enumerate(terms)],
+                                 None)
+        for key, v in ripple_params(lstsq(X, y)[k:k + 2 * nh], (p, nh)).items():
+            if key == "period_rad" or key not in ci or None in ci[key]:
+                continue
+            lo, hi = ci[key]
+            if key.startswith("phase"):     # an angle: the value nearest the interval's middle
+                v = (lo + hi) / 2 + (v - (lo + hi) / 2 + np.pi) % (2 * np.pi) - np.pi
+            ci[key] = [min(lo, v), max(hi, v)]
+
+
+def _zoom_profile(hs, ssr, n_eff: float, ssr_of, rounds: int = 4, points: int = 9) -> tuple[np.ndarray,
+                                                                                              np.ndarray]:
+    """A profile (values ``hs``, SSRs ``ssr``) evaluated again, ``points`` values at a time, between the values
+    just outside the interval, until the interval spans five values (at most ``rounds`` times); then at each end
+    where the statistic crosses the threshold (linear between the last value inside and the first outside)."""
+    crit = stats.chi2.ppf(LEVEL, 1)
+
+    def inside_of(hs, ssr):
+        o = np.argsort(hs)
+        hs, ssr = hs[o], ssr[o]
+        return hs, ssr, np.flatnonzero(n_eff * np.log(ssr / ssr.min()) <= crit)
+
+    hs, ssr, inside = inside_of(np.asarray(hs, float), np.asarray(ssr, float))
+    for _ in range(rounds):
+        if len(inside) >= 5:
+            break
+        new = np.linspace(hs[max(inside[0] - 1, 0)], hs[min(inside[-1] + 1, len(hs) - 1)], points)[1:-1]
+        hs, ssr, inside = inside_of(np.r_[hs, new], np.r_[ssr, [ssr_of(h) for h in new]])
+    stat = n_eff * np.log(ssr / ssr.min())
+    ends = []
+    for a, b in ((inside[0], inside[0] - 1), (inside[-1], inside[-1] + 1)):
+        if 0 <= b < len(hs) and stat[b] > stat[a]:
+            ends.append(hs[a] + (hs[b] - hs[a]) * (crit - stat[a]) / (stat[b] - stat[a]))
+    hs, ssr, _ = inside_of(np.r_[hs, ends], np.r_[ssr, [ssr_of(h) for h in ends]])
+    return hs, ssr
+
+
 def _profile_grid(des, name: str, h: float) -> np.ndarray:
     """Shape values the profile likelihood is evaluated at: the candidate's grid and a fine one around ``h``."""
     if name == "delay":
@@ -80,7 +147,7 @@ def _profile_grid(des, name: str, h: float) -> np.ndarray:
         g = np.r_[STRIBECK_VS_GRID_RAD_S, np.geomspace(h / 4, h * 4, 41)]
         g = g[(g >= STRIBECK_VS_GRID_RAD_S[0]) & (g <= STRIBECK_VS_GRID_RAD_S[-1])]
     elif name == "position_ripple":
-        g = h * (1 + np.linspace(-0.1, 0.1, 81))
+        g = h * (1 + np.linspace(-0.1, 0.1, 41))        # then zoomed where it crosses the threshold
     else:
         T = DRIFT_T_GRID_FRACTION * max(des.sig.duration_s, 1e-3)
         g = np.r_[T, np.geomspace(h / 3, h * 3, 41)]

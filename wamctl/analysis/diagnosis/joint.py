@@ -13,7 +13,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.candidates import DELAY_GRID_S, MAX_BREAKAWAY_RATIO, STRIBECK_VS_GRID_RAD_S
+from wamctl.analysis.diagnosis.candidates import (
+    DELAY_GRID_S,
+    MAX_BREAKAWAY_RATIO,
+    RIPPLE_MIN_PERIODS,
+    STRIBECK_VS_GRID_RAD_S,
+)
 from wamctl.analysis.diagnosis.crossval import cv_residual, cv_terms, fit_all
 from wamctl.analysis.diagnosis.design import (
     N_COLUMNS,
@@ -160,7 +165,7 @@ def _backward(des: Design, jd: JointData, terms: list[dict], hidden: list[dict],
             e0 = cv_terms(des, jd, others + hidden)
             k1 = N_FRICTION + sum(ncols(x) for x in terms + hidden)
             share = finite_ss(e_base) / max(finite_ss(e0), 1e-300)
-            test = nested_test(e0, e_full, p_extra(t["name"]), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
+            test = nested_test(e0, e_full, p_extra(t["name"], t), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
             if not passes(test, threshold) and test["p_value"] > worst_p:
                 worst, worst_p = i, test["p_value"]
         if worst is None:
@@ -191,12 +196,14 @@ def _entries(des: Design, jd: JointData, terms: list[dict], remaining: list[str]
         if c == "payload" and "payload" not in jd.extra:
             continue
         e1, h_fold = cv_residual(des, jd, terms, c)
-        k1 = N_FRICTION + sum(ncols(t) for t in terms) + N_COLUMNS[c]
+        term = {"name": c, "h_fold": h_fold}
+        extra = ncols(term) if c == "position_ripple" else N_COLUMNS[c]     # a ripple: 2 per harmonic
+        k1 = N_FRICTION + sum(ncols(t) for t in terms) + extra
         # the minimum effect is a share of what the declared model left, not of what is left now: after a
         # strong effect, the traces of its imperfect model are not new effects
         share = finite_ss(e_base) / max(finite_ss(current), 1e-300)
-        t = nested_test(current, e1, p_extra(c), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
-        out[c] = {"name": c, "test": t, "e": e1, "term": {"name": c, "h_fold": h_fold}}
+        t = nested_test(current, e1, p_extra(c, term), k1, min(MIN_EFFECT * share, 0.9), jd.fold)
+        out[c] = {"name": c, "test": t, "e": e1, "term": term}
         last[c] = dict(t, step=step)
     return out
 
@@ -357,18 +364,21 @@ def _stribeck_plausible(jd: JointData, c: dict) -> tuple[bool, str]:
 def _ripple_plausible(des: Design, jd: JointData, terms: list[dict]) -> tuple[bool, str]:
     """Torque periodic in the angle is the same whichever way the joint turns; a periodic trace of the
     control loop (hunting at a speed-dependent frequency) is not."""
-    h = next(t["h_all"] for t in terms if t["name"] == "position_ripple")
-    amps = []
+    i = [t["name"] for t in terms].index("position_ripple")
+    h = float(terms[i]["h_all"][0])
+    k = N_FRICTION + sum(ncols(t) for t in terms[:i])
+    coefs = []                           # the sin/cos coefficients of every harmonic, per direction
     for m in (jd.qd_rad_s > 0, jd.qd_rad_s < 0):
         if m.sum() < 100 or np.ptp(jd.q_rad[m]) < h:
             continue
         y, X = target_and_design(des, jd, terms, None)
         th = fit_theta(X[m], y[m], des.bounded)
-        k = N_FRICTION + sum(ncols(t) for t in terms[: [t["name"] for t in terms].index("position_ripple")])
-        amps.append(complex(th[k], th[k + 1]))
-    if len(amps) == 2 and abs(amps[0] - amps[1]) > 0.5 * max(abs(amps[0]), abs(amps[1])):
-        return False, (f"the ripple differs between the two directions of motion (amplitudes "
-                       f"{abs(amps[0]):.3g} and {abs(amps[1]):.3g} N m): not a torque periodic in the angle")
+        coefs.append(th[k:k + ncols(terms[i])])
+    if len(coefs) == 2:
+        a0, a1 = (float(np.linalg.norm(c)) for c in coefs)
+        if np.linalg.norm(coefs[0] - coefs[1]) > 0.5 * max(a0, a1):
+            return False, (f"the ripple differs between the two directions of motion (amplitudes {a0:.3g} and "
+                           f"{a1:.3g} N m): not a torque periodic in the angle")
     return _ripple_repeats(des, jd, terms, h)
 
 
@@ -376,34 +386,62 @@ ANGLE_FOLDS = 4
 
 
 def _ripple_repeats(des: Design, jd: JointData, terms: list[dict], period: float) -> tuple[bool, str]:
-    """A torque periodic in the angle repeats: fitted on three quarters of the joint's range of angles, it
-    predicts the fourth (each in turn) better than the model without it. A smooth trend over the range (a
-    link's mass or centre of mass off its declared value), which a sinusoid of a period close to the travel can
-    follow, does not extrapolate to angles it was not fitted on."""
+    """A torque periodic in the angle repeats: fitted on part of the joint's range of angles, it predicts the rest
+    better than the model without it. A smooth trend over the range (a link's mass or centre of mass off its
+    declared value), which a sinusoid of a period close to the travel can follow, does not extrapolate to angles
+    it was not fitted on.
+
+    Over two periods of travel or more, the range is cut in up to ``ANGLE_FOLDS`` parts of a period or more and
+    each is predicted from the others. Over ``RIPPLE_MIN_PERIODS`` to two periods, the angles beyond the first
+    period from each end are predicted from that one period (what it predicts there is the torque one period
+    away); one period determines a periodic torque, so there the ripple must also keep ``ENDS_RECOVERY`` of what
+    it explains at those angles when fitted on the whole range (a trend followed by a sinusoid keeps much less)."""
     travel = float(np.ptp(jd.q_rad))
+    if travel < RIPPLE_MIN_PERIODS * period * (1 + 1e-3):     # at the end of the periods searched, or beyond
+        return False, (f"the joint's travel ({travel:.3g} rad) covers no more than {RIPPLE_MIN_PERIODS:g} periods of "
+                       f"{period:.3g} rad: a torque periodic in the angle cannot be told from a trend over the range")
     folds = min(ANGLE_FOLDS, int(travel // period))
-    if folds < 2:
-        return False, (f"the joint's travel ({travel:.3g} rad) covers less than two periods of {period:.3g} rad: a "
-                       "torque periodic in the angle cannot be told from a trend over the range")
-    edges = np.linspace(jd.q_rad.min(), jd.q_rad.max(), folds + 1)        # angle ranges of a period or more
-    part = np.clip(np.searchsorted(edges, jd.q_rad, side="right") - 1, 0, folds - 1)
-    others = [t for t in terms if t["name"] != "position_ripple"]
-    y1, X1 = target_and_design(des, jd, terms, None)
-    y0, X0 = target_and_design(des, jd, others, None)
-    ss1 = ss0 = 0.0
-    for a in range(folds):
-        te, tr = part == a, part != a
-        if te.sum() < 20 or tr.sum() < X1.shape[1] + 20:
-            continue
-        r1 = y1[te] - X1[te] @ fit_theta(X1[tr], y1[tr], des.bounded)
-        r0 = y0[te] - X0[te] @ fit_theta(X0[tr], y0[tr], des.bounded)
-        ss1 += float(r1 @ r1)
-        ss0 += float(r0 @ r0)
+    q0, q1 = float(jd.q_rad.min()), float(jd.q_rad.max())
+    if folds >= 2:
+        edges = np.linspace(q0, q1, folds + 1)        # angle ranges of a period or more
+        part = np.clip(np.searchsorted(edges, jd.q_rad, side="right") - 1, 0, folds - 1)
+        held = [part == a for a in range(folds)]
+    else:
+        held = [jd.q_rad > q0 + period, jd.q_rad < q1 - period]
+    ss = _angle_held_out(des, jd, terms, held)
+    (ss1, ss0), (in1, in0) = ss["out"], ss["in"]
     if ss0 > 0 and ss1 >= ss0 * (1.0 - MIN_EFFECT):
         return False, (f"a ripple of period {period:.3g} rad fitted on part of the joint's range does not predict "
                        f"the rest (held-out angle ranges: {ss1 / ss0:.2f} of the residual without it): a trend "
                        "over the range, not a torque periodic in the angle")
+    if folds < 2 and ss0 - ss1 < ENDS_RECOVERY * (in0 - in1):
+        return False, (f"a ripple of period {period:.3g} rad fitted on one period of the joint's range explains "
+                       f"{(ss0 - ss1) / max(in0 - in1, 1e-300):.2f} of what it explains at the other angles when "
+                       "fitted on all of them: a trend over the range, not a torque periodic in the angle")
     return True, ""
+
+
+ENDS_RECOVERY = 0.75
+
+
+def _angle_held_out(des: Design, jd: JointData, terms: list[dict], held: list[np.ndarray]) -> dict:
+    """Residual sums of squares over the angle ranges ``held`` of the model with the ripple and without it:
+    ``out``: each range predicted by the models fitted on the other angles; ``in``: by the models fitted on all."""
+    others = [t for t in terms if t["name"] != "position_ripple"]
+    y1, X1 = target_and_design(des, jd, terms, None)
+    y0, X0 = target_and_design(des, jd, others, None)
+    th1, th0 = fit_theta(X1, y1, des.bounded), fit_theta(X0, y0, des.bounded)
+    out, inside = np.zeros(2), np.zeros(2)
+    for te in held:
+        tr = ~te
+        if te.sum() < 20 or tr.sum() < X1.shape[1] + 20:
+            continue
+        for k, (y, X, th) in enumerate(((y1, X1, th1), (y0, X0, th0))):
+            r = y[te] - X[te] @ fit_theta(X[tr], y[tr], des.bounded)
+            out[k] += float(r @ r)
+            r = y[te] - X[te] @ th
+            inside[k] += float(r @ r)
+    return {"out": tuple(out), "in": tuple(inside)}
 
 
 MIN_DELAY_S = 1.5e-3       # three quarters of a control period: below, the loop's own timing (ZOH, ticks)

@@ -21,7 +21,7 @@ from wamctl.analysis.diagnosis.backlash import (
     resolution_rad,
     signed_travel,
 )
-from wamctl.analysis.diagnosis.candidates import MAX_BREAKAWAY_RATIO, STRIBECK_VS_GRID_RAD_S
+from wamctl.analysis.diagnosis.candidates import MAX_BREAKAWAY_RATIO, STRIBECK_VS_GRID_RAD_S, ripple_harmonics
 from wamctl.analysis.diagnosis.design import Design, block_of, levels, levels_dict
 from wamctl.analysis.diagnosis.prepare import link_base_rows
 from wamctl.analysis.diagnosis.signals import Signals, delayed
@@ -179,8 +179,8 @@ def _onset_window(des: Design, dyn0: WamDynamics, j: int, o, model: OnsetModel, 
     if model.links is not None:
         u = u - _links_torque(model.links, dyn0, sig, ii, j)
     if model.ripple:
-        r = model.ripple
-        u += ripple_torque_Nm(q_raw[ii], r["amplitude_Nm"], 2 * np.pi / r["period_rad"], r["phase_rad"])
+        amps, phases = ripple_harmonics(model.ripple)
+        u += ripple_torque_Nm(q_raw[ii], amps, 2 * np.pi / model.ripple["period_rad"], phases)
     scale = 1.0
     if model.drift:
         scale = float(friction_drift_scale(o.t_s - sig.t_s[0], model.drift["fraction"],

@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.candidates import payload_from_pi
+from wamctl.analysis.diagnosis.candidates import payload_from_pi, ripple_key
 from wamctl.analysis.diagnosis.design import (
     columns,
     declared_levels,
@@ -95,11 +95,18 @@ def stribeck_params(fr: np.ndarray, coef: np.ndarray, vs_rad_s: float, term: dic
     return out
 
 
-def ripple_params(coef: np.ndarray, period_rad: float) -> dict:
-    """Amplitude and phase of the ripple ``A sin(2 pi q / P + phase)`` from its sin/cos coefficients (2,)."""
-    a, b = -coef[0], -coef[1]          # y = friction - ripple: the plant's ripple is minus the fit
-    return {"amplitude_Nm": float(np.hypot(a, b)), "period_rad": float(period_rad),
-            "phase_rad": float(np.arctan2(b, a) % (2 * np.pi))}
+def ripple_params(coef: np.ndarray, shape: tuple[float, int]) -> dict:
+    """Period, amplitude and phase of each harmonic of the ripple ``sum_h A_h sin(2 pi h q / P + phase_h)`` from
+    its sin/cos coefficients (2 H,) and its shape ``(P, H)`` (keys: :func:`...candidates.ripple_key`), the number
+    of harmonics and the ripple's RMS ``sqrt(sum A_h^2 / 2)``."""
+    period_rad, nh = float(shape[0]), int(shape[1])
+    out = {"period_rad": period_rad, "n_harmonics": nh}
+    for h in range(1, nh + 1):
+        a, b = -coef[2 * h - 2], -coef[2 * h - 1]   # y = friction - ripple: the plant's ripple is minus the fit
+        out[ripple_key(h, "amplitude")] = float(np.hypot(a, b))
+        out[ripple_key(h, "phase")] = float(np.arctan2(b, a) % (2 * np.pi))
+    out["rms_Nm"] = float(np.sqrt(0.5 * np.sum(np.asarray(coef[:2 * nh], float) ** 2)))
+    return out
 
 
 def drift_params(X: np.ndarray, fr: np.ndarray, coef: np.ndarray, tb: np.ndarray, T_s: float) -> dict:

@@ -12,12 +12,12 @@ from __future__ import annotations
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.candidates import payload_basis, ripple_gain
+from wamctl.analysis.diagnosis.candidates import payload_basis, ripple_columns
 from wamctl.analysis.diagnosis.design import Design, JointData
 from wamctl.analysis.diagnosis.signals import GridSignal, Signals
 from wamctl.model import params as P
 from wamctl.model.dynamics import WamDynamics
-from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
+from wamctl.model.effects import friction_drift_scale, ripple_series, ripple_torque_Nm
 from wamctl.model.friction import FrictionModel
 
 N7 = P.N_JOINTS
@@ -146,11 +146,13 @@ def declared_torque(sig: Signals, friction: FrictionModel | None, effects: dict 
     if fx.get("position_ripple"):
         s = fx["position_ripple"]
         per = float(s.get("period_rad", 0.2))
+        amps, phases = ripple_series(s.get("amplitude_Nm", 0.5), s.get("phase_rad", 0.0), s.get("harmonics"))
+        sin_cos = np.ravel(np.column_stack([amps * np.cos(phases), amps * np.sin(phases)]))
         for jj in s["joints"]:
             j = jj - 1
-            rip = ripple_torque_Nm(sig.q_rad[:, j], float(s.get("amplitude_Nm", 0.5)), 2 * np.pi / per,
-                                   float(s.get("phase_rad", 0.0)))
-            # the model's torque is smoothed like the measured one: the ripple as the filter leaves it
-            out[:, j] -= ripple_gain(sig.qd_rad_s[:, j], per, sig.window, sig.gauss, sig.dt_s) * rip
-            other[:, j] -= rip
+            q = sig.q_rad[:, j]
+            # the model's torque is smoothed like the measured one: each harmonic as the filter leaves it
+            out[:, j] -= ripple_columns(q, sig.qd_rad_s[:, j], per, sig.window, sig.gauss, sig.dt_s,
+                                        len(amps)) @ sin_cos
+            other[:, j] -= ripple_torque_Nm(q, amps, 2 * np.pi / per, phases)
     return out, other
