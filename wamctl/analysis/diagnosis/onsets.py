@@ -207,7 +207,8 @@ def _payload_torque(dyn: WamDynamics, dyn0: WamDynamics, sig: Signals, ii: np.nd
 def _links_torque(links: tuple[np.ndarray, np.ndarray], dyn0: WamDynamics, sig: Signals, ii: np.ndarray,
                   j: int) -> np.ndarray:
     """(len(ii),) torque a kept link refit (base columns, coefficients) adds at joint ``j`` along samples ``ii``
-    (the joint's own velocity and acceleration zeroed), computed every 10 ms and interpolated."""
+    (the joint's own velocity and acceleration zeroed), computed every fifth sample (10 ms at 500 Hz) and
+    interpolated."""
     cols, beta = links
     pts = np.unique(np.r_[ii[::5], ii[-1]])
     Q, QD, QDD = sig.at("q", pts), sig.at("qd", pts).copy(), sig.at("qdd", pts).copy()
