@@ -195,7 +195,7 @@ def _onset_window(des: Design, dyn0: WamDynamics, j: int, o, model: OnsetModel, 
 
 def _payload_torque(dyn: WamDynamics, dyn0: WamDynamics, sig: Signals, ii: np.ndarray, j: int) -> np.ndarray:
     """(len(ii),) torque a kept payload adds at joint ``j`` along samples ``ii`` (the joint's own velocity and
-    acceleration zeroed), computed every 10 ms and interpolated."""
+    acceleration zeroed), computed every fifth sample (10 ms at 500 Hz) and interpolated."""
     pts = np.unique(np.r_[ii[::5], ii[-1]])
     Q, QD, QDD = sig.at("q", pts), sig.at("qd", pts).copy(), sig.at("qdd", pts).copy()
     QD[:, j] = QDD[:, j] = 0.0
