@@ -145,12 +145,13 @@ def payload_rejection(fit: dict, not_identified: list[str] = ()) -> str | None:
 def payload_links_reason(dec: dict | None) -> str | None:
     """Why the payload candidate is not named, from the payload-or-links decision (None: it stands)."""
     from wamctl.analysis.diagnosis.links import WIDE_PRIOR
-    from wamctl.analysis.diagnosis.rigid import LINK_PRIOR_SHARE
+    from wamctl.analysis.diagnosis.rigid import LINK_PRIOR_COM_M, LINK_PRIOR_SHARE
 
     if dec is None or dec["outcome"] == "payload":
         return None
     t1 = dec["tests"]["beyond_links"]
-    acc = f"+-{LINK_PRIOR_SHARE:.0%} of each link's mass, centre of mass and inertia"
+    acc = (f"+-{LINK_PRIOR_SHARE:.0%} of each link's mass, inertia and armature, +-({LINK_PRIOR_SHARE:.0%} of its "
+           f"distance + {1e3 * LINK_PRIOR_COM_M:g} mm) in each coordinate of its centre of mass")
     if dec["outcome"] == "link_parameters":
         return (f"link errors within the declared accuracy ({acc}) explain the held-out torques as well: a wrist "
                 f"payload does not add to them (p = {t1['p_value']:.3g})")
