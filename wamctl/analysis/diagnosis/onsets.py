@@ -330,7 +330,8 @@ def _held_out_levels(ons: dict, w: dict, fold: int, kept: dict,
         t = kept["backlash"]
         side = -1.0 if t.get("encoder_side") == "motor" else 1.0
         wf = fold_coef.get("backlash", {}).get(fold)
-        band = side * max(side * wf if wf is not None else t["width_rad"], 0.0)
+        # a fold whose training onsets hold no reversal has no band of its own: the fit on all onsets
+        band = side * max(side * wf if wf is not None and np.isfinite(wf) else t["width_rad"], 0.0)
     return ratio, band
 
 
