@@ -58,6 +58,7 @@ def test_motor_side_backlash_is_named_with_its_width(motor_side):
     e = next(e for e in joint["effects"] if e["name"] == "backlash")
     p, ci = e["params"], e["params_ci"]["width_rad"]
     assert p["encoder_side"] == "motor"
+    assert "gravity_offset_rad" not in p          # a gap on the motor side has no gravity offset column
     assert 0.5 * GAP_RAD <= p["width_rad"] <= 2.0 * GAP_RAD, p
     assert ci[0] <= p["width_rad"] <= ci[1] and ci[1] - ci[0] < p["width_rad"]
     assert joint["torque_rms_after_Nm"] <= 0.8 * joint["torque_rms_before_Nm"]

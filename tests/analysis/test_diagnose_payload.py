@@ -149,6 +149,8 @@ def test_sweep_of_one_joint_with_a_large_payload_is_named_payload(tmp_path):
     e = next(e for e in out["joints"]["4"]["effects"] if e["name"] == "payload")
     assert {"mass_kg", "com_x_m", "com_y_m", "com_z_m"} <= set(e["not_identified"])
     assert e["params"]["mass_kg"] is None and e["params"]["com_m"] == [None, None, None]
+    for k in ("mass_kg", "com_x_m", "com_y_m", "com_z_m"):     # nor an interval
+        assert e["params_ci"][k] == [None, None], (k, e["params_ci"][k])
 
 
 @pytest.mark.parametrize("excitation, joint, seed", [("free", 3, 9160), ("sweep", 2, 9170)])

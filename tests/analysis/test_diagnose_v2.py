@@ -286,3 +286,27 @@ def test_every_effect_carries_intervals(independent):
                     if v is not None and lo is not None and hi is not None:
                         assert lo <= v <= hi, (cid, e["name"], k)
                 assert "not_identified" in e
+
+
+def test_a_candidate_an_arm_wide_check_ruled_out_stays_out(two_joints, monkeypatch):
+    """A joint diagnosed again by a later arm-wide check (the breakaways, say) keeps out what an earlier one ruled
+    out there (a payload the links explain, a delay the other joints contradict), keeps the ambiguity that check
+    left, and keeps the arm's one payload term where the arm has a payload."""
+    _, diag, _ = two_joints
+    j = 3                                              # joint 4 (0-based 3): it carries the arm's payload
+    assert diag.payload_ is not None and j + 1 in diag.payload_["joints_fitted"]
+    seen = []
+    real = diag._diagnose_joint
+    monkeypatch.setattr(diag, "_diagnose_joint", lambda jd, tests, rejected=None: seen.append(dict(rejected))
+                        or real(jd, tests, rejected))
+    group = {"names": ["payload", "link_parameters"], "step": "arm", "evidence": {}}
+    diag.rejected_[j] = {"delay": "the other joints contradict it"}
+    diag.arm_ambiguous_[j] = [group]
+    tests = ["stribeck", "position_ripple", "payload", "friction_drift"]
+    diag._rediagnose(j, tests, "stribeck", "the breakaways show none")
+    assert seen == [{"delay": "the other joints contradict it", "stribeck": "the breakaways show none"}]
+    res = diag.joints_[j]
+    assert group in res.ambiguous
+    kept = {t["name"]: t for t in res.kept}
+    assert "stribeck" not in kept and "delay" not in kept
+    assert kept["payload"]["h_all"] == ("global", None)      # the arm's one payload, not the joint's own fit

@@ -77,8 +77,9 @@ def payload_system(des: Design, joints: dict, jds: dict, rows_of=None):
 def payload_uncertainty(des: Design, joints: dict, jds: dict) -> tuple[dict, list[str]]:
     """95 % intervals of the arm's payload (``mass_kg``, ``com_x_m``, ``com_y_m``, ``com_z_m``; a bootstrap over the
     time blocks of each joint that fitted it) and the keys the motion cannot determine: the mass when its column
-    is not in the row space of the regressor, a centre-of-mass component when its first moment (or the mass) is
-    not, or when its interval is wider than the range a wrist payload may have (``PAYLOAD_MAX_COM_M``)."""
+    is not in the row space of the regressor, or its interval reaches zero or is wider than ``MASS_CI_MAX_SHARE``
+    of it; a centre-of-mass component when the mass or its first moment is not determined, or when its interval
+    is wider than ``COM_CI_MAX_WIDTH_M``. What is not determined has no interval either (``[None, None]``)."""
     from wamctl.analysis.diagnosis.uncertainty import estimable, group_bootstrap, percentile_ci
 
     system = payload_system(des, joints, jds)
@@ -144,12 +145,13 @@ def payload_rejection(fit: dict, not_identified: list[str] = ()) -> str | None:
 def payload_links_reason(dec: dict | None) -> str | None:
     """Why the payload candidate is not named, from the payload-or-links decision (None: it stands)."""
     from wamctl.analysis.diagnosis.links import WIDE_PRIOR
-    from wamctl.analysis.diagnosis.rigid import LINK_PRIOR_SHARE
+    from wamctl.analysis.diagnosis.rigid import LINK_PRIOR_COM_M, LINK_PRIOR_SHARE
 
     if dec is None or dec["outcome"] == "payload":
         return None
     t1 = dec["tests"]["beyond_links"]
-    acc = f"+-{LINK_PRIOR_SHARE:.0%} of each link's mass, centre of mass and inertia"
+    acc = (f"+-{LINK_PRIOR_SHARE:.0%} of each link's mass, inertia and armature, +-({LINK_PRIOR_SHARE:.0%} of its "
+           f"distance + {1e3 * LINK_PRIOR_COM_M:g} mm) in each coordinate of its centre of mass")
     if dec["outcome"] == "link_parameters":
         return (f"link errors within the declared accuracy ({acc}) explain the held-out torques as well: a wrist "
                 f"payload does not add to them (p = {t1['p_value']:.3g})")

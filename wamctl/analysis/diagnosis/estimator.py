@@ -225,6 +225,8 @@ class ModelDiagnosis:
         self.map_tests_ = {}
         self.threshold_ = self.alpha / max(1, len(sig.joints) * max(1, n_tests))
         torque_tests = [c for c in tests if c != "backlash" and c not in ARM_ONLY]
+        self.rejected_ = {j: {} for j in sig.joints}     # candidates an arm-wide check ruled out, with why
+        self.arm_ambiguous_ = {j: [] for j in sig.joints}   # ambiguous groups an arm-wide check left at a joint
         for j in sig.joints:
             self.joints_[j] = self._diagnose_joint(self.jd_[j], torque_tests)
         r2 = self._declared_r2()
@@ -332,6 +334,18 @@ class ModelDiagnosis:
         return forward_select(self.design_, jd, res, tests, self.threshold_, self.max_steps, pre, rejected,
                               onset_recheck)
 
+    def _rediagnose(self, j: int, tests: list[str], name: str, why: str) -> None:
+        """0-based joint ``j`` diagnosed again with candidate ``name`` ruled out (``why``), and every candidate an
+        earlier arm-wide check ruled out there kept out too (a rejected delay or payload must not come back)."""
+        self.rejected_[j][name] = why
+        res = self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, dict(self.rejected_[j]))
+        res.ambiguous += self.arm_ambiguous_[j]
+        pl = getattr(self, "payload_", None)
+        if pl is not None and j + 1 in pl["joints_fitted"] and any(t["name"] == "payload" for t in res.kept):
+            # the arm's one payload, not a joint's own fit, as :meth:`_check_payload` left it
+            terms = global_payload_terms(res.kept, self.n_folds)
+            set_after(self.design_, res, self.jd_[j], terms, cv_terms(self.design_, self.jd_[j], terms))
+
     def _map_evidence(self, j: int) -> dict | None:
         """The friction map's Stribeck test of 0-based joint ``j`` when it passes and is plausible (else None;
         every map test is kept in ``map_tests_``)."""
@@ -347,7 +361,7 @@ class ModelDiagnosis:
         for j, why in delay_disagreements(self.joints_, self.signals_.dt_s, self.design_,
                                                      self.jd_).items():
             log.info("joint %d: %s", j + 1, why)
-            self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"delay": why})
+            self._rediagnose(j, tests, "delay", why)
 
     def _check_payload(self) -> None:
         """A payload is one mass for the whole arm, beyond what the arm's own link errors can make: the payload
@@ -399,10 +413,10 @@ class ModelDiagnosis:
                  and c not in ARM_ONLY]
         outcome = dec["outcome"] if dec is not None else None
         for j in [jj - 1 for jj in fit["joints_fitted"]]:
-            self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"payload": why})
             if outcome == "ambiguous":
-                self.joints_[j].ambiguous.append({"names": ["payload", "link_parameters"], "step": "arm",
-                                                  "evidence": self.payload_vs_links_["tests"]})
+                self.arm_ambiguous_[j].append({"names": ["payload", "link_parameters"], "step": "arm",
+                                               "evidence": self.payload_vs_links_["tests"]})
+            self._rediagnose(j, tests, "payload", why)
         self.links_plausible_ = outcome == "link_parameters" and "link_parameters" in self.candidates
         self.links_skip_ = outcome == "ambiguous"
 
@@ -422,7 +436,7 @@ class ModelDiagnosis:
             why = ("the breakaways show no Stribeck effect once the joint's other effects ("
                    + ", ".join(k["name"] for k in res.kept if k["name"] != "stribeck") + ") are in the model")
             log.info("joint %d: %s", j + 1, why)
-            self.joints_[j] = self._diagnose_joint(self.jd_[j], tests, {"stribeck": why})
+            self._rediagnose(j, tests, "stribeck", why)
 
     def _check_links(self) -> None:
         """``link_parameters`` against the current model (see :mod:`wamctl.analysis.diagnosis.links`): the refit

@@ -73,8 +73,10 @@ def joint_intervals(diag, j: int) -> dict:
         if name == "backlash":
             ci["width_rad"] = _backlash_ci(diag.onsets_.get(j, {}))
         for k, v in ci.items():
-            if k.startswith(("Fc_", "Fs_")) and v[0] is not None:
-                v[0] = max(v[0], 0.0)                     # friction levels are magnitudes
+            if k.startswith(("Fc_", "Fs_", "amplitude", "rms_")) and v[0] is not None:
+                v[0] = max(v[0], 0.0)                     # friction levels and ripple amplitudes are magnitudes
+            if k.startswith("phase") and None not in v and v[1] - v[0] >= 2 * np.pi:
+                ci[k] = v = [None, None]                  # an arc of a whole turn: any phase fits the data
             if v == [None, None] and k in base and _numeric(base[k]):
                 ni.append(k)
         out[name] = {"params_ci": ci, "not_identified": ni}

@@ -5,7 +5,8 @@ Every real arm's links differ somewhat from their datasheet; a payload is the sp
 link 7. The refits (:mod:`wamctl.analysis.diagnosis.rigid`) change the base parameters of the identification
 (:mod:`wamctl.analysis.identification.base`) shared by every diagnosed joint (one arm), on top of each joint's own
 model (its friction and the other effects it kept); held-out residuals: each joint's folds, the shared change
-fitted without the fold; the joints are pooled, each weighted by the RMS of its residual.
+fitted without the fold; the joints are pooled, each weighted by the inverse of the RMS of its own held-out
+residual.
 
 **Payload or links** (:func:`payload_or_links`). On a sweep of one joint, a payload and an error of the distal
 links change the same two gravity coefficients and one inertia; on free motion of several joints a payload moves

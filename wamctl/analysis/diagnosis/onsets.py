@@ -195,7 +195,7 @@ def _onset_window(des: Design, dyn0: WamDynamics, j: int, o, model: OnsetModel, 
 
 def _payload_torque(dyn: WamDynamics, dyn0: WamDynamics, sig: Signals, ii: np.ndarray, j: int) -> np.ndarray:
     """(len(ii),) torque a kept payload adds at joint ``j`` along samples ``ii`` (the joint's own velocity and
-    acceleration zeroed), computed every 10 ms and interpolated."""
+    acceleration zeroed), computed every fifth sample (10 ms at 500 Hz) and interpolated."""
     pts = np.unique(np.r_[ii[::5], ii[-1]])
     Q, QD, QDD = sig.at("q", pts), sig.at("qd", pts).copy(), sig.at("qdd", pts).copy()
     QD[:, j] = QDD[:, j] = 0.0
@@ -207,7 +207,8 @@ def _payload_torque(dyn: WamDynamics, dyn0: WamDynamics, sig: Signals, ii: np.nd
 def _links_torque(links: tuple[np.ndarray, np.ndarray], dyn0: WamDynamics, sig: Signals, ii: np.ndarray,
                   j: int) -> np.ndarray:
     """(len(ii),) torque a kept link refit (base columns, coefficients) adds at joint ``j`` along samples ``ii``
-    (the joint's own velocity and acceleration zeroed), computed every 10 ms and interpolated."""
+    (the joint's own velocity and acceleration zeroed), computed every fifth sample (10 ms at 500 Hz) and
+    interpolated."""
     cols, beta = links
     pts = np.unique(np.r_[ii[::5], ii[-1]])
     Q, QD, QDD = sig.at("q", pts), sig.at("qd", pts).copy(), sig.at("qdd", pts).copy()
@@ -329,7 +330,8 @@ def _held_out_levels(ons: dict, w: dict, fold: int, kept: dict,
         t = kept["backlash"]
         side = -1.0 if t.get("encoder_side") == "motor" else 1.0
         wf = fold_coef.get("backlash", {}).get(fold)
-        band = side * max(side * wf if wf is not None else t["width_rad"], 0.0)
+        # a fold whose training onsets hold no reversal has no band of its own: the fit on all onsets
+        band = side * max(side * wf if wf is not None and np.isfinite(wf) else t["width_rad"], 0.0)
     return ratio, band
 
 

@@ -157,6 +157,10 @@ def report_effects(diag) -> None:
                 params = {k: (None if k in ni else v) for k, v in params.items()}
             entry = {"name": t["name"], "params": params, "params_ci": ci, "not_identified": list(ni),
                      "evidence": {"test": test, "p_value": float(ev["p_value"]), "delta_bic": float(ev["delta_bic"])}}
+            if t["name"] == "link_parameters":
+                # params are the free refit's changes (what these data say); with this flag the held-out figures
+                # and the model file use the refit held within the declared accuracy
+                entry["within_declared_accuracy"] = bool(diag.links_report_.get("within_declared_accuracy"))
             if t.get("onset_test") and t["name"] == "stribeck":
                 entry["evidence"]["test"] = ONSET_TEST_NAME
             for k in ("rms_before_Nm", "rms_after_Nm"):

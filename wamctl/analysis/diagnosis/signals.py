@@ -166,8 +166,11 @@ class Signals:
         feature is only evaluated where the filter needs it: long runs are not computed at the full rate), or with
         ``source = (key, x)`` a function of the values of the full-rate signal ``x`` (n,) (its values around a
         long run's samples are then gathered once for every feature of ``x`` at those samples: ``key`` names
-        ``x``). ``shift``: the filtered feature ``shift`` samples later (fractional: linear interpolation between
-        the two neighbouring samples, as ``np.interp`` of the filtered feature).
+        ``x``, and the windows kept are told apart by ``key``, the shift and the number, first and last of the
+        samples only, so one ``key`` must always come with the same samples, a joint's). ``shift``: the filtered
+        feature ``shift`` samples later (fractional: linear interpolation between the two neighbouring samples, as
+        ``np.interp`` of the filtered feature). ``idx`` must be increasing (stretches are found between
+        neighbours).
 
         Sparse samples (a long run's decimated ones) are evaluated window by window, one matrix-vector product
         over the taps; runs of nearby samples (stretches around onsets) by one convolution over the stretches
