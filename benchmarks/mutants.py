@@ -58,13 +58,13 @@ MUTANTS: tuple[Mutant, ...] = (
            "integral accumulates the current error instead of the previous one (libbarrett's order)"),
     # ---------------------------------------------------------------- friction
     Mutant("stribeck-exponent", "wamctl/model/friction.py",
-           "return np.exp(-np.abs(v / vs_rad_s) ** delta)",
-           "return np.exp(-np.abs(v / vs_rad_s) ** (delta / 2))",
+           "return np.exp(-(a * a))",
+           "return np.exp(-a)",
            ("tests/model/test_model.py", "tests/analysis/test_friction_id.py"),
-           "Stribeck decay with the wrong exponent (eq. 2.8)"),
+           "Stribeck decay with the wrong exponent (eq. 2.8: delta = 2 computed as 1)"),
     Mutant("classic-regressor-direction", "wamctl/model/friction.py",
-           "return np.column_stack([pos, -neg, qd * pos, qd * neg])",
-           "return np.column_stack([pos, -neg, qd * neg, qd * pos])",
+           "np.multiply(qd, out[0], out=out[2])\n    np.multiply(qd, out[1], out=out[3])",
+           "np.multiply(qd, out[1], out=out[2])\n    np.multiply(qd, out[0], out=out[3])",
            ("tests/analysis/test_friction_id.py",), "viscous columns of the two directions swapped"),
     # ---------------------------------------------------------------- dynamics
     Mutant("dynamics-no-armature", "wamctl/model/dynamics.py",
