@@ -67,14 +67,20 @@ def ripple_columns(q: np.ndarray, qd: np.ndarray, period: float, window: int, ga
     attenuated as the smoothing filter attenuates it at the current speed (harmonic h passes at ``h |qd| /
     period``). Used to compare candidate periods and for a declared ripple; the kept columns are smoothed
     exactly."""
-    z1 = np.exp(2j * np.pi * np.asarray(q, float) / period)      # cos + i sin of the fundamental's phase
-    z = np.ones_like(z1)
-    out = np.empty((len(z1), 2 * n_harmonics))
+    out = ripple_basis(q, period, n_harmonics)
     for h in range(1, n_harmonics + 1):
-        z = z * z1                                                  # harmonic h: (cos + i sin)^h
-        gain = ripple_gain(qd, period / h, window, gauss, dt_s)
-        out[:, 2 * h - 2] = gain * z.imag
-        out[:, 2 * h - 1] = gain * z.real
+        out[:, 2 * h - 2: 2 * h] *= ripple_gain(qd, period / h, window, gauss, dt_s)[:, None]
+    return out
+
+
+def ripple_basis(q, period: float, n_harmonics: int) -> np.ndarray:
+    """sin, cos of 2 pi h q / period for h = 1 .. ``n_harmonics`` in turn, shape ``q.shape + (2 H,)``: the one
+    copy of a ripple's columns (the candidates' comparison and the design's kept columns)."""
+    z1 = np.exp(2j * np.pi * np.asarray(q, float) / period)      # harmonic h: z1^h = cos + i sin
+    z, out = z1, np.empty(np.shape(q) + (2 * n_harmonics,))
+    for k in range(n_harmonics):
+        out[..., 2 * k], out[..., 2 * k + 1] = z.imag, z.real
+        z = z * z1
     return out
 
 

@@ -13,7 +13,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.candidates import stribeck_columns
+from wamctl.analysis.diagnosis.candidates import ripple_basis, stribeck_columns
 from wamctl.analysis.diagnosis.signals import GridSignal, Signals
 from wamctl.analysis.diagnosis.stats import lstsq, lstsq_bounded
 from wamctl.model.friction import FrictionModel, classic_friction_columns, stribeck_decay
@@ -238,15 +238,7 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
     if name == "position_ripple":        # h = (period, harmonics): sin, cos of each harmonic in turn
         q_f = sig.q_raw_rad[:, j]          # the angle as measured (the filter then smooths the feature)
         period, nh = float(h[0]), int(h[1])
-
-        def ripple(q):
-            z1 = np.exp(2j * np.pi * np.asarray(q, float) / period)     # harmonic k: z1^k = cos + i sin
-            z, out = z1, np.empty(np.shape(q) + (2 * nh,))
-            for k in range(nh):
-                out[..., 2 * k], out[..., 2 * k + 1] = z.imag, z.real
-                z = z * z1
-            return out
-        return sig.smooth_at(ripple, jd.idx, shift, source=(("q", j), q_f))
+        return sig.smooth_at(lambda q: ripple_basis(q, period, nh), jd.idx, shift, source=(("q", j), q_f))
     if name == "payload":
         X = jd.extra["payload"]
         if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold
