@@ -41,3 +41,13 @@ def test_out_naming_a_file_is_an_error_not_a_traceback(tmp_path):
     f.write_text("not a directory")
     with pytest.raises(WamctlError, match="is a file; the parent directory of the run directory must be a"):
         RunDir.create(f, "t", {}, 0, "rotation")
+
+
+def test_a_truncated_parquet_table_is_a_data_error_naming_the_file(tmp_path):
+    """Found by hand: `wamctl diagnose` on a run whose data.parquet was cut in half printed pyarrow's traceback."""
+    from wamctl.errors import DataFormatError
+    pd.DataFrame({"t_s": [0.0, 0.002, 0.004], "q1_rad": [0.0, 0.1, 0.2]}).to_parquet(tmp_path / "data.parquet")
+    whole = (tmp_path / "data.parquet").read_bytes()
+    (tmp_path / "data.parquet").write_bytes(whole[: len(whole) // 2])
+    with pytest.raises(DataFormatError, match="data.parquet: not a readable Parquet file"):
+        read_table(tmp_path)

@@ -169,7 +169,15 @@ def read_chunks(chunk_dir: Path, columns: list[str] | None = None) -> pd.DataFra
     parts = sorted(Path(chunk_dir).glob("part-*.parquet"))
     if not parts:
         return pd.DataFrame(columns=columns or [])
-    return pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
+    return pd.concat([read_parquet(p) for p in parts], ignore_index=True)
+
+
+def read_parquet(path: Path) -> pd.DataFrame:
+    """A Parquet file, or a DataFormatError naming it (a truncated or foreign file is bad data, not a crash)."""
+    try:
+        return pd.read_parquet(path)
+    except (OSError, ValueError) as exc:      # pyarrow's ArrowInvalid is a ValueError
+        raise DataFormatError(f"{path}: not a readable Parquet file ({exc})") from None
 
 
 def new_stamped_dir(out_dir: str | Path, name: str) -> Path:
@@ -297,7 +305,7 @@ def read_table(path: str | Path, name: str = "data") -> pd.DataFrame:
     """A run's table: the consolidated Parquet if present, else its chunks (a run killed mid-way)."""
     path = Path(path)
     if (path / f"{name}.parquet").is_file():
-        return pd.read_parquet(path / f"{name}.parquet")
+        return read_parquet(path / f"{name}.parquet")
     if (path / name).is_dir():
         return read_chunks(path / name)
     raise DataFormatError(f"{path}: no {name} table")
