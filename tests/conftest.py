@@ -5,8 +5,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 from cli_runs import small_runs  # noqa: F401, E402 - the session fixture of small runs of every kind (cli_runs.py)
+from hypothesis import settings
 
 from wamctl.model import params as P
+
+# The property tests draw the same examples on every run (a red suite is a change, never a new draw): the
+# "default" profile. `pytest --hypothesis-profile=explore` draws new examples, for looking for cases; a case
+# found that way becomes a test of its own.
+settings.register_profile("default", derandomize=True, database=None, print_blob=True)
+settings.register_profile("explore", derandomize=False, max_examples=1000, print_blob=True)
 
 Q0 = np.array([0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0])
 

@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import logging
 import signal
+import threading
 from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
@@ -41,19 +42,43 @@ class RunOutcome:
     spec); 1 any other failure."""
 
 
+def _install(handler, signals) -> dict:
+    """Install ``handler`` for each of ``signals`` that is not ignored (a run started with ``nohup`` keeps
+    ignoring SIGHUP); the handlers replaced, to restore. Nothing outside the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        return {}
+    return {s: signal.signal(s, handler) for s in signals if signal.getsignal(s) is not signal.SIG_IGN}
+
+
 @contextmanager
 def signals_as_interrupt():
-    """SIGTERM/SIGHUP raise KeyboardInterrupt inside the block (main thread only)."""
+    """SIGTERM/SIGHUP raise KeyboardInterrupt inside the block (main thread only; an ignored signal stays
+    ignored)."""
     def handler(signum, frame):
         raise KeyboardInterrupt(signal.Signals(signum).name)
-    old = {}
-    try:
-        for s in (signal.SIGTERM, signal.SIGHUP):
-            old[s] = signal.signal(s, handler)
-    except ValueError:  # not the main thread
-        old = {}
+    old = _install(handler, (signal.SIGTERM, signal.SIGHUP))
     try:
         yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
+
+
+@contextmanager
+def signals_as_event():
+    """Ctrl-C (SIGINT), SIGTERM and SIGHUP set the yielded :class:`threading.Event` instead of raising (main
+    thread only, elsewhere the event is never set by a signal; an ignored signal stays ignored).
+
+    For code that waits inside a library which a KeyboardInterrupt at an arbitrary point leaves in a broken
+    state (a Dask client's synchronous calls log a NameError traceback when interrupted before their coroutine
+    has started): the caller polls the event between library calls and stops cleanly."""
+    stop = threading.Event()
+
+    def handler(signum, frame):
+        stop.set()
+    old = _install(handler, (signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
+    try:
+        yield stop
     finally:
         for s, h in old.items():
             signal.signal(s, h)

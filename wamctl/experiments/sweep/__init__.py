@@ -26,7 +26,7 @@ or it kept erroring; ``error`` says why), ``interrupted`` (running when the swee
 
 Execution is on Dask only (:mod:`dask.distributed`): a ``LocalCluster`` of one single-threaded process per
 core by default, or any running scheduler by address (the sweep directory must then be on a file system the
-workers share, at the same path). Results are streamed back with ``as_completed``; a worker lost mid-point
+workers share, at the same path). Results are collected as they finish; a worker lost mid-point
 makes the scheduler run the point again elsewhere (up to ``distributed.scheduler.allowed-failures``, then it
 is recorded failed with ``KilledWorker``); an exception is retried ``retries`` times by Dask.
 """

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import threading
 import time
 import uuid
 from collections.abc import Callable
@@ -14,7 +15,7 @@ from pathlib import Path
 import yaml
 
 from wamctl.errors import SpecError, WamctlError
-from wamctl.experiments.runner import plan_only, signals_as_interrupt
+from wamctl.experiments.runner import plan_only, signals_as_event
 from wamctl.experiments.sweep.cluster import close_quietly, connect
 from wamctl.experiments.sweep.index import SweepIndex, create_sweep_dir, read_sessions, update_manifest
 from wamctl.experiments.sweep.point import key_figures, mark_abandoned, read_manifest, run_dirs, run_point
@@ -93,15 +94,19 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, resume_dir: st
     todo, skipped = _points_to_run(sweep, index, resume_dir is not None)
     index.write()
     session = _Session(sweep, index, todo, skipped)
-    try:
-        with signals_as_interrupt():
-            try:
-                session.connect(client, scheduler, n_workers)
-                session.run(progress, on_point)
-            except KeyboardInterrupt:
+    # Ctrl-C and termination signals set `stop` rather than raise: a KeyboardInterrupt inside a Dask client call
+    # leaves the client's event loop with a failing callback (a traceback after "sweep interrupted"); the loop
+    # below looks at `stop` between calls. Shutdown runs under the same handler, so a second Ctrl-C cannot break
+    # it either (closing the cluster has its own time limits).
+    with signals_as_event() as stop:
+        try:
+            session.connect(client, scheduler, n_workers)
+            if not stop.is_set():
+                session.run(progress, on_point, stop)
+            if stop.is_set():
                 session.interrupt()
-    finally:
-        session.finish()
+        finally:
+            session.finish()
     written = write_sweep_report(sweep_dir)
     rec, counts = session.record, session.counts
     result = SweepResult(sweep_dir, counts, rec["wall_s"], rec.get("n_workers") or 0, session.ran, skipped,
@@ -211,8 +216,9 @@ class _Session:
         self.record.update(scheduler=scheduler or ("local" if self.cluster is not None else "given client"),
                            n_workers=len(workers), threads=sum(w.get("nthreads", 1) for w in workers.values()))
 
-    def run(self, progress, on_point) -> None:
-        """Submit the points left and record each as it finishes (index, progress, ``on_point``)."""
+    def run(self, progress, on_point, stop: threading.Event) -> None:
+        """Submit the points left and record each as it finishes (index, progress, ``on_point``), until all
+        have finished or ``stop`` is set (looked at every 0.1 s)."""
         update_manifest(self.dir, status="running", sessions=read_sessions(self.dir) + [self.record])
         total = len(self.sweep.points)
         done = total - len(self.todo)
@@ -220,21 +226,25 @@ class _Session:
             progress(done, total, self._label())
         if not self.todo:
             return
-        from distributed import as_completed
         self._submit()
-        for fut in as_completed([f for f, _ in self.futures.values()]):
-            p = self.futures.pop(fut.key)[1]  # first: an interrupt from here on leaves its row alone
-            rec = _record_of(fut, p, self.runs_root / p.point_id)
-            self.index.update(rec)
-            self.index.write()
-            if rec.get("start_unix_s") and rec.get("end_unix_s"):
-                self.intervals.append((rec["start_unix_s"], rec["end_unix_s"]))
-            self.ran += 1
-            done += 1
-            if on_point:
-                on_point(dict(self.index.rows[p.point_id]))
-            if progress:
-                progress(done, total, self._label())
+        while self.futures and not stop.is_set():
+            finished = [f for f, _ in self.futures.values() if f.done()]   # local state, no call to the cluster
+            if not finished:
+                stop.wait(0.1)
+                continue
+            for fut in finished:
+                p = self.futures.pop(fut.key)[1]  # first: an interrupt from here on leaves its row alone
+                rec = _record_of(fut, p, self.runs_root / p.point_id)
+                self.index.update(rec)
+                self.index.write()
+                if rec.get("start_unix_s") and rec.get("end_unix_s"):
+                    self.intervals.append((rec["start_unix_s"], rec["end_unix_s"]))
+                self.ran += 1
+                done += 1
+                if on_point:
+                    on_point(dict(self.index.rows[p.point_id]))
+                if progress:
+                    progress(done, total, self._label())
 
     def _submit(self) -> None:
         sw, token = self.sweep, uuid.uuid4().hex[:8]

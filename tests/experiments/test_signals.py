@@ -1,0 +1,52 @@
+"""Termination signals during a run or a sweep: what they set or raise, and what they leave alone."""
+
+import os
+import signal
+import threading
+
+import pytest
+
+from wamctl.experiments.runner import signals_as_event, signals_as_interrupt
+
+
+def test_signals_as_event_sets_the_event_and_restores_the_handlers():
+    before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
+    with signals_as_event() as stop:
+        assert not stop.is_set()
+        os.kill(os.getpid(), signal.SIGINT)        # would raise KeyboardInterrupt under the default handler
+        assert stop.wait(2.0)
+    assert {s: signal.getsignal(s) for s in before} == before
+
+
+def test_an_ignored_hangup_stays_ignored():
+    """A run started with nohup keeps ignoring SIGHUP: neither context installs its handler over SIG_IGN."""
+    old = signal.signal(signal.SIGHUP, signal.SIG_IGN)
+    try:
+        with signals_as_event() as stop:
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+            os.kill(os.getpid(), signal.SIGHUP)
+            assert not stop.wait(0.2)
+        with signals_as_interrupt():
+            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+    finally:
+        signal.signal(signal.SIGHUP, old)
+
+
+def test_signals_as_interrupt_raises_keyboard_interrupt_naming_the_signal():
+    with pytest.raises(KeyboardInterrupt, match="SIGTERM"):
+        with signals_as_interrupt():
+            os.kill(os.getpid(), signal.SIGTERM)
+            threading.Event().wait(2.0)
+
+
+def test_outside_the_main_thread_nothing_is_installed():
+    seen = {}
+
+    def body():
+        with signals_as_event() as stop:
+            seen["handler"] = signal.getsignal(signal.SIGINT)
+            seen["set"] = stop.is_set()
+    t = threading.Thread(target=body)
+    t.start()
+    t.join()
+    assert seen == {"handler": signal.getsignal(signal.SIGINT), "set": False}
