@@ -266,7 +266,10 @@ def test_a_worker_killed_mid_point_retries_the_point(tmp_path, client):
     assert pid not in set(client.run(os.getpid).values())  # the nanny replaced the killed worker
 
 
-def test_ctrl_c_writes_the_index_and_resume_finishes_the_missing_points(tmp_path, client):
+@pytest.mark.parametrize("presses", [1, 2], ids=["ctrl-c", "ctrl-c-twice"])
+def test_ctrl_c_writes_the_index_and_resume_finishes_the_missing_points(tmp_path, client, presses):
+    """Ctrl-C once, or twice (a user who does not see the sweep stop at once: the second press comes while the
+    index is written and the cluster closes, and must not break either)."""
     spec = tmp_path / "s.yaml"
     spec.write_text(yaml.safe_dump(tiny({"grid": {"seed": {"range": [12]}}, "reports": False}, hold_s=1.5)))
     out = tmp_path / "out"
@@ -295,6 +298,10 @@ def test_ctrl_c_writes_the_index_and_resume_finishes_the_missing_points(tmp_path
             time.sleep(0.05)
         assert proc.poll() is None, proc.communicate()
         os.killpg(proc.pid, signal.SIGINT)
+        if presses == 2:
+            time.sleep(0.3)
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGINT)
         _, err = proc.communicate(timeout=120)
     finally:
         if proc.poll() is None:
