@@ -245,6 +245,8 @@ class _Session:
                     on_point(dict(self.index.rows[p.point_id]))
                 if progress:
                     progress(done, total, self._label())
+        if stop.is_set() and progress:    # closing a cluster takes seconds: say what is happening
+            progress(done, total, f"sweep {self.sweep.name}: stopping, closing the cluster")
 
     def _submit(self) -> None:
         sw, token = self.sweep, uuid.uuid4().hex[:8]
