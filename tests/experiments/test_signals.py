@@ -9,13 +9,33 @@ import pytest
 from wamctl.experiments.runner import signals_as_event, signals_as_interrupt
 
 
-def test_signals_as_event_sets_the_event_and_restores_the_handlers():
+@pytest.fixture
+def sigint_handled():
+    """SIGINT as an interactive Python has it (a suite started in the background inherits it ignored, and an
+    ignored signal is left alone by design)."""
+    old = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, old)
+
+
+def test_signals_as_event_sets_the_event_and_restores_the_handlers(sigint_handled):
     before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
     with signals_as_event() as stop:
         assert not stop.is_set()
         os.kill(os.getpid(), signal.SIGINT)        # would raise KeyboardInterrupt under the default handler
         assert stop.wait(2.0)
     assert {s: signal.getsignal(s) for s in before} == before
+
+
+def test_an_ignored_ctrl_c_stays_ignored():
+    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+    try:
+        with signals_as_event() as stop:
+            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+            os.kill(os.getpid(), signal.SIGINT)
+            assert not stop.wait(0.2)
+    finally:
+        signal.signal(signal.SIGINT, old)
 
 
 def test_an_ignored_hangup_stays_ignored():
@@ -39,7 +59,7 @@ def test_signals_as_interrupt_raises_keyboard_interrupt_naming_the_signal():
             threading.Event().wait(2.0)
 
 
-def test_outside_the_main_thread_nothing_is_installed():
+def test_outside_the_main_thread_nothing_is_installed(sigint_handled):
     seen = {}
 
     def body():
