@@ -73,3 +73,38 @@ def rotation_metrics(data: pd.DataFrame) -> pd.DataFrame:
     if not rows:
         return pd.DataFrame(columns=cols, index=pd.Index([], name="joint"))
     return pd.DataFrame(rows).set_index("joint")[cols]
+
+
+def move_speed_rad_s(data: pd.DataFrame, r: JointRotation) -> float:
+    """Speed of the reference over the middle half of a move, rad/s (the constant-velocity stretch of an LSPB
+    move; a slope over many samples, so jittered time stamps do not matter)."""
+    ref = data[f"q_ref_{r.joint}_rad"].to_numpy()[r.i_start: r.i_final + 1]
+    t = data["t_s"].to_numpy()[r.i_start: r.i_final + 1]
+    frac = (ref - r.start_rad) / r.amplitude_rad
+    mid = np.flatnonzero((frac >= 0.25) & (frac <= 0.75))
+    if len(mid) < 2 or t[mid[-1]] <= t[mid[0]]:
+        return float("nan")
+    return float(abs(ref[mid[-1]] - ref[mid[0]]) / (t[mid[-1]] - t[mid[0]]))
+
+
+def thesis_test_differences(data: pd.DataFrame, controller: dict | None = None) -> list[str]:
+    """How this rotation test differs from the thesis' (chapter 3: each joint rotated 0.5 rad at 0.083 rad/s
+    under libbarrett's gains), read from the references themselves (amplitude within 0.1 %, speed within 2 %)
+    and from ``controller`` (a spec's controller section: its own ``kp``/``kd``). Empty: the same test."""
+    rots = find_rotations(data)
+    if not rots:
+        return ["no joint moves"]
+    out = []
+    amps = sorted({round(abs(r.amplitude_rad), 4) for r in rots
+                   if not np.isclose(abs(r.amplitude_rad), P.ROTATION_AMPLITUDE_RAD, rtol=1e-3)})
+    if amps:
+        out.append(f"amplitude {', '.join(f'{a:g}' for a in amps)} rad")
+    speeds = sorted({round(v, 4) for v in (move_speed_rad_s(data, r) for r in rots)
+                     if not np.isclose(v, P.ROTATION_VELOCITY_RAD_S, rtol=0.02)})
+    if speeds:
+        out.append(f"speed {', '.join(f'{v:g}' for v in speeds)} rad/s")
+    for name, default in (("kp", P.KP), ("kd", P.KD)):
+        gains = (controller or {}).get(name)
+        if gains is not None and not np.allclose(gains, default):
+            out.append(f"its own {name}")
+    return out

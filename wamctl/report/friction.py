@@ -133,8 +133,9 @@ def segments_figure(t_s: np.ndarray, q: np.ndarray, ident: FrictionIdentificatio
     return save(fig, path)
 
 
-def comparison_table(pd_data: pd.DataFrame, ff_data: pd.DataFrame) -> pd.DataFrame:
-    """Rotation metrics under pd_g and pd_g_ff side by side, per joint (thesis section 4.4)."""
+def comparison_table(pd_data: pd.DataFrame, ff_data: pd.DataFrame, thesis: bool = True) -> pd.DataFrame:
+    """Rotation metrics under pd_g and pd_g_ff side by side, per joint (thesis section 4.4), with the thesis' RPE
+    when ``thesis`` (the same test as the thesis')."""
     from wamctl.analysis.rotation import rotation_metrics
     a, b = rotation_metrics(pd_data), rotation_metrics(ff_data)
     joints = sorted(set(a.index) & set(b.index))
@@ -145,22 +146,27 @@ def comparison_table(pd_data: pd.DataFrame, ff_data: pd.DataFrame) -> pd.DataFra
                      "change_pct": (eb - ea) / ea * 100 if ea else np.nan,
                      "max_abs_error_pd_g_mrad": a.loc[j, "max_abs_error_rad"] * 1e3,
                      "max_abs_error_pd_g_ff_mrad": b.loc[j, "max_abs_error_rad"] * 1e3,
-                     "rpe_pd_g_pct": a.loc[j, "rpe_pct"], "rpe_pd_g_ff_pct": b.loc[j, "rpe_pct"],
-                     "thesis_rpe_pd_g_pct": P.THESIS_RPE_PCT["pd_g"][j - 1],
-                     "thesis_rpe_pd_g_ff_pct": P.THESIS_RPE_PCT["pd_g_ff"][j - 1]})
+                     "rpe_pd_g_pct": a.loc[j, "rpe_pct"], "rpe_pd_g_ff_pct": b.loc[j, "rpe_pct"]}
+                    | ({"thesis_rpe_pd_g_pct": P.THESIS_RPE_PCT["pd_g"][j - 1],
+                        "thesis_rpe_pd_g_ff_pct": P.THESIS_RPE_PCT["pd_g_ff"][j - 1]} if thesis else {}))
     return pd.DataFrame(rows).set_index("joint") if rows else pd.DataFrame()
 
 
 def add_comparison(doc: Document, pd_data: pd.DataFrame, ff_data: pd.DataFrame, out_dir: Path,
-                   source: str = "") -> pd.DataFrame:
-    """Append the pd_g vs pd_g_ff section (table + error traces) to ``doc``; returns the table."""
-    from wamctl.analysis.rotation import find_rotations
-    table = comparison_table(pd_data, ff_data)
+                   source: str = "", controller: dict | None = None) -> pd.DataFrame:
+    """Append the pd_g vs pd_g_ff section (table + error traces) to ``doc``; returns the table. ``controller``:
+    the pd_g run's controller section, when known (its own gains make it another test than the thesis')."""
+    from wamctl.analysis.rotation import find_rotations, thesis_test_differences
+    from wamctl.report.rotation import THESIS_TEST
+    differs = thesis_test_differences(pd_data, controller) + thesis_test_differences(ff_data)
+    table = comparison_table(pd_data, ff_data, thesis=not differs)
+    thesis_note = ("thesis_*: the thesis' RPE for the same test." if not differs else
+                   f"No thesis columns: {THESIS_TEST}; these runs: {'; '.join(dict.fromkeys(differs))}.")
     doc.heading("Rotation test: PD + gravity vs PD + gravity + feed-forward friction (thesis 4.4)")
     doc.text("Each joint rotated one at a time; errors are q_ref - q over the move and the hold at the target. "
              "The feed-forward is eq. 4.3 with the identified friction model." + (f" {source}" if source else ""))
     doc.table("ff_comparison", table, "mean/max absolute position error (mrad) and RPE (%) under both "
-              "controllers; change_pct < 0: the feed-forward lowers the mean error. thesis_*: the thesis' RPE.")
+              "controllers; change_pct < 0: the feed-forward lowers the mean error. " + thesis_note)
     if len(table):
         better = [int(j) for j in table.index if table.loc[j, "change_pct"] < 0]
         doc.text(f"The feed-forward lowers the mean absolute error on joints {better or 'none'} "
@@ -253,7 +259,8 @@ def friction_document(rd, ident: FrictionIdentification, out_dir: Path, title: s
     doc.data["friction_map"] = json_map(m)
     if validation is not None:
         add_comparison(doc, validation[0], validation[1], out_dir,
-                       "Both runs after the sweep, on the same plant (tables validation_pd_g, validation_pd_g_ff).")
+                       "Both runs after the sweep, on the same plant (tables validation_pd_g, validation_pd_g_ff).",
+                       rd.meta.controller.model_dump())
     return doc
 
 
@@ -310,5 +317,6 @@ def comparison_document(pd_run: Path, ff_run: Path, out_dir: Path) -> Document:
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     doc = Document("Feed-forward friction compensation: rotation test comparison")
-    add_comparison(doc, a.data, b.data, out_dir, f"pd_g: {Path(pd_run).name}; pd_g_ff: {Path(ff_run).name}.")
+    add_comparison(doc, a.data, b.data, out_dir, f"pd_g: {Path(pd_run).name}; pd_g_ff: {Path(ff_run).name}.",
+                   a.meta.controller.model_dump())
     return doc

@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from wamctl.analysis.rotation import rotation_metrics
+from wamctl.analysis.rotation import rotation_metrics, thesis_test_differences
 from wamctl.model import params as P
 from wamctl.report.document import Document
 from wamctl.report.figures import joint_grid, save
+from wamctl.report.rotation import THESIS_TEST
 from wamctl.runs.store import read_events
 
 # The IFT run directory's tables (written by wamctl.experiments.ift, read here)
@@ -173,28 +174,33 @@ def _flag_gains_and_stages(doc: Document, it: pd.DataFrame, spec: dict) -> None:
         doc.data["unused_stages"] = [int(k) for k, r in st.iterrows() if r["tried"] == 0]
 
 
-def comparison_table(run_path: Path) -> pd.DataFrame:
-    """RPE (%) of the final position per joint under each strategy (ours and the thesis')."""
+def comparison_table(run_path: Path) -> tuple[pd.DataFrame, list[str]]:
+    """RPE (%) of the final position per joint under each strategy, with the thesis' figures when the task is
+    the thesis' (0.5 rad at 0.083 rad/s); and how the task differs from it (empty: the same)."""
     out = {}
+    differs: list[str] = []
     for s in THESIS_RPE:
         p = Path(run_path) / comparison_file(s)
         if not p.is_file():
             continue
         df = pd.read_parquet(p)
         for joint, part in df.groupby("joint"):
-            m = rotation_metrics(part.drop(columns="joint").reset_index(drop=True))
+            part = part.drop(columns="joint").reset_index(drop=True)
+            differs += thesis_test_differences(part)
+            m = rotation_metrics(part)
             if int(joint) in m.index:
                 out.setdefault(int(joint), {})[f"rpe_{s}_pct"] = float(m.loc[int(joint), "rpe_pct"])
                 out[int(joint)][f"max_abs_error_{s}_rad"] = float(m.loc[int(joint), "max_abs_error_rad"])
     if not out:
-        return pd.DataFrame()
+        return pd.DataFrame(), []
     t = pd.DataFrame.from_dict(out, orient="index").sort_index()
     t.index.name = "joint"
+    differs = list(dict.fromkeys(differs))
     for s, v in THESIS_RPE.items():
-        if f"rpe_{s}_pct" in t:
+        if f"rpe_{s}_pct" in t and not differs:
             t[f"thesis_rpe_{s}_pct"] = [v[j - 1] for j in t.index]
     order = [c for s in THESIS_RPE for c in (f"rpe_{s}_pct", f"thesis_rpe_{s}_pct") if c in t]
-    return t[order + [c for c in t.columns if c not in order]]
+    return t[order + [c for c in t.columns if c not in order]], differs
 
 
 # ------------------------------------------------------------------------------------------------ figures
@@ -356,13 +362,15 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     if f is not None:
         doc.figure(f, "position error of the first experiment at the initial, an intermediate and the final "
                       "accepted gains (Fig. 5.1)")
-    ct = comparison_table(run_path)
+    ct, differs = comparison_table(run_path)
     doc.heading("Strategy comparison (thesis section 5.4)")
     if ct.empty:
         doc.text("Not run (comparison disabled, measured first experiments, or the tuning did not finish).")
     else:
         doc.table("comparison_rpe", ct, "RPE = |final error / amplitude| x 100 % (eq. 3.2) at the end of the hold, "
-                  "on the plant; thesis_*: the thesis' figures (chapters 3-5) for the same task on the real arm.",
+                  "on the plant; " + ("thesis_*: the thesis' figures (chapters 3-5) for the same task on the real arm."
+                                      if not differs else
+                                      f"no thesis columns: {THESIS_TEST}; this task: {'; '.join(differs)}."),
                   digits=4)
         doc.data["rpe_pct"] = {s: {str(j): float(v) for j, v in ct[f"rpe_{s}_pct"].items()}
                                for s in THESIS_RPE if f"rpe_{s}_pct" in ct}
