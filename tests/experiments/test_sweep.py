@@ -324,6 +324,16 @@ def test_ctrl_c_writes_the_index_and_resume_finishes_the_missing_points(tmp_path
     assert res.ran + res.skipped == 12 and res.ran <= 12 - len(completed_before)
     after = index_rows(sweep_dir)
     assert all(after[p]["run_dir"] == d for p, d in completed_before.items())
+    # a point's times are the worker's (they contain its run's own span); a point adopted because it finished
+    # after Ctrl-C has none to show, rather than its run's span as if it were the point's duration
+    import datetime as dt
+    for r in after.values():
+        m = manifest(sweep_dir / r["run_dir"])
+        if r["start_unix_s"] is None:
+            assert r["end_unix_s"] is None
+            continue
+        span = [dt.datetime.fromisoformat(m[k]).timestamp() for k in ("start_utc", "end_utc")]
+        assert r["start_unix_s"] <= span[0] + 1e-3 and r["end_unix_s"] >= span[1] - 1e-3
     runs = [d for d in (sweep_dir / "runs").glob("*/*") if manifest(d)["status"] == "completed"]
     assert len(runs) == 12  # one completed run per point: nothing ran twice
 

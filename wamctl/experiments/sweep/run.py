@@ -3,7 +3,6 @@ plan check of every point that ``wamctl validate`` and ``wamctl sweep --dry-run`
 
 from __future__ import annotations
 
-import datetime as _dt
 import json
 import threading
 import time
@@ -171,15 +170,11 @@ def _completed_run(point: SweepPoint, point_dir: Path) -> Path | None:
 
 
 def _adopt(point: SweepPoint, run_dir: Path, reports: bool) -> dict:
-    """The index record of a completed run found on resume (its report written if it has none)."""
+    """The index record of a completed run found on resume (its report written if it has none). Its start and
+    end times (and so its duration) stay empty: the worker's time on the point (run, report, start-up) is what
+    the index records, and nobody saw it for a point that finished after the sweep was stopped."""
     rec = {"point": point.point_id, "status": "completed", "run_dir": str(run_dir), "error": None,
-           "attempts": len(run_dirs(run_dir.parent)), "figures": {}}
-    m = read_manifest(run_dir)
-    for k, src in (("start_unix_s", "start_utc"), ("end_unix_s", "end_utc")):
-        try:
-            rec[k] = _dt.datetime.fromisoformat(m[src]).timestamp()
-        except (KeyError, TypeError, ValueError):
-            rec[k] = None
+           "attempts": len(run_dirs(run_dir.parent)), "figures": {}, "start_unix_s": None, "end_unix_s": None}
     rj = run_dir / "report.json"
     if reports and not rj.is_file():
         write_report(run_dir)
