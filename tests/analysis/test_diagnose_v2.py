@@ -310,3 +310,20 @@ def test_a_candidate_an_arm_wide_check_ruled_out_stays_out(two_joints, monkeypat
     kept = {t["name"]: t for t in res.kept}
     assert "stribeck" not in kept and "delay" not in kept
     assert kept["payload"]["h_all"] == ("global", None)      # the arm's one payload, not the joint's own fit
+
+
+def test_a_delay_the_joints_disagree_on_is_explained_joint_by_joint():
+    """The reason names each joint that kept a delay with its own figure, and how many agree (a user once read
+    "seen at 2 of 7 joints (delays 3.2, 9.5, 7.5 ms)": three delays for two joints, none named)."""
+    from types import SimpleNamespace
+
+    from wamctl.analysis.diagnosis.arm import delay_disagreements
+
+    def joint(delay_s=None):
+        return SimpleNamespace(kept=[] if delay_s is None else [{"name": "delay", "h_all": delay_s}])
+    joints = {j: joint() for j in range(7)}
+    joints[1], joints[3], joints[5] = joint(2.0e-3), joint(6.0e-3), joint(12.0e-3)    # one within 2 ms of 6
+    why = delay_disagreements(joints, 2e-3)
+    assert set(why) == {1, 3, 5} and len(set(why.values())) == 1
+    text = why[1]
+    assert "joints 2 (2.0 ms), 4 (6.0 ms), 6 (12.0 ms)" in text and "1 of the 7 joints diagnosed agree" in text

@@ -260,8 +260,9 @@ def delay_disagreements(joints: dict, dt_s: float, des: Design | None = None, jd
     if len(agree) >= half or (len(agree) >= min(2, len(joints)) and not against):
         return {j: (f"delay {with_d[j] * 1e3:.1f} ms disagrees with the {med * 1e3:.1f} ms of the other "
                     "joints (a late measurement is one delay for the arm)") for j in with_d if j not in agree}
-    why = (f"a consistent delay was seen at {len(agree)} of {len(joints)} joints "
-           f"(delays {', '.join(f'{d * 1e3:.1f}' for d in with_d.values())} ms)")
+    seen = ", ".join(f"{j + 1} ({d * 1e3:.1f} ms)" for j, d in sorted(with_d.items()))
+    why = (f"delays kept at joint{'s' if len(with_d) > 1 else ''} {seen}: {len(agree)} of the {len(joints)} "
+           f"joints diagnosed agree on one delay")
     if against:
         why += f", and joints {[j + 1 for j in against]} move without it"
     why += (f"; a late measurement delays every joint alike (at least {half} joints, or two that no other joint "
