@@ -70,3 +70,25 @@ def test_outside_the_main_thread_nothing_is_installed(sigint_handled):
     t.start()
     t.join()
     assert seen == {"handler": signal.getsignal(signal.SIGINT), "set": False}
+
+
+def test_ctrl_c_while_the_report_is_written_says_the_run_is_complete_and_how_to_write_it(tmp_path, monkeypatch):
+    """The run's data are complete; only the report was cut short: the user is told so (exit 130), and the
+    manifest keeps ``completed``."""
+    import json
+
+    from conftest import rotation_spec
+
+    from wamctl.experiments import runner
+    from wamctl.specs import parse_spec
+
+    def interrupted_report(path):
+        raise KeyboardInterrupt
+    monkeypatch.setattr(runner, "write_report", interrupted_report)
+    spec = parse_spec(rotation_spec(rotation={"joints": [7], "mode": "one_at_a_time", "hold_s": 0.1}), "t")
+    with pytest.raises(runner.RunInterrupted, match=r"the run completed; its report was interrupted, "
+                                                    r"`wamctl report .*` writes it") as caught:
+        runner.run_spec(spec, None, tmp_path)
+    assert caught.value.exit_code == 130
+    (run_dir,) = [p for p in tmp_path.iterdir() if p.is_dir()]
+    assert json.loads((run_dir / "manifest.json").read_text())["status"] == "completed"

@@ -129,5 +129,10 @@ def run_spec(spec: Common, base_dir: Path | None = None, out_dir: str | Path | N
     outcome = record_outcome(run, lambda: mod.execute(spec, p, run, progress, base_dir),
                              resume_hint=hasattr(mod, "resume"))
     if make_report:
-        write_report(run.path)
+        try:
+            with signals_as_interrupt():
+                write_report(run.path)
+        except KeyboardInterrupt:
+            raise RunInterrupted(f"{run.path}: the run {outcome.status}; its report was interrupted, "
+                                 f"`wamctl report {run.path}` writes it") from None
     return outcome
