@@ -16,6 +16,7 @@ from wamctl.experiments.common import Plan
 from wamctl.hmi.kinematics import PALM_DOWN_YAW_RAD, HandKinematics, palm_down_rotation
 from wamctl.hmi.scene import CommandMapping, SceneCamera, Workspace
 from wamctl.hmi.strategy import PROFILES
+from wamctl.io import resolve_path
 from wamctl.model import params as P
 from wamctl.specs import check_positions
 from wamctl.specs.hmi_block import HmiBlockSpec, HmiTask
@@ -135,8 +136,10 @@ def _solve_spots(h: HmiTask, kin: HandKinematics, R_ref: np.ndarray, q_start: np
 
 
 def plan(spec: HmiBlockSpec, base_dir: Path | None = None) -> HmiPlan:
-    """Solve the start pose and every spot palm down (reachability), check the view; list the trials."""
+    """Check that a replayed file exists; solve the start pose and every spot palm down (reachability), check
+    the view; list the trials."""
     h = spec.hmi
+    _check_replay_file(h, base_dir)
     kin = HandKinematics(tool_offset_m=h.tool_offset_m)
     R_ref = palm_down_rotation(PALM_DOWN_YAW_RAD)
     q_start = _solve_start(h, kin, R_ref)
@@ -159,6 +162,17 @@ def plan(spec: HmiBlockSpec, base_dir: Path | None = None) -> HmiPlan:
                    q_targets=q_targets, R_ref=R_ref, camera=camera, mapping=mapping,
                    workspace=Workspace(tuple(h.workspace.x_m), tuple(h.workspace.y_m)), trials=trials,
                    condition=h.condition_label())
+
+
+def _check_replay_file(h: HmiTask, base_dir: Path | None) -> None:
+    """A replayed gaze file or capture must exist before anything runs (a spec copied with its placeholder
+    path otherwise fails only once the run has started)."""
+    if h.source.kind not in ("replay", "replay-raw"):
+        return
+    path = resolve_path(h.source.path, base_dir)
+    if not path.is_file():
+        where = "from the working directory" + (f" or from the spec's folder {base_dir}" if base_dir else "")
+        raise SpecError(f"hmi.source.path: no file {h.source.path} ({where})")
 
 
 def _signed(x: float) -> str:
