@@ -210,9 +210,9 @@ class PlantSpec(Strict):
 # ----------------------------------------------------------------------------------------------- controller
 class ControllerSpec(Strict):
     kind: Literal["pd_g", "pid", "pd_g_ff"] = "pd_g"
-    kp: Vec7 | None = Field(None, description="default: libbarrett's (filled in when the spec is read)")
-    kd: Vec7 | None = Field(None, description="default: libbarrett's (filled in when the spec is read)")
-    ki: Vec7 | None = Field(None, description="pid only; default libbarrett's (filled in for pid)")
+    kp: Vec7 | None = Field(None, description="default: libbarrett's")
+    kd: Vec7 | None = None
+    ki: Vec7 | None = Field(None, description="pid only; default libbarrett's")
     gravity_compensation: bool = True
     friction_ff: str | None = Field(None, description="pd_g_ff: 'table_4_1' or a friction_model.yaml path")
     ff_inertia: bool = Field(True, description="pd_g_ff: include the m * qdd_r term of eq. 4.3")
@@ -235,11 +235,6 @@ class ControllerSpec(Strict):
             raise ValueError("friction_ff is required for kind pd_g_ff (a friction_model.yaml or 'table_4_1')")
         if self.kind != "pid" and self.ki is not None and any(self.ki):
             raise ValueError(f"ki is only used by kind pid, not {self.kind}")
-        # the gains in force, written out: a run's resolved spec says what the controller did
-        kp, kd, ki = self.gains()
-        self.kp, self.kd = kp.tolist(), kd.tolist()
-        if self.kind == "pid":
-            self.ki = ki.tolist()
         return self
 
     def gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
