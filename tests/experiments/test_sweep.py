@@ -178,6 +178,11 @@ def test_sweep_runs_every_point_into_ordinary_run_dirs(tmp_path, client):
     rep = json.loads((res.sweep_dir / "report.json").read_text())
     assert len(rep["tables"]["points"]) == 4 and len(rep["tables"]["key_figures"]) == 4
     assert set(rep["by_parameter"]["plant.effects.stribeck.breakaway_ratio"]) == {"1.2", "3.0"}
+    # beside each mean its spread over the points (two seeds per value here), and every point in a figure
+    sd = rep["sd_by_parameter"]["plant.effects.stribeck.breakaway_ratio"]
+    want = idx.groupby("plant.effects.stribeck.breakaway_ratio")["rpe_pct.7"].std(ddof=1)
+    assert sd["3.0"]["rpe_pct.7"] == pytest.approx(want[3.0]) and sd["1.2"]["n_points"] == 2
+    assert (res.sweep_dir / "by_plant_effects_stribeck_breakaway_ratio.png").stat().st_size > 0
     assert (res.sweep_dir / "report.html").stat().st_size > 0 and (res.sweep_dir / "index.csv").is_file()
 
 

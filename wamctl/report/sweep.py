@@ -69,7 +69,42 @@ def sweep_report(sweep_dir: str | Path) -> Document:
                 doc.heading(f"Mean key figures by {p}")
                 doc.table(f"by_{p}", g, f"means over the completed points with each value of {p}")
                 doc.data.setdefault("by_parameter", {})[p] = json.loads(g.to_json(orient="index"))
+                sd = ok.groupby(p)[figs].std(ddof=1)
+                sd.insert(0, "n_points", ok.groupby(p).size())
+                doc.table(f"sd_by_{p}", sd, f"standard deviation over the completed points with each value of {p} "
+                          "(empty with one point); the figure shows every point, where a mean hides groups")
+                doc.data.setdefault("sd_by_parameter", {})[p] = json.loads(sd.to_json(orient="index"))
+                doc.figure(_points_by_value(ok, p, figs, d / f"by_{_file_safe(p)}.png"),
+                           f"each completed point's key figures against {p} (dots, spread sideways so that equal "
+                           "values stay visible); bars: the mean")
     return doc
+
+
+def _file_safe(name: str) -> str:
+    return "".join(c if c.isalnum() or c in "-_" else "_" for c in name)
+
+
+def _points_by_value(ok: pd.DataFrame, p: str, figs: list[str], path: Path) -> Path:
+    """One panel per key figure: every point at its value of ``p`` (categories in sorted order), and the mean."""
+    import numpy as np
+
+    from wamctl.report.figures import joint_grid, save
+    values = sorted(ok[p].unique(), key=lambda v: (isinstance(v, str), v))
+    pos = {v: i for i, v in enumerate(values)}
+    x0 = ok[p].map(pos).to_numpy(float)
+    spread = (np.arange(len(ok)) % 7 - 3) * 0.04
+    fig, axes = joint_grid(len(figs), f"Key figures per point against {p}")
+    for ax, f in zip(axes, figs):
+        y = ok[f].to_numpy(float)
+        ax.plot(x0 + spread, y, "o", ms=3, alpha=0.6)
+        means = ok.groupby(p)[f].mean()
+        ax.hlines([means[v] for v in values], np.arange(len(values)) - 0.3, np.arange(len(values)) + 0.3,
+                  colors="k", lw=1.5)
+        ax.set_xticks(range(len(values)), [f"{v:g}" if isinstance(v, float) else str(v) for v in values])
+        ax.set_xlabel(p)
+        ax.set_ylabel(f)
+        ax.grid(alpha=0.3)
+    return save(fig, path)
 
 
 def write_sweep_report(sweep_dir: str | Path, formats=("md", "html", "json")) -> list[Path]:
