@@ -143,6 +143,24 @@ def test_every_invalid_point_is_reported_before_anything_runs():
     assert "point p0001 (rotation.velocity_rad_s=-1.0)" in msg and "point p0002 (rotation.velocity_rad_s=3.0)" in msg
 
 
+def test_a_mistake_every_point_inherits_is_said_once():
+    """An unknown key in the spec itself breaks all 12 points alike: one line, not 12 (a user saw the same key
+    on 20 lines and '... and 80 more'); points that share a problem are named together."""
+    spec = tiny({"grid": {"seed": {"range": [12]}}})
+    spec["rotation"]["amplitud_rad"] = 0.2
+    with pytest.raises(SpecError) as exc:
+        sweep_from_mapping(spec, "s.yaml")
+    assert str(exc.value) == ("12 of 12 sweep points are invalid (nothing was run):\n"
+                              "s.yaml: all 12 points: rotation.amplitud_rad: unknown key")
+    with pytest.raises(SpecError) as exc:
+        sweep_from_mapping(tiny({"grid": {"rotation.velocity_rad_s": [0.1, -1.0, -2.0, 3.0]}}), "s.yaml")
+    lines = str(exc.value).splitlines()
+    assert lines[0] == "3 of 4 sweep points are invalid (nothing was run):" and len(lines) == 3
+    assert lines[1].startswith("s.yaml: points p0001 (rotation.velocity_rad_s=-1.0), p0002 (rotation.velocity_rad_s"
+                               "=-2.0): rotation.velocity_rad_s:")
+    assert lines[2].startswith("s.yaml: point p0003 (rotation.velocity_rad_s=3.0): rotation.velocity_rad_s:")
+
+
 # ------------------------------------------------------------------------------------ running on Dask
 def test_sweep_runs_every_point_into_ordinary_run_dirs(tmp_path, client):
     sw = sweep_from_mapping(tiny({"grid": {"plant.effects.stribeck.breakaway_ratio": [1.2, 3.0],

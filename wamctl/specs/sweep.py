@@ -214,6 +214,28 @@ def describe_values(values: dict[str, Any], width: int = 100) -> str:
     return s if len(s) <= width else s[: width - 3] + "..."
 
 
+def point_problems(source: str, problems: list[tuple[str, dict, str]], total: int, what: str,
+                   max_lines: int = 20) -> str:
+    """The message for the points of a sweep that a check refused: ``problems`` holds (point id, swept values,
+    the problem without the point's name). Points with the same problem share one line (a mistake in the spec
+    every point inherits is said once, not once per point)."""
+    groups: dict[str, list[tuple[str, dict]]] = {}
+    for pid, vals, core in problems:
+        groups.setdefault(core, []).append((pid, vals))
+    lines = []
+    for core, pts in groups.items():
+        if len(pts) == total > 1:
+            lines.append(f"{source}: all {total} points: {core}")
+        elif len(pts) == 1:
+            lines.append(f"{source}: point {pts[0][0]} ({describe_values(pts[0][1], 80)}): {core}")
+        else:
+            named = ", ".join(f"{pid} ({describe_values(v, 40)})" for pid, v in pts[:5])
+            more = f" and {len(pts) - 5} more" if len(pts) > 5 else ""
+            lines.append(f"{source}: points {named}{more}: {core}")
+    more = f"\n... and {len(lines) - max_lines} more problems" if len(lines) > max_lines else ""
+    return f"{len(problems)} of {total} sweep points {what}:\n" + "\n".join(lines[:max_lines]) + more
+
+
 def _short(v: Any) -> str:
     return json.dumps(v, default=str) if isinstance(v, (list, dict)) else str(v)
 
@@ -284,14 +306,13 @@ def sweep_from_mapping(raw: Any, source: str = "spec", base_dir: Path | None = N
                 data["plant"] = load_model_file(resolve_path(data["plant"], base_dir))
             spec = parse_spec(data, where)
         except SpecError as exc:
-            problems.append(str(exc))
+            msg = str(exc)
+            problems.append((pid, vals, msg[len(where) + 2:] if msg.startswith(where + ": ") else msg))
             continue
         points.append(SweepPoint(pid, vals, data))
         first = first or spec
     if problems:
-        more = f"\n... and {len(problems) - 20} more invalid points" if len(problems) > 20 else ""
-        raise SpecError(f"{len(problems)} of {len(values)} sweep points are invalid (nothing was run):\n"
-                        + "\n".join(problems[:20]) + more)
+        raise SpecError(point_problems(source, problems, len(values), "are invalid (nothing was run)"))
     return Sweep(source, raw, section, points, base_dir, first.kind, section.name or first.name)
 
 

@@ -22,7 +22,7 @@ from wamctl.report import write_report
 from wamctl.report.sweep import write_sweep_report
 from wamctl.runs.store import utc_now
 from wamctl.specs import parse_spec
-from wamctl.specs.sweep import Sweep, SweepPoint, describe_values
+from wamctl.specs.sweep import Sweep, SweepPoint, point_problems
 
 
 class SweepInterrupted(WamctlError):
@@ -57,13 +57,11 @@ def check_plans(sweep: Sweep) -> list[str]:
         try:
             _, checks = plan_only(parse_spec(p.spec, p.point_id), sweep.base_dir)
         except SpecError as exc:
-            problems.append(f"{sweep.source}: point {p.point_id} ({describe_values(p.values, 80)}): {exc}")
+            problems.append((p.point_id, p.values, str(exc)))
             continue
         first = first if first is not None else checks
     if problems:
-        more = f"\n... and {len(problems) - 20} more" if len(problems) > 20 else ""
-        raise SpecError(f"{len(problems)} of {len(sweep.points)} sweep points break a limit:\n"
-                        + "\n".join(problems[:20]) + more)
+        raise SpecError(point_problems(str(sweep.source), problems, len(sweep.points), "break a limit"))
     return first or []
 
 
