@@ -376,3 +376,17 @@ def test_reference_generator_reverses_every_joint():
         signs = np.sign(ref.qd_rad_s[:, j][np.abs(ref.qd_rad_s[:, j]) > 1e-6])
         assert np.count_nonzero(np.diff(signs)) >= 3
     assert np.all(ref.q_rad >= P.Q_MIN_RAD) and np.all(ref.q_rad <= P.Q_MAX_RAD)
+
+
+def test_progress_moves_through_the_joints_and_ends_at_the_whole(generated, tmp_path):
+    """The progress bar advances joint by joint (it sat at 0 % through the whole fit, then jumped)."""
+    from wamctl.experiments.diagnose import diagnose_to_run_dir
+
+    g, _ = generated["position_ripple"]
+    seen = []
+    diagnose_to_run_dir(g.path, out=tmp_path, formats=("json",),
+                        progress=lambda d, n, label: seen.append((d, n, label)))
+    done = [d for d, _, _ in seen]
+    assert done == sorted(done) and done[0] == 0 and seen[-1][:2] == (100, 100)
+    joints = [label for _, _, label in seen if "joint" in label and "torque residual" in label]
+    assert len(joints) >= 1 and len(set(done)) >= 5, seen

@@ -68,9 +68,10 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
 
     data = load_run_data(data_path)
     decl = declared_model(model)
-    if progress:
-        progress(0, 3, "diagnose: fitting")
-    diag = ModelDiagnosis(declared=decl, simulator=simulate_positions).fit(data)
+    def fitting(fraction, label):
+        if progress:
+            progress(round(80 * fraction), 100, f"diagnose: {label}")
+    diag = ModelDiagnosis(declared=decl, simulator=simulate_positions).fit(data, fitting)
     name = name or f"diagnose-{Path(data_path).name}"
     spec = {"kind": "diagnosis", "name": name, "data": str(Path(data_path).resolve()),
             "model": str(Path(model).resolve()) if model else None,
@@ -81,7 +82,7 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
     result = diag.to_dict(str(data_path))
     run.write_json("diagnosis.json", result)
     if progress:
-        progress(1, 3, "diagnose: writing")
+        progress(80, 100, "diagnose: writing the report")
     if diag.conclusive_:
         mf = model_file(diag, str(data_path))
         (run.path / "model.yaml").write_text(yaml.safe_dump(mf, sort_keys=False))
@@ -107,7 +108,7 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
                effects_found=result["effects_found"])
     doc = write_report(run.path, formats=formats)
     if progress:
-        progress(3, 3, "diagnose: done")
+        progress(100, 100, "diagnose: done")
     return run.path, result, doc
 
 

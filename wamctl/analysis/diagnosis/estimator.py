@@ -186,12 +186,15 @@ class ModelDiagnosis:
         self.max_sim_samples = max_sim_samples
 
     # ------------------------------------------------------------------------------------------ fit
-    def fit(self, data) -> ModelDiagnosis:
-        """Diagnose a :class:`wamctl.runs.measured.RunData` (a run directory or a measured run, loaded)."""
+    def fit(self, data, progress=None) -> ModelDiagnosis:
+        """Diagnose a :class:`wamctl.runs.measured.RunData` (a run directory or a measured run, loaded).
+        ``progress(fraction, label)``, when given, is told how far the diagnosis is (0..1) and what it does."""
+        self._progress = progress or (lambda fraction, label: None)
         with _single_threaded_blas():
             return self._fit(data)
 
     def _fit(self, data) -> ModelDiagnosis:
+        self._progress(0.0, "preparing the signals")
         declared = self.declared or DeclaredModel()
         self.declared_ = declared
         self.meta_ = data.meta
@@ -227,8 +230,10 @@ class ModelDiagnosis:
         torque_tests = [c for c in tests if c != "backlash" and c not in ARM_ONLY]
         self.rejected_ = {j: {} for j in sig.joints}     # candidates an arm-wide check ruled out, with why
         self.arm_ambiguous_ = {j: [] for j in sig.joints}   # ambiguous groups an arm-wide check left at a joint
-        for j in sig.joints:
+        for k, j in enumerate(sig.joints):
+            self._progress(0.1 + 0.5 * k / len(sig.joints), f"joint {j + 1}: torque residual")
             self.joints_[j] = self._diagnose_joint(self.jd_[j], torque_tests)
+        self._progress(0.6, "arm-wide checks")
         r2 = self._declared_r2()
         if r2 < MIN_DECLARED_R2 and self._rigid_body_r2() < MIN_DECLARED_R2:
             self.reason_ = (f"the declared model explains only {max(r2, 0.0):.0%} of the torque of the moving "
@@ -245,6 +250,7 @@ class ModelDiagnosis:
             self._check_links()
         self.onsets_ = {}
         if "backlash" in tests or "stribeck" in tests:
+            self._progress(0.7, "onsets")
             for j in sig.joints:
                 onset_tests(self, j, tests)
         self.effects_found_ = self._ranked_effects()
@@ -257,7 +263,9 @@ class ModelDiagnosis:
         self.gains_ = None
         self.position_skipped_ = None if self.simulator is not None else "no simulator given"
         if self.simulator is not None:
+            self._progress(0.8, "position check")
             self._position_check(data)
+        self._progress(1.0, "done")
         return self
 
     def _signals(self, data) -> Signals:
