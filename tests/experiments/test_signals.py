@@ -27,29 +27,20 @@ def test_signals_as_event_sets_the_event_and_restores_the_handlers(sigint_handle
     assert {s: signal.getsignal(s) for s in before} == before
 
 
-def test_an_ignored_ctrl_c_stays_ignored():
-    old = signal.signal(signal.SIGINT, signal.SIG_IGN)
+@pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGHUP], ids=["ctrl-c", "hangup"])
+def test_an_ignored_signal_stays_ignored(sig):
+    """A background job keeps ignoring Ctrl-C, a run started with nohup SIGHUP: neither context installs its
+    handler over SIG_IGN."""
+    old = signal.signal(sig, signal.SIG_IGN)
     try:
         with signals_as_event() as stop:
-            assert signal.getsignal(signal.SIGINT) is signal.SIG_IGN
-            os.kill(os.getpid(), signal.SIGINT)
-            assert not stop.wait(0.2)
-    finally:
-        signal.signal(signal.SIGINT, old)
-
-
-def test_an_ignored_hangup_stays_ignored():
-    """A run started with nohup keeps ignoring SIGHUP: neither context installs its handler over SIG_IGN."""
-    old = signal.signal(signal.SIGHUP, signal.SIG_IGN)
-    try:
-        with signals_as_event() as stop:
-            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
-            os.kill(os.getpid(), signal.SIGHUP)
+            assert signal.getsignal(sig) is signal.SIG_IGN
+            os.kill(os.getpid(), sig)
             assert not stop.wait(0.2)
         with signals_as_interrupt():
-            assert signal.getsignal(signal.SIGHUP) is signal.SIG_IGN
+            assert signal.getsignal(sig) is signal.SIG_IGN
     finally:
-        signal.signal(signal.SIGHUP, old)
+        signal.signal(sig, old)
 
 
 def test_signals_as_interrupt_raises_keyboard_interrupt_naming_the_signal():

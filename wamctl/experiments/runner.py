@@ -42,12 +42,18 @@ class RunOutcome:
     spec); 1 any other failure."""
 
 
-def _install(handler, signals) -> dict:
-    """Install ``handler`` for each of ``signals`` that is not ignored (a run started with ``nohup`` keeps
-    ignoring SIGHUP); the handlers replaced, to restore. Nothing outside the main thread."""
-    if threading.current_thread() is not threading.main_thread():
-        return {}
-    return {s: signal.signal(s, handler) for s in signals if signal.getsignal(s) is not signal.SIG_IGN}
+@contextmanager
+def _handled(handler, signals):
+    """``handler`` for each of ``signals`` that is not ignored (a run started with ``nohup`` keeps ignoring
+    SIGHUP) inside the block, the previous handlers restored after it. Nothing outside the main thread."""
+    old = {}
+    if threading.current_thread() is threading.main_thread():
+        old = {s: signal.signal(s, handler) for s in signals if signal.getsignal(s) is not signal.SIG_IGN}
+    try:
+        yield
+    finally:
+        for s, h in old.items():
+            signal.signal(s, h)
 
 
 @contextmanager
@@ -56,12 +62,8 @@ def signals_as_interrupt():
     ignored)."""
     def handler(signum, frame):
         raise KeyboardInterrupt(signal.Signals(signum).name)
-    old = _install(handler, (signal.SIGTERM, signal.SIGHUP))
-    try:
+    with _handled(handler, (signal.SIGTERM, signal.SIGHUP)):
         yield
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
 
 
 @contextmanager
@@ -73,15 +75,8 @@ def signals_as_event():
     state (a Dask client's synchronous calls log a NameError traceback when interrupted before their coroutine
     has started): the caller polls the event between library calls and stops cleanly."""
     stop = threading.Event()
-
-    def handler(signum, frame):
-        stop.set()
-    old = _install(handler, (signal.SIGINT, signal.SIGTERM, signal.SIGHUP))
-    try:
+    with _handled(lambda signum, frame: stop.set(), (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)):
         yield stop
-    finally:
-        for s, h in old.items():
-            signal.signal(s, h)
 
 
 def record_outcome(run: RunDir, body, resume_hint: bool = False) -> RunOutcome:
