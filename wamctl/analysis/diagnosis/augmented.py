@@ -213,9 +213,10 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
     if same:
         traces["after"] = traces["before"].copy()
     rms_b, rms_a = {}, {}
+    away = sig.usable(slice(0, n))             # the log's gaps are interpolated, not measured: not scored
     for j in diag.joints_:
         for which, store in (("before", rms_b), ("after", rms_a)):
-            err = traces[which][:, j] - q_meas[:, j]
+            err = np.where(away, traces[which][:, j] - q_meas[:, j], np.nan)
             store[j] = float(np.sqrt(np.nanmean(err ** 2))) if np.isfinite(err).any() else float("nan")
     return {"t_s": t, "q_meas": q_meas, "q_before": traces["before"], "q_after": traces["after"],
             "rms_before": rms_b, "rms_after": rms_a, "samples": n}

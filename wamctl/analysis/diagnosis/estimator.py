@@ -77,7 +77,7 @@ from wamctl.analysis.diagnosis.parameters import (
 )
 from wamctl.analysis.diagnosis.prepare import declared_delay_s, prepare_design
 from wamctl.analysis.diagnosis.serialise import diagnosis_dict
-from wamctl.analysis.diagnosis.signals import Signals, prepare_signals
+from wamctl.analysis.diagnosis.signals import Signals, gap_warnings, prepare_signals
 from wamctl.analysis.diagnosis.stats import finite_ss
 from wamctl.analysis.diagnosis.sweeps import map_evidence
 from wamctl.analysis.diagnosis.unexplained import unexplained
@@ -210,7 +210,7 @@ class ModelDiagnosis:
         if unknown:
             raise ValueError(f"unknown candidate effects {unknown}; known: {EFFECT_NAMES}")
         sig = self._signals(data)
-        self.warnings_ = torque_warnings(sig)
+        self.warnings_ = gap_warnings(sig) + torque_warnings(sig)
         for w in self.warnings_:
             log.warning(w)
         if not sig.joints:

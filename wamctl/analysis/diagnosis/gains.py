@@ -46,6 +46,7 @@ def controller_gains(sig, meta, gravity) -> dict:
     c = meta.controller
     n = sig.n
     rows = np.unique(np.linspace(1, n - 1, min(n - 1, MAX_ROWS)).astype(int))
+    rows = rows[sig.usable(rows) & sig.usable(rows - 1)]        # not across a gap of the log
     u, e, de = _pd_system(sig, gravity if meta.gravity_compensation else None, rows)
     sat = np.abs(sig.tau_raw_Nm[rows]) >= 0.98 * P.TAU_MAX_NM
     kp_log, kd_log, r2_log, r2_decl = np.full(7, np.nan), np.full(7, np.nan), np.full(7, np.nan), np.full(7, np.nan)

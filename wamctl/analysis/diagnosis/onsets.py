@@ -124,6 +124,9 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
     cache = jd.extra.setdefault("_onsets", {})
     if tol not in cache:     # the measured onsets depend on the signals only
         ons = find_onsets(sig.t_s, q_raw, sig.qd_rad_s[:, j], float(sig.v_stick_rad_s[j]), tol, 2 * sig.reach)
+        if sig.valid is not None:          # an onset whose window reaches into a gap of the log is left out
+            ons = [o for o in ons if sig.valid[max(min(o.start, o.turn if o.turn >= 0 else o.start)
+                                                   - 2 * sig.reach, 0):o.end + extend].all()]
         if len(ons) > MAX_ONSETS:          # a long run: evenly spread over it, plenty for the tests
             ons = [ons[i] for i in np.unique(np.linspace(0, len(ons) - 1, MAX_ONSETS).round().astype(int))]
         cache[tol] = ons

@@ -43,6 +43,7 @@ MIN_MOVING_SAMPLES = 200       # a joint needs this many sliding samples to be d
 MIN_TRAVEL_RAD = 0.02
 STRETCH_RATIO = 8              # Signals.smooth_at: convolve stretches covering this many times fewer positions
 SMOOTH_CHUNK = 2048            # Signals.smooth_at: samples evaluated together, window by window
+MAX_GAP_PERIODS = 5.5          # a step of t longer than this many periods is a gap: its neighbourhood is left out
 ROW_CHUNK = 1 << 16            # full-rate arithmetic on long runs in pieces of this many samples
 KEPT_WINDOWS = 6               # Signals.smooth_at: sets of gathered windows kept for the next features
 
@@ -60,7 +61,8 @@ class Signals:
     q_rad, qd_rad_s, qdd_rad_s2 : (n, 7) smoothed position and its derivatives.
     tau_Nm : (n, 7) logged torque, half-sample aligned and smoothed like ``q``.
     q_raw_rad, q_ref_rad, tau_raw_Nm : (n, 7) the data as logged (on the uniform grid).
-    moving : (n, 7) bool, samples usable for the torque residual (sliding, away from stick, not at the ends).
+    moving : (n, 7) bool, samples usable for the torque residual (sliding, away from stick, not at the ends, away
+        from the log's gaps).
     joints : 0-based joints that moved enough to be diagnosed.
     skipped : {joint (0-based): reason} for joints that were commanded to move but cannot be diagnosed.
     v_stick_rad_s : (7,) speed threshold under which a joint counts as stuck.
@@ -84,6 +86,8 @@ class Signals:
     q_noise_rad: np.ndarray = field(default_factory=lambda: np.zeros(N7))
     time_base: str = "as logged"
     qd_raw_rad_s: np.ndarray | None = None       # measured velocities (the log's qd_* columns), when given
+    valid: np.ndarray | None = None      # (n,) bool: away from the gaps of the log (None: every sample)
+    gaps_s: list = field(default_factory=list)   # (t_before, t_after) s of every gap of the log
     _full: dict = field(default_factory=dict, repr=False)
     _memo: dict = field(default_factory=dict, repr=False)
 
@@ -143,6 +147,12 @@ class Signals:
     @property
     def n(self) -> int:
         return len(self.t_s)
+
+    def usable(self, rows: np.ndarray | slice = slice(None)) -> np.ndarray:
+        """bool per sample of ``rows``: away from the log's gaps (every sample of a log without gaps)."""
+        if self.valid is None:
+            return np.ones(len(self.t_s), bool)[rows]
+        return self.valid[rows]
 
     @property
     def reach(self) -> int:
@@ -282,6 +292,34 @@ def uniform_grid(t_s: np.ndarray, *arrays: np.ndarray, rate_hz: float) -> tuple[
             if rough_ticks <= rough_stamps:
                 return ticks, list(arrays), TIME_TICKS
     return tu, out, TIME_RESAMPLED
+
+
+def time_gaps(t_s: np.ndarray, rate_hz: float) -> list[tuple[float, float]]:
+    """``(t_before, t_after)`` s of every step of ``t_s`` longer than ``MAX_GAP_PERIODS`` sample periods: samples
+    the log lost (a dropped bus frame, a paused logger). Shorter gaps are interpolated like jitter."""
+    steps = np.diff(t_s)
+    return [(float(t_s[k]), float(t_s[k + 1])) for k in np.flatnonzero(steps > MAX_GAP_PERIODS / rate_hz)]
+
+
+def outside_gaps(t_s: np.ndarray, gaps: list[tuple[float, float]], margin: int) -> np.ndarray:
+    """(n,) bool: the samples of the uniform time ``t_s`` that are neither inside a gap nor within ``margin``
+    samples of one (where a filter reaches into the interpolated stretch)."""
+    ok = np.ones(len(t_s), bool)
+    for a, b in gaps:
+        lo, hi = np.searchsorted(t_s, a, "right"), np.searchsorted(t_s, b, "left")
+        ok[max(lo - margin, 0):hi + margin] = False
+    return ok
+
+
+def gap_warnings(sig: Signals) -> list[str]:
+    """What the log's gaps cost the diagnosis, said (empty without gaps)."""
+    if not sig.gaps_s:
+        return []
+    a, b = max(sig.gaps_s, key=lambda g: g[1] - g[0])
+    lost = int(np.count_nonzero(~sig.usable()))
+    return [f"t: {len(sig.gaps_s)} gap(s) in the time stamps (more than {MAX_GAP_PERIODS - 0.5:.0f} samples missing; "
+            f"the longest {b - a:.3g} s after t = {a:.6g} s): {lost * sig.dt_s:.3g} s of the run ({lost / sig.n:.1%}) "
+            f"in and within {2 * sig.reach * sig.dt_s * 1e3:.0f} ms of them is left out"]
 
 
 def interp_columns(x_new: np.ndarray, x: np.ndarray, Y: np.ndarray) -> np.ndarray:
@@ -506,7 +544,9 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
 
     Parameters
     ----------
-    t_s : (n,) time stamps, s (strictly increasing).
+    t_s : (n,) time stamps, s (strictly increasing). A step longer than ``MAX_GAP_PERIODS`` periods is a gap
+        (:func:`time_gaps`): the grid interpolates across it and the samples within twice the filters' reach of
+        it are left out of every fit (:attr:`Signals.valid`).
     q_rad, q_ref_rad, tau_Nm : (n, 7) measured positions, reference, logged torque.
     rate_hz : nominal sample rate.
     joints_hint : 0-based joints the metadata says moved (others are also diagnosed if they moved).
@@ -516,7 +556,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     Raises
     ------
     DataFormatError
-        Non-finite samples, a sample rate too low to differentiate, or too few samples.
+        Non-finite samples, a sample rate too low to differentiate, or too few samples (away from the gaps).
     """
     for name, a in (("t", t_s), ("q", q_rad), ("q_ref", q_ref_rad), ("tau", tau_Nm)):
         if not np.isfinite(a).all():
@@ -526,12 +566,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     if rate_hz < MIN_RATE_HZ:
         raise DataFormatError(f"sample_rate_hz is {rate_hz:g}; the diagnosis differentiates positions twice "
                               f"and needs at least {MIN_RATE_HZ:g} Hz")
-    steps = np.diff(np.asarray(t_s, float))
-    if len(steps) and steps.max() > 5.5 / rate_hz:
-        k = int(np.argmax(steps))
-        raise DataFormatError(f"t: a gap of {steps[k]:.4g} s after t = {t_s[k]:.6g} s ({steps[k] * rate_hz:.0f} "
-                              "sample periods); the diagnosis differentiates positions and needs contiguous "
-                              "samples (gaps of up to 5 samples are interpolated)")
+    gaps = time_gaps(np.asarray(t_s, float), rate_hz)
     arrays = [q_rad, q_ref_rad, tau_Nm] + ([qd_rad_s] if qd_rad_s is not None else [])
     t, out, time_base = uniform_grid(np.asarray(t_s, float), *arrays, rate_hz=rate_hz)
     q, q_ref, tau = out[:3]
@@ -545,7 +580,11 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     tau_c = zoh_centred(tau, zoh_share(1.0 / rate_hz))
     qd = smooth(q, w, gs, 1, dt) if qd_meas is None else smooth(qd_meas, w, gs)
 
-    q_noise = position_noise_rad(q)
+    valid = outside_gaps(t, gaps, 2 * filter_reach(w, gs))
+    if valid.sum() < 4 * w:
+        raise DataFormatError(f"only {int(valid.sum())} samples away from the gaps in t ({len(gaps)} gaps of more "
+                              f"than {MAX_GAP_PERIODS - 0.5:.0f} samples); the diagnosis needs at least {4 * w}")
+    q_noise = position_noise_rad(q[valid])
     v_noise = q_noise * derivative_noise_gain(w, gs, dt)
     # stuck: slower than 4 sigma of the velocity noise, and never faster than a floor of 1 mrad/s
     v_stick = np.maximum(4.0 * v_noise, 1e-3)
@@ -557,6 +596,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
     edge = 2 * reach  # the filter's edge samples are extrapolations
     moving[:edge] = False
     moving[-edge:] = False
+    moving &= valid[:, None]
 
     hint = set(joints_hint or [])
     joints, skipped = [], {}
@@ -575,4 +615,4 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
             continue
         joints.append(j)
     return Signals(t, dt, w, gs, qd, tau_c, q, q_ref, tau, moving, joints, skipped, v_stick,
-                   time_base == TIME_RESAMPLED, q_noise, time_base, qd_meas)
+                   time_base == TIME_RESAMPLED, q_noise, time_base, qd_meas, valid=valid, gaps_s=gaps)

@@ -61,6 +61,11 @@ def friction_map_of(diag, j: int):
         has_ref = np.ptp(sig.q_ref_rad[:n, sig.joints], axis=0).max() > 0
         fmap = friction_map(sig.t_s[:n], sig.q_raw_rad[:n], sig.tau_raw_Nm[:n], sig.q_ref_rad[:n] if has_ref else None,
                             [jj + 1 for jj in sig.joints], diag.dynamics_, map_options())
+        if sig.gaps_s and len(fmap):     # a segment across a gap of the log is interpolated there: not a measurement
+            bad, m = np.zeros(len(fmap), bool), 2 * sig.reach * sig.dt_s
+            for a, b in sig.gaps_s:
+                bad |= (fmap["t_start_s"].to_numpy() <= b + m) & (fmap["t_end_s"].to_numpy() >= a - m)
+            fmap = fmap.assign(accepted=fmap["accepted"].to_numpy() & ~bad)
         diag.friction_map_ = fmap
     if not len(fmap):
         return fmap
