@@ -398,19 +398,46 @@ def test_data_option_on_an_exported_run(sweep_run, tmp_path, monkeypatch, capsys
     assert "Identified vs true" not in (tmp_path / "ident" / "report.md").read_text()
 
 
-def test_data_option_without_out_creates_a_friction_sweep_run(tmp_path, monkeypatch, capsys):
-    """A small measured sweep (two joints, written as a measured run) -> a new run directory of kind
-    friction_sweep holding the data, the model and the report; `wamctl report` takes it again."""
+def _measured_sweep(mdir: Path, jitter_s: float = 0.0) -> Path:
+    """A small simulated sweep of joints 5 and 6 written as a measured run (CSV); its time stamps jittered by up
+    to +-``jitter_s`` around the exact ticks (a logger's stamps)."""
     spec = sweep_spec(sweep={"joints": [5, 6], "velocities_rad_s": [0.01, 0.05, 0.2, 0.6], "cruise_s": 1.0,
                              "travel_rad": 0.5})
     rd = simulate(spec)
-    mdir = tmp_path / "m"
     mdir.mkdir()
     (mdir / "meta.yaml").write_text(yaml.safe_dump(rd.meta.model_dump(mode="json")))
     ext = rd.data[["t_s"] + [f"{n}_{j}_{u}" for n, u in (("q_ref", "rad"), ("q", "rad"), ("tau", "Nm"))
-                             for j in range(1, 8)]]
+                             for j in range(1, 8)]].copy()
     ext.columns = ["t"] + [f"{n}_{j}" for n in ("q_ref", "q", "tau") for j in range(1, 8)]
+    ext["t"] += np.random.default_rng(8).uniform(-jitter_s, jitter_s, len(ext))
     ext.to_csv(mdir / "data.csv", index=False)
+    return mdir
+
+
+def test_jittered_time_stamps_keep_every_stage(tmp_path, monkeypatch, capsys):
+    """A logger that stamps exact ticks with +-0.4 ms of jitter (20 % of a period): the commanded speed of each
+    stage is read over 50 ms of the reference, not one sample (whose speed the jitter moved by up to 25 %, and
+    every stage was refused as 'not in steady state')."""
+    maps, models = {}, {}
+    for name, jitter in (("exact", 0.0), ("jittered", 4e-4)):
+        mdir = _measured_sweep(tmp_path / name, jitter)
+        code, out, err = run_cli(monkeypatch, capsys, "friction-id", "--data", mdir, "--out",
+                                 tmp_path / f"{name}-id", "--quiet")
+        assert code == 0, err
+        maps[name] = pd.read_csv(tmp_path / f"{name}-id" / "friction_map.csv")
+        models[name] = FrictionModel.load(tmp_path / f"{name}-id" / "friction_model.yaml")
+    assert maps["jittered"]["accepted"].tolist() == maps["exact"]["accepted"].tolist()
+    assert maps["exact"]["accepted"].sum() >= 14
+    np.testing.assert_allclose(maps["jittered"]["v_cmd_rad_s"], maps["exact"]["v_cmd_rad_s"], rtol=5e-3)
+    for j in (4, 5):
+        for name in ("fc_pos_Nm", "fc_neg_Nm"):
+            assert getattr(models["jittered"], name)[j] == pytest.approx(getattr(models["exact"], name)[j], rel=5e-3)
+
+
+def test_data_option_without_out_creates_a_friction_sweep_run(tmp_path, monkeypatch, capsys):
+    """A small measured sweep (two joints, written as a measured run) -> a new run directory of kind
+    friction_sweep holding the data, the model and the report; `wamctl report` takes it again."""
+    mdir = _measured_sweep(tmp_path / "m")
     monkeypatch.chdir(tmp_path)
     code, out, err = run_cli(monkeypatch, capsys, "friction-id", "--data", mdir, "--json")
     assert code == 0, err
