@@ -16,7 +16,7 @@ import pytest
 import yaml
 from conftest import Q0
 
-from wamctl.analysis.friction_id.identify import identify
+from wamctl.analysis.friction_id.identify import identify, identify_from_map
 from wamctl.analysis.friction_id.models import ClassicFriction, StribeckFriction
 from wamctl.analysis.friction_id.segments import constant_velocity_stage, detect_moves, moves_from_reference
 from wamctl.analysis.friction_id.selection import select_model
@@ -278,6 +278,22 @@ def test_selection_prefers_the_model_that_generated_the_data():
     assert s.vs_ == pytest.approx(0.05, rel=0.2)
 
 
+def test_too_few_segments_in_one_direction_identify_nothing():
+    """Three usable stages one way and two the other (the rest stuck and slipped): the per-direction model
+    cannot be checked on held-out stages, and a symmetric one, checked, used to win by default and average a
+    joint whose Coulomb levels differ threefold (0.10 N m for 0.05 and 0.16). Now no model is chosen."""
+    asym = FrictionModel(np.full(7, 0.05), np.full(7, 0.16), np.full(7, 1.2), np.full(7, 0.9))
+    m = synthetic_map(asym, 7, [0.005, 0.09, 0.34], 1e-3, np.random.default_rng(2))
+    m = m[~np.isclose(m["velocity_rad_s"], -0.005)]
+    with pytest.raises(ValueError, match="one direction"):
+        select_model(m)
+    ident = identify_from_map(m.assign(joint=7))
+    assert 7 not in ident.joints and "too few usable" in ident.not_identified()[7]
+    table, chosen, _ = select_model(synthetic_map(asym, 7, [0.005, 0.02, 0.09, 0.34], 1e-3,
+                                                  np.random.default_rng(2)))
+    assert chosen == "classic", table          # with four a side it is checked, and it wins
+
+
 # ================================================================================================ (a) the arm
 def test_table_4_1_recovered_on_the_simulated_arm(sweep_run):
     """Every Coulomb level and viscous coefficient within 1 %, every joint and direction, from the written model
@@ -398,10 +414,10 @@ def test_data_option_on_an_exported_run(sweep_run, tmp_path, monkeypatch, capsys
     assert "Identified vs true" not in (tmp_path / "ident" / "report.md").read_text()
 
 
-def _measured_sweep(mdir: Path, jitter_s: float = 0.0) -> Path:
+def _measured_sweep(mdir: Path, jitter_s: float = 0.0, velocities=(0.01, 0.05, 0.2, 0.6)) -> Path:
     """A small simulated sweep of joints 5 and 6 written as a measured run (CSV); its time stamps jittered by up
     to +-``jitter_s`` around the exact ticks (a logger's stamps)."""
-    spec = sweep_spec(sweep={"joints": [5, 6], "velocities_rad_s": [0.01, 0.05, 0.2, 0.6], "cruise_s": 1.0,
+    spec = sweep_spec(sweep={"joints": [5, 6], "velocities_rad_s": list(velocities), "cruise_s": 1.0,
                              "travel_rad": 0.5})
     rd = simulate(spec)
     mdir.mkdir()
@@ -432,6 +448,15 @@ def test_jittered_time_stamps_keep_every_stage(tmp_path, monkeypatch, capsys):
     for j in (4, 5):
         for name in ("fc_pos_Nm", "fc_neg_Nm"):
             assert getattr(models["jittered"], name)[j] == pytest.approx(getattr(models["exact"], name)[j], rel=5e-3)
+
+
+def test_a_sweep_too_short_to_check_a_model_identifies_nothing_and_says_why(tmp_path, monkeypatch, capsys):
+    mdir = _measured_sweep(tmp_path / "m", velocities=(0.05, 0.3))
+    code, out, err = run_cli(monkeypatch, capsys, "friction-id", "--data", mdir, "--out", tmp_path / "id")
+    assert code == 2 and err.startswith("error: ") and "Traceback" not in err, err
+    assert "no joint could be identified" in err and "joint 5: too few usable" in err
+    model = yaml.safe_load((tmp_path / "id" / "friction_model.yaml").read_text())
+    assert model["joints"] == {} and "too few usable" in model["not_identified"][6]
 
 
 def test_data_option_without_out_creates_a_friction_sweep_run(tmp_path, monkeypatch, capsys):

@@ -80,11 +80,20 @@ def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options
     from wamctl.experiments.friction_sweep import MODEL_FILE, analyse_recorded
 
     target, ident, doc = analyse_recorded(data, out, options=options, model=model)
+    swept = {int(j) for j in ident.map["joint"].unique()} if len(ident.map) else set()
+    missing = {j: why for j, why in ident.not_identified().items() if j in swept}
+    if not ident.joints:
+        from wamctl.errors import DataFormatError
+        raise DataFormatError(f"{data}: no joint could be identified (" + "; ".join(
+            f"joint {j}: {why}" for j, why in missing.items()) + f"); the friction map and the rejected moves are "
+            f"in {target}")
     if as_json:
         emit_json({"out": str(target), "friction_model": str(target / MODEL_FILE), "report": doc.to_json()})
         return
     if not quiet:
         print_document_tables(doc)
+    for j, why in missing.items():
+        console.print(f"joint {j} not identified: {why}", highlight=False)
     console.print(f"identified from {data}\nwritten to: {target}\nfriction model: {target / MODEL_FILE}",
                   highlight=False)
 

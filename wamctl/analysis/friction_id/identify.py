@@ -84,7 +84,12 @@ class FrictionIdentification:
         for j in range(1, P.N_JOINTS + 1):
             if j in self.joints:
                 continue
-            out[j] = ("too few usable constant-velocity segments to fit" if j in in_map else "not swept")
+            if j not in in_map:
+                out[j] = "not swept"
+                continue
+            mj = self.map[self.map["joint"] == j]
+            out[j] = (f"too few usable constant-velocity segments to fit and check a model ({int(mj['accepted'].sum())}"
+                      f" of {len(mj)} moves; the others' reasons are in the rejected segments)")
         return out
 
     def model_file(self) -> tuple[dict, str]:
@@ -138,7 +143,7 @@ def identify_from_map(fmap: pd.DataFrame, models=MODEL_NAMES, folds: int = 5, cr
         try:
             table, chosen, fitted = select_model(acc, models, folds, criterion, loss, weighting)
         except ValueError as exc:
-            log.warning("joint %d: %s", j, exc)
+            log.info("joint %d: %s", j, exc)
             continue
         result.joints[int(j)] = JointIdentification(int(j), chosen, table, fitted, len(acc), len(mj) - len(acc))
         for k, val in fitted[chosen].joint_params().items():

@@ -161,10 +161,16 @@ def _score(name: str, full, pred: np.ndarray, f: np.ndarray, sigma: np.ndarray, 
 
 
 def _choose(table: pd.DataFrame, key: str, margin: float) -> str:
-    """The simplest model whose score ``key`` is within ``margin`` of the best; without finite scores the
-    symmetric classic model (or the first one fitted)."""
-    if np.isfinite(table[key]).any():
-        best = float(table[key].min())
-        close = table[table[key] <= best + margin]
-        return str(close.sort_values(["k", key]).index[0])
-    return "classic_symmetric" if "classic_symmetric" in table.index else str(table.index[0])
+    """The simplest model whose score ``key`` is within ``margin`` of the best. Without a finite score no model
+    could be checked on held-out segments (too few of them, or of one direction): none is chosen (ValueError),
+    rather than a model fitted to a handful of points printed as identified."""
+    if not np.isfinite(table[key]).any():
+        raise ValueError(f"too few usable segments ({int(table['n'].max())}) to check any model on held-out ones")
+    if "classic" in table.index and not np.isfinite(table.loc["classic", key]):
+        # the per-direction model could not be checked: a symmetric one, checked, would win by default and
+        # average two directions the data never compared
+        raise ValueError("too few usable segments in one direction to check the per-direction model on held-out "
+                         "ones")
+    best = float(table[key].min())
+    close = table[table[key] <= best + margin]
+    return str(close.sort_values(["k", key]).index[0])
