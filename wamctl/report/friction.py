@@ -212,7 +212,9 @@ def friction_document(rd, ident: FrictionIdentification, out_dir: Path, title: s
     doc.heading("Friction model parameters (Table 4.1 layout)")
     t41 = parameter_table(ident)
     doc.table("friction_parameters", t41, "chosen model per joint; Fc (N m) as magnitudes, sigma2 (N m s/rad); "
-              "*_std: standard errors from the fit's Jacobian. Written to friction_model.yaml.")
+              "*_std: standard errors (classic models: the larger of the fit's and the jackknife's over the segments, "
+              "which a single stage off by more than its scatter widens; Stribeck: the fit's). Written to "
+              "friction_model.yaml.")
     missing = ident.not_identified()
     if missing:
         doc.text("Not identified, so friction_model.yaml gives no friction for them (whatever reads it treats them "
