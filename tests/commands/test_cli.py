@@ -55,6 +55,21 @@ def test_example_configs_validate(config, tmp_path):
     assert r.returncode == 0 and "valid" in r.stdout, r.stderr
 
 
+def test_validate_says_what_unset_gains_stand_for(tmp_path):
+    """``kp: null`` in the resolved spec means libbarrett's gains: validate prints them beside it (and the text
+    still reads back as the same spec)."""
+    spec = write(tmp_path / "rot.yaml", rotation_spec(controller={"kind": "pd_g", "kd": [5.0] * 7}))
+    r = wamctl("validate", spec)
+    assert r.returncode == 0, r.stderr
+    lines = r.stdout.splitlines()
+    assert "  kp: null  # libbarrett's: [900.0, 2500.0, 600.0, 500.0, 50.0, 50.0, 8.0]" in lines
+    assert "  ki: null  # not used by pd_g" in lines
+    kd = next(line for line in lines if line.startswith("  kd:"))
+    assert "#" not in kd
+    body = r.stdout[:r.stdout.index("\nok ")]          # the spec, then one "ok ..." line per check
+    assert yaml.safe_load(body)["controller"]["kp"] is None
+
+
 def test_rotation_run_writes_a_self_describing_run_directory(tmp_path, runs_dir):
     spec = write(tmp_path / "rot.yaml", rotation_spec(rotation={"joints": [1, 7], "mode": "one_at_a_time"}))
     r = wamctl("run", spec, "--out", runs_dir, "--json")

@@ -53,10 +53,27 @@ def validate(spec: SpecArg,
     if json:
         emit_json({"valid": True, "spec": s.model_dump(mode="json"), "checks": checks})
     else:
-        console.print(yaml.safe_dump(s.model_dump(mode="json"), sort_keys=False), highlight=False)
+        console.print(_gains_said(yaml.safe_dump(s.model_dump(mode="json"), sort_keys=False), s.controller),
+                      highlight=False)
         for c in checks:
             console.print(f"[green]ok[/] {c}")
         console.print(f"{spec}: valid {s.kind} spec")
+
+
+def _gains_said(text: str, controller) -> str:
+    """The resolved spec's text with each gain left unset (``kp: null``) followed by the gains it stands for."""
+    kp, kd, ki = controller.gains()
+    said = {"kp": f"libbarrett's: {kp.tolist()}", "kd": f"libbarrett's: {kd.tolist()}",
+            "ki": f"libbarrett's: {ki.tolist()}" if controller.kind == "pid" else f"not used by {controller.kind}"}
+    out, block = [], None
+    for line in text.splitlines():
+        if line and not line.startswith(" "):
+            block = line.split(":")[0]
+        key = line.strip().split(":")[0]
+        if block == "controller" and line.startswith("  ") and line.strip().endswith(": null") and key in said:
+            line = f"{line}  # {said[key]}"
+        out.append(line)
+    return "\n".join(out)
 
 
 def register(app: typer.Typer) -> None:
