@@ -70,6 +70,14 @@ def test_validate_says_what_unset_gains_stand_for(tmp_path):
     assert yaml.safe_load(body)["controller"]["kp"] is None
 
 
+@pytest.mark.parametrize("cmd", [("diagnose",), ("identify",), ("report",)])
+def test_an_error_is_the_first_line_when_stderr_is_not_a_terminal(cmd, tmp_path):
+    """A log file (stderr not a terminal) gets no progress bar, and so not the blank line it left on stopping
+    before the error."""
+    r = wamctl(*cmd, tmp_path / "nowhere")
+    assert r.returncode == 2 and r.stderr.startswith("error: "), repr(r.stderr)
+
+
 def test_rotation_run_writes_a_self_describing_run_directory(tmp_path, runs_dir):
     spec = write(tmp_path / "rot.yaml", rotation_spec(rotation={"joints": [1, 7], "mode": "one_at_a_time"}))
     r = wamctl("run", spec, "--out", runs_dir, "--json")

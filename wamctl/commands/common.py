@@ -44,8 +44,9 @@ def reset_consoles() -> None:
 
 @contextmanager
 def progress_bar(description: str, enabled: bool = True):
-    """Yields a callback ``progress(done, total)`` drawing a rich bar on stderr (a no-op when disabled)."""
-    if not enabled:
+    """Yields a callback ``progress(done, total)`` drawing a rich bar on stderr (None when disabled, or when stderr
+    is not a terminal: a log file would get only the blank line the bar leaves when it stops)."""
+    if not enabled or not err_console._get().is_terminal:
         yield None
         return
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
