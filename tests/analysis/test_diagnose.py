@@ -368,7 +368,7 @@ def test_gaps_in_time_are_left_out_and_change_nothing(generated, tmp_path, name)
 def test_a_log_that_is_mostly_gaps_is_a_clear_error(tmp_path, short_clean):
     _, df, meta = short_clean
     holey = df.iloc[np.arange(len(df)) % 40 < 8].reset_index(drop=True)     # 8 samples out of every 40
-    with pytest.raises(DataFormatError, match="gaps"):
+    with pytest.raises(DataFormatError, match="away from the gaps in t"):
         ModelDiagnosis(simulator=simulate_positions).fit(load_run_data(_write(tmp_path, holey, meta)))
 
 

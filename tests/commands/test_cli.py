@@ -70,7 +70,7 @@ def test_validate_says_what_unset_gains_stand_for(tmp_path):
     assert yaml.safe_load(body)["controller"]["kp"] is None
 
 
-@pytest.mark.parametrize("cmd", [("diagnose",), ("identify",), ("report",)])
+@pytest.mark.parametrize("cmd", [("diagnose",), ("identify",)])
 def test_an_error_is_the_first_line_when_stderr_is_not_a_terminal(cmd, tmp_path):
     """A log file (stderr not a terminal) gets no progress bar, and so not the blank line it left on stopping
     before the error."""

@@ -86,8 +86,9 @@ def plant_dict(diag, which: str = "after", thetas: dict | None = None) -> dict:
         effects.update(_effects_after(diag, thetas, joints))
     sensors = dict(declared.sensors or {})
     sig = diag.signals_
+    measured = sig.usable()          # not a gap's interpolated stretch (steps finer than a count)
     sensors.setdefault("encoder_counts_per_rev", sig.memo("encoder_counts",
-                                                         lambda: encoder_counts(sig.q_raw_rad, sig.joints)))
+                                                         lambda: encoder_counts(sig.q_raw_rad[measured], sig.joints)))
     out = {"friction": {"joints": joints}, "effects": effects, "sensors": sensors}
     if declared.links is not None:          # an identified arm (`wamctl identify`) stays the plant's rigid body
         out["links"] = declared.links.to_mapping()

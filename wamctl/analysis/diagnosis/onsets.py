@@ -99,7 +99,8 @@ def onset_model(diag, j: int, declared: bool = False, exclude: tuple[str, ...] =
 def detection_tolerance(sig: Signals, j: int) -> tuple[float, float]:
     """(encoder step, tolerance) rad: the measurement has moved once it left the stall value by two encoder
     steps (or four noise sigmas)."""
-    quantum = sig.memo(("resolution_rad", j), lambda: resolution_rad(sig.q_raw_rad[:, j]))
+    # measured samples only: a gap's interpolated stretch would add steps finer than a count
+    quantum = sig.memo(("resolution_rad", j), lambda: resolution_rad(sig.q_raw_rad[sig.usable(), j]))
     return quantum, max(2.0 * quantum, 4.0 * float(sig.q_noise_rad[j]), 1e-6)
 
 

@@ -43,7 +43,7 @@ MIN_MOVING_SAMPLES = 200       # a joint needs this many sliding samples to be d
 MIN_TRAVEL_RAD = 0.02
 STRETCH_RATIO = 8              # Signals.smooth_at: convolve stretches covering this many times fewer positions
 SMOOTH_CHUNK = 2048            # Signals.smooth_at: samples evaluated together, window by window
-MAX_GAP_PERIODS = 5.5          # a step of t longer than this many periods is a gap: its neighbourhood is left out
+MAX_GAP_PERIODS = 5.5          # a step of t longer than this (5 or more samples missing) is a gap: left out
 ROW_CHUNK = 1 << 16            # full-rate arithmetic on long runs in pieces of this many samples
 KEPT_WINDOWS = 6               # Signals.smooth_at: sets of gathered windows kept for the next features
 
@@ -295,8 +295,9 @@ def uniform_grid(t_s: np.ndarray, *arrays: np.ndarray, rate_hz: float) -> tuple[
 
 
 def time_gaps(t_s: np.ndarray, rate_hz: float) -> list[tuple[float, float]]:
-    """``(t_before, t_after)`` s of every step of ``t_s`` longer than ``MAX_GAP_PERIODS`` sample periods: samples
-    the log lost (a dropped bus frame, a paused logger). Shorter gaps are interpolated like jitter."""
+    """``(t_before, t_after)`` s of every step of ``t_s`` longer than ``MAX_GAP_PERIODS`` sample periods (5 or more
+    samples missing): samples the log lost (dropped bus frames, a paused logger). Up to 4 missing samples are
+    interpolated like jitter."""
     steps = np.diff(t_s)
     return [(float(t_s[k]), float(t_s[k + 1])) for k in np.flatnonzero(steps > MAX_GAP_PERIODS / rate_hz)]
 
@@ -317,7 +318,7 @@ def gap_warnings(sig: Signals) -> list[str]:
         return []
     a, b = max(sig.gaps_s, key=lambda g: g[1] - g[0])
     lost = int(np.count_nonzero(~sig.usable()))
-    return [f"t: {len(sig.gaps_s)} gap(s) in the time stamps (more than {MAX_GAP_PERIODS - 0.5:.0f} samples missing; "
+    return [f"t: {len(sig.gaps_s)} gap(s) in the time stamps ({MAX_GAP_PERIODS - 0.5:.0f} or more samples missing; "
             f"the longest {b - a:.3g} s after t = {a:.6g} s): {lost * sig.dt_s:.3g} s of the run ({lost / sig.n:.1%}) "
             f"in and within {2 * sig.reach * sig.dt_s * 1e3:.0f} ms of them is left out"]
 
@@ -582,8 +583,9 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
 
     valid = outside_gaps(t, gaps, 2 * filter_reach(w, gs))
     if valid.sum() < 4 * w:
-        raise DataFormatError(f"only {int(valid.sum())} samples away from the gaps in t ({len(gaps)} gaps of more "
-                              f"than {MAX_GAP_PERIODS - 0.5:.0f} samples); the diagnosis needs at least {4 * w}")
+        raise DataFormatError(f"only {int(valid.sum())} samples away from the gaps in t ({len(gaps)} gaps of "
+                              f"{MAX_GAP_PERIODS - 0.5:.0f} or more missing samples); the diagnosis needs at least "
+                              f"{4 * w}")
     q_noise = position_noise_rad(q[valid])
     v_noise = q_noise * derivative_noise_gain(w, gs, dt)
     # stuck: slower than 4 sigma of the velocity noise, and never faster than a floor of 1 mrad/s

@@ -209,20 +209,26 @@ class ClassicFriction(_LsqFriction):
         return self
 
     def _jackknife_std(self, v, f, s) -> np.ndarray:
-        """(k,) jackknife standard error of the parameters over the points, each left out in turn (a point whose
-        side would be left with too few to fit is kept in every replicate); NaN below 3 replicates."""
-        reps = []
+        """(k,) jackknife standard error of the parameters over the points, each left out in turn. The per-direction
+        model's two sides are separate fits: a side's parameters take the replicates that left out one of its own
+        points. A replicate is skipped when the side it leaves could not be fitted any more; NaN for a parameter
+        with fewer than 3 replicates."""
+        side_of = np.sign(v)
+        reps, dropped = [], []
         for i in range(len(v)):
             keep = np.arange(len(v)) != i
-            side = (v > 0) if v[i] > 0 else (v < 0)
-            if (side & keep).sum() < max(self._min_per_side, 2) + (0 if self.symmetric else 1):
+            if (keep & (side_of == side_of[i])).sum() < self._min_per_side or keep.sum() <= self.n_params:
                 continue
             reps.append(self._estimate(v[keep], f[keep], s[keep]).x)
-        if len(reps) < 3:
-            return np.full(self.n_params, np.nan)
-        reps = np.asarray(reps)
-        n = len(reps)
-        return np.sqrt((n - 1) / n * np.sum((reps - reps.mean(axis=0)) ** 2, axis=0))
+            dropped.append(side_of[i])
+        reps, dropped = np.asarray(reps).reshape(-1, self.n_params), np.asarray(dropped)
+        out = np.full(self.n_params, np.nan)
+        for k in range(self.n_params):
+            use = np.ones(len(reps), bool) if self.symmetric else dropped == (1.0 if k < 2 else -1.0)
+            r = reps[use, k]
+            if len(r) >= 3:
+                out[k] = np.sqrt((len(r) - 1) / len(r) * np.sum((r - r.mean()) ** 2))
+        return out
 
     def joint_params(self) -> dict:
         """This fit in friction-model-file terms (magnitudes; viscous as fitted, clipped at 0)."""
