@@ -365,6 +365,29 @@ def test_gaps_in_time_are_left_out_and_change_nothing(generated, tmp_path, name)
     assert any(w.startswith("t: ") and "gap(s)" in w for w in gapped.warnings_)
 
 
+def test_the_encoder_step_is_read_from_measured_samples_only():
+    """A slow quantised joint with five gaps of 200 samples: the interpolated stretches move by a fraction of a
+    count per sample; the encoder step (and so the onsets' detection tolerance) must not come from them (it read
+    6e-6 rad for a 3.7e-5 rad step)."""
+    from wamctl.analysis.diagnosis.onsets import detection_tolerance
+    from wamctl.analysis.diagnosis.signals import prepare_signals
+
+    rate, n = 500.0, 30000
+    t = np.arange(n) / rate
+    step = 2 * np.pi / 4096 * np.abs(np.linalg.inv(P.J2MP))[0][np.abs(np.linalg.inv(P.J2MP))[0] > 1e-12].min()
+    q_true = np.zeros((n, 7))
+    q_true[:, 0] = 0.03 * (2 * np.abs((t / 20.0) % 1 - 0.5) - 0.5)       # +-15 mrad over 20 s: 3 mrad/s
+    q = np.round(q_true / step) * step
+    tau = 0.5 * np.sign(np.gradient(q_true, axis=0)) + 0.01 * np.random.default_rng(0).standard_normal((n, 7))
+    keep = np.ones(n, bool)
+    for c in (3000, 9000, 15000, 21000, 27000):
+        keep[c:c + 200] = False
+    tols = [detection_tolerance(prepare_signals(t[k], q[k], q_true[k], tau[k], rate, [0]), 0)
+            for k in (np.ones(n, bool), keep)]
+    assert tols[0][0] == pytest.approx(step, rel=1e-6)
+    assert tols[1][0] == pytest.approx(tols[0][0], rel=1e-6) and tols[1][1] == pytest.approx(tols[0][1], rel=1e-6)
+
+
 def test_a_log_that_is_mostly_gaps_is_a_clear_error(tmp_path, short_clean):
     _, df, meta = short_clean
     holey = df.iloc[np.arange(len(df)) % 40 < 8].reset_index(drop=True)     # 8 samples out of every 40
