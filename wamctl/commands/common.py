@@ -83,7 +83,7 @@ def print_document_tables(doc, out: Console | None = None) -> None:
     is ever cut."""
     out = out or console
     for kind, obj in doc.blocks:
-        if kind == "table":
+        if kind == "table" and len(obj.df):        # an empty table is a title over nothing: the report says why
             print_table(f"{doc.title}: {obj.name}", obj, out)
     print_warnings(doc, out)
 

@@ -84,8 +84,10 @@ def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options
     missing = {j: why for j, why in ident.not_identified().items() if j in swept}
     if not ident.joints:
         from wamctl.errors import DataFormatError
+        if not (quiet or as_json):
+            print_document_tables(doc)          # the rejected moves and why, above the error
         raise DataFormatError(f"{data}: no joint could be identified (" + "; ".join(
-            f"joint {j}: {why}" for j, why in missing.items()) + f"); the friction map and the rejected moves are "
+            f"joint {j}: {why}" for j, why in missing.items()) + f"); the friction map and the report are "
             f"in {target}")
     if as_json:
         emit_json({"out": str(target), "friction_model": str(target / MODEL_FILE), "report": doc.to_json()})
