@@ -188,9 +188,9 @@ class ClassicFriction(_LsqFriction):
 
         ``params_std_`` is the larger of the fit's standard error (``params_std_fit_``, the Jacobian scaled by the
         reduced chi-square: the points' scatter) and the jackknife's over the points (``params_std_jackknife_``,
-        each point left out in turn): a stage whose friction is off by more than its scatter says (the fastest
-        stage of a sweep carries the viscous slope, and a systematic error of a few mN m there moved it by 1-2 %
-        at 4-14 of the fit's standard errors)."""
+        each point left out in turn): it says when one stage is off by more than the scatter (the fastest stage
+        of a sweep carries the viscous slope; a few mN m off there put the viscous coefficient 6-14 of the fit's
+        standard errors from the truth, on our simulator and on another generator)."""
         v, f, s = as_vf(data)
         self._check(v, f, s)
         self._finish(self._estimate(v, f, s), v, f, s)
