@@ -54,9 +54,9 @@ class SessionWaits:
             elif (dev <= self.settings.start_tolerance_rad).all():
                 break
             j = int(np.argmax(dev))
-            text = (f"Move the arm by hand to the run's start pose: joint {j + 1} is at {q[j]:.3f} rad, the run "
-                    f"starts at {self.q0_rad[j]:.3f} rad (within {self.settings.start_tolerance_rad} rad on every "
-                    "joint; the arm is idle)")
+            text = (f"Move the arm by hand to the run's start pose: joint {j + 1} at {q[j]:.3f} rad, to "
+                    f"{self.q0_rad[j]:.3f} rad (the run starts within {self.settings.start_tolerance_rad} rad of it "
+                    "on every joint; the arm is idle)")
             if not said:
                 self.operator.say(text)
                 said = True
