@@ -142,14 +142,14 @@ def test_an_operator_countdown_fits_the_bar_line_at_80_columns():
     """The countdown shows in the progress bar's line, whose text a terminal of 80 columns cut after 48 characters
     ("Move the arm by hand to the run's start pose: joint 2 is at 0.310 rad, the run st… …"): the joint and both
     numbers now survive; the whole message is printed above the bar once."""
-    from wamctl.commands.terminal_operator import BAR_COLUMNS_WIDTH, bar_label
+    from wamctl.backends.can.operator import short_message
 
-    width = 80 - BAR_COLUMNS_WIDTH
+    width = 80 - 32   # the bar, its percentage and times, and the seconds left take 32 columns
     start = ("Move the arm by hand to the run's start pose: joint 2 at 0.310 rad, to 0.000 rad (the run starts "
              "within 0.02 rad of it on every joint; the arm is idle)")
-    assert bar_label(start, width) == "joint 2 at 0.310 rad, to 0.000 rad"
-    assert bar_label("Press Shift-Activate on the pendant", width) == "Press Shift-Activate on the pendant"
+    assert short_message(start, width) == "joint 2 at 0.310 rad, to 0.000 rad"
+    assert short_message("Press Shift-Activate on the pendant", width) == "Press Shift-Activate on the pendant"
     idle = "Press Shift-Idle on the pendant (the pucks are idle; the safety module is still active)"
-    assert bar_label(idle, width) == "Press Shift-Idle on the pendant"
-    long = bar_label("x" * 200, width)
+    assert short_message(idle, width) == "Press Shift-Idle on the pendant"
+    long = short_message("x" * 200, width)
     assert len(long) == width and long.endswith("\u2026")

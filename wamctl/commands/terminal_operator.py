@@ -3,24 +3,14 @@ prompt, or ``--yes``) and counts down (in the progress bar's line, or a line eve
 
 from __future__ import annotations
 
-import re
 import sys
 
 import typer
 
+from wamctl.backends.can.operator import short_message
 from wamctl.commands.common import err_console
 
 BAR_COLUMNS_WIDTH = 32     # what the bar, its percentage and times, and the seconds left need at least (measured)
-
-
-def bar_label(text: str, width: int) -> str:
-    """An operator message short enough for the progress bar's line (the whole message was said above it): without
-    its parenthesis, then only what follows its first colon (the joint and the numbers), cut with an ellipsis."""
-    width = max(width, 16)
-    short = re.sub(r"\s*\([^)]*\)", "", text).strip()
-    if len(short) > width and ": " in short:
-        short = short.split(": ", 1)[1]
-    return short if len(short) <= width else short[:width - 1] + "\u2026"
 
 
 class TerminalOperator:
@@ -69,7 +59,7 @@ class TerminalOperator:
 
     def countdown(self, text: str, remaining_s: float) -> None:
         if self.progress is not None:
-            self.progress(0, None, f"{bar_label(text, err_console._get().width - BAR_COLUMNS_WIDTH)}: "
+            self.progress(0, None, f"{short_message(text, err_console._get().width - BAR_COLUMNS_WIDTH)}: "
                                    f"{remaining_s:.0f} s")
             return
         if self._last_print_s is None or self._last_print_s - remaining_s >= 5.0:

@@ -18,12 +18,24 @@ from __future__ import annotations
 import contextlib
 import contextvars
 import logging
+import re
 from collections.abc import Callable, Iterator
 from typing import Protocol, runtime_checkable
 
 logger = logging.getLogger(__name__)
 
-__all__ = ["LogOperator", "Operator", "ScriptedOperator", "current_operator", "use_operator"]
+__all__ = ["LogOperator", "Operator", "ScriptedOperator", "current_operator", "short_message", "use_operator"]
+
+
+def short_message(text: str, width: int) -> str:
+    """One of the session's messages in at most ``width`` characters (at least 16), for a line that shows it beside
+    other things (a progress bar): without its parenthesis, then only what follows its first colon (the joint and
+    the numbers of the start pose), cut with an ellipsis."""
+    width = max(width, 16)
+    short = re.sub(r"\s*\([^)]*\)", "", text).strip()
+    if len(short) > width and ": " in short:
+        short = short.split(": ", 1)[1]
+    return short if len(short) <= width else short[:width - 1] + "\u2026"
 
 
 @runtime_checkable
