@@ -327,3 +327,35 @@ def test_a_delay_the_joints_disagree_on_is_explained_joint_by_joint():
     assert set(why) == {1, 3, 5} and len(set(why.values())) == 1
     text = why[1]
     assert "joints 2 (2.0 ms), 4 (6.0 ms), 6 (12.0 ms)" in text and "1 of the 7 joints diagnosed agree" in text
+
+
+# ------------------------------------------------------------------------------------- breakaways
+def test_breakaways_are_measured_against_the_upper_end_of_the_coulomb_interval():
+    """The geometric mean of the breakaway ratios over the upper end of the Coulomb level's interval, each onset
+    against its own direction's."""
+    from wamctl.analysis.diagnosis.onset_tests import above_coulomb_interval
+
+    lr = np.log([1.5, 1.5, 1.8, 1.8])
+    sign = np.array([1.0, 1.0, -1.0, -1.0])
+    assert above_coulomb_interval(lr, sign, (1.0, 1.0)) == pytest.approx(np.sqrt(1.5 * 1.8))
+    assert above_coulomb_interval(lr, sign, (1.5, 1.2)) == pytest.approx(np.sqrt(1.0 * 1.5))
+    assert above_coulomb_interval(lr, sign, (1.6, 2.0)) < 1.0
+
+
+def test_a_breakaway_the_coulomb_levels_uncertainty_explains_is_not_stribeck(tmp_path):
+    """Independent generator, case ``pair-position_ripple+friction_drift-001`` of ``cases(10, 20, seed=0)`` (a
+    ripple at joint 2, a friction drift at joint 7, no Stribeck anywhere; the benchmark's dev split, never its
+    report split). Once the drift is in joint 7's model, its breakaways read 1.2 times the Coulomb level the
+    sliding samples give (held-out onset test p ~ 1e-4), but that level is itself uncertain by +26 / +51 % (a
+    light wrist joint seen over few speeds): Stribeck was named third, an effect that is not there. The breakaways
+    do not rise above the level's interval, so it is not named, and the candidate says why."""
+    from gen_independent import cases, generate
+
+    plan = {c["id"]: c for c in cases(10, 20, seed=0)}
+    r = generate(plan["pair-position_ripple+friction_drift-001"], tmp_path / "run")
+    with caplog_off():
+        out = ModelDiagnosis().fit(load_run_data(r.path)).to_dict()
+    assert "stribeck" not in out["effects_found"], out["effects_found"]
+    assert out["effects_found"][:2] == ["position_ripple", "friction_drift"]
+    cand = next(c for c in out["joints"]["7"]["candidates"] if c["name"] == "stribeck")
+    assert "uncertain" in cand["at_breakaways"]["reason"], cand

@@ -27,6 +27,10 @@ def _candidate(c: str, d: dict) -> dict:
     if d.get("head_to_head"):
         out["head_to_head"] = [{"vs": r["vs"], "outcome": r["outcome"], "p_this_beyond": _num(r["p_this_beyond"]),
                                 "p_other_beyond": _num(r["p_other_beyond"])} for r in d["head_to_head"]]
+    if d.get("onset_test"):           # Stribeck tested again at the breakaways under the joint's final model
+        ot = d["onset_test"]
+        out["at_breakaways"] = {"p_value": _num(ot.get("p_value")), "delta_bic": _num(ot.get("delta_bic")),
+                                "reason": ot.get("reason", "")}
     return out
 
 
