@@ -359,3 +359,30 @@ def test_a_breakaway_the_coulomb_levels_uncertainty_explains_is_not_stribeck(tmp
     assert out["effects_found"][:2] == ["position_ripple", "friction_drift"]
     cand = next(c for c in out["joints"]["7"]["candidates"] if c["name"] == "stribeck")
     assert "uncertain" in cand["at_breakaways"]["reason"], cand
+
+
+def test_an_effect_seen_at_onsets_must_take_something_off_the_held_out_torque(tmp_path):
+    """Independent generator, ``cases(21, 0, seed=4242)`` (neither the benchmark's dev nor its report split).
+
+    ``backlash-000``: a small gap on the motor side of joint 7 (the light wrist, free motion). Its breakaways read
+    1.2-1.3 times the Coulomb level, and Stribeck seen there was named first, an effect that is not there, though
+    the joint's model with it predicted the held-out torque worse than the declared one (RMS 0.00672 against
+    0.00661 N m). Now nothing is named there, and the candidate says why.
+
+    ``backlash-014``: a large gap on the motor side of joint 7, seen at the reversals (the measurement leads the
+    link). Its model has no torque term (the link follows the measurement at a constant offset), so the held-out
+    torque cannot show it: still named."""
+    from gen_independent import cases, generate
+
+    plan = {c["id"]: c for c in cases(21, 0, seed=4242)}
+    out = {}
+    for cid in ("backlash-000", "backlash-014"):
+        r = generate(plan[cid], tmp_path / cid)
+        with caplog_off():
+            out[cid] = ModelDiagnosis().fit(load_run_data(r.path)).to_dict()
+    assert out["backlash-000"]["effects_found"] == []
+    cand = next(c for c in out["backlash-000"]["joints"]["7"]["candidates"] if c["name"] == "stribeck")
+    assert "no better than the declared model" in cand["reason"], cand
+    assert out["backlash-014"]["effects_found"] == ["backlash"]
+    eff = out["backlash-014"]["joints"]["7"]["effects"][0]
+    assert eff["params"]["encoder_side"] == "motor"

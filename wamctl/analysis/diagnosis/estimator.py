@@ -78,7 +78,7 @@ from wamctl.analysis.diagnosis.parameters import (
 from wamctl.analysis.diagnosis.prepare import declared_delay_s, prepare_design
 from wamctl.analysis.diagnosis.serialise import diagnosis_dict
 from wamctl.analysis.diagnosis.signals import Signals, gap_warnings, prepare_signals
-from wamctl.analysis.diagnosis.stats import finite_ss
+from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
 from wamctl.analysis.diagnosis.sweeps import map_evidence
 from wamctl.analysis.diagnosis.unexplained import unexplained
 from wamctl.model import params as P
@@ -89,6 +89,7 @@ from wamctl.model.params import LinkParameters
 log = logging.getLogger(__name__)
 
 MIN_DECLARED_R2 = 0.25            # below: the data are not this arm under this model (garbage in)
+NET_GAIN = float(np.sqrt(1.0 - MIN_EFFECT))   # an effect seen at onsets must take this much off the torque RMS
 
 
 @dataclass
@@ -253,6 +254,7 @@ class ModelDiagnosis:
             self._progress(0.7, "onsets")
             for j in sig.joints:
                 onset_tests(self, j, tests)
+            self._check_net_gain(tests, torque_tests)
         self.effects_found_ = self._ranked_effects()
         self.ambiguous_ = self._ambiguous_groups()
         report_effects(self)
@@ -445,6 +447,31 @@ class ModelDiagnosis:
                    + ", ".join(k["name"] for k in res.kept if k["name"] != "stribeck") + ") are in the model")
             log.info("joint %d: %s", j + 1, why)
             self._rediagnose(j, tests, "stribeck", why)
+
+    def _check_net_gain(self, tests: list[str], torque_tests: list[str]) -> None:
+        """An effect seen at the onsets whose model acts on the torque (Stribeck seen at the breakaways: breakaway
+        levels and the friction's shape; a dead band behind the encoder) is evidence in travel and breakaway ratios:
+        it is named only where the joint's final model predicts the held-out torque (sliding samples and stalls)
+        better than the declared one, by at least the minimum effect (``NET_GAIN``). Otherwise the joint is
+        diagnosed again without it (and its onsets analysed again). A gap on the motor side has no torque model
+        (the link follows the measurement at a constant offset): its evidence is the travel alone."""
+        for j, res in list(self.joints_.items()):
+            seen = [t["name"] for t in res.kept if
+                    (t["name"] == "backlash" and t.get("encoder_side") != "motor") or
+                    (t["name"] == "stribeck" and t.get("seen") in ("at the breakaways", "breakaways"))]
+            before, after = res.torque_rms_before_Nm, res.torque_rms_after_Nm
+            if not seen or after <= NET_GAIN * before:
+                continue
+            why = (f"seen at the onsets, but the joint's model with it predicts the held-out torque no better than "
+                   f"the declared model (RMS {after:.3g} N m against {before:.3g} N m): not an effect the torque "
+                   "shows")
+            log.info("joint %d: %s: %s", j + 1, ", ".join(seen), why)
+            for name in seen:
+                self.rejected_[j][name] = why
+            self._rediagnose(j, torque_tests, seen[0], why)
+            onset_tests(self, j, [c for c in tests if c not in self.rejected_[j]])
+            for name in seen:       # the onset tests skipped it: its entry says why
+                self.joints_[j].candidates.setdefault(name, {"kept": False})["reason"] = why
 
     def _check_links(self) -> None:
         """``link_parameters`` against the current model (see :mod:`wamctl.analysis.diagnosis.links`): the refit
