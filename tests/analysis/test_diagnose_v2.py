@@ -330,35 +330,23 @@ def test_a_delay_the_joints_disagree_on_is_explained_joint_by_joint():
 
 
 # ------------------------------------------------------------------------------------- breakaways
-def test_breakaways_are_measured_against_the_upper_end_of_the_coulomb_interval():
-    """The geometric mean of the breakaway ratios over the upper end of the Coulomb level's interval, each onset
-    against its own direction's."""
-    from wamctl.analysis.diagnosis.onset_tests import above_coulomb_interval
-
-    lr = np.log([1.5, 1.5, 1.8, 1.8])
-    sign = np.array([1.0, 1.0, -1.0, -1.0])
-    assert above_coulomb_interval(lr, sign, (1.0, 1.0)) == pytest.approx(np.sqrt(1.5 * 1.8))
-    assert above_coulomb_interval(lr, sign, (1.5, 1.2)) == pytest.approx(np.sqrt(1.0 * 1.5))
-    assert above_coulomb_interval(lr, sign, (1.6, 2.0)) < 1.0
-
-
-def test_a_breakaway_the_coulomb_levels_uncertainty_explains_is_not_stribeck(tmp_path):
+def test_a_breakaway_beside_another_effect_must_add_to_it(tmp_path):
     """Independent generator, case ``pair-position_ripple+friction_drift-001`` of ``cases(10, 20, seed=0)`` (a
     ripple at joint 2, a friction drift at joint 7, no Stribeck anywhere; the benchmark's dev split, never its
-    report split). Once the drift is in joint 7's model, its breakaways read 1.2 times the Coulomb level the
-    sliding samples give (held-out onset test p ~ 1e-4), but that level is itself uncertain by +26 / +51 % (a
-    light wrist joint seen over few speeds): Stribeck was named third, an effect that is not there. The breakaways
-    do not rise above the level's interval, so it is not named, and the candidate says why."""
+    report split). Once the drift is in joint 7's model, its breakaways read 1.2 times the Coulomb level (held-out
+    onset test p ~ 1e-4), and Stribeck was named third, an effect that is not there, though the model with it
+    predicts the held-out torque no better than the model with the drift alone (the joint's RMS from 0.0103 N m
+    before to 0.00058 N m is the drift's). Not named now, and the candidate says why."""
     from gen_independent import cases, generate
 
     plan = {c["id"]: c for c in cases(10, 20, seed=0)}
     r = generate(plan["pair-position_ripple+friction_drift-001"], tmp_path / "run")
     with caplog_off():
         out = ModelDiagnosis().fit(load_run_data(r.path)).to_dict()
-    assert "stribeck" not in out["effects_found"], out["effects_found"]
-    assert out["effects_found"][:2] == ["position_ripple", "friction_drift"]
+    assert sorted(out["effects_found"]) == ["friction_drift", "position_ripple"], out["effects_found"]
     cand = next(c for c in out["joints"]["7"]["candidates"] if c["name"] == "stribeck")
-    assert "uncertain" in cand["at_breakaways"]["reason"], cand
+    assert "no better than without it" in cand["reason"], cand
+    assert out["joints"]["7"]["torque_rms_after_Nm"] < 0.1 * out["joints"]["7"]["torque_rms_before_Nm"]
 
 
 def test_an_effect_seen_at_onsets_must_take_something_off_the_held_out_torque(tmp_path):
@@ -366,8 +354,8 @@ def test_an_effect_seen_at_onsets_must_take_something_off_the_held_out_torque(tm
 
     ``backlash-000``: a small gap on the motor side of joint 7 (the light wrist, free motion). Its breakaways read
     1.2-1.3 times the Coulomb level, and Stribeck seen there was named first, an effect that is not there, though
-    the joint's model with it predicted the held-out torque worse than the declared one (RMS 0.00672 against
-    0.00661 N m). Now nothing is named there, and the candidate says why.
+    the joint's model with it predicted the held-out torque worse than without it (RMS 0.00672 against 0.00661
+    N m). Now nothing is named there, and the candidate says why.
 
     ``backlash-014``: a large gap on the motor side of joint 7, seen at the reversals (the measurement leads the
     link). Its model has no torque term (the link follows the measurement at a constant offset), so the held-out
@@ -382,7 +370,67 @@ def test_an_effect_seen_at_onsets_must_take_something_off_the_held_out_torque(tm
             out[cid] = ModelDiagnosis().fit(load_run_data(r.path)).to_dict()
     assert out["backlash-000"]["effects_found"] == []
     cand = next(c for c in out["backlash-000"]["joints"]["7"]["candidates"] if c["name"] == "stribeck")
-    assert "no better than the declared model" in cand["reason"], cand
+    assert "no better than without it" in cand["reason"], cand
     assert out["backlash-014"]["effects_found"] == ["backlash"]
     eff = out["backlash-014"]["joints"]["7"]["effects"][0]
     assert eff["params"]["encoder_side"] == "motor"
+
+
+# ------------------------------------------------------------------------------------- friction drift
+def test_a_linear_friction_drift_is_measured_by_its_change_over_the_run(tmp_path):
+    """Independent generator, ``friction_drift-004`` of ``cases(10, 20, seed=0)`` (dev split): joint 1's friction
+    falls linearly by 36.8 % over an 18 s run of free motion. The drift's time constant once had to lie within 4
+    run lengths and its end level (t -> infinity) had to stay non-negative, so a fall of more than 22 % over the
+    run could not be represented (held-out torque ratio 0.44; the same drift on a sweep was not named at all). Now
+    the levels at the start of the run are the ones kept non-negative and the time constant may reach 30 run
+    lengths: the change over the run is measured (within 2 points of the truth, tolerance set before the run),
+    the fraction it would drift to is reported not identified (the time constant's interval is open above), and the
+    held-out torque falls below a third."""
+    import yaml
+    from gen_independent import cases, generate
+
+    plan = {c["id"]: c for c in cases(10, 20, seed=0)}
+    r = generate(plan["friction_drift-004"], tmp_path / "run")
+    truth = yaml.safe_load((r.path / "truth.yaml").read_text())["effects"][0]
+    assert truth["params"]["shape"] == "linear" and truth["joint"] == 1
+    with caplog_off():
+        diag = ModelDiagnosis().fit(load_run_data(r.path))
+    out = diag.to_dict()
+    assert out["effects_found"] == ["friction_drift"]
+    d = out["joints"]["1"]
+    e = d["effects"][0]
+    assert e["params"]["change_over_run"] == pytest.approx(truth["params"]["f"], abs=0.02)
+    lo, hi = e["params_ci"]["change_over_run"]
+    assert lo <= e["params"]["change_over_run"] <= hi
+    assert e["params"]["fraction"] is None and "fraction" in e["not_identified"]
+    assert e["params_ci"]["time_constant_s"][1] is None
+    assert d["torque_rms_after_Nm"] < d["torque_rms_before_Nm"] / 3
+    # the model file keeps the plant's range: the same change over the run
+    from wamctl.analysis.diagnosis.augmented import plant_dict
+
+    pd_ = plant_dict(diag)["effects"]["friction_drift"]
+    T, f = pd_["time_constant_s"], pd_["fraction"]
+    assert -0.9 <= f <= 3.0
+    assert f * -np.expm1(-diag.signals_.duration_s / T) == pytest.approx(e["params"]["change_over_run"], rel=1e-6)
+
+
+def test_a_drift_within_the_friction_models_accuracy_is_not_named(tmp_path):
+    """First generator, backlash run seed 55002 (the benchmark's dev split): joint 6, which has no effect, showed a
+    'friction drift' of 0.2 % of its friction torque over the run (Coulomb +0.2 %, viscous -1 %, p ~ 1e-4 on a
+    residual of 0.35 mN m), once time constants far beyond the run were allowed. A drift must change the friction
+    torque by the minimum effect (5 %)."""
+    g = generate_run(tmp_path, "backlash", 55002)
+    with caplog_off():
+        out = ModelDiagnosis().fit(load_run_data(g.path)).to_dict()
+    assert out["effects_found"] == ["backlash"]
+    cand = next(c for c in out["joints"]["6"]["candidates"] if c["name"] == "friction_drift")
+    assert not cand["kept"] and "less than the 5%" in cand["reason"], cand
+
+
+def test_a_drift_beyond_the_plants_range_keeps_its_change_over_the_run():
+    from wamctl.analysis.diagnosis.augmented import plant_drift
+
+    assert plant_drift(-0.4, 20.0, 30.0) == (-0.4, 20.0)                # in range: as it is
+    f, T = plant_drift(-11.2, 540.0, 18.0)
+    assert f == -0.9 and f * -np.expm1(-18.0 / T) == pytest.approx(-11.2 * -np.expm1(-18.0 / 540.0))
+    assert plant_drift(-50.0, 10.0, 30.0)[0] == -0.9                    # unreachable: the end of the range

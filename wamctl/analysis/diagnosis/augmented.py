@@ -63,6 +63,25 @@ def _clip(x, lo, hi):
     return float(min(max(x, lo), hi))
 
 
+DRIFT_FRACTION_RANGE = (-0.9, 3.0)    # the plant's (specs.FrictionDriftEffect)
+
+
+def plant_drift(fraction: float, time_constant_s: float, duration_s: float) -> tuple[float, float]:
+    """(fraction, time constant) of a drift in the plant's range: a drift whose time constant lies far beyond the
+    run (a linear one) may need a fraction beyond the range, which the data never see (friction would cross zero
+    long after the run). Such a drift is written with the fraction at the end of the range and the time constant
+    that gives the same change over the run."""
+    lo, hi = DRIFT_FRACTION_RANGE
+    f = _clip(fraction, lo, hi)
+    T = max(float(time_constant_s), 1e-3)
+    if f == fraction:
+        return f, T
+    change = fraction * -np.expm1(-duration_s / T)           # the drift's change over the run
+    if change / f >= 1.0:                                    # not reachable in range: the nearest
+        return f, T
+    return f, float(-duration_s / np.log1p(-change / f))
+
+
 def plant_dict(diag, which: str = "after", thetas: dict | None = None) -> dict:
     """The declared (``which="before"``) or augmented (``"after"``) model as a ``plant`` mapping.
 
@@ -139,8 +158,8 @@ def _effects_after(diag, thetas, joints_friction) -> dict:
         elif name == "delay":
             out["delay"] = {"delay_s": _clip(float(np.median([i[2]["delay_s"] for i in items])), 1e-6, 0.1)}
         elif name == "friction_drift":
-            out["friction_drift"] = {"joints": [j + 1], "fraction": _clip(p["fraction"], -0.9, 3.0),
-                                     "time_constant_s": max(float(p["time_constant_s"]), 1e-3)}
+            f, T = plant_drift(p["fraction"], p["time_constant_s"], diag.signals_.duration_s)
+            out["friction_drift"] = {"joints": [j + 1], "fraction": f, "time_constant_s": T}
         elif name == "backlash" and p.get("encoder_side", "link") == "link":
             # the plant's backlash is a dead band between link and encoder; a gap on the motor side (the
             # measurement leads the link) it cannot represent (said in the diagnosis' warnings)

@@ -153,17 +153,23 @@ def signed_travel(x: np.ndarray, q: np.ndarray, stall: int, q_turn: float, sign:
 
 def band_width(d: np.ndarray, rev: np.ndarray) -> float:
     """Signed dead band (rad) from the signed travel ``d`` (k,) of onsets and whether each reversed ``rev`` (k,),
-    beyond the same-direction onsets' mean (when there are two or more): the mean over the reversals when the
-    measurement lags (a dead band behind the encoder is crossed at every reversal); when it leads, the mean over
-    the larger half of the leads (a gap on the motor side is crossed only where the torque the drive passes to the
-    link changes sign, and gravity may keep one flank through a reversal: a dead band bounds the lead)."""
+    beyond the same-direction onsets' mean (when there are two or more, and only where it goes the reversals'
+    way): the mean over the reversals when the measurement lags (a dead band behind the encoder is crossed at
+    every reversal); when it leads, the mean over the larger half of the leads (a gap on the motor side is crossed
+    only where the torque the drive passes to the link changes sign, and gravity may keep one flank through a
+    reversal: a dead band bounds the lead)."""
     d, rev = np.asarray(d, float), np.asarray(rev, bool)
     c = float(np.mean(d[~rev])) if (~rev).sum() >= 2 else 0.0
-    v = np.sort(d[rev] - c)
-    if not len(v):
+    if not rev.any():
         return float("nan")
+    lag = float(np.mean(d[rev] - c)) >= 0
+    # the baseline explains part of the reversals' travel where it goes their way; one of the other sign (the
+    # model ahead of the measurement at same-direction onsets, when the reversals' measurement leads) is a
+    # mismatch of the onsets' model, not more band
+    c = max(c, 0.0) if lag else min(c, 0.0)
+    v = np.sort(d[rev] - c)
     w = float(np.mean(v))
-    return w if w >= 0 else float(np.mean(v[: (len(v) + 1) // 2]))
+    return w if lag else min(float(np.mean(v[: (len(v) + 1) // 2])), 0.0)
 
 
 def log_travel(d: np.ndarray, tol: float) -> np.ndarray:

@@ -39,7 +39,7 @@ RIPPLE_PERIOD_MAX_RAD = 2.0
 RIPPLE_MAX_HARMONICS = 4          # a ripple's fundamental and up to three harmonics
 RIPPLE_MIN_PERIODS = 1.25         # a ripple is named only where the joint's travel covers this many periods
 DELAY_GRID_S = np.arange(2, 41) * 0.5e-3                # 1 to 20 ms
-DRIFT_T_GRID_FRACTION = np.geomspace(0.05, 4.0, 12)    # time constants as fractions of the run length
+DRIFT_T_GRID_FRACTION = np.geomspace(0.05, 30.0, 16)   # time constants as fractions of the run (30: linear)
 D7_M = float(P.DH_D_M[6])
 MAX_BREAKAWAY_RATIO = 10.0        # Stribeck breakaway / Coulomb (the plant's own bound, specs.StribeckEffect)
 

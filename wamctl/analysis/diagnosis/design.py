@@ -165,8 +165,9 @@ def levels_dict(fr: np.ndarray) -> dict:
 
 
 def drift_offset(coef: np.ndarray, tb: np.ndarray) -> np.ndarray:
-    """(4,) the part of the friction levels that decays with a drift: the declared levels ``tb`` (4,), the
-    Coulomb pair scaled by ``coef[0]`` and the viscous pair by ``coef[1]`` (the drift's two columns)."""
+    """(4,) the change a drift makes to the friction levels from the start of the run to its end value (t ->
+    infinity): the declared levels ``tb`` (4,), the Coulomb pair scaled by ``coef[0]`` and the viscous pair by
+    ``coef[1]`` (the drift's two columns)."""
     return np.array([coef[0] * tb[0], coef[0] * tb[1], coef[1] * tb[2], coef[1] * tb[3]])
 
 
@@ -247,12 +248,14 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
     if name == "link_parameters":       # ("links", fold): the arm's one refit, fitted without fold
         return (jd.extra["links_base"][:, des.links_cols] @ des.links_beta[h[1]])[:, None]
     if name == "friction_drift":
-        # the Coulomb and the viscous torque of the declared fit, each drifting as exp(-t / T): two columns
+        # the Coulomb and the viscous torque of the declared fit, each changing as 1 - exp(-t / T): two columns
         # that keep the directions together (a direction seen only early in the run would otherwise be
-        # extrapolated in time)
+        # extrapolated in time). They are zero at the start of the run, so the friction columns are the levels
+        # there, which the fit keeps non-negative; a time constant far beyond the run is a linear drift
         F = columns(des, "friction", jd, None, d)
         tb = declared_levels(des, jd)
-        return np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * np.exp(-jd.extra["t_rel"] / h)[:, None]
+        ramp = -np.expm1(-jd.extra["t_rel"] / h)
+        return np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * ramp[:, None]
     if name == "backlash":
         dg = jd.extra["dgdq_full"]
         return sample(lambda p: (dg[p, 0] * np.sign(qd_f[p]))[:, None])

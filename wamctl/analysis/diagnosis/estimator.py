@@ -452,26 +452,50 @@ class ModelDiagnosis:
         """An effect seen at the onsets whose model acts on the torque (Stribeck seen at the breakaways: breakaway
         levels and the friction's shape; a dead band behind the encoder) is evidence in travel and breakaway ratios:
         it is named only where the joint's final model predicts the held-out torque (sliding samples and stalls)
-        better than the declared one, by at least the minimum effect (``NET_GAIN``). Otherwise the joint is
-        diagnosed again without it (and its onsets analysed again). A gap on the motor side has no torque model
+        better than the same model without it, by at least the minimum effect (``NET_GAIN``). Otherwise the joint
+        is diagnosed again without it (and its onsets analysed again). A gap on the motor side has no torque model
         (the link follows the measurement at a constant offset): its evidence is the travel alone."""
         for j, res in list(self.joints_.items()):
             seen = [t["name"] for t in res.kept if
                     (t["name"] == "backlash" and t.get("encoder_side") != "motor") or
                     (t["name"] == "stribeck" and t.get("seen") in ("at the breakaways", "breakaways"))]
-            before, after = res.torque_rms_before_Nm, res.torque_rms_after_Nm
-            if not seen or after <= NET_GAIN * before:
+            after = res.torque_rms_after_Nm
+            weak = {name: rms for name in seen if not after <= NET_GAIN * (rms := self._rms_without(j, name))}
+            if not weak:
                 continue
-            why = (f"seen at the onsets, but the joint's model with it predicts the held-out torque no better than "
-                   f"the declared model (RMS {after:.3g} N m against {before:.3g} N m): not an effect the torque "
-                   "shows")
-            log.info("joint %d: %s: %s", j + 1, ", ".join(seen), why)
-            for name in seen:
+            for name, rms in weak.items():
+                why = (f"seen at the onsets, but the joint's model with it predicts the held-out torque no better "
+                       f"than without it (RMS {after:.3g} N m against {rms:.3g} N m): not an effect the torque shows")
+                log.info("joint %d: %s: %s", j + 1, name, why)
                 self.rejected_[j][name] = why
-            self._rediagnose(j, torque_tests, seen[0], why)
+            self._rediagnose(j, torque_tests, next(iter(weak)), self.rejected_[j][next(iter(weak))])
             onset_tests(self, j, [c for c in tests if c not in self.rejected_[j]])
-            for name in seen:       # the onset tests skipped it: its entry says why
-                self.joints_[j].candidates.setdefault(name, {"kept": False})["reason"] = why
+            for name in weak:       # the onset tests skipped it: its entry says why
+                self.joints_[j].candidates.setdefault(name, {"kept": False})["reason"] = self.rejected_[j][name]
+
+    def _rms_without(self, j: int, name: str) -> float:
+        """Held-out torque RMS (sliding samples and stalls) of 0-based joint ``j``'s final model without effect
+        ``name``, the other effects refitted."""
+        from dataclasses import replace
+
+        from wamctl.analysis.diagnosis.joint import set_rms
+        from wamctl.analysis.diagnosis.onsets import joint_onsets, onset_model, stall_residual
+
+        res, jd, des = self.joints_[j], self.jd_[j], self.design_
+        without = [t for t in res.kept if t["name"] != name]
+        alt = replace(res, candidates=dict(res.candidates))
+        set_after(des, alt, jd, without, cv_terms(des, jd, without))
+        self.joints_[j] = alt
+        try:        # the stalls under that model: its friction levels, its other onset effects' held-out levels
+            ons = joint_onsets(des, self.dynamics_, jd, onset_model(self, j))
+            ons["fold_coef"] = {k: v for k, v in self.onsets_[j].get("fold_coef", {}).items() if k != name}
+            if "use_breakaway" in self.onsets_[j]:
+                ons["use_breakaway"] = self.onsets_[j]["use_breakaway"]
+            alt.stall_after = stall_residual(self, j, ons, after=True)
+        finally:
+            self.joints_[j] = res
+        set_rms(alt)
+        return alt.torque_rms_after_Nm
 
     def _check_links(self) -> None:
         """``link_parameters`` against the current model (see :mod:`wamctl.analysis.diagnosis.links`): the refit

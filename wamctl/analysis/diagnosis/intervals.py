@@ -70,6 +70,10 @@ def joint_intervals(diag, j: int) -> dict:
             ci[key] = [lo, hi]
             if name == "position_ripple":
                 _ripple_over_period(des, jd, res.kept, i, ci)
+            if name == "friction_drift" and hi is None:
+                # a time constant beyond what the run can tell (the drift is linear over it): the fraction it
+                # drifts to is not determined either, only its change over the run
+                ci["fraction"] = [None, None]
         if name == "backlash":
             ci["width_rad"] = _backlash_ci(diag.onsets_.get(j, {}))
         for k, v in ci.items():

@@ -26,7 +26,10 @@ from wamctl.analysis.diagnosis.design import (
     Design,
     JointData,
     columns,
+    declared_levels,
+    drift_offset,
     fit_theta,
+    levels,
     ncols,
     split_coefs,
     target_and_design,
@@ -343,7 +346,25 @@ def plausible(des: Design, name: str, jd: JointData, terms: list[dict], theta: n
         return _ripple_plausible(des, jd, terms)
     if name == "delay":
         return _delay_plausible(next(t["h_all"] for t in terms if t["name"] == "delay"), des.sig.dt_s)
+    if name == "friction_drift":
+        return _drift_plausible(des, jd, terms, theta)
     return True, ""
+
+
+def _drift_plausible(des: Design, jd: JointData, terms: list[dict], theta: np.ndarray) -> tuple[bool, str]:
+    """A friction drift changes the joint's friction torque by at least the minimum effect (5 %) over the run: a
+    smaller trend is within the friction model's own accuracy (with a time constant far beyond the run, the two
+    drift columns can otherwise follow any slow trend of a residual near the noise floor)."""
+    c = split_coefs(terms, theta)
+    T = float(next(t["h_all"] for t in terms if t["name"] == "friction_drift"))
+    F = columns(des, "friction", jd, None)
+    f0 = F @ levels(des.friction_given, jd.j, c["friction"])
+    f1 = F @ drift_offset(c["friction_drift"], declared_levels(des, jd)) * -np.expm1(-des.sig.duration_s / T)
+    size = float(np.linalg.norm(f1) / max(np.linalg.norm(f0), 1e-300))
+    if size >= MIN_EFFECT:
+        return True, ""
+    return False, (f"the drift changes the friction torque by {size:.1%} over the run, less than the "
+                   f"{MIN_EFFECT:.0%} a friction model is identified to")
 
 
 def _stribeck_plausible(jd: JointData, c: dict) -> tuple[bool, str]:

@@ -7,12 +7,7 @@
   ``MIN_BAND_TOLERANCES`` detection tolerances; its sign says on which side of the gap the encoder is;
 * Stribeck at breakaway (when the torque residual did not already keep it): the log breakaway ratio
   ``l = log(rho)``, ``l = c`` against ``l = 0``, at every onset (at same-direction onsets only when backlash
-  was kept: a dead band also delays the measured breakaway at reversals). The ratio is taken against the Coulomb
-  level the sliding samples give, which they may determine poorly (a direction seen over a narrow band of speeds
-  trades its Coulomb level for its viscous slope, a drift or a delay in the model shifts it): every onset shares
-  that level's error, which held-out onsets cannot show. So the breakaways must also lie above the upper end of
-  the Coulomb level's 95 % interval (a bootstrap over the joint's time blocks, :func:`coulomb_upper_ratio`): a
-  breakaway the Coulomb level's own uncertainty explains is not a Stribeck effect.
+  was kept: a dead band also delays the measured breakaway at reversals).
 
 Both are nested tests on held-out onsets (:func:`wamctl.analysis.diagnosis.backlash.onset_test`), with the
 threshold of the torque tests.
@@ -34,7 +29,6 @@ from wamctl.analysis.diagnosis.backlash import (
 )
 from wamctl.analysis.diagnosis.candidates import MAX_BREAKAWAY_RATIO
 from wamctl.analysis.diagnosis.crossval import cv_residual
-from wamctl.analysis.diagnosis.design import levels, target_and_design
 from wamctl.analysis.diagnosis.joint import (
     EVIDENCE_KEYS,
     UNTESTED,
@@ -50,8 +44,7 @@ from wamctl.analysis.diagnosis.onsets import (
     onset_model,
     stall_residual,
 )
-from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss, lstsq
-from wamctl.analysis.diagnosis.uncertainty import group_bootstrap, percentile_ci
+from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
 
 MIN_BREAKAWAY_RATIO = 1.2     # the breakaway is seen a sample or two late: a joint without Stribeck reads ~1.1
 
@@ -60,49 +53,6 @@ def _stribeck_log_ratio_plausible(coef: float) -> bool:
     """A breakaway clearly above the Coulomb level (``MIN_BREAKAWAY_RATIO``: below, the detection's own lateness
     can account for it), by at most ``MAX_BREAKAWAY_RATIO`` (``coef``: its log)."""
     return np.log(MIN_BREAKAWAY_RATIO) <= coef <= np.log(MAX_BREAKAWAY_RATIO)
-
-
-def coulomb_upper_ratio(diag, j: int, terms: list[dict]) -> tuple[float, float]:
-    """(positive, negative) upper end of the 95 % interval of the Coulomb level of 0-based joint ``j`` under the
-    model ``friction + terms``, over its estimate: a bootstrap over the joint's time blocks (the intervals' own,
-    :func:`~wamctl.analysis.diagnosis.uncertainty.group_bootstrap`), estimate and replicates fitted alike. 1 where
-    a level is not positive."""
-    des, jd = diag.design_, diag.jd_[j]
-    y, X = target_and_design(des, jd, terms, None)
-    ok = np.isfinite(y) & np.isfinite(X).all(axis=1)
-    block = jd.extra["block"][ok]
-    theta = lstsq(X[ok], y[ok])
-    reps = group_bootstrap(X[ok], y[ok], block, rng=np.random.default_rng(2000 + j))
-    level = levels(des.friction_given, j, theta)             # absolute (a model file's levels plus the fit)
-    out = []
-    for k in (0, 1):
-        hi = percentile_ci(reps[:, k], center=float(theta[k]), n_groups=len(np.unique(block)))[1]
-        out.append(float(max((level[k] + hi - theta[k]) / level[k], 1.0)) if hi is not None and level[k] > 0
-                   else 1.0)
-    return out[0], out[1]
-
-
-def above_coulomb_interval(log_ratio: np.ndarray, sign: np.ndarray, upper: tuple[float, float]) -> float:
-    """Breakaway ratio (geometric mean) of onsets with log ratios ``log_ratio`` (k,) in directions ``sign`` (k,)
-    over the upper end of the Coulomb level's interval of each direction (``upper``: its ratio to the estimate,
-    :func:`coulomb_upper_ratio`)."""
-    off = np.where(np.asarray(sign) > 0, np.log(upper[0]), np.log(upper[1]))
-    return float(np.exp(np.mean(np.asarray(log_ratio) - off))) if len(log_ratio) else float("nan")
-
-
-def _beyond_coulomb_interval(r: dict, log_ratio: np.ndarray, sign: np.ndarray, upper: tuple[float, float]) -> dict:
-    """A passing Stribeck test at the breakaways ``r`` rejected when its breakaways are not above the upper end of
-    the Coulomb level's 95 % interval (``upper``, :func:`coulomb_upper_ratio`); the ratio beyond it is recorded."""
-    if "coef" not in r:
-        return r
-    beyond = above_coulomb_interval(log_ratio, sign, upper)
-    r["breakaway_over_coulomb_upper"] = beyond
-    if r["kept"] and not beyond > 1.0:
-        r.update(kept=False, reason=(
-            f"breakaway ratio {np.exp(r['coef']):.2f} over the Coulomb level the sliding samples give, but that "
-            f"level is uncertain (its 95 % interval reaches {upper[0]:.2f} / {upper[1]:.2f} times it, positive / "
-            "negative): the breakaways do not rise above it"))
-    return r
 
 
 def _public(r: dict) -> dict:
@@ -153,11 +103,9 @@ def stribeck_at_breakaways(diag, j: int, extra_delay_s: float = 0.0, test_only: 
     measurement makes every breakaway look later, at a higher torque); ``test_only``: the test whatever it says
     (None when there are too few onsets); ``model``: an :class:`~wamctl.analysis.diagnosis.onsets.OnsetModel`
     other than the declared one."""
-    declared = model is None
     model = model or onset_model(diag, j, declared=True)
     if extra_delay_s:
         model = replace(model, delay_s=model.delay_s + float(extra_delay_s))
-    terms = [] if declared else [t for t in diag.joints_[j].kept if t["name"] != "stribeck"]
     ons = joint_onsets(diag.design_, diag.dynamics_, diag.jd_[j], model)
     ratio = ons["breakaway_ratio"]
     ok = np.isfinite(ratio)
@@ -165,8 +113,6 @@ def stribeck_at_breakaways(diag, j: int, extra_delay_s: float = 0.0, test_only: 
         return None
     r = onset_candidate(np.log(ratio[ok]), None, ons["fold"][ok], diag.n_folds, diag.threshold_,
                         _stribeck_log_ratio_plausible, lambda c: "")
-    if r["kept"]:
-        r = _beyond_coulomb_interval(r, np.log(ratio[ok]), ons["sign"][ok], coulomb_upper_ratio(diag, j, terms))
     if test_only:
         return r
     return (r, ons) if r["kept"] else None
@@ -187,7 +133,7 @@ def onset_tests(diag, j: int, tests: list[str]) -> None:
             found.append(("backlash", r))
     stribeck_kept = any(t["name"] == "stribeck" for t in res.kept)
     if "stribeck" in tests and not stribeck_kept:
-        r = _test_stribeck(diag, j, ons, exclude_reversals=bool(found))
+        r = _test_stribeck(diag, ons, exclude_reversals=bool(found))
         if r["kept"]:
             found.append(("stribeck", r))
         elif "stribeck" in res.candidates:
@@ -246,22 +192,17 @@ def _test_backlash(diag, ons: dict) -> dict:
     return r
 
 
-def _test_stribeck(diag, j: int, ons: dict, exclude_reversals: bool) -> dict:
+def _test_stribeck(diag, ons: dict, exclude_reversals: bool) -> dict:
     """Log breakaway ratio above zero at the onsets (same-direction ones only when backlash was kept:
-    reversals are not clean breakaways then), and above the Coulomb level's interval (``j``: 0-based joint, whose
-    model is the one the onsets were taken under)."""
+    reversals are not clean breakaways then)."""
     same = np.isfinite(ons["breakaway_ratio"])
     if exclude_reversals:
         same &= ~ons["reversal"]
-    r = onset_candidate(
+    return onset_candidate(
         np.log(ons["breakaway_ratio"][same]), None, ons["fold"][same], diag.n_folds, diag.threshold_,
         _stribeck_log_ratio_plausible,
         lambda coef: (f"breakaway ratio {np.exp(coef):.2f} is not between {MIN_BREAKAWAY_RATIO:g} (the lateness of "
                       f"the detection) and {MAX_BREAKAWAY_RATIO:g}"))
-    if r["kept"]:
-        r = _beyond_coulomb_interval(r, np.log(ons["breakaway_ratio"][same]), ons["sign"][same],
-                                     coulomb_upper_ratio(diag, j, diag.joints_[j].kept))
-    return r
 
 
 def _stribeck_levels_per_direction(res, ons: dict, backlash: bool) -> None:

@@ -33,10 +33,7 @@ def friction_levels_after(diag, j: int, theta: np.ndarray | None = None) -> dict
     """Classic friction of 0-based joint ``j`` in the final model (at t = 0 when friction drifts)."""
     res = diag.joints_[j]
     c = split_coefs(res.kept, res.theta_after if theta is None else theta)
-    fr = np.array(c["friction"], float)
-    if "friction_drift" in c:
-        fr = fr + drift_offset(c["friction_drift"], declared_levels(diag.design_, diag.jd_[j]))
-    return levels_dict(levels(diag.declared_.friction, j, fr))
+    return levels_dict(levels(diag.declared_.friction, j, np.array(c["friction"], float)))
 
 
 def kept_effect_params(diag, j: int, name: str, theta: np.ndarray | None = None) -> dict:
@@ -62,7 +59,7 @@ def kept_effect_params(diag, j: int, name: str, theta: np.ndarray | None = None)
     if name == "friction_drift":
         jd = diag.jd_[j]
         return drift_params(columns(diag.design_, "friction", jd, None), fr, coef,
-                            declared_levels(diag.design_, jd), h)
+                            declared_levels(diag.design_, jd), h, diag.signals_.duration_s)
     if name == "backlash":
         return backlash_params(t, coef, diag.onsets_.get(j, {}))
     if name == "link_parameters":
@@ -109,17 +106,22 @@ def ripple_params(coef: np.ndarray, shape: tuple[float, int]) -> dict:
     return out
 
 
-def drift_params(X: np.ndarray, fr: np.ndarray, coef: np.ndarray, tb: np.ndarray, T_s: float) -> dict:
-    """Fraction and time constant of a friction drift, and the friction at t = 0.
+def drift_params(X: np.ndarray, fr: np.ndarray, coef: np.ndarray, tb: np.ndarray, T_s: float,
+                 duration_s: float) -> dict:
+    """Fraction and time constant of a friction drift, its change over the run, and the friction at t = 0.
 
-    ``X`` (m, 4) classic friction columns at the joint's samples, ``fr`` (4,) the levels the friction drifts
-    to, ``coef`` (2,) the drift's coefficients, ``tb`` (4,) the declared levels they scale. The fraction is the
-    least-squares ratio of the decaying part of the friction torque to the torque at t = 0."""
+    ``X`` (m, 4) classic friction columns at the joint's samples, ``fr`` (4,) the levels at the start of the run,
+    ``coef`` (2,) the drift's coefficients, ``tb`` (4,) the declared levels they scale, ``duration_s`` the run's
+    length. The fraction is the least-squares ratio of the friction torque's change (t -> infinity) to the torque
+    at t = 0: friction x ``1 + fraction (1 - exp(-t / T))``; ``change_over_run`` is that factor less one at the end
+    of the run (what the data see, even where a time constant far beyond the run leaves fraction and time constant
+    undetermined on their own)."""
     dec = drift_offset(coef, tb)
-    f0 = X @ (fr + dec)                  # friction at t = 0
-    f1 = X @ dec                         # the part that decays
-    frac = -float(f1 @ f0 / max(f0 @ f0, 1e-300))
-    return {"fraction": frac, "time_constant_s": float(T_s), "friction_t0": levels_dict(fr + dec)}
+    f0 = X @ fr                          # friction at t = 0
+    f1 = X @ dec                         # its change
+    frac = float(f1 @ f0 / max(f0 @ f0, 1e-300))
+    return {"fraction": frac, "time_constant_s": float(T_s),
+            "change_over_run": float(frac * -np.expm1(-duration_s / T_s)), "friction_t0": levels_dict(fr)}
 
 
 def backlash_params(term: dict, coef: np.ndarray, ons: dict) -> dict:
