@@ -96,5 +96,13 @@ def test_band_width_and_turning_point():
     # a gap on the motor side crossed at five reversals out of eight (a flank kept at the other three)
     lead = np.r_[np.full(5, -4e-3), np.full(3, -1e-4), np.zeros(4)]
     assert band_width(lead, rev) == pytest.approx(-4e-3)
+    # a baseline of the other sign does not widen the band (dev friction_drift-007, joint 7: the measurement led
+    # the model by 0.3-0.8 mrad at reversals, the model led it by 0.3-0.55 mrad at same-direction onsets: a
+    # "gap" of 1.07 mrad was named beside the drift); a baseline the reversals' way is still taken off
+    rev6 = np.array([True] * 6 + [False] * 3)
+    light = np.r_[-0.822, -0.308, -0.308, -0.308, -0.822, -0.308, 0.315, 0.402, 0.548] * 1e-3
+    assert band_width(light, rev6) == pytest.approx(-np.mean([0.822, 0.822, 0.308]) * 1e-3)
+    assert band_width(np.r_[np.full(6, -4e-3), np.full(3, -1e-3)], rev6) == pytest.approx(-3e-3)
+    assert band_width(np.r_[np.full(6, 5e-3), np.full(3, -1e-3)], rev6) == pytest.approx(5e-3)
     q = np.r_[np.linspace(0.0, -0.01, 50), np.full(20, -0.0101), np.linspace(-0.0101, 0.0, 51)[1:]]
     assert turning_point(q, 55, 75, 1.0, 20) == 69            # the last sample of the old direction's extreme
