@@ -460,15 +460,20 @@ class ModelDiagnosis:
                     (t["name"] == "backlash" and t.get("encoder_side") != "motor") or
                     (t["name"] == "stribeck" and t.get("seen") in ("at the breakaways", "breakaways"))]
             after = res.torque_rms_after_Nm
-            weak = {name: rms for name in seen if not after <= NET_GAIN * (rms := self._rms_without(j, name))}
-            if not weak:
-                continue
-            for name, rms in weak.items():
+            weak = []
+            for name in seen:
+                without = self._rms_without(j, name)
+                if after <= NET_GAIN * without:
+                    continue
                 why = (f"seen at the onsets, but the joint's model with it predicts the held-out torque no better "
-                       f"than without it (RMS {after:.3g} N m against {rms:.3g} N m): not an effect the torque shows")
+                       f"than without it (RMS {after:.3g} N m against {without:.3g} N m): not an effect the torque "
+                       "shows")
                 log.info("joint %d: %s: %s", j + 1, name, why)
                 self.rejected_[j][name] = why
-            self._rediagnose(j, torque_tests, next(iter(weak)), self.rejected_[j][next(iter(weak))])
+                weak.append(name)
+            if not weak:
+                continue
+            self._rediagnose(j, torque_tests, weak[0], self.rejected_[j][weak[0]])
             onset_tests(self, j, [c for c in tests if c not in self.rejected_[j]])
             for name in weak:       # the onset tests skipped it: its entry says why
                 self.joints_[j].candidates.setdefault(name, {"kept": False})["reason"] = self.rejected_[j][name]
