@@ -449,25 +449,26 @@ class ModelDiagnosis:
             self._rediagnose(j, tests, "stribeck", why)
 
     def _check_net_gain(self, tests: list[str], torque_tests: list[str]) -> None:
-        """An effect seen at the onsets whose model acts on the torque (Stribeck seen at the breakaways: breakaway
-        levels and the friction's shape; a dead band behind the encoder) is evidence in travel and breakaway ratios:
-        it is named only where the joint's final model predicts the held-out torque (sliding samples and stalls)
-        better than the same model without it, by at least the minimum effect (``NET_GAIN``). Otherwise the joint
-        is diagnosed again without it (and its onsets analysed again). A gap on the motor side has no torque model
-        (the link follows the measurement at a constant offset): its evidence is the travel alone."""
+        """A joint's own effect (Stribeck, a ripple, a drift, a dead band behind the encoder) is named only where the
+        joint's final model predicts the held-out torque, sliding samples and stalls together, better than the same
+        model without it, by at least the minimum effect (``NET_GAIN``). Its evidence was partial: an effect seen at
+        the onsets was tested on travel and breakaway ratios, one seen in the torque residual on the sliding samples
+        only, while its model also sets the torque a stalled joint withstands. Otherwise the joint is diagnosed
+        again without it (and its onsets analysed again). A gap on the motor side has no torque model (the link
+        follows the measurement at a constant offset): its evidence is the travel alone. The arm's payload and
+        delay are judged over the arm (:meth:`_check_payload`, :meth:`_check_delay`)."""
+        own = ("stribeck", "position_ripple", "friction_drift", "backlash")
         for j, res in list(self.joints_.items()):
-            seen = [t["name"] for t in res.kept if
-                    (t["name"] == "backlash" and t.get("encoder_side") != "motor") or
-                    (t["name"] == "stribeck" and t.get("seen") in ("at the breakaways", "breakaways"))]
+            seen = [t["name"] for t in res.kept if t["name"] in own and t.get("encoder_side") != "motor"]
             after = res.torque_rms_after_Nm
             weak = []
             for name in seen:
                 without = self._rms_without(j, name)
                 if after <= NET_GAIN * without:
                     continue
-                why = (f"seen at the onsets, but the joint's model with it predicts the held-out torque no better "
-                       f"than without it (RMS {after:.3g} N m against {without:.3g} N m): not an effect the torque "
-                       "shows")
+                why = (f"the joint's model with it predicts the held-out torque (sliding samples and stalls) no "
+                       f"better than without it (RMS {after:.3g} N m against {without:.3g} N m): not an effect the "
+                       "torque shows")
                 log.info("joint %d: %s: %s", j + 1, name, why)
                 self.rejected_[j][name] = why
                 weak.append(name)
