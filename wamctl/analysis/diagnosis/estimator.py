@@ -34,7 +34,10 @@ Method
    the breakaway level the joint withstood (:mod:`wamctl.analysis.diagnosis.onsets`), tested the same way
    on held-out onsets (:mod:`wamctl.analysis.diagnosis.onset_tests`).
 6. **After.** All parameters (friction and the kept effects) are refitted; the held-out torque RMS and the
-   residual whiteness (Ljung-Box on one sample per filter window) are reported before and after.
+   residual whiteness (Ljung-Box on one sample per filter window) are reported before and after. A joint's own
+   effect (Stribeck, ripple, drift, a dead band behind the encoder) stays only where it takes at least the
+   minimum effect off the joint's whole held-out torque (sliding samples and stalls) against the model without
+   it: its test saw part of the evidence only.
 
 Where each step lives: data preparation in :mod:`.prepare`, design matrices in :mod:`.design`, held-out
 residuals and shape parameters in :mod:`.crossval`, the forward selection of one joint in :mod:`.joint`, the
@@ -464,7 +467,7 @@ class ModelDiagnosis:
             weak = []
             for name in seen:
                 without = self._rms_without(j, name)
-                if after <= NET_GAIN * without:
+                if not (np.isfinite(after) and np.isfinite(without)) or after <= NET_GAIN * without:
                     continue
                 why = (f"the joint's model with it predicts the held-out torque (sliding samples and stalls) no "
                        f"better than without it (RMS {after:.3g} N m against {without:.3g} N m): not an effect the "
