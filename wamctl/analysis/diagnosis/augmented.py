@@ -30,6 +30,7 @@ from wamctl.control.controllers import pid_torque_series_Nm
 from wamctl.io import MODEL_FILE_FORMAT
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
+from wamctl.model.effects import friction_drift_scale
 from wamctl.model.friction import FrictionModel
 from wamctl.specs import PlantSpec
 
@@ -76,7 +77,7 @@ def plant_drift(fraction: float, time_constant_s: float, duration_s: float) -> t
     T = max(float(time_constant_s), 1e-3)
     if f == fraction:
         return f, T
-    change = fraction * -np.expm1(-duration_s / T)           # the drift's change over the run
+    change = float(friction_drift_scale(duration_s, fraction, T)) - 1.0     # the drift's change over the run
     if change / f >= 1.0:                                    # not reachable in range: the nearest
         return f, T
     return f, float(-duration_s / np.log1p(-change / f))

@@ -92,7 +92,7 @@ from wamctl.model.params import LinkParameters
 log = logging.getLogger(__name__)
 
 MIN_DECLARED_R2 = 0.25            # below: the data are not this arm under this model (garbage in)
-NET_GAIN = float(np.sqrt(1.0 - MIN_EFFECT))   # an effect seen at onsets must take this much off the torque RMS
+NET_GAIN = float(np.sqrt(1.0 - MIN_EFFECT))   # a joint's own effect must take this much off its torque RMS
 
 
 @dataclass

@@ -18,6 +18,7 @@ from wamctl.analysis.diagnosis.design import (
     levels_dict,
     split_coefs,
 )
+from wamctl.model.effects import friction_drift_scale
 
 TEST_NAME = "nested F-test on held-out folds"
 ONSET_TEST_NAME = "nested F-test on held-out folds (hidden travel at onsets)"
@@ -121,7 +122,8 @@ def drift_params(X: np.ndarray, fr: np.ndarray, coef: np.ndarray, tb: np.ndarray
     f1 = X @ dec                         # its change
     frac = float(f1 @ f0 / max(f0 @ f0, 1e-300))
     return {"fraction": frac, "time_constant_s": float(T_s),
-            "change_over_run": float(frac * -np.expm1(-duration_s / T_s)), "friction_t0": levels_dict(fr)}
+            "change_over_run": float(friction_drift_scale(duration_s, frac, T_s)) - 1.0,
+            "friction_t0": levels_dict(fr)}
 
 
 def backlash_params(term: dict, coef: np.ndarray, ons: dict) -> dict:
