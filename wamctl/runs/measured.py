@@ -4,6 +4,11 @@ A measured run is a directory with ``meta.yaml`` and ``data.parquet`` or ``data.
 ``q_ref_1..7``, ``q_1..7``, ``tau_1..7`` and optionally ``qd_1..7``). Inside wamctl the same data use the
 run-directory column names (``t_s``, ``q_ref_{j}_rad``, ``q_{j}_rad``, ``tau_{j}_Nm``, ``qd_{j}_rad_s``), so
 every analysis takes either a run directory or a measured-run directory through :func:`load_run_data`.
+
+A measured run may name ``robot: wam4`` (libbarrett's 4-DOF arm) and may log a subset of the robot's joints
+(``joints:``): the columns of joints not logged are absent, never zeros. Until the analyses take such runs (and
+torques other than the total command), :func:`load_run_data` refuses them in one line, naming the command; the
+report of an imported run reads what was logged.
 """
 
 from __future__ import annotations
@@ -16,11 +21,11 @@ from typing import Any, Literal
 import numpy as np
 import pandas as pd
 import yaml
-from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator
+from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_validator, model_validator
 
 from wamctl.errors import DataFormatError
-from wamctl.model import params as P
 from wamctl.io import ensure_dir, load_yaml
+from wamctl.model import params as P
 from wamctl.runs.store import RunDir, open_run, read_table, write_csv
 
 log = logging.getLogger(__name__)
@@ -28,7 +33,19 @@ log = logging.getLogger(__name__)
 FORMAT = "wamctl-measured/1"
 J = range(1, P.N_JOINTS + 1)
 MAX_NAN_FRACTION = 0.01
-_Vec7 = Field(min_length=P.N_JOINTS, max_length=P.N_JOINTS)
+# consecutive NaN rows dropped as "isolated": dropping them leaves a hole of at most 4 samples, which the readers
+# take like jitter (docs/measured-run.md); a longer block is an error naming its first and last row
+MAX_NAN_BLOCK_ROWS = 4
+# the joints of each robot a measured run may name (libbarrett's wam7.conf / wam4.conf); the model, the
+# simulator and the analyses know only the wam7 so far (see load_run_data)
+ROBOT_JOINTS = {"wam7": P.N_JOINTS, "wam4": 4}
+# what tau is: the whole command incl. gravity compensation (libbarrett's jtSum; the meaning when absent), the
+# user's controller output with gravity compensation added downstream and not logged, or a torque sensor
+TORQUE_KINDS = ("total", "controller", "measured")
+# the quantities a measured run holds per joint: (name, unit suffix of the internal column); the first three
+# are required (q_ref only when the log has a reference), the others optional
+QUANTITIES = {"q_ref": "rad", "q": "rad", "tau": "Nm", "qd": "rad_s", "qd_ref": "rad_s", "qdd": "rad_s2",
+              "qdd_ref": "rad_s2"}
 
 
 class _Meta(BaseModel):
@@ -36,12 +53,13 @@ class _Meta(BaseModel):
 
 
 class MeasuredController(_Meta):
-    kind: Literal["pd_g", "pid", "pd_g_ff"]
+    # unknown: an imported lab log whose controller is not described
+    kind: Literal["pd_g", "pid", "pd_g_ff", "unknown"]
     # the gains may be unknown (a recording of someone else's controller): ``wamctl diagnose`` then estimates
-    # them from the log
-    kp: list[float] | None = Field(None, min_length=P.N_JOINTS, max_length=P.N_JOINTS)
-    kd: list[float] | None = Field(None, min_length=P.N_JOINTS, max_length=P.N_JOINTS)
-    ki: list[float] | None = Field(None, min_length=P.N_JOINTS, max_length=P.N_JOINTS)
+    # them from the log; one per joint of the robot (checked in MeasuredMeta)
+    kp: list[float] | None = None
+    kd: list[float] | None = None
+    ki: list[float] | None = None
 
 
 class MeasuredExperiment(_Meta):
@@ -62,16 +80,51 @@ class MeasuredPayload(_Meta):
     com_m: list[float] = Field(min_length=3, max_length=3)
 
 
+def _length_error(key: str, got: int, want: int) -> str:
+    return f"{key}: List should have {'at least' if got < want else 'at most'} {want} items"
+
+
 class MeasuredMeta(_Meta):
     format: Literal["wamctl-measured/1"]
-    robot: Literal["wam7"]
+    robot: Literal["wam7", "wam4"]
     sample_rate_hz: float = Field(gt=0)
     gravity_compensation: bool
     controller: MeasuredController
     experiment: MeasuredExperiment
-    q0: list[float] = _Vec7
+    q0: list[float | None]       # null for a joint not logged
     payload: MeasuredPayload | None = None
     notes: Any = None
+    joints: list[int] | None = None                                   # the joints logged; absent: all
+    torque: Literal["total", "controller", "measured"] | None = None  # what tau is; absent: total
+
+    @model_validator(mode="after")
+    def _per_robot(self):
+        n = ROBOT_JOINTS[self.robot]
+        for key, v in (("q0", self.q0), ("controller.kp", self.controller.kp), ("controller.kd", self.controller.kd),
+                       ("controller.ki", self.controller.ki)):
+            if v is not None and len(v) != n:
+                raise ValueError(_length_error(key, len(v), n))
+        for key, js in (("joints", self.joints), ("experiment.joints", self.experiment.joints)):
+            bad = [j for j in js or [] if not 1 <= j <= n]
+            if bad:
+                raise ValueError(f"{key}: joint numbers of {self.robot} are 1..{n}, got {bad}")
+        if self.joints is not None:
+            if not self.joints or sorted(set(self.joints)) != self.joints:
+                raise ValueError(f"joints: expected joint numbers in increasing order, once each, got {self.joints}")
+            missing = [i + 1 for i, v in enumerate(self.q0) if v is None and i + 1 in self.joints]
+            if missing:
+                raise ValueError(f"q0: null at joint(s) {missing}, which are logged")
+        elif any(v is None for v in self.q0):
+            raise ValueError("q0: null entries need joints: (the joints logged)")
+        return self
+
+    @property
+    def logged_joints(self) -> list[int]:
+        return list(self.joints) if self.joints is not None else list(range(1, ROBOT_JOINTS[self.robot] + 1))
+
+    @property
+    def torque_kind(self) -> str:
+        return self.torque or "total"
 
 
 @dataclass
@@ -88,31 +141,38 @@ class RunData:
         return self.data["t_s"].to_numpy()
 
     def col(self, name: str) -> np.ndarray:
-        """(n, 7) array of ``{name}_{j}_{unit}`` columns, e.g. ``col('q')``, ``col('q_ref')``, ``col('tau')``."""
-        unit = {"q": "rad", "q_ref": "rad", "tau": "Nm", "qd": "rad_s"}[name]
-        return self.data[[f"{name}_{j}_{unit}" for j in J]].to_numpy()
+        """(n, 7) array of ``{name}_{j}_{unit}`` columns, e.g. ``col('q')``, ``col('q_ref')``, ``col('tau')``;
+        NaN where a column is absent (a joint or a quantity not logged: never zeros)."""
+        unit = QUANTITIES[name]
+        n = len(self.data)
+        return np.column_stack([self.data[c].to_numpy(float) if c in self.data else np.full(n, np.nan)
+                                for c in (f"{name}_{j}_{unit}" for j in J)])
+
+
+def internal_name(name: str, j: int) -> str:
+    """The run-directory column of quantity ``name`` (a key of QUANTITIES) at joint ``j``: ``q_2_rad``."""
+    return f"{name}_{j}_{QUANTITIES[name]}"
 
 
 def _to_internal(df: pd.DataFrame) -> pd.DataFrame:
     ren = {"t": "t_s"}
     for j in J:
-        ren.update({f"q_ref_{j}": f"q_ref_{j}_rad", f"q_{j}": f"q_{j}_rad", f"tau_{j}": f"tau_{j}_Nm",
-                    f"qd_{j}": f"qd_{j}_rad_s"})
+        ren.update({f"{name}_{j}": internal_name(name, j) for name in QUANTITIES})
     return df.rename(columns=ren)
 
 
 def _to_external(df: pd.DataFrame) -> pd.DataFrame:
     cols = {"t_s": "t"}
-    for j in J:
-        cols.update({f"q_ref_{j}_rad": f"q_ref_{j}", f"q_{j}_rad": f"q_{j}", f"tau_{j}_Nm": f"tau_{j}"})
-    return df[list(cols)].rename(columns=cols)
+    for name in ("q_ref", "q", "tau"):
+        cols.update({internal_name(name, j): f"{name}_{j}" for j in J})
+    return df[[c for c in cols if c in df]].rename(columns=cols)
 
 
 def _external_name(col: str) -> str:
     """The measured-run format's name of an internal column (``q_1_rad`` -> ``q_1``, ``t_s`` -> ``t``)."""
     if col == "t_s":
         return "t"
-    for unit in ("_rad_s", "_rad", "_Nm"):
+    for unit in ("_rad_s2", "_rad_s", "_rad", "_Nm"):
         if col.endswith(unit):
             return col[: -len(unit)]
     return col
@@ -141,18 +201,41 @@ def read_meta(path: Path) -> MeasuredMeta:
         err = exc.errors()[0]
         loc = ".".join(str(x) for x in err["loc"])
         msg = "missing" if err["type"] == "missing" else err["msg"].removeprefix("Value error, ")
-        raise DataFormatError(f"{mpath}: {loc}: {msg}") from None
+        raise DataFormatError(f"{mpath}: {loc}: {msg}" if loc else f"{mpath}: {msg}") from None
 
 
-def validate_samples(df: pd.DataFrame, sample_rate_hz: float, source: str) -> pd.DataFrame:
-    """Check the internal-named table: columns, NaNs, monotonic time, sample rate. Returns it cleaned."""
-    required = ["t_s"] + [f"{n}_{j}_{u}" for n, u in (("q_ref", "rad"), ("q", "rad"), ("tau", "Nm")) for j in J]
+def nan_blocks(mask: np.ndarray) -> list[tuple[int, int]]:
+    """(first, last) 0-based indices of each run of True in ``mask``."""
+    d = np.diff(np.concatenate([[0], np.asarray(mask, int), [0]]))
+    return list(zip(np.flatnonzero(d == 1).tolist(), (np.flatnonzero(d == -1) - 1).tolist()))
+
+
+def validate_samples(df: pd.DataFrame, sample_rate_hz: float | None, source: str, joints: list[int] | None = None,
+                     row_name: str = "data row") -> pd.DataFrame:
+    """Check the internal-named table: columns, NaNs, monotonic time, sample rate. Returns it cleaned.
+
+    ``joints``: the joints logged (default all seven); their ``q``, ``tau`` and ``q_ref`` columns are required
+    (``q_ref`` may be absent for every joint: a log without a reference), columns of other joints are an error.
+    Row numbers in messages are the file's own, 1-based and counted before any NaN row is dropped; ``row_name``
+    says what they count ("data row": the rows after the header; "line": lines of a file without one).
+    """
+    explicit = joints is not None
+    joints = list(J) if joints is None else list(joints)
+    reference = any(str(c).startswith("q_ref_") for c in df.columns)
+    names = ("q_ref", "q", "tau") if reference else ("q", "tau")
+    required = ["t_s"] + [internal_name(n, j) for n in names for j in joints]
     missing = [c for c in required if c not in df.columns]
     if missing:
-        ext = {c: c.rsplit("_", 1)[0] if not c.endswith("Nm") else c[:-3] for c in missing}
-        shown = [("t" if c == "t_s" else ext[c]) for c in missing]
+        shown = [_external_name(c) for c in missing]
         raise DataFormatError(f"{source}: missing column(s): {', '.join(shown)}" + _separator_hint(df.columns))
-    cols = required + [c for c in df.columns if c.startswith("qd_") and c not in required]
+    if explicit:
+        stray = [(n, j) for n in QUANTITIES for j in J if j not in joints and internal_name(n, j) in df.columns]
+        if stray:
+            n, j = stray[0]
+            raise DataFormatError(f"{source}: column {n}_{j} is present but joints: {joints} says joint {j} is "
+                                  "not logged")
+    optional = [internal_name(n, j) for n in QUANTITIES if n not in names for j in joints]
+    cols = required + [c for c in optional if c in df.columns]
     df = df[cols]
     if not all(pd.api.types.is_numeric_dtype(t) for t in df.dtypes):     # text (a CSV): every cell a number?
         num = df.apply(pd.to_numeric, errors="coerce")
@@ -160,34 +243,41 @@ def validate_samples(df: pd.DataFrame, sample_rate_hz: float, source: str) -> pd
         if bad.to_numpy().any():
             row, col = map(int, np.argwhere(bad.to_numpy())[0])
             name = _external_name(cols[col])
-            raise DataFormatError(f"{source}: data row {row + 1}, column {name}: {str(df.iat[row, col])[:40]!r} is "
+            raise DataFormatError(f"{source}: {row_name} {row + 1}, column {name}: {str(df.iat[row, col])[:40]!r} is "
                                   "not a number")
         df = num
     df = df.astype(float)
     inf = np.isinf(df.to_numpy())
     if inf.any():
         row, col = map(int, np.argwhere(inf)[0])
-        raise DataFormatError(f"{source}: data row {row + 1}, column {_external_name(cols[col])}: "
+        raise DataFormatError(f"{source}: {row_name} {row + 1}, column {_external_name(cols[col])}: "
                               f"{df.iat[row, col]} is not a finite number")
     if len(df) < 10:
         raise DataFormatError(f"{source}: only {len(df)} rows; a run needs at least 10")
-    nan_rows = df[required].isna().any(axis=1)
+    rows = np.arange(1, len(df) + 1)                     # the file's own row numbers, kept through the drop
+    nan_rows = df[required].isna().any(axis=1).to_numpy()
     if nan_rows.any():
+        long = [(a, b) for a, b in nan_blocks(nan_rows) if b - a + 1 > MAX_NAN_BLOCK_ROWS]
+        if long:
+            a, b = long[0]
+            raise DataFormatError(f"{source}: {row_name}s {a + 1}-{b + 1}: {b - a + 1} consecutive rows with NaN; "
+                                  f"only isolated NaN rows (at most {MAX_NAN_BLOCK_ROWS} in a row) are dropped")
         frac = nan_rows.mean()
         if frac > MAX_NAN_FRACTION:
-            first = int(np.argmax(nan_rows.to_numpy())) + 1
-            raise DataFormatError(f"{source}: {int(nan_rows.sum())} rows with NaN ({frac:.1%}), first at data row "
+            first = int(np.argmax(nan_rows)) + 1
+            raise DataFormatError(f"{source}: {int(nan_rows.sum())} rows with NaN ({frac:.1%}), first at {row_name} "
                                   f"{first}; at most {MAX_NAN_FRACTION:.0%} can be dropped")
         log.warning("%s: dropped %d rows with NaN values", source, int(nan_rows.sum()))
         df = df[~nan_rows].reset_index(drop=True)
+        rows = rows[~nan_rows]
     t = df["t_s"].to_numpy()
     dt = np.diff(t)
     if (dt <= 0).any():
-        row = int(np.argmax(dt <= 0)) + 2
-        raise DataFormatError(f"{source}: t is not strictly increasing at data row {row} "
-                              f"(t = {t[row - 2]:.6g} then {t[row - 1]:.6g})")
+        k = int(np.argmax(dt <= 0))
+        raise DataFormatError(f"{source}: t is not strictly increasing at {row_name} {rows[k + 1]} "
+                              f"(t = {t[k]:.6g} then {t[k + 1]:.6g})")
     rate = 1.0 / np.median(dt)
-    if abs(rate - sample_rate_hz) > 0.05 * sample_rate_hz:
+    if sample_rate_hz is not None and abs(rate - sample_rate_hz) > 0.05 * sample_rate_hz:
         raise DataFormatError(f"{source}: sample_rate_hz is {sample_rate_hz:g} but t says {rate:.1f} Hz "
                               f"(more than 5 % apart)")
     return df
@@ -216,7 +306,7 @@ def read_measured(path: str | Path) -> RunData:
         src = path / "data.csv"
     else:
         raise DataFormatError(f"{path}: neither data.parquet nor data.csv")
-    df = validate_samples(_to_internal(df), meta.sample_rate_hz, str(src))
+    df = validate_samples(_to_internal(df), meta.sample_rate_hz, str(src), meta.joints)
     return RunData(meta, df, path)
 
 
@@ -238,21 +328,57 @@ def meta_from_run(manifest: dict, spec: dict, data: pd.DataFrame) -> MeasuredMet
                         source_run_kind=kind)
 
 
-def load_run_data(path: str | Path) -> RunData:
-    """Either a run directory (ours) or a measured-run directory, as :class:`RunData`."""
+def unsupported(meta: MeasuredMeta, columns) -> str | None:
+    """Why the analyses cannot take a run yet (None: they can): they know the wam7 with all seven joints, a
+    reference, and tau the total command."""
+    if meta.robot != "wam7":
+        return f"robot {meta.robot}"
+    absent = [j for j in J if j not in meta.logged_joints]
+    if absent:
+        return (f"joint(s) {', '.join(map(str, absent))} not logged (the analyses need all {P.N_JOINTS} joints of "
+                "the wam7)")
+    if meta.torque_kind != "total":
+        what = {"controller": "the controller's output, gravity compensation added downstream and not logged",
+                "measured": "a torque sensor's reading"}[meta.torque_kind]
+        return f"torque {meta.torque_kind} ({what})"
+    if not any(str(c).startswith("q_ref_") for c in columns):
+        return "no reference (q_ref) logged"
+    return None
+
+
+def _command_name() -> str | None:
+    """The wamctl command running (``diagnose``, ``report``), None outside the command line."""
+    import click
+
+    ctx = click.get_current_context(silent=True)
+    return ctx.info_name if ctx is not None else None
+
+
+def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
+    """Either a run directory (ours) or a measured-run directory, as :class:`RunData`.
+
+    A run the analyses cannot take yet (:func:`unsupported`: a wam4, joints not logged, tau not the total
+    command, no reference) is refused in one line naming the command, except by ``partial_ok`` and by
+    ``wamctl report`` of an imported run (kind ``measured``), which shows what was logged."""
     path = Path(path)
     if (path / "meta.yaml").is_file():
-        return read_measured(path)
-    manifest, spec = open_run(path)
-    data = read_table(path)
-    if "t_s" not in data or len(data) < 10:
-        raise DataFormatError(f"{path}: the run holds {len(data)} samples; nothing to analyse")
-    if spec.get("measured_meta"):  # an imported measured run keeps its own metadata
-        meta = MeasuredMeta.model_validate(spec["measured_meta"])
+        rd, kind = read_measured(path), None
     else:
-        meta = meta_from_run(manifest, spec, data)
-    truth = spec.get("plant") if (manifest.get("backend") or {}).get("name") == "sim" else None
-    return RunData(meta, data, path, truth)
+        manifest, spec = open_run(path)
+        data = read_table(path)
+        if "t_s" not in data or len(data) < 10:
+            raise DataFormatError(f"{path}: the run holds {len(data)} samples; nothing to analyse")
+        if spec.get("measured_meta"):  # an imported measured run keeps its own metadata
+            meta = MeasuredMeta.model_validate(spec["measured_meta"])
+        else:
+            meta = meta_from_run(manifest, spec, data)
+        truth = spec.get("plant") if (manifest.get("backend") or {}).get("name") == "sim" else None
+        rd, kind = RunData(meta, data, path, truth), manifest.get("kind")
+    why = unsupported(rd.meta, rd.data.columns)
+    command = _command_name()
+    if why and not (partial_ok or (command == "report" and kind == "measured")):
+        raise DataFormatError(f"{path}: {why}: not supported by {command or 'this analysis'} yet")
+    return rd
 
 
 def export_run(run_path: str | Path, to: str | Path, fmt: str = "parquet") -> Path:
@@ -272,17 +398,24 @@ def export_run(run_path: str | Path, to: str | Path, fmt: str = "parquet") -> Pa
 def import_measured(path: str | Path, out_dir: str | Path = "runs", name: str | None = None) -> Path:
     """Validate a measured run and store it as a run directory (kind from its experiment), so that every
     analysis and report takes it like a run of ours."""
-    rd = read_measured(path)
+    return store_measured(read_measured(path), out_dir, name or Path(path).name, str(Path(path).resolve()))
+
+
+def store_measured(rd: RunData, out_dir: str | Path, name: str, imported_from: str) -> Path:
+    """Store validated measured data as a run directory (``kind`` from the experiment; ``measured`` for a run the
+    analyses cannot take yet, whose report shows what was logged)."""
     m = rd.meta
     kind = {"rotation": "rotation", "sweep": "friction_sweep"}.get(m.experiment.kind, "measured")
-    spec = {"kind": kind, "name": name or Path(path).name, "q0_rad": m.q0,
+    if unsupported(m, rd.data.columns):
+        kind = "measured"
+    spec = {"kind": kind, "name": name, "q0_rad": m.q0,
             "controller": {"kind": m.controller.kind, "kp": m.controller.kp, "kd": m.controller.kd,
                            "ki": m.controller.ki if m.controller.kind == "pid" else None,
                            "gravity_compensation": m.gravity_compensation,
                            "declared_payload": m.payload.model_dump() if m.payload else None},
             "measured_meta": m.model_dump(mode="json")}
     run = RunDir.create(out_dir, spec["name"], spec, None, kind,
-                        {"backend": {"name": "measured"}, "imported_from": str(Path(path).resolve())})
+                        {"backend": {"name": "measured"}, "imported_from": imported_from})
     run.write_table("data", rd.data)
     run.finish("completed", None)
     return run.path
