@@ -14,6 +14,7 @@ report of an imported run reads what was logged.
 from __future__ import annotations
 
 import logging
+import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -346,23 +347,28 @@ def unsupported(meta: MeasuredMeta, columns) -> str | None:
     return None
 
 
-def _command_name() -> str | None:
-    """The wamctl command running (``diagnose``, ``report``), None outside the command line."""
-    import click
+# who calls load_run_data, as the command a user ran (for the one line that refuses a run); the report of an
+# imported run (report.measured) is the one reader that shows whatever was logged, NaN where nothing was
+_CALLERS = {"wamctl.experiments.diagnose": "diagnose", "wamctl.experiments.identify": "identify",
+            "wamctl.experiments.friction_sweep": "friction-id", "wamctl.experiments.ift.experiments": "tune-ift",
+            "wamctl.report.friction": "report", "wamctl.report.excitation": "report"}
+PARTIAL_READERS = ("wamctl.report.measured",)
 
-    ctx = click.get_current_context(silent=True)
-    return ctx.info_name if ctx is not None else None
+
+def _caller_module() -> str:
+    frame = sys._getframe(2)          # 0: here, 1: load_run_data, 2: its caller
+    return frame.f_globals.get("__name__", "")
 
 
 def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
     """Either a run directory (ours) or a measured-run directory, as :class:`RunData`.
 
     A run the analyses cannot take yet (:func:`unsupported`: a wam4, joints not logged, tau not the total
-    command, no reference) is refused in one line naming the command, except by ``partial_ok`` and by
-    ``wamctl report`` of an imported run (kind ``measured``), which shows what was logged."""
+    command, no reference) is refused in one line naming the command, except with ``partial_ok`` and for the
+    report of an imported run (``report.measured``), which shows what was logged."""
     path = Path(path)
     if (path / "meta.yaml").is_file():
-        rd, kind = read_measured(path), None
+        rd = read_measured(path)
     else:
         manifest, spec = open_run(path)
         data = read_table(path)
@@ -373,11 +379,11 @@ def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
         else:
             meta = meta_from_run(manifest, spec, data)
         truth = spec.get("plant") if (manifest.get("backend") or {}).get("name") == "sim" else None
-        rd, kind = RunData(meta, data, path, truth), manifest.get("kind")
+        rd = RunData(meta, data, path, truth)
     why = unsupported(rd.meta, rd.data.columns)
-    command = _command_name()
-    if why and not (partial_ok or (command == "report" and kind == "measured")):
-        raise DataFormatError(f"{path}: {why}: not supported by {command or 'this analysis'} yet")
+    caller = _caller_module()
+    if why and not (partial_ok or caller in PARTIAL_READERS):
+        raise DataFormatError(f"{path}: {why}: not supported by {_CALLERS.get(caller, 'this analysis')} yet")
     return rd
 
 
