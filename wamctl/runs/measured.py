@@ -233,8 +233,8 @@ def validate_samples(df: pd.DataFrame, sample_rate_hz: float | None, source: str
         stray = [(n, j) for n in QUANTITIES for j in J if j not in joints and internal_name(n, j) in df.columns]
         if stray:
             n, j = stray[0]
-            raise DataFormatError(f"{source}: column {n}_{j} is present but joints: {joints} says joint {j} is "
-                                  "not logged")
+            raise DataFormatError(f"{source}: column {n}_{j} is present but joint {j} is not logged (the joints "
+                                  f"logged: {', '.join(map(str, joints))})")
     optional = [internal_name(n, j) for n in QUANTITIES if n not in names for j in joints]
     cols = required + [c for c in optional if c in df.columns]
     df = df[cols]
@@ -256,7 +256,7 @@ def validate_samples(df: pd.DataFrame, sample_rate_hz: float | None, source: str
     if len(df) < 10:
         raise DataFormatError(f"{source}: only {len(df)} rows; a run needs at least 10")
     rows = np.arange(1, len(df) + 1)                     # the file's own row numbers, kept through the drop
-    nan_rows = df[required].isna().any(axis=1).to_numpy()
+    nan_rows = df.isna().any(axis=1).to_numpy()
     if nan_rows.any():
         long = [(a, b) for a, b in nan_blocks(nan_rows) if b - a + 1 > MAX_NAN_BLOCK_ROWS]
         if long:
@@ -307,7 +307,7 @@ def read_measured(path: str | Path) -> RunData:
         src = path / "data.csv"
     else:
         raise DataFormatError(f"{path}: neither data.parquet nor data.csv")
-    df = validate_samples(_to_internal(df), meta.sample_rate_hz, str(src), meta.joints)
+    df = validate_samples(_to_internal(df), meta.sample_rate_hz, str(src), meta.logged_joints)
     return RunData(meta, df, path)
 
 
