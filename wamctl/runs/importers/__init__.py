@@ -133,7 +133,7 @@ def median_rate_hz(t_s: np.ndarray) -> float:
     dt = dt[dt > 0]
     if not len(dt):
         raise DataFormatError("the time stamps never advance")
-    return float(round(1.0 / np.median(dt), 1))
+    return float(f"{1.0 / np.median(dt):.3g}")    # 3 digits: a logger's nominal rate under jittered stamps
 
 
 def _meta(imp: Imported, opts: ImportOptions) -> MeasuredMeta:

@@ -46,13 +46,17 @@ def _stamp_s(v, where: str) -> float:
     raise DataFormatError(f"{where}: time is {str(v)[:40]!r}: expected seconds or {{secs, nsecs}}")
 
 
+def _len(v) -> int:
+    return len(v) if isinstance(v, (list, tuple, np.ndarray)) else 0
+
+
 def _table(records: list[dict], opts: ImportOptions, source: str, unit: str) -> Imported:
     """Records of time, name, position, velocity, effort -> the run's columns."""
     if not records:
         raise DataFormatError(f"{source}: no {unit}s")
     first = records[0]
     names = list(first.get("name") or [])
-    width = len(first.get("position") or [])
+    width = _len(first.get("position"))
     if names:
         keep = [i for i, nm in enumerate(names) if nm in JOINT_OF_NAME]
         if not keep and opts.joints is None:
@@ -74,7 +78,7 @@ def _table(records: list[dict], opts: ImportOptions, source: str, unit: str) -> 
     else:
         keep = list(range(width))
         joints = resolve_joints(opts, width, f"{source}: {unit} 1")
-    fields = [f for f in FIELDS if f != "velocity" or len(first.get("velocity") or [])]
+    fields = [f for f in FIELDS if f != "velocity" or _len(first.get("velocity"))]
     t = np.empty(len(records))
     values = {f: np.empty((len(records), len(keep))) for f in fields}
     for k, rec in enumerate(records):
