@@ -105,6 +105,21 @@ def test_libbarretts_time_conventions_are_said(tmp_path):
     assert "slope 1.0000" in out and "rows timed by the logger's period (2 ms" in out
 
 
+@pytest.mark.parametrize("t0_s", [120.0, 999.5, 5000.0])
+def test_six_printed_digits_are_said_and_not_taken_for_a_slow_start(tmp_path, t0_s):
+    """A Ramp running since long before the log: printed as 120.002, 1000, 1000.01, 5000, 5000 (1 ms and 10 ms
+    steps at 2 ms a row): no standstill and no smooth start are made up from the rounding."""
+    src = tmp_path / "late.csv"
+    wam4_log(src, 2000, t=t0_s + np.arange(2000) / RATE_HZ)
+    r = imp(src, tmp_path)
+    assert r.code == 0, r.err
+    out = " ".join(r.out.split())
+    assert "printed with 6 digits, coarser than half a period from line 1 on" in out
+    assert "not yet started" not in out and "smooth start" not in out, out
+    slope = float(re.search(r"slope ([0-9.]+) of the logger's clock", out).group(1))
+    assert abs(slope - 1.0) <= 0.002
+
+
 def test_a_ramp_never_started_and_a_missing_t_are_said(tmp_path):
     src = tmp_path / "flat.csv"
     wam4_log(src, 200, t=np.zeros(200))

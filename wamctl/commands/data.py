@@ -69,9 +69,9 @@ def import_cmd(
     if json:
         emit_json({"run_dir": str(p)})
         return
-    console.print(f"imported {source} -> {p}", highlight=False)
+    console.print(f"imported {source} -> {p}", highlight=False, soft_wrap=True)
     for note in notes:
-        console.print(f"  {note}", highlight=False)
+        console.print(f"  {note}", highlight=False, soft_wrap=True)
 
 
 def register(app: typer.Typer) -> None:

@@ -148,7 +148,11 @@ def time_note(t: np.ndarray | None, rate_hz: float, source: str) -> str:
                               "reset (setOutput) or logs joined together; import each part on its own")
     if t[-1] == t[0]:
         return f"time: t stays at {t[0]:.6g} (the Ramp was not started); {clock}"
+    # what the 6 printed digits can hide: a lag or a standstill shorter than this is not told from rounding
+    tol = 0.5 * period + float(_print_step(t).max())
     started = int(np.argmax(dt > 0))                 # rows before: the Ramp not yet started
+    if started * period <= tol:
+        started = 0
     half = max(started, n // 2)
     if n - 1 - half < 10:
         raise DataFormatError(f"{source}: t advances only over its last {n - 1 - started} lines; too few to check "
@@ -160,7 +164,7 @@ def time_note(t: np.ndarray | None, rate_hz: float, source: str) -> str:
                               f"--rate-hz {rate_hz:g} means {period * 1e3:.4g} ms: check --rate-hz (500 Hz divided "
                               "by the logger's PERIOD_MULTIPLIER) or the Ramp's slope")
     lag = np.arange(n) * period - (t - t[0]) / slope      # how far the Ramp is behind the rows' clock
-    full = int(np.argmax(lag[-1] - lag < 0.5 * period))   # first row from which the Ramp keeps the clock's pace
+    full = int(np.argmax(lag[-1] - lag < tol))            # first row from which the Ramp keeps the clock's pace
     fine = _print_step(t[1:]) < 0.5 * period
     steps = np.flatnonzero(fine & (dt > 1.5 * period * slope))
     steps = steps[steps >= full]
