@@ -4,6 +4,7 @@ a seven-joint tuning of the simulated arm with an undeclared payload, the safegu
 from __future__ import annotations
 
 import json
+from pathlib import Path
 
 import numpy as np
 import pandas as pd
@@ -258,6 +259,95 @@ def test_ift_report_tables_and_figures(tuned, tmp_path):
     assert set(exp1["joint"]) <= set(range(1, 8)) and "q_true_1_rad" in exp1
     exp2 = pd.read_parquet(tuned / "iter-003-exp2.parquet")
     assert {"r2_rad", "y2_rad", "psi_kp", "psi_kd", "psi_ki"} <= set(exp2.columns)
+    # issue 32, item 12: the gains had no units. Each gain row carries its unit: kp N m/rad, kd N m s/rad, ki
+    # N m/(rad s) (the PID's torque per error, per its rate, per its integral)
+    tables = doc.tables()
+    gains = tables["ift_gains"].reset_index()
+    assert len(gains) == 21                                     # 7 joints x 3 gains
+    units = gains.groupby("gain")["unit"].unique()
+    assert {g: list(u) for g, u in units.items()} == {"kp": ["N m/rad"], "kd": ["N m s/rad"], "ki": ["N m/(rad s)"]}
+    gt = gains_table(read_iterations(tuned))
+    np.testing.assert_array_equal(gains.set_index(["joint", "gain"]).loc[(1, "ki"), "tuned"], gt.loc[1, "ki_tuned"])
+    assert json.loads((tmp_path / "report.json").read_text())["gain_units"]["kd"] == "N m s/rad"
+    bt = tables["ift_gains_at_bounds"]                          # kp ends at its bound on every joint
+    assert len(bt) >= 7
+    assert (bt["unit"] == bt["gain"].map({"kp": "N m/rad", "kd": "N m s/rad", "ki": "N m/(rad s)"})).all()
+
+
+def warning_lines(doc, width=80) -> list[list[str]]:
+    """Each warning of a report as the terminal prints it: 'warning: ' and the text wrapped at ``width``."""
+    import textwrap
+    return [textwrap.wrap("warning: " + w, width) for w in doc.data.get("warnings", [])]
+
+
+@pytest.fixture(scope="module")
+def example_interrupted(tmp_path_factory):
+    """The README's example (configs/ift.yaml) on joints 1 and 7, Ctrl-C after iteration 2 was saved; then the
+    same run resumed to max_iterations 4. Returns (spec dict, run path, report of the interrupted run,
+    report of the completed one)."""
+    d = yaml.safe_load((Path(__file__).parents[2] / "configs" / "ift.yaml").read_text())
+    d["ift"].update(joints=[1, 7], max_iterations=3, comparison={"enabled": False})
+    spec = parse_spec(d)
+    runs = tmp_path_factory.mktemp("example")
+    orig = IftTuner._after_iteration
+
+    def stop(self, k):
+        if k == 2:
+            raise KeyboardInterrupt("Ctrl-C")
+    IftTuner._after_iteration = stop
+    try:
+        with pytest.raises(RunInterrupted):
+            run_spec(spec, None, runs / "runs", make_report=False)
+    finally:
+        IftTuner._after_iteration = orig
+    path = only_run(runs / "runs")
+    interrupted = write_report(path, runs / "report-interrupted")
+    assert E.resume(path, spec).status == "completed"
+    completed = write_report(path, runs / "report-completed")
+    return d, path, interrupted, completed
+
+
+def test_an_interrupted_tuning_reports_after_which_iteration_not_a_bound(example_interrupted):
+    """Issue 32, item 9: after Ctrl-C the report said the tuning "stopped at the bound". It says where it was
+    interrupted, in one warning of at most two lines at 80 columns, and how to continue."""
+    _, path, doc, _ = example_interrupted
+    md = (path.parent.parent / "report-interrupted" / "report.md").read_text()
+    assert "stopped at the bound" not in md and "chose these gains" not in md
+    (lines,) = warning_lines(doc)
+    assert len(lines) <= 2, lines
+    assert " ".join(lines).startswith("warning: interrupted after iteration 2:")
+    assert "--resume" in " ".join(lines)
+
+
+def test_the_example_names_the_gains_j_would_push_beyond_their_bound_in_two_lines(example_interrupted):
+    """Issue 32, item 9: the README's example ended with a ten-line warning that every gain was at its bound. J
+    (thesis eq. 2.13) is the output error alone, and on the simulated arm it keeps falling as kp rises: at kp's
+    bound (4x the start) J's gradient still points up, and a plant experiment beyond the bound confirms that J
+    falls further. The report says so in one warning of at most two lines at 80 columns, naming the gains."""
+    d, path, _, doc = example_interrupted
+    (lines,) = warning_lines(doc)
+    text = " ".join(lines)
+    assert len(lines) <= 2, lines
+    assert text.startswith("warning: J still fell at the upper bound of kp (joints 1, 7)"), text
+    assert "the bound, not J, chose these gains" in text
+    bt = doc.tables()["ift_gains_at_bounds"].reset_index()
+    kp = bt[bt["gain"] == "kp"].set_index("joint")
+    assert list(kp.index) == [1, 7] and kp["J_falls_beyond"].tolist() == [True, True]
+    np.testing.assert_allclose(kp["tuned"], [3600.0, 32.0])    # 4 x libbarrett's 900 and 8
+    # J truly still falls beyond kp's bound: joint 7's first experiment at the tuned gains and with kp 25 % above
+    spec = parse_spec(d)
+    st = json.loads((path / STATE_FILE).read_text())["joints"]["7"]
+    tuner = IftTuner(spec, RunDir.create(path.parent, "probe", {}, 0, "ift"))
+    ref, n = E.planning.task_reference(spec, 7, tuner.with_return)
+
+    def J(rho):
+        rows, _, reason = tuner._run_backend(7, E.experiments.with_joint_gains(tuner.g0, 7, rho), ref, 1)
+        assert reason is None
+        return A.objective(rows[:n, E.experiments.Q_MEAS + 6] - rows[:n, E.experiments.Q_REF + 6])
+    rho = np.array(st["rho"])
+    J_at, J_beyond = J(rho), J(rho * [1.25, 1.0, 1.0])
+    print(rho, J_at, J_beyond)
+    assert J_beyond < 0.9 * J_at
 
 
 # ------------------------------------------------------------------------------------------------ (c) safeguards

@@ -4,6 +4,7 @@ section 5.4 (RPE per joint beside the thesis' figures, error plots side by side 
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -18,6 +19,10 @@ from wamctl.runs.store import read_events
 
 # The IFT run directory's tables (written by wamctl.experiments.ift, read here)
 ITERATIONS_TABLE = "iterations"         # .parquet and .csv: one row per joint and iteration
+STATE_FILE = "ift_state.json"           # each joint's tuning state after the last completed iteration
+
+#: The PID gains' units (torque per position error, per its rate, per its integral).
+GAIN_UNITS = {"kp": "N m/rad", "kd": "N m s/rad", "ki": "N m/(rad s)"}
 
 
 def iteration_file(k: int, part: str) -> str:
@@ -104,10 +109,30 @@ def gains_table(it: pd.DataFrame) -> pd.DataFrame:
 GAINS = ("kp", "kd", "ki")
 
 
-def bounds_table(it: pd.DataFrame, spec: dict) -> pd.DataFrame:
+def gains_long(gt: pd.DataFrame) -> pd.DataFrame:
+    """:func:`gains_table`'s gains one row per joint and gain, with the gain's unit: initial, tuned, tuned /
+    initial (the table fits 80 columns and each value stands beside its unit)."""
+    rows = [{"joint": int(j), "gain": g, "unit": GAIN_UNITS[g], "initial": float(r[f"{g}_initial"]),
+             "tuned": float(r[f"{g}_tuned"]),
+             "x_initial": float(r[f"{g}_tuned"]) / float(r[f"{g}_initial"]) if r[f"{g}_initial"] else np.nan}
+            for j, r in gt.iterrows() for g in GAINS]
+    return pd.DataFrame(rows).set_index(["joint", "gain"]) if rows else pd.DataFrame()
+
+
+def read_state(run_path: Path) -> dict:
+    """The run's ``ift_state.json`` (each joint's gains, J and gradient after the last completed iteration), or
+    {} when there is none or it cannot be read."""
+    try:
+        return json.loads((Path(run_path) / STATE_FILE).read_text())
+    except (OSError, ValueError):
+        return {}
+
+
+def bounds_table(it: pd.DataFrame, spec: dict, state: dict | None = None) -> pd.DataFrame:
     """The tuned gains that ended at a bound of ``ift.bounds`` (within 0.1 %): joint, gain, tuned value, which
-    bound and its value, and the tuned value over the initial one. Empty when none did (or the spec's bounds
-    cannot be rebuilt)."""
+    bound and its value, the tuned value over the initial one, and ``J_falls_beyond``: whether the gradient of J
+    at the tuned gains (from ``state``, the run's ift_state.json) points beyond the bound, i.e. J would still fall
+    there (None when unknown). Empty when none did (or the spec's bounds cannot be rebuilt)."""
     from wamctl.errors import WamctlError
     from wamctl.specs import parse_spec
     from wamctl.specs.ift import gain_bounds
@@ -116,16 +141,74 @@ def bounds_table(it: pd.DataFrame, spec: dict) -> pd.DataFrame:
         lo, hi = gain_bounds(parse_spec(spec, "spec.yaml"))
     except (WamctlError, ValueError, TypeError):
         return pd.DataFrame()
+    joints = (state or {}).get("joints") or {}
     rows = []
     for joint, r in gains_table(it).iterrows():
+        st = joints.get(str(joint)) or {}
+        grad, rho = st.get("gradient"), st.get("rho")
         for i, g in enumerate(GAINS):
             v, v0 = float(r[f"{g}_tuned"]), float(r[f"{g}_initial"])
             for side, b in (("upper", hi[joint - 1, i]), ("lower", lo[joint - 1, i])):
                 if abs(v - b) <= 1e-3 * max(abs(b), 1e-12) or v == b:
-                    rows.append({"joint": int(joint), "gain": g, "tuned": v, "bound": side, "bound_value": float(b),
-                                 "x_initial": v / v0 if v0 else np.nan})
+                    known = grad is not None and rho is not None and np.isclose(rho[i], v, rtol=1e-9, atol=0)
+                    falls = (grad[i] < 0 if side == "upper" else grad[i] > 0) if known else None
+                    rows.append({"joint": int(joint), "gain": g, "unit": GAIN_UNITS[g], "tuned": v, "bound": side,
+                                 "bound_value": float(b), "x_initial": v / v0 if v0 else np.nan,
+                                 "J_falls_beyond": None if falls is None else bool(falls)})
                     break
     return pd.DataFrame(rows).set_index("joint") if rows else pd.DataFrame()
+
+
+def joint_list(joints) -> str:
+    """Joints as a short list with ranges: ``[1, 2, 3, 4, 7]`` -> ``"1-4, 7"``."""
+    js = sorted({int(j) for j in joints})
+    parts: list[list[int]] = []
+    for j in js:
+        if parts and j == parts[-1][-1] + 1:
+            parts[-1].append(j)
+        else:
+            parts.append([j])
+    return ", ".join(f"{p[0]}-{p[-1]}" if len(p) > 2 else ", ".join(map(str, p)) for p in parts)
+
+
+def bounds_message(bt: pd.DataFrame) -> str:
+    """:func:`bounds_table` in one sentence (two lines at 80 columns): the gains at a bound with J still falling
+    beyond it, which the bound chose rather than J. The gains at a bound beyond which J rises are left to the
+    table; those whose gradient is unknown (no ift_state.json) are named as at the bound. '' when there are
+    none."""
+    if bt.empty:
+        return ""
+    flat = bt.reset_index()
+    falls = flat["J_falls_beyond"]
+    still, unknown = flat[falls.eq(True)], flat[falls.isna()]
+
+    def listing(rows: pd.DataFrame) -> str:
+        out = []
+        for side, at_side in rows.groupby("bound", sort=False):
+            parts = []
+            for g in GAINS:
+                js = at_side.loc[at_side["gain"] == g, "joint"]
+                if len(js):
+                    label = "" if out or parts else ("joint " if len(js) == 1 else "joints ")
+                    parts.append(f"{g} ({label}{joint_list(js)})")
+            out.append(f"the {side} bound of " + ", ".join(parts))
+        return "; ".join(out)
+    if len(still):
+        return f"J still fell at {listing(still)}: the bound, not J, chose these gains (see ift.bounds)."
+    if len(unknown):
+        return f"gains at {listing(unknown)}: J may still fall beyond; check ift.bounds."
+    return ""
+
+
+def _stopped_text(manifest: dict) -> str:
+    """For a run that did not complete: ``interrupted after iteration N`` (or ``failed ...``), '' otherwise."""
+    status = manifest.get("status")
+    if status in (None, "completed"):
+        return ""
+    last = (manifest.get("ift") or {}).get("last_completed_iteration")
+    if last is None or int(last) < 0:
+        return f"{status} before iteration 0 completed"
+    return f"{status} after iteration {int(last)}"
 
 
 def schedule_table(it: pd.DataFrame, spec: dict) -> pd.DataFrame:
@@ -145,20 +228,30 @@ def schedule_table(it: pd.DataFrame, spec: dict) -> pd.DataFrame:
     return pd.DataFrame(rows).set_index("stage") if rows else pd.DataFrame()
 
 
-def _flag_gains_and_stages(doc: Document, it: pd.DataFrame, spec: dict) -> None:
-    """Warn about gains that ended at their bounds, and say which stages of the schedule were never used."""
-    bt = bounds_table(it, spec)
+def _flag_gains_and_stages(doc: Document, it: pd.DataFrame, spec: dict, manifest: dict, state: dict) -> None:
+    """Say how the tuning ended: interrupted or failed after which iteration, or which gains ended at a bound and
+    whether J still fell beyond it; and which stages of the schedule were never used."""
+    bt = bounds_table(it, spec, state)
     doc.data["gains_at_bounds"] = [{"joint": int(j), **r} for j, r in bt.reset_index().set_index("joint").iterrows()
                                    ] if len(bt) else []
+    stopped = _stopped_text(manifest)
+    if stopped:
+        doc.warning(f"{stopped}: the gains are those accepted so far, not tuned ones; continue with "
+                    f"wamctl tune-ift SPEC --resume RUN_DIR.")
     if len(bt):
-        doc.table("ift_gains_at_bounds", bt, "Tuned gains within 0.1 % of a bound of ift.bounds (defaults: kp and kd "
-                  "in [0.5, 4] x their start, ki in [0, ki_max_per_s x the starting kp]); x_initial = tuned / initial.")
-        parts = [f"joint {j} " + ", ".join(f"{r['gain']} {r['tuned']:.4g} ({r['bound']} bound)"
-                                          for _, r in g.iterrows())
-                 for j, g in bt.reset_index().groupby("joint")]
-        doc.warning("gains at their bounds: " + "; ".join(parts) + ". The tuning stopped at the bound, not at the best "
-                    "J: set bounds for the lab (ift.bounds: kp_max, kd_max, ki_max) and check these gains before "
-                    "using them on the arm.")
+        doc.table("ift_gains_at_bounds", bt, "Gains within 0.1 % of a bound of ift.bounds"
+                  + (" so far" if stopped else "") + " (defaults: kp and kd in [0.5, 4] x their start, ki in "
+                  "[0, ki_max_per_s x the starting kp]); x_initial = tuned / initial; J_falls_beyond: the gradient of "
+                  "J at these gains points beyond the bound (J would still fall there).")
+        msg = bounds_message(bt)
+        if msg and not stopped:
+            doc.warning(msg)
+    done = {int(j): st.get("done_reason", "") for j, st in (state.get("joints") or {}).items() if st.get("done")}
+    capped = [j for j, why in done.items() if why.startswith("max_iterations")]
+    if capped and not stopped:
+        doc.text(f"Stopped by max_iterations ({spec.get('ift', {}).get('max_iterations')}), not because J stopped "
+                 f"falling: "
+                 f"{'joint' if len(capped) == 1 else 'joints'} {joint_list(capped)}.")
     st = schedule_table(it, spec)
     if len(st):
         doc.table("ift_schedule", st, "Iterations accepted on the plant per joint for each stage of ift.schedule; "
@@ -339,10 +432,16 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
               "comparison: initial PID, BFGS iteration 1, Newton-Gauss iterations 2-5.", digits=4)
     gt = gains_table(it)
     doc.heading("Gains")
-    doc.table("ift_gains", gt, "Initial (PD gains, ki = kd/10) and tuned gains; J_ratio = J_tuned / J_initial.",
-              digits=4)
-    _flag_gains_and_stages(doc, it, spec)
+    doc.table("ift_gains", gains_long(gt), "Initial (the PD gains, ki = kd/10) and tuned gains; x_initial = tuned / "
+              "initial.", digits=4)
+    doc.table("ift_J_change", gt[["J_initial", "J_tuned", "J_ratio", "accepted", "plant_experiments",
+                                  "model_rejections"]].rename(columns={"J_initial": "J_initial_rad2",
+                                                                       "J_tuned": "J_tuned_rad2"}),
+              "J on the plant (rad^2) at the initial and the tuned gains; J_ratio = J_tuned / J_initial; accepted "
+              "iterations, experiments on the plant, proposals rejected on the model.", digits=4)
+    _flag_gains_and_stages(doc, it, spec, manifest, read_state(run_path))
     doc.data["J"] = {str(j): {"initial": float(r.J_initial), "tuned": float(r.J_tuned)} for j, r in gt.iterrows()}
+    doc.data["gain_units"] = dict(GAIN_UNITS)
     doc.data["tuned_gains"] = {str(j): {"kp": float(r.kp_tuned), "kd": float(r.kd_tuned), "ki": float(r.ki_tuned)}
                                for j, r in gt.iterrows()}
     ev = read_events(run_path)

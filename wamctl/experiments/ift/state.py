@@ -9,10 +9,10 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from wamctl.report.ift import STATE_FILE as STATE_FILE  # named with the run directory's other files there
 from wamctl.report.ift import iteration_file
 from wamctl.runs.store import atomic_write
 
-STATE_FILE = "ift_state.json"
 STATE_FORMAT = "wamctl-ift-state/1"
 ITERATION_COLUMNS = ["iteration", "joint", "method", "gamma", "kp", "kd", "ki", "J", "J_model", "status", "stage",
                      "note"]
