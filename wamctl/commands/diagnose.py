@@ -38,11 +38,21 @@ def diagnose(data: DataArg,
     if json:
         emit_json(dict(result, run_dir=str(path)))
         return
-    if not quiet:     # the summary and the effects; every candidate is in the report
+    from wamctl.commands.common import print_warnings
+
+    if not quiet:     # the summary and the effects (then the report's warnings); every candidate is in the report
         from wamctl.report.document import Document
-        short = Document(doc.title, [b for b in doc.blocks if b[0] == "table" and b[1][0] in (
+        short = Document(doc.title, [b for b in doc.blocks if b[0] == "warn" or b[0] == "table" and b[1][0] in (
             "summary", "effects", "ambiguous", "unexplained")])
         print_document_tables(short)
+    else:
+        print_warnings(doc)
+    from wamctl.report.diagnosis import not_diagnosed, position_span
+
+    span = position_span(result)
+    # which part of the run the position check covered; every joint not diagnosed, with why (also --quiet)
+    for line in ([span] if span and not quiet else []) + not_diagnosed(result):
+        console.print(line, highlight=False)
     found = ", ".join(result["effects_found"]) or "none"
     amb = "; ".join(" / ".join(g) for g in result.get("ambiguous") or [])
     msg = f"effects found: {found}" + (f" (ambiguous: {amb})" if amb else "") if result.get("conclusive") \

@@ -113,8 +113,11 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
 
 
 def simulate_positions(plant: dict, meta, t_s: np.ndarray, q_ref: np.ndarray, q0: np.ndarray,
-                       feedforward: np.ndarray | None = None, payload=None, seed: int = 0) -> np.ndarray:
-    """Measured positions (n, 7) of the simulated arm ``plant`` driven along ``q_ref`` by the run's controller.
+                       feedforward: np.ndarray | None = None, payload=None, seed: int = 0,
+                       qd0: np.ndarray | None = None, t0_s: float = 0.0) -> np.ndarray:
+    """Measured positions (n, 7) of the simulated arm ``plant`` driven along ``q_ref`` by the run's controller,
+    from position ``q0`` and velocity ``qd0`` (default: at rest) at run time ``t0_s`` (what a drifting friction
+    reads). A controller's integral starts at zero.
 
     A simulation that trips a safety limit (an unstable model) returns NaN from there on."""
     from wamctl.backends.sim import SimBackend
@@ -140,6 +143,9 @@ def simulate_positions(plant: dict, meta, t_s: np.ndarray, q_ref: np.ndarray, q0
     if abs(dt - backend.control_period_s) > 1e-12:       # a log at another rate than the arm's 500 Hz
         backend.control_period_s = dt
         backend.h_s = dt / backend.substeps
+    if qd0 is not None:
+        backend.truth()[1][:] = qd0          # the true velocity, a view the backend updates in place
+    backend._t = float(t0_s)                  # the plant's clock (a friction drift), the sim backend's own
     ref = Reference(np.arange(n) * dt, q_ref, np.zeros_like(q_ref), np.zeros_like(q_ref), [])
     rec = LoopRecorder(n, False)
     try:

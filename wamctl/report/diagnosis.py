@@ -33,18 +33,43 @@ def _fmt_params(params: dict) -> str:
     return ", ".join(out)
 
 
+NOT_CHECKED = "not checked: did not move in the span checked"
+
+
 def summary_table(result: dict) -> pd.DataFrame:
+    """Per diagnosed joint, the held-out figures before and after; a joint the position check did not score has
+    no position figure (never a zero) and says so in ``position_check``."""
     rows = []
     for j, d in result.get("joints", {}).items():
-        rows.append({"joint": int(j), "effects": ", ".join(e["name"] for e in d["effects"]) or "-",
-                     "torque_rms_before_Nm": d["torque_rms_before_Nm"],
-                     "torque_rms_after_Nm": d["torque_rms_after_Nm"],
-                     "position_rms_before_rad": d["position_rms_before_rad"],
-                     "position_rms_after_rad": d["position_rms_after_rad"],
-                     "whiteness_p_before": d["residual_whiteness_p_before"],
-                     "whiteness_p_after": d["residual_whiteness_p_after"]})
+        row = {"joint": int(j), "effects": ", ".join(e["name"] for e in d["effects"]) or "-",
+               "torque_rms_before_Nm": d["torque_rms_before_Nm"],
+               "torque_rms_after_Nm": d["torque_rms_after_Nm"],
+               "position_rms_before_rad": d["position_rms_before_rad"],
+               "position_rms_after_rad": d["position_rms_after_rad"],
+               "whiteness_p_before": d["residual_whiteness_p_before"],
+               "whiteness_p_after": d["residual_whiteness_p_after"]}
+        if any(dd.get("position_not_checked") for dd in result["joints"].values()):
+            row["position_check"] = NOT_CHECKED if d.get("position_not_checked") else "checked"
+        rows.append(row)
     df = pd.DataFrame(rows)
     return df.set_index("joint") if len(df) else df
+
+
+def position_span(result: dict) -> str | None:
+    """Which part of the run the closed-loop position check simulated, in one line (None: no check ran)."""
+    pc = result.get("position_check") or {}
+    spans = pc.get("spans_s")
+    if not spans:
+        return None
+    if pc.get("whole_run"):
+        where = (f"the whole run ({spans[0][0]:.0f}-{spans[-1][1]:.0f} s"
+                 + (f", in {len(spans)} windows each started from the measured state" if len(spans) > 1 else "")
+                 + ")")
+    else:
+        where = (f"{pc['samples_checked']} of {pc['samples_run']} samples, in {len(spans)} window"
+                 f"{'s' if len(spans) > 1 else ''} each started from the measured state: "
+                 + ", ".join(f"{a:.0f}-{b:.0f} s" for a, b in spans))
+    return f"position check: {where}"
 
 
 def _fmt_ci(params: dict, ci: dict) -> str:
@@ -162,7 +187,8 @@ def _figures(run_path: Path, out_dir: Path, result: dict, doc: Document) -> None
             ax.plot(t, (pos[f"q_before_{j}_rad"] - qm) * 1e3, lw=0.8, label="declared model - measured")
             ax.plot(t, (pos[f"q_after_{j}_rad"] - qm) * 1e3, lw=0.8, label="with effects - measured")
             d = result["joints"][str(j)]
-            ax.set_title(f"joint {j}: RMS {_g(_milli(d['position_rms_before_rad']))} -> "
+            ax.set_title(f"joint {j}: {NOT_CHECKED}" if d.get("position_not_checked") else
+                         f"joint {j}: RMS {_g(_milli(d['position_rms_before_rad']))} -> "
                          f"{_g(_milli(d['position_rms_after_rad']))} mrad")   # the axis' unit
             ax.set_ylabel("mrad")
             ax.set_xlabel("t (s)")
@@ -181,6 +207,18 @@ def _figures(run_path: Path, out_dir: Path, result: dict, doc: Document) -> None
         axes[0].legend()
         doc.figure(save(fig, out_dir / "diagnosis_traces.png"),
                    "measured positions and the closed-loop re-simulation of both models")
+
+
+def not_diagnosed(result: dict) -> list[str]:
+    """One line per joint that was not diagnosed, with why (``skipped_joints``), and one line for the joints that
+    were neither commanded nor moved (``idle_joints``): every joint of the arm is either in ``joints`` or named
+    here."""
+    lines = [f"joint {j} not diagnosed: {why}" for j, why in (result.get("skipped_joints") or {}).items()]
+    idle = result.get("idle_joints") or []
+    if idle:
+        lines.append(f"joint{'s' if len(idle) > 1 else ''} {', '.join(str(j) for j in idle)} not diagnosed: not "
+                     "commanded to move, and did not move")
+    return lines
 
 
 def _p(x) -> str:
@@ -203,6 +241,9 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     out_dir.mkdir(parents=True, exist_ok=True)
     result = json.loads((run_path / "diagnosis.json").read_text())
     doc = Document(f"Model diagnosis: {manifest.get('name', run_path.name)}")
+    worse = [d["warning"] for d in (result.get("held_out_vs_declared") or {}).values() if d.get("warning")]
+    for w in worse:     # first: a model written that predicts worse than the declared one is never quiet
+        doc.warning(w)
     doc.text(f"Data: {result.get('data') or spec.get('data')}. Declared model: {result.get('declared_model')}.")
     m = result.get("method") or {}
     if m:
@@ -230,15 +271,18 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
             doc.text("Ambiguous (neither candidate explains the held-out data clearly better than the other, so "
                      "neither is named): " + "; ".join(" / ".join(g) for g in amb) + ".")
     for w in result.get("warnings") or []:
-        doc.text(f"Warning: {w}.")
+        if w not in worse:          # already at the top
+            doc.text(f"Warning: {w}.")
     pc = result.get("position_check") or {}
     if pc.get("skipped"):
         doc.text(f"The closed-loop position check was skipped: {pc['skipped']}.")
     elif (pc.get("controller_gains") or {}).get("source"):
         doc.text(f"Closed-loop check: controller gains {pc['controller_gains']['source']}.")
-    skipped = result.get("skipped_joints") or {}
-    for j, why in skipped.items():
-        doc.text(f"Joint {j} was not diagnosed: {why}.")
+    span = position_span(result)
+    if span:
+        doc.text(span[0].upper() + span[1:] + ".")
+    for line in not_diagnosed(result):
+        doc.text(line[0].upper() + line[1:] + ".")
     doc.data["diagnosis"] = result
     if not result.get("joints"):
         return doc

@@ -5,11 +5,13 @@
   ``sensors``): :func:`model_file` wraps it as a model file (``format: wamctl-model/1``) that
   ``wamctl run`` accepts as ``plant: FILE``.
 * :func:`position_check` scores both models on held-out data: the time blocks are split in two (even and
-  odd); the models are refitted on one half (shape parameters kept), the whole run (up to
-  ``max_samples``) is simulated, and the other half is scored, then the other way round (for runs longer
-  than 20000 samples, only the odd half is scored, from models fitted on the even half). The closed loop
-  itself (the run's reference and controller on a simulated arm built from a plant mapping) is a callable
-  the caller hands in.
+  odd); the models are refitted on one half (shape parameters kept), the run is simulated in windows of at
+  most 20000 samples, each from the measured state at its start (the whole run up to ``max_samples``
+  samples, else windows spread over it: :func:`check_windows`), and the other half is scored, then the other
+  way round (above 20000 samples checked, only the odd half is scored, from models fitted on the even half).
+  A joint that did not move in the samples checked is not scored (its error there would be zero, which says
+  nothing). The closed loop itself (the run's reference and controller on a simulated arm built from a plant
+  mapping) is a callable the caller hands in.
 
 Documented approximations: a model file holds one parameter set per effect (one ripple period with its
 harmonics, one drift time constant, one dead band, one Stribeck ratio and velocity) even when the diagnosis found
@@ -26,6 +28,7 @@ import numpy as np
 from wamctl.analysis.diagnosis.backlash import resolution_rad
 from wamctl.analysis.diagnosis.candidates import ripple_harmonics
 from wamctl.analysis.diagnosis.design import block_of, levels_dict, model_levels
+from wamctl.analysis.diagnosis.signals import MIN_TRAVEL_RAD
 from wamctl.control.controllers import pid_torque_series_Nm
 from wamctl.io import MODEL_FILE_FORMAT
 from wamctl.model import params as P
@@ -37,8 +40,9 @@ from wamctl.specs import PlantSpec
 log = logging.getLogger(__name__)
 
 N7 = P.N_JOINTS
-MAX_SIM_SAMPLES = 20000          # per simulation: the position check of a long run scores its first part
-BOTH_HALVES_MAX = 20000          # up to this many samples both halves are scored (four simulations)
+WINDOW_SAMPLES = 20000           # a simulation of the position check runs this long at most, then restarts
+MAX_SIM_SAMPLES = 100000         # per model: runs up to this long are checked whole, longer ones in windows spread
+BOTH_HALVES_MAX = 20000          # up to this many samples checked both halves are scored (four simulations each)
 
 
 def encoder_counts(q_raw: np.ndarray, joints: list[int]) -> int:
@@ -187,57 +191,111 @@ def feedforward_from_log(meta, t_s, q_ref, q, tau, gravity) -> np.ndarray | None
     return tau - pd - g
 
 
-def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SAMPLES, meta=None) -> dict:
+def check_windows(sig, window: int = WINDOW_SAMPLES, budget: int = MAX_SIM_SAMPLES) -> list[tuple[int, int]]:
+    """The stretches ``[(start, stop), ...]`` of the run the position check simulates, each from the measured
+    state at its start: the whole run, cut into windows of at most ``window`` samples, when it has at most
+    ``budget`` samples; else ``budget // window`` windows spread evenly from the start to the end of the run.
+    Every window after the first starts where the arm is slowest within a quarter of a window (the last quarter
+    of the window before it, or around the even spacing; the restart takes the measured position and smoothed
+    velocity there: near rest, the state is known best)."""
+    n = sig.n
+    window = max(min(int(window), int(budget)), 10)
+    speed = np.max(np.abs(sig.qd_rad_s) / np.maximum(sig.v_stick_rad_s, 1e-6)[None, :], axis=1)
+
+    def restful(a: int, b: int) -> int:          # the slowest sample in [a, b)
+        b = min(max(b, a + 1), n)
+        return a + int(np.argmin(speed[a:b]))
+
+    if n <= budget:
+        bounds, a = [], 0
+        while n - a > window:
+            b = restful(a + 3 * window // 4, a + window)
+            bounds.append((a, b))
+            a = b
+        return bounds + [(a, n)]
+    k = max(1, budget // window)
+    out = []
+    for s0 in np.linspace(0, n - window, k).astype(int):
+        s = 0 if s0 == 0 else restful(int(s0) - window // 8, min(int(s0) + window // 8, n - window) + 1)
+        out.append((s, s + window))
+    return out
+
+
+def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SAMPLES, meta=None,
+                   window: int = WINDOW_SAMPLES) -> dict:
     """Held-out closed-loop position error of the declared and the augmented model.
 
-    ``simulate_positions(plant, meta, t_s, q_ref, q0, feedforward, payload) -> (n, 7)`` runs the closed loop of
-    a plant mapping (see :func:`wamctl.experiments.diagnose.simulate_positions`); the analysis never builds a
-    simulator itself.
+    ``simulate_positions(plant, meta, t_s, q_ref, q0, feedforward, payload, qd0=, t0_s=) -> (n, 7)`` runs the
+    closed loop of a plant mapping from the state ``q0``, ``qd0`` at time ``t0_s`` (see
+    :func:`wamctl.experiments.diagnose.simulate_positions`); the analysis never builds a simulator itself. The
+    stretches simulated are :func:`check_windows` (``max_samples`` per model, ``window`` per simulation).
 
     Returns
     -------
-    dict with ``t_s`` (m,), ``q_meas``, ``q_before``, ``q_after`` (m, 7) held-out traces (each sample simulated
-    by the model not fitted on its block), ``scored`` (m,) bool, and ``rms_before`` / ``rms_after``
-    {0-based joint: rad}.
+    dict with ``t_s`` (m,), ``q_meas``, ``q_before``, ``q_after`` (m, 7) held-out traces over the samples checked
+    (each sample simulated by the model not fitted on its block), ``rms_before`` / ``rms_after`` {0-based joint:
+    rad} (NaN for a joint not checked), ``not_checked`` {0-based joint: why}, ``spans_s`` [[t_start, t_end], ...]
+    of the windows, ``samples`` (checked) and ``samples_run``.
     """
     sig = diag.signals_
-    n = min(sig.n, max_samples)
-    t = sig.t_s[:n]
-    q_ref, q_meas = sig.q_ref_rad[:n], sig.q_raw_rad[:n]
+    spans = check_windows(sig, window, max_samples)
+    rows = np.concatenate([np.arange(a, b) for a, b in spans])
+    m = len(rows)
+    t_run = sig.t_s
     # halves per joint: every other block of the joint's own sliding samples (see ModelDiagnosis: a joint that
     # moves in one part of the run only still has both halves); run samples take the half of their block
     half_fit, half_t = {}, {}
     for j, jd in diag.jd_.items():
         half_fit[j] = jd.extra["block"] % 2
-        half_t[j] = block_of(jd, sig.t_s[:n]) % 2
+        half_t[j] = block_of(jd, t_run[rows]) % 2
     meta = meta or diag.meta_    # the run's metadata, with the controller's gains the check uses
     mp = meta.payload            # what the controller's gravity compensation knew
     ctl_payload = Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None
     dyn = WamDynamics(ctl_payload)
-    ff = feedforward_from_log(meta, t, q_ref, q_meas, sig.tau_raw_Nm[:n],
-                              dyn.gravity if meta.gravity_compensation else None)
-    traces = {"before": np.full((n, N7), np.nan), "after": np.full((n, N7), np.nan)}
+    gravity = dyn.gravity if meta.gravity_compensation else None
+    ffs = [feedforward_from_log(meta, t_run[a:b], sig.q_ref_rad[a:b], sig.q_raw_rad[a:b], sig.tau_raw_Nm[a:b],
+                                gravity) for a, b in spans]
+    traces = {"before": np.full((m, N7), np.nan), "after": np.full((m, N7), np.nan)}
     same = not diag.effects_found_
-    # up to BOTH_HALVES_MAX samples, both halves are scored (four simulations); above, one half (two)
-    for h in ((0, 1) if n <= BOTH_HALVES_MAX else (1,)):
+    # up to BOTH_HALVES_MAX samples checked, both halves are scored (four simulations); above, one half (two)
+    for h in ((0, 1) if m <= BOTH_HALVES_MAX else (1,)):
         if not any((half == h).any() for half in half_t.values()):
-            continue        # no sample of this half in the window simulated (a long run's first block)
+            continue        # no sample of this half in the windows simulated (a long run's first block)
         thetas = diag.refit(lambda jd, h=h: half_fit[jd.j] != h)       # fit on the other half
         for which in ("before", "after"):
             if which == "after" and same:
                 continue
             plant = plant_dict(diag, which, thetas)
-            q_sim = simulate_positions(plant, meta, t, q_ref, q_meas[0], ff, ctl_payload)
+            q_sim = np.full((m, N7), np.nan)
+            at = 0
+            for (a, b), ff in zip(spans, ffs):
+                # the first window starts as the run does (at rest); later ones from the measured state
+                qd0 = None if a == 0 else sig.qd_rad_s[a]
+                q_sim[at:at + b - a] = simulate_positions(plant, meta, t_run[a:b], sig.q_ref_rad[a:b],
+                                                          sig.q_raw_rad[a], ff, ctl_payload, qd0=qd0,
+                                                          t0_s=float(t_run[a] - t_run[0]))
+                at += b - a
             for j in range(N7):
-                sel = half_t[j] == h if j in half_t else np.ones(n, bool)
+                sel = half_t[j] == h if j in half_t else np.ones(m, bool)
                 traces[which][sel, j] = q_sim[sel, j]
     if same:
         traces["after"] = traces["before"].copy()
-    rms_b, rms_a = {}, {}
-    away = sig.usable(slice(0, n))             # the log's gaps are interpolated, not measured: not scored
+    q_meas = sig.q_raw_rad[rows]
+    rms_b, rms_a, not_checked = {}, {}, {}
+    away = sig.usable(rows)             # the log's gaps are interpolated, not measured: not scored
     for j in diag.joints_:
+        scored = away & np.isfinite(traces["before"][:, j])
+        travel = float(np.ptp(q_meas[scored, j])) if scored.any() else 0.0
+        if travel < MIN_TRAVEL_RAD:
+            # a joint that stood still where it was checked: a zero error there says nothing about the model
+            not_checked[j] = (f"did not move in the span checked (travel {travel:.4f} rad, at least "
+                              f"{MIN_TRAVEL_RAD} rad needed)")
+            rms_b[j] = rms_a[j] = float("nan")
+            continue
         for which, store in (("before", rms_b), ("after", rms_a)):
             err = np.where(away, traces[which][:, j] - q_meas[:, j], np.nan)
             store[j] = float(np.sqrt(np.nanmean(err ** 2))) if np.isfinite(err).any() else float("nan")
-    return {"t_s": t, "q_meas": q_meas, "q_before": traces["before"], "q_after": traces["after"],
-            "rms_before": rms_b, "rms_after": rms_a, "samples": n}
+    spans_s = [[float(t_run[a] - t_run[0]), float(t_run[b - 1] - t_run[0])] for a, b in spans]
+    return {"t_s": t_run[rows], "q_meas": q_meas, "q_before": traces["before"], "q_after": traces["after"],
+            "rms_before": rms_b, "rms_after": rms_a, "not_checked": not_checked, "spans_s": spans_s,
+            "samples": m, "samples_run": sig.n}

@@ -70,6 +70,7 @@ from wamctl.analysis.diagnosis.augmented import MAX_SIM_SAMPLES, position_check
 from wamctl.analysis.diagnosis.candidates import ARM_ONLY, EFFECT_NAMES
 from wamctl.analysis.diagnosis.crossval import cv_terms
 from wamctl.analysis.diagnosis.design import JointData, columns, fit_theta, target_and_design
+from wamctl.analysis.diagnosis.honesty import against_declared, worse_warnings
 from wamctl.analysis.diagnosis.joint import JointResult, forward_select, joint_baseline, set_after
 from wamctl.analysis.diagnosis.onset_tests import onset_tests, stribeck_at_breakaways
 from wamctl.analysis.diagnosis.parameters import (
@@ -157,7 +158,8 @@ class ModelDiagnosis:
     simulator : ``simulate_positions(plant, meta, t_s, q_ref, q0, feedforward, payload) -> (n, 7)``, the closed
         loop of a model on a simulated arm (:func:`wamctl.experiments.diagnose.simulate_positions`); given, the
         closed-loop position check runs (:mod:`wamctl.analysis.diagnosis.augmented`), None skips it.
-    max_sim_samples : samples simulated per model in that check.
+    max_sim_samples : samples simulated per model in that check (the whole run up to this many, else windows
+        spread over it: :func:`wamctl.analysis.diagnosis.augmented.check_windows`).
 
     Attributes (after ``fit``)
     --------------------------
@@ -264,6 +266,11 @@ class ModelDiagnosis:
         for j, res in self.joints_.items():
             res.unexplained = unexplained(self, j)
         self.conclusive_ = True
+        # the model written against the declared one on held-out torque, per joint: worse is said, never quiet
+        self.against_declared_ = against_declared(self)
+        for w in worse_warnings(self.against_declared_):
+            log.warning(w)
+            self.warnings_.append(w)
         self.positions_ = None
         self.gains_ = None
         self.position_skipped_ = None if self.simulator is not None else "no simulator given"
@@ -593,6 +600,7 @@ class ModelDiagnosis:
         for j, res in self.joints_.items():
             res.position_rms_before_rad = pc["rms_before"].get(j, float("nan"))
             res.position_rms_after_rad = pc["rms_after"].get(j, float("nan"))
+            res.position_not_checked = pc["not_checked"].get(j)
 
     # ------------------------------------------------------------------------------------------ results
     def effect_params(self, j: int, name: str, theta: np.ndarray | None = None) -> dict:

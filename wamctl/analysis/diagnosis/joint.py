@@ -65,6 +65,7 @@ class JointResult:
     whiteness_p_after: float = float("nan")
     position_rms_before_rad: float = float("nan")
     position_rms_after_rad: float = float("nan")
+    position_not_checked: str | None = None      # why the position check did not score the joint
     effects: list[dict] = field(default_factory=list)         # report-ready: name, params, evidence
     ambiguous: list[dict] = field(default_factory=list)       # groups no member of which won: names, evidence
     unexplained: dict | None = None                           # what the final residual still correlates with

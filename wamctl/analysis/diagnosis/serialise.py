@@ -47,6 +47,8 @@ def _joint_dict(diag, j: int, res) -> dict:
         "friction_before": friction_levels_before(diag, j),
         "friction_after": friction_levels_after(diag, j),
     }
+    if res.position_not_checked:       # position_rms_* are then null: not a zero that reads as a perfect fit
+        out["position_not_checked"] = res.position_not_checked
     if res.ambiguous:
         out["ambiguous"] = [g["names"] for g in res.ambiguous]
     if res.unexplained:
@@ -65,15 +67,34 @@ def diagnosis_dict(diag, data_path: str = "") -> dict:
            "conclusive": bool(diag.conclusive_), "reason": diag.reason_}
     if getattr(diag, "warnings_", None):
         out["warnings"] = list(diag.warnings_)
+    check = getattr(diag, "against_declared_", None) if diag.conclusive_ else None
+    if check is not None:       # the model written against the declared one, held-out torque RMS per joint
+        from wamctl.analysis.diagnosis.honesty import worse_warnings
+
+        out["held_out_vs_declared"] = {
+            str(j + 1): {"torque_rms_declared_Nm": _num(c["torque_rms_declared_Nm"]),
+                         "torque_rms_final_Nm": _num(c["torque_rms_final_Nm"]), "ratio": _num(c["ratio"]),
+                         "worse": c["worse"], "note": c["note"],
+                         "warning": (worse_warnings({j: c}) or [None])[0]}
+            for j, c in sorted(check.items())}
+        out["worse_than_declared"] = [j + 1 for j, c in sorted(check.items()) if c["worse"]]
     if getattr(diag, "payload_vs_links_", None):
         out["payload_or_links"] = diag.payload_vs_links_
     gains = getattr(diag, "gains_", None)
     if gains is not None or getattr(diag, "position_skipped_", None):
         out["position_check"] = {"controller_gains": gains,
                                  "skipped": getattr(diag, "position_skipped_", None)}
+        pc = getattr(diag, "positions_", None)
+        if pc is not None:          # which stretches of the run the check simulated and scored
+            out["position_check"].update(
+                spans_s=pc["spans_s"], samples_checked=int(pc["samples"]), samples_run=int(pc["samples_run"]),
+                whole_run=bool(pc["samples"] == pc["samples_run"]))
     sig = getattr(diag, "signals_", None)
     if sig is not None:
         out["skipped_joints"] = {str(j + 1): r for j, r in sig.skipped.items()}
+        # neither commanded nor moved: not diagnosed either (named, so that every joint is accounted for)
+        out["idle_joints"] = [j + 1 for j in range(sig.q_raw_rad.shape[1])
+                              if j not in sig.joints and j not in sig.skipped]
         out["method"] = {"test_threshold_p": _num(getattr(diag, "threshold_", float("nan"))),
                          "alpha_per_run": diag.alpha, "folds": diag.n_folds, "blocks": diag.n_blocks,
                          "savgol_window_samples": sig.window, "gauss_sigma_samples": sig.gauss,
