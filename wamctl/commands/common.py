@@ -75,6 +75,13 @@ YesOpt = Annotated[bool, typer.Option("--yes", "-y", help="Real arm: answer the 
                                       "arm is at its home pose for zeroing); Shift-Activate stays the operator's.")]
 
 
+def status_line(status: str | None, reason: str | None, run_dir) -> str:
+    """How a run ended, in one line (rich markup): the status in colour, the reason, the run directory (printed
+    with ``soft_wrap=True`` so that a long path stays whole and can be copied)."""
+    colour = "green" if status == "completed" else "red"
+    return f"[{colour}]{status}[/]" + (f": {reason}" if reason else "") + f"  run directory: {run_dir}"
+
+
 def print_document_tables(doc, out: Console | None = None) -> None:
     """The tables of a report :class:`~wamctl.report.document.Document` on the terminal, then its warnings.
 

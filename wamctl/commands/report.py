@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from wamctl.commands.common import console, emit_json
+from wamctl.commands.common import console, emit_json, status_line
 
 
 def report(run_dirs: Annotated[list[Path] | None, typer.Argument(help="One or more run directories.",
@@ -29,7 +29,7 @@ def report(run_dirs: Annotated[list[Path] | None, typer.Argument(help="One or mo
     """
     from wamctl.commands.common import print_document_tables
     from wamctl.errors import WamctlError
-    from wamctl.report.combined import report_runs
+    from wamctl.report.combined import Reported, report_runs
 
     formats = tuple(f.strip() for f in format.split(",") if f.strip())
     bad = [f for f in formats if f not in ("md", "html", "json")]
@@ -37,7 +37,8 @@ def report(run_dirs: Annotated[list[Path] | None, typer.Argument(help="One or mo
         raise WamctlError(f"--format: unknown format(s) {', '.join(bad)}; choose from md, html, json")
     if not run_dirs and not hmi_results:
         raise WamctlError("nothing to report: give run directories and/or --hmi-results FILE.csv")
-    docs, written = report_runs(run_dirs, out, formats) if run_dirs else ([], [])
+    done = report_runs(run_dirs, out, formats) if run_dirs else Reported()
+    docs, written = done.docs, done.written
     for csv in hmi_results or []:
         from wamctl.report.hmi_stats import hmi_results_report
         dest = Path(out or csv.parent)
@@ -45,13 +46,21 @@ def report(run_dirs: Annotated[list[Path] | None, typer.Argument(help="One or mo
         docs.append(doc)
         written += doc.write(dest, f"{csv.stem}_report", formats)
     if json:
-        emit_json({"reports": [d.to_json() for d in docs], "written": [str(p) for p in written]})
+        emit_json({"reports": [d.to_json() for d in docs], "written": [str(p) for p in written],
+                   "runs": [{"run_dir": str(p), "status": m.get("status"), "reason": m.get("reason")}
+                            for p, m in done.runs],
+                   "skipped": [{"path": str(p), "why": why} for p, why in done.skipped]})
         return
+    for p, why in done.skipped:
+        console.print(f"skipped {p}: {why}", highlight=False, soft_wrap=True)
+    ended = [(p, m) for p, m in done.runs if m.get("status") != "completed"]
+    for p, m in ended:     # first: a report of a run that did not complete reads as one that did
+        console.print(status_line(m.get("status"), m.get("reason"), p), highlight=False, soft_wrap=True)
     if not quiet:
         for d in docs:
             print_document_tables(d)
     for p in written:
-        console.print(f"wrote {p}", highlight=False)
+        console.print(f"wrote {p}", highlight=False, soft_wrap=True)
 
 
 def register(app: typer.Typer) -> None:

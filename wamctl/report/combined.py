@@ -8,6 +8,7 @@ from __future__ import annotations
 import json
 import os
 from collections import Counter
+from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -21,23 +22,69 @@ from wamctl.runs.store import open_run
 _NOT_THE_EXPERIMENT = ("seed", "name", "description", "out_dir")
 
 
-def report_runs(run_dirs: list[Path], out: Path | None, formats=("md", "html", "json")):
+COMBINED_DIR = "combined-report"   # beside the runs when no --out is given: a folder that is not a run
+
+
+@dataclass
+class Reported:
+    """What ``report_runs`` did: the documents (each run's, then the combined one), the files written, the
+    runs reported (path, manifest) and the paths skipped with why (not a run directory)."""
+
+    docs: list = field(default_factory=list)
+    written: list[Path] = field(default_factory=list)
+    runs: list[tuple[Path, dict]] = field(default_factory=list)
+    skipped: list[tuple[Path, str]] = field(default_factory=list)
+
+
+def not_a_run(path: Path) -> str | None:
+    """Why ``path`` is not a run directory wamctl can report (None when it is one). A combined report's folder,
+    a sweep directory or a stray file among ``runs/*`` is named, not read."""
+    path = Path(path)
+    if not path.exists():
+        return "no such file or directory"
+    if not path.is_dir():
+        return "a file, not a run directory"
+    if (path / "manifest.json").is_file():
+        return None
+    if (path / "sweep.json").is_file():
+        return "a sweep directory (its report is written by `wamctl sweep`: report.html there)"
+    if any(path.glob("combined_report.*")):
+        return "a combined report's folder"
+    return "not a wamctl run directory (no manifest.json)"
+
+
+def report_runs(run_dirs: list[Path], out: Path | None, formats=("md", "html", "json")) -> Reported:
     """Write the report of each run (into ``out/<run name>`` when ``out`` is given for several runs, ``out``
-    for one, else into the run itself) and, for several runs, ``combined_report.*`` (into ``out``, else beside
-    the first run). Returns (documents, files written)."""
-    docs, written, targets = [], [], []
-    for rd in run_dirs:
-        target = (Path(out) / Path(rd).name) if out and len(run_dirs) > 1 else out
-        doc = write_report(Path(rd), target, formats)
-        docs.append(doc)
+    for one, else into the run itself) and, for several runs, ``combined_report.*``: into ``out``, else into
+    :data:`COMBINED_DIR` beside the first run (never among the runs, so that ``wamctl report runs/*`` can be
+    run again). Paths that are not run directories are skipped with why (:func:`not_a_run`); DataFormatError
+    when none is left."""
+    from wamctl.errors import DataFormatError
+
+    done = Reported()
+    runs = []
+    for rd in map(Path, run_dirs):
+        why = not_a_run(rd)
+        if why is None:
+            runs.append(rd)
+        else:
+            done.skipped.append((rd, why))
+    if not runs:
+        raise DataFormatError("nothing to report: " + "; ".join(f"{p}: {why}" for p, why in done.skipped))
+    targets = []
+    for rd in runs:
+        target = (Path(out) / rd.name) if out and len(runs) > 1 else out
+        doc = write_report(rd, target, formats)
+        done.docs.append(doc)
+        done.runs.append((rd, open_run(rd)[0]))
         targets.append(Path(target or rd))
-        written += [Path(target or rd) / f"report.{f}" for f in formats]
-    if len(run_dirs) > 1:
-        dest = Path(out or Path(run_dirs[0]).parent)
-        combined = combined_document(run_dirs, docs, dest, targets)
-        written += combined.write(dest, "combined_report", formats)
-        docs.append(combined)
-    return docs, written
+        done.written += [Path(target or rd) / f"report.{f}" for f in formats]
+    if len(runs) > 1:
+        dest = Path(out) if out else runs[0].parent / COMBINED_DIR
+        combined = combined_document(runs, list(done.docs), dest, targets)
+        done.written += combined.write(dest, "combined_report", formats)
+        done.docs.append(combined)
+    return done
 
 
 def _title(manifests: list[dict]) -> str:
