@@ -1,7 +1,8 @@
 """The ``wamctl`` command line: typer only. Parse -> load spec -> call the library -> map errors to exit codes.
 
 Errors a user can cause end in one line (``error: ...``) and exit code 2, without a traceback;
-an interrupted run exits 130.
+an interrupted command (Ctrl-C, SIGTERM, SIGHUP) ends in one line and exit code 130, its run directory marked
+``interrupted``.
 
 Start-up stays light: ``wamctl --help`` and ``--version`` import typer and the command modules only (every
 command imports the library it calls inside its function), and help is click's plain text, wrapped to the
@@ -10,7 +11,9 @@ terminal (typer's rich help would import a Markdown parser on every call).
 
 from __future__ import annotations
 
+import signal
 import sys
+import threading
 
 import typer
 
@@ -85,6 +88,50 @@ def _print_error(exc: WamctlError) -> None:
 
 
 _command = None   # the click command built from ``app`` (once per process: typer builds it from signatures)
+_STOP_SIGNALS = ("SIGINT", "SIGTERM", "SIGHUP")
+
+
+def _termination_as_interrupt(signum, frame):
+    raise KeyboardInterrupt(signal.Signals(signum).name)
+
+
+def _interrupt_behind(exc: BaseException) -> KeyboardInterrupt | None:
+    """The KeyboardInterrupt behind an exit: typer turns one into ``Exit(130)``, silently."""
+    seen = set()
+    while exc is not None and id(exc) not in seen:
+        if isinstance(exc, KeyboardInterrupt):
+            return exc
+        seen.add(id(exc))
+        exc = exc.__cause__ or exc.__context__
+    return None
+
+
+def _report_complete(path) -> bool:
+    return all((path / f"report.{ext}").is_file() for ext in ("md", "html", "json"))
+
+
+def _interrupted(exc: KeyboardInterrupt) -> None:
+    """One line for an interrupt that reached the command line, exit 130: a run directory of this process
+    still running is marked ``interrupted`` (its tables consolidated); a run that completed but whose report
+    was cut short is named with the command that writes it. Further signals are ignored meanwhile."""
+    if threading.current_thread() is threading.main_thread():
+        for name in _STOP_SIGNALS:
+            if hasattr(signal, name):
+                signal.signal(getattr(signal, name), signal.SIG_IGN)
+    by = exc.args[0] if exc.args and isinstance(exc.args[0], str) else "Ctrl-C"
+    line = f"interrupted (stopped by {by})"
+    store = sys.modules.get("wamctl.runs.store")   # not imported: no run directory was made
+    if store is not None:
+        ended = store.end_open_runs(f"stopped by {by}")
+        if ended:
+            line = f"{ended[-1]}: interrupted (stopped by {by}); the data recorded so far are readable"
+        elif store.FINISHED_RUNS and store.FINISHED_RUNS[-1][1] == "completed" \
+                and not _report_complete(store.FINISHED_RUNS[-1][0]):
+            path = store.FINISHED_RUNS[-1][0]
+            line = (f"{path}: completed, but its report was interrupted (stopped by {by}); "
+                    f"`wamctl report {path}` writes it")
+    _print_error(WamctlError(line))
+    sys.exit(130)
 
 
 def main() -> None:
@@ -95,14 +142,29 @@ def main() -> None:
         _register()
         _command = typer.main.get_command(app)
     reset_consoles()
+    sigs = [getattr(signal, n) for n in _STOP_SIGNALS if hasattr(signal, n)]
+    main_thread = threading.current_thread() is threading.main_thread()
+    old = {s: signal.getsignal(s) for s in sigs} if main_thread else {}
     try:
-        _command()  # usage errors, --help and typer.Exit are handled by click itself (exit codes 2 and 0)
-    except WamctlError as exc:
-        _print_error(exc)
-        sys.exit(exc.exit_code)
-    except KeyboardInterrupt:
-        sys.stderr.write("interrupted\n")
-        sys.exit(130)
+        for s in sigs[1:] if main_thread else ():   # SIGTERM and SIGHUP end a command as Ctrl-C does
+            if old[s] is not signal.SIG_IGN:             # nohup keeps SIGHUP ignored
+                signal.signal(s, _termination_as_interrupt)
+        try:
+            _command()  # usage errors, --help and typer.Exit are handled by click itself (exit codes 2 and 0)
+        except WamctlError as exc:
+            _print_error(exc)
+            sys.exit(exc.exit_code)
+        except KeyboardInterrupt as exc:
+            _interrupted(exc)
+        except SystemExit as exc:
+            interrupt = _interrupt_behind(exc) if exc.code == 130 else None
+            if interrupt is None:
+                raise
+            _interrupted(interrupt)
+    finally:   # the handlers as they were (main() called in-process, e.g. by the tests)
+        for s, h in old.items():
+            if h is not None:
+                signal.signal(s, h)
 
 
 if __name__ == "__main__":

@@ -253,10 +253,9 @@ def test_killed_run_keeps_every_chunk_and_says_interrupted(tmp_path, sig):
     run = chunk_dir.parent
     m = json.loads((run / "manifest.json").read_text())
     assert m["status"] == "interrupted" and ("SIG" in m["reason"] or "Ctrl-C" in m["reason"])
-    chunks = sorted(chunk_dir.glob("part-*.parquet"))
-    rows = sum(len(pd.read_parquet(c)) for c in chunks)
     data = pd.read_parquet(run / "data.parquet")
-    assert len(data) == rows >= 5000
+    assert len(data) >= 5000
+    assert not chunk_dir.exists()      # the chunks are removed once data.parquet holds their rows (issue 32)
     assert data["t_s"].is_monotonic_increasing
     assert data.notna().all().all()
 

@@ -45,11 +45,11 @@ class LoopRecorder:
         self.t_offset_s = t_offset_s
 
     def flush(self) -> None:
-        """Write every row recorded so far that is not yet on disk."""
+        """Write every row recorded so far that is not yet on disk (idempotent: an interrupt anywhere in it
+        neither loses nor repeats a row when it is called again)."""
         if self.writer is None:
             return
-        for row in self.rows[self._flushed: self.n]:
-            self.writer.append(row)
+        self.writer.sync(self.rows, self.n)
         self.writer.flush()
         self._flushed = self.n
 

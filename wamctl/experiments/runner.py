@@ -79,29 +79,57 @@ def signals_as_event():
         yield stop
 
 
+class _FirstSignalRaises:
+    """A signal handler: the first Ctrl-C (SIGINT), SIGTERM or SIGHUP raises KeyboardInterrupt, any later one
+    is only noted (``caught``), so that the bookkeeping after an interrupt (closing the tables, the status)
+    cannot itself be interrupted. ``armed = False`` notes without raising from then on."""
+
+    def __init__(self):
+        self.armed = True
+        self.caught: list[str] = []
+
+    def __call__(self, signum, frame):
+        name = "Ctrl-C" if signum == signal.SIGINT else signal.Signals(signum).name
+        self.caught.append(name)
+        if self.armed:
+            self.armed = False
+            raise KeyboardInterrupt(*(() if signum == signal.SIGINT else (name,)))
+
+
 def record_outcome(run: RunDir, body, resume_hint: bool = False) -> RunOutcome:
     """Run ``body()`` into ``run``: termination signals act as Ctrl-C, and the outcome becomes the run's status
     (``completed``, ``failed`` with the reason, ``interrupted``), written however ``body`` ends.
 
-    Raises RunInterrupted when interrupted (the data so far are on disk); programming errors propagate after
-    the run is marked failed."""
-    status, reason, exit_code = "completed", None, 0
-    with signals_as_interrupt():
+    After ``body`` (however it ends) further signals are noted, not raised, until every table of the run is
+    consolidated and its status written. Raises RunInterrupted when interrupted (the data so far are on disk),
+    also when a signal came after ``body`` completed (the run is ``completed``, its report not written);
+    programming errors propagate after the run is marked failed."""
+    status, reason, exit_code, error = "completed", None, 0, None
+    stop = _FirstSignalRaises()
+    with _handled(stop, (signal.SIGINT, signal.SIGTERM, signal.SIGHUP)):
         try:
-            body()
+            try:
+                body()
+            finally:
+                stop.armed = False
         except KeyboardInterrupt as exc:
             status, reason = "interrupted", f"stopped by {exc.args[0] if exc.args else 'Ctrl-C'}"
         except SafetyLimitError as exc:
             status, reason, exit_code = "failed", f"safety limit: {exc}", 1
         except WamctlError as exc:
             status, reason, exit_code = "failed", str(exc), 2 if isinstance(exc, ConfigurationRefused) else 1
-        except BaseException as exc:
-            run.finish("failed", f"{type(exc).__name__}: {exc}")
-            raise
+        except BaseException as exc:  # noqa: BLE001 - recorded as failed, then raised again below
+            status, reason, exit_code, error = "failed", f"{type(exc).__name__}: {exc}", 1, exc
+        run.close_tables()
         run.finish(status, reason)
+    if error is not None:
+        raise error
     if status == "interrupted":
         hint = f"; continue with --resume {run.path}" if resume_hint else ""
         raise RunInterrupted(f"{run.path}: interrupted ({reason}); the data recorded so far are readable{hint}")
+    if status == "completed" and stop.caught:
+        raise RunInterrupted(f"{run.path}: completed, then stopped by {stop.caught[0]} before its report; "
+                             f"`wamctl report {run.path}` writes it")
     return RunOutcome(run.path, status, reason, exit_code)
 
 

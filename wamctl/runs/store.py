@@ -24,6 +24,7 @@ import platform
 import signal
 import socket
 import subprocess
+import threading
 from contextlib import contextmanager
 from functools import lru_cache
 from importlib import metadata
@@ -80,10 +81,12 @@ def git_revision() -> str | None:
 
 
 class TableWriter:
-    """Appends rows to a chunked Parquet table; ``close()`` consolidates Parquet + CSV.
+    """Appends rows to a chunked Parquet table; ``close()`` consolidates Parquet + CSV and removes the chunks.
 
     Rows are buffered in a preallocated array and flushed every ``chunk_rows`` rows, so a crash loses at
-    most one chunk and a termination signal (handled by the runner) loses nothing.
+    most one chunk and a termination signal loses nothing. A chunk is written with Ctrl-C, SIGTERM and SIGHUP
+    held back (:func:`signals_deferred`), so an interrupt never tears it; every method leaves the writer
+    consistent whatever moment an exception lands, and ``flush``/``close`` may be called again after one.
     """
 
     def __init__(self, run_dir: Path, name: str, columns: list[str], chunk_rows: int = 2500):
@@ -97,30 +100,81 @@ class TableWriter:
         self._n = 0
         self._parts = 0
         self.rows_written = 0
+        self.closed = False
+
+    @property
+    def rows_total(self) -> int:
+        """Rows handed to the writer so far (on disk or buffered)."""
+        return self.rows_written + self._n
 
     def append(self, row: np.ndarray) -> None:
         """One row (len(columns),)."""
+        if self._n == self.chunk_rows:      # a flush that raised (disk full) is retried before the buffer overflows
+            self.flush()
         self._buf[self._n] = row
         self._n += 1
         if self._n == self.chunk_rows:
             self.flush()
 
+    def sync(self, rows: np.ndarray, n: int) -> None:
+        """Make the table hold the first ``n`` rows of ``rows`` (all rows so far of a recorder): the ones it does
+        not have yet are appended, with signals held back. Idempotent: calling it again after an interrupt or
+        an error anywhere neither loses nor repeats a row."""
+        with signals_deferred():
+            while self.rows_total < n:
+                if self._n == self.chunk_rows:
+                    self.flush()
+                k = min(n - self.rows_total, self.chunk_rows - self._n)
+                self._buf[self._n: self._n + k] = rows[self.rows_total: self.rows_total + k]
+                self._n += k
+                if self._n == self.chunk_rows:
+                    self.flush()
+
     def flush(self) -> None:
+        """Write the buffered rows as the next chunk (a complete file or none; signals held back meanwhile)."""
         if self._n == 0:
             return
-        df = pd.DataFrame(self._buf[: self._n].copy(), columns=self.columns)
-        tmp = self._dir / f".part-{self._parts:05d}.parquet.tmp"
-        df.to_parquet(tmp, index=False)
-        os.replace(tmp, self._dir / f"part-{self._parts:05d}.parquet")  # a chunk appears complete or not at all
-        self._parts += 1
-        self.rows_written += self._n
-        self._n = 0
+        with signals_deferred():
+            df = pd.DataFrame(self._buf[: self._n].copy(), columns=self.columns)
+            part = self._dir / f"part-{self._parts:05d}.parquet"
+            atomic_write(part, lambda tmp: df.to_parquet(tmp, index=False))   # appears complete or not at all
+            self._parts += 1
+            self.rows_written += self._n
+            self._n = 0
 
     def close(self) -> pd.DataFrame:
+        """Flush, consolidate ``<name>.parquet`` and ``<name>.csv``, then remove the chunks (kept if anything
+        fails; :func:`read_table` reads them). Idempotent; may be called again after an interrupt."""
         self.flush()
+        if self.closed:
+            return read_table(self.run_dir, self.name)
         df = read_chunks(self._dir, self.columns)
         write_table_pair(df, self.run_dir, self.name)
+        remove_chunks(self.run_dir, self.name, len(df))
+        self.closed = True
         return df
+
+
+def remove_chunks(run_dir: Path, name: str, rows: int) -> bool:
+    """Remove the chunk directory ``<name>/`` once ``<name>.parquet`` is readable and holds ``rows`` rows (the
+    rows of the chunks); keep it otherwise. Returns whether it was removed."""
+    run_dir = Path(run_dir)
+    try:
+        import pyarrow.parquet as pq
+        ok = pq.ParquetFile(run_dir / f"{name}.parquet").metadata.num_rows == rows
+    except (OSError, ValueError):
+        ok = False
+    if not ok:
+        log.warning("%s: %s.parquet does not hold the %d rows of its chunks; the chunks stay", run_dir, name, rows)
+        return False
+    with signals_deferred():
+        for p in sorted((run_dir / name).glob("*part-*")):
+            p.unlink(missing_ok=True)
+        try:
+            (run_dir / name).rmdir()
+        except OSError:           # something else in it: leave it
+            pass
+    return True
 
 
 def write_table_pair(df: pd.DataFrame, run_dir: Path, name: str) -> None:
@@ -134,7 +188,7 @@ def write_table_pair(df: pd.DataFrame, run_dir: Path, name: str) -> None:
     try:
         df.to_parquet(tmp[0], index=False)
         write_csv(df, tmp[1])
-        with _signals_held():
+        with signals_deferred():
             for t, f in zip(tmp, final):
                 os.replace(t, f)
     finally:
@@ -142,19 +196,36 @@ def write_table_pair(df: pd.DataFrame, run_dir: Path, name: str) -> None:
             t.unlink(missing_ok=True)
 
 
+_DEFERRABLE = tuple(s for s in (getattr(signal, n, None) for n in ("SIGINT", "SIGTERM", "SIGHUP")) if s)
+
+
 @contextmanager
-def _signals_held():
-    """Hold back SIGINT, SIGTERM and SIGHUP inside the block (delivered when it ends), where supported."""
-    sigs = {signal.SIGINT, signal.SIGTERM, getattr(signal, "SIGHUP", signal.SIGTERM)}
-    try:
-        old = signal.pthread_sigmask(signal.SIG_BLOCK, sigs)
-    except (AttributeError, OSError, ValueError):
+def signals_deferred():
+    """Hold back Ctrl-C (SIGINT), SIGTERM and SIGHUP inside the block; each one that came is delivered to the
+    handler in force before the block as soon as it ends.
+
+    The Python handlers are swapped (in the main thread, where Python runs them; elsewhere nothing changes),
+    not the thread's signal mask: a mask does not stop another thread (pyarrow's pool) from taking a
+    process-directed signal and Python from then running its handler here. Blocks nest; an ignored signal
+    stays ignored."""
+    if threading.current_thread() is not threading.main_thread():
         yield
         return
+    caught: list[int] = []
+    old = {}
     try:
+        for s in _DEFERRABLE:
+            h = signal.getsignal(s)
+            if h is signal.SIG_IGN or h is None:
+                continue
+            old[s] = h
+            signal.signal(s, lambda signum, frame: caught.append(signum))
         yield
     finally:
-        signal.pthread_sigmask(signal.SIG_SETMASK, old)
+        for s, h in old.items():
+            signal.signal(s, h)
+        for s in dict.fromkeys(caught):
+            signal.raise_signal(s)
 
 
 def write_csv(df: pd.DataFrame, path: Path) -> None:
@@ -167,8 +238,8 @@ def write_csv(df: pd.DataFrame, path: Path) -> None:
 
 def read_chunks(chunk_dir: Path, columns: list[str] | None = None) -> pd.DataFrame:
     parts = sorted(Path(chunk_dir).glob("part-*.parquet"))
-    if not parts:
-        return pd.DataFrame(columns=columns or [])
+    if not parts:                # no row yet: an empty table of float columns (what the rows would be)
+        return pd.DataFrame(np.empty((0, len(columns or []))), columns=columns or [])
     return pd.concat([read_parquet(p) for p in parts], ignore_index=True)
 
 
@@ -199,10 +270,18 @@ class RunDir:
     def __init__(self, path: Path):
         self.path = Path(path)
         self._events: list[dict] = []
+        self._tables: list[TableWriter] = []
 
     @classmethod
     def create(cls, out_dir: str | Path, name: str, spec: dict, seed: int | None,
-               kind: str, extra: dict | None = None) -> "RunDir":
+               kind: str, extra: dict | None = None) -> RunDir:
+        """A new run directory with its spec and a ``running`` manifest (all made with signals held back: an
+        interrupt leaves a complete run directory or none)."""
+        with signals_deferred():
+            return cls._create(out_dir, name, spec, seed, kind, extra)
+
+    @classmethod
+    def _create(cls, out_dir, name, spec, seed, kind, extra) -> RunDir:
         path = new_stamped_dir(out_dir, name)
         run = cls(path)
         (path / "spec.yaml").write_text(yaml.safe_dump(spec, sort_keys=False))
@@ -215,6 +294,7 @@ class RunDir:
         }
         manifest.update(extra or {})
         run.write_manifest(manifest)
+        _OPEN_RUNS[run.path] = run
         return run
 
     # ------------------------------------------------------------------ manifest
@@ -230,12 +310,28 @@ class RunDir:
         self.write_manifest(m)
 
     def finish(self, status: str, reason: str | None = None, **fields) -> None:
-        self.flush_events()
-        self.update_manifest(status=status, reason=reason, end_utc=utc_now(), **fields)
+        """Write the events and the final status (with signals held back: the status is written whole)."""
+        with signals_deferred():
+            self.flush_events()
+            self.update_manifest(status=status, reason=reason, end_utc=utc_now(), **fields)
+            _OPEN_RUNS.pop(self.path, None)
+            FINISHED_RUNS.append((self.path, status))
+
+    def close_tables(self) -> None:
+        """Consolidate every table of this run not closed yet (a stage that was interrupted while closing its
+        table); a table that cannot be consolidated keeps its chunks (logged, not raised)."""
+        for w in self._tables:
+            if not w.closed:
+                try:
+                    w.close()
+                except Exception:  # noqa: BLE001 - the chunks stay readable; the run's outcome is what matters
+                    log.exception("%s: consolidating %s failed; its chunks stay", self.path, w.name)
 
     # ------------------------------------------------------------------ tables
     def table(self, name: str, columns: list[str], chunk_rows: int = 2500) -> TableWriter:
-        return TableWriter(self.path, name, columns, chunk_rows)
+        w = TableWriter(self.path, name, columns, chunk_rows)
+        self._tables.append(w)
+        return w
 
     def write_table(self, name: str, df: pd.DataFrame) -> None:
         """A whole table at once (imported or analysed data): ``<name>.parquet`` and ``<name>.csv``."""
@@ -245,14 +341,36 @@ class RunDir:
         self._events.append({"t_s": float(t_s), "kind": kind, "joint": joint, "detail": detail})
 
     def flush_events(self) -> None:
+        """``events.csv``: times to the microsecond (``8.524``, not ``8.524000000000001``), written atomically."""
         df = pd.DataFrame(self._events, columns=["t_s", "kind", "joint", "detail"])
+        df["t_s"] = df["t_s"].astype(float).round(EVENT_TIME_DECIMALS)
         df["joint"] = df["joint"].astype("Int64")
-        df.to_csv(self.path / "events.csv", index=False)
+        atomic_write(self.path / "events.csv", lambda tmp: df.to_csv(tmp, index=False))
 
     def write_json(self, name: str, obj) -> Path:
         p = self.path / name
         p.write_text(json.dumps(obj, indent=2, default=json_default))
         return p
+
+
+_OPEN_RUNS: dict[Path, RunDir] = {}
+"""Run directories created in this process and not finished yet (what an interrupt must mark)."""
+FINISHED_RUNS: list[tuple[Path, str]] = []
+"""(path, status) of every run directory finished in this process, in order."""
+EVENT_TIME_DECIMALS = 6
+"""``events.csv`` times are written to the microsecond (the loop's clock is 2 ms)."""
+
+
+def end_open_runs(reason: str) -> list[Path]:
+    """Mark every run directory of this process still ``running`` as ``interrupted`` with ``reason``, after
+    consolidating its tables; returns their paths. For the command line when an interrupt reaches it outside
+    the runner (an analysis writing its run directory)."""
+    ended = []
+    for run in list(_OPEN_RUNS.values()):
+        run.close_tables()
+        run.finish("interrupted", reason)
+        ended.append(run.path)
+    return ended
 
 
 def json_default(o):
@@ -266,11 +384,14 @@ def json_default(o):
 
 def atomic_write(path: Path, write) -> None:
     """Write a file so that readers see the old or the new content, never a half-written one: ``write(tmp)``
-    writes a temporary file beside ``path``, which then replaces it."""
+    writes a temporary file beside ``path``, which then replaces it (or is removed if anything fails)."""
     path = Path(path)
     tmp = path.with_name(f".{path.name}.tmp")
-    write(tmp)
-    os.replace(tmp, path)
+    try:
+        write(tmp)
+        os.replace(tmp, path)
+    finally:                   # an interrupt or error on the way leaves no temporary file behind
+        tmp.unlink(missing_ok=True)
 
 
 def atomic_write_text(path: Path, text: str) -> None:
