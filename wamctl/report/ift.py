@@ -16,13 +16,11 @@ from wamctl.report.document import Document
 from wamctl.report.figures import joint_grid, save
 from wamctl.report.rotation import THESIS_TEST
 from wamctl.runs.store import read_events
+from wamctl.specs.ift import GAIN_UNITS
 
 # The IFT run directory's tables (written by wamctl.experiments.ift, read here)
 ITERATIONS_TABLE = "iterations"         # .parquet and .csv: one row per joint and iteration
 STATE_FILE = "ift_state.json"           # each joint's tuning state after the last completed iteration
-
-#: The PID gains' units (torque per position error, per its rate, per its integral).
-GAIN_UNITS = {"kp": "N m/rad", "kd": "N m s/rad", "ki": "N m/(rad s)"}
 
 
 def iteration_file(k: int, part: str) -> str:

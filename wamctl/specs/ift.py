@@ -13,6 +13,8 @@ from wamctl.model import params as P
 from wamctl.specs.common import Common, ControllerSpec, Joint, PlantSpec, Strict, Vec7, check_positions
 
 GAIN_NAMES = ("kp", "kd", "ki")   # the columns of a (7, 3) gain matrix
+#: Their units: the PID's torque per position error, per its rate, per its integral.
+GAIN_UNITS = {"kp": "N m/rad", "kd": "N m s/rad", "ki": "N m/(rad s)"}
 
 
 class IftTask(Strict):

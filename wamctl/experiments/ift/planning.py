@@ -15,7 +15,7 @@ from wamctl.model import params as P
 from wamctl.model.friction import FrictionModel
 from wamctl.model.plant import Plant, resolve_friction
 from wamctl.specs import PayloadEffect, PlantSpec, SensorSpec, format_validation_error, load_model_file
-from wamctl.specs.ift import IftSpec, gain_bounds, initial_gains
+from wamctl.specs.ift import GAIN_UNITS, IftSpec, gain_bounds, initial_gains
 
 DT_S = 1.0 / P.CONTROL_RATE_HZ
 
@@ -115,6 +115,7 @@ def _summary(spec: IftSpec, mspec: PlantSpec) -> list[str]:
                                  for st in s.schedule) + f"; at most {s.max_iterations} iterations; J compared at "
         f"{s.stop_digits} digits; objective on {s.objective_signal} positions",
         f"gravity compensation: {spec.controller.gravity_compensation}",
+        "gains: " + ", ".join(f"{g} in {u}" for g, u in GAIN_UNITS.items()),
     ]
     for j in s.joints:
         summary.append(f"  joint {j}: initial kp={g0[j - 1, 0]:g} kd={g0[j - 1, 1]:g} ki={g0[j - 1, 2]:g}; bounds "
