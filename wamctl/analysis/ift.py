@@ -6,6 +6,10 @@ Notation (thesis eqs. 2.12-2.17, Hjalmarsson et al. 1994, Hjalmarsson 2002)
   decentralised, each joint on its own move while the others hold.
 * ``y_tilde = y - r`` the output error of the first experiment (eq. 2.12 with ``y_r = r``: the desired response
   is the reference itself), ``J(rho) = 1/(2N) sum y_tilde^2`` (eq. 2.13, one realisation of the expectation).
+  The output error alone, as in the thesis: no effort term (Hjalmarsson's ``lambda u^2``). On the simulated arm
+  such a term would not bound the gains either: the PID's torque is the friction and tool torque the move needs
+  whatever the gains (joint 1: RMS within 1 % from 1x to 4x kp, kd, while J falls 16x), so an unbounded tuning
+  ends at ``ift.bounds``, and the report says which gains J would have pushed further.
 * The controller is libbarrett's discrete PID at the control period ``T`` (see
   :mod:`wamctl.control.controllers`), on the error ``e = r - y``::
 
