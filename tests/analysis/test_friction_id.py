@@ -421,13 +421,14 @@ def test_data_option_on_an_exported_run(sweep_run, tmp_path, monkeypatch, capsys
     code, out, err = run_cli(monkeypatch, capsys, "friction-id", "--data", exported, "--out", tmp_path / "ident",
                              "--quiet")
     assert code == 0, err
+    (ident,) = (tmp_path / "ident").iterdir()        # --out: the parent of the new run directory
     a = FrictionModel.load(sweep_run / "friction_model.yaml")
-    b = FrictionModel.load(tmp_path / "ident" / "friction_model.yaml")
+    b = FrictionModel.load(ident / "friction_model.yaml")
     for name in ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad", "viscous_neg_Nm_s_rad"):
         np.testing.assert_allclose(getattr(b, name), getattr(a, name), rtol=1e-9)
-    assert (tmp_path / "ident" / "report.md").is_file() and (tmp_path / "ident" / "friction_map.csv").is_file()
+    assert (ident / "report.md").is_file() and (ident / "friction_map.csv").is_file()
     # a measured run holds no truth: no true-vs-identified section
-    assert "Identified vs true" not in (tmp_path / "ident" / "report.md").read_text()
+    assert "Identified vs true" not in (ident / "report.md").read_text()
 
 
 def _measured_sweep(mdir: Path, jitter_s: float = 0.0, velocities=(0.01, 0.05, 0.2, 0.6)) -> Path:
@@ -456,8 +457,9 @@ def test_jittered_time_stamps_keep_every_stage(tmp_path, monkeypatch, capsys):
         code, out, err = run_cli(monkeypatch, capsys, "friction-id", "--data", mdir, "--out",
                                  tmp_path / f"{name}-id", "--quiet")
         assert code == 0, err
-        maps[name] = pd.read_csv(tmp_path / f"{name}-id" / "friction_map.csv")
-        models[name] = FrictionModel.load(tmp_path / f"{name}-id" / "friction_model.yaml")
+        (ident,) = (tmp_path / f"{name}-id").iterdir()     # --out: the parent of the new run directory
+        maps[name] = pd.read_csv(ident / "friction_map.csv")
+        models[name] = FrictionModel.load(ident / "friction_model.yaml")
     assert maps["jittered"]["accepted"].tolist() == maps["exact"]["accepted"].tolist()
     assert maps["exact"]["accepted"].sum() >= 14
     np.testing.assert_allclose(maps["jittered"]["v_cmd_rad_s"], maps["exact"]["v_cmd_rad_s"], rtol=5e-3)
@@ -496,7 +498,8 @@ def test_a_sweep_too_short_to_check_a_model_identifies_nothing_and_says_why(tmp_
     assert code == 2 and err.startswith("error: ") and "Traceback" not in err, err
     assert "no joint could be identified" in err and "joint 5: too few usable" in err
     assert "friction_parameters" not in out and "model_selection" not in out    # no titles over empty tables
-    model = yaml.safe_load((tmp_path / "id" / "friction_model.yaml").read_text())
+    (ident,) = (tmp_path / "id").iterdir()
+    model = yaml.safe_load((ident / "friction_model.yaml").read_text())
     assert model["joints"] == {} and "too few usable" in model["not_identified"][6]
 
 

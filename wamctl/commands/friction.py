@@ -15,11 +15,13 @@ def friction_id(
     data: Annotated[Path | None, typer.Option("--data", help="Analyse a recorded sweep instead: a measured-run "
                                                  "directory (meta.yaml + data) or a run directory.",
                                                  show_default=False)] = None,
-    out: Annotated[Path | None, typer.Option("--out", help="With a spec: parent of the run directory. With "
-                                                "--data: write the model and report here (default: a new run "
-                                                "directory under runs/).", show_default=False)] = None,
+    out: Annotated[Path | None, typer.Option("--out", help="Parent directory of the new directory written (a "
+                                                "run directory with a spec or --data, a comparison folder with "
+                                                "--compare); default: the spec's out_dir, else runs/.",
+                                                show_default=False)] = None,
     compare: Annotated[list[Path] | None, typer.Option("--compare", help="Compare two rotation runs, pd_g "
-                                                          "then pd_g_ff (give the option twice); writes into --out.",
+                                                          "then pd_g_ff (give the option twice); writes "
+                                                          "<out>/<UTC time>-ff-comparison/.",
                                                           show_default=False)] = None,
     loss: Annotated[str | None, typer.Option("--loss", help="With --data: least-squares loss, linear (default), "
                                                 "soft_l1, huber or cauchy (robust to outlying segments).",
@@ -38,7 +40,8 @@ def friction_id(
     map, fitted classic / symmetric / Stribeck models chosen by a held-out information criterion.
 
     Writes friction_model.yaml (usable as controller.friction_ff, plant.friction, or a declared model), the
-    map (friction_map.csv), identification.json and the report (Table 4.1 layout, maps, selection).
+    map (friction_map.csv), identification.json and the report (Table 4.1 layout, maps, selection) into a new
+    run directory under --out, from a spec as from --data: --out is always the parent folder.
     Exit code 0 on success, 1 when the run failed, 2 for a bad spec or data file, 130 when interrupted.
     """
     from wamctl.errors import SpecError
@@ -90,34 +93,35 @@ def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options
             f"joint {j}: {why}" for j, why in missing.items()) + f"); the friction map and the report are "
             f"in {target}")
     if as_json:
-        emit_json({"out": str(target), "friction_model": str(target / MODEL_FILE), "report": doc.to_json()})
+        emit_json({"run_dir": str(target), "out": str(target), "friction_model": str(target / MODEL_FILE),
+                   "report": doc.to_json()})
         return
     if not quiet:
         print_document_tables(doc)
     for j, why in missing.items():
         console.print(f"joint {j} not identified: {why}", highlight=False)
-    console.print(f"identified from {data}\nwritten to: {target}\nfriction model: {target / MODEL_FILE}",
-                  highlight=False)
+    console.print(f"identified from {data}\nrun directory: {target}\nfriction model: {target / MODEL_FILE}",
+                  highlight=False, soft_wrap=True)      # paths whole, to be copied
 
 
 def _compare(runs: list[Path], out: Path | None, quiet: bool, as_json: bool) -> None:
     from wamctl.commands.common import print_document_tables
     from wamctl.errors import SpecError
     from wamctl.report.friction import comparison_document
+    from wamctl.runs.store import new_stamped_dir
 
     if len(runs) != 2:
         raise SpecError("--compare: give two rotation runs, the pd_g run then the pd_g_ff run")
-    if out is None:
-        raise SpecError("--compare: --out DIR is required (where the comparison report goes)")
-    doc = comparison_document(runs[0], runs[1], out)
-    written = doc.write(out, "ff_comparison")
+    target = new_stamped_dir(out if out is not None else Path("runs"), "ff-comparison")
+    doc = comparison_document(runs[0], runs[1], target)
+    written = doc.write(target, "ff_comparison")
     if as_json:
         emit_json({"report": doc.to_json(), "written": [str(p) for p in written]})
         return
     if not quiet:
         print_document_tables(doc)
     for p in written:
-        console.print(f"wrote {p}", highlight=False)
+        console.print(f"wrote {p}", highlight=False, soft_wrap=True)
 
 
 def register(app: typer.Typer) -> None:

@@ -169,14 +169,14 @@ def _model_dynamics(model: Path, rd):
                        declared_links(str(model)))
 
 
-def analyse_recorded(source: Path, out: Path | None = None, runs_dir: Path = Path("runs"),
-                     name: str | None = None, options: dict | None = None, model: Path | None = None):
+def analyse_recorded(source: Path, out: Path | None = None, name: str | None = None, options: dict | None = None,
+                     model: Path | None = None):
     """Identify friction from a recorded sweep (a measured-run directory or a run directory). ``model``: a model
     file whose ``links`` (an identified arm, ``wamctl identify``) replace the datasheet's rigid body.
 
-    Without ``out`` a new run directory of kind ``friction_sweep`` is created under ``runs_dir`` holding the
-    samples (so that ``wamctl report`` takes it again), the friction model and the report; with ``out`` the
-    friction model, map and report are written into ``out`` and nothing else is created.
+    A new run directory of kind ``friction_sweep`` is created under ``out`` (default ``runs/``: ``--out`` means
+    the parent of the run directory, as for a spec) holding the samples (so that ``wamctl report`` takes it
+    again), the friction model, the map and the report.
 
     Returns
     -------
@@ -196,23 +196,19 @@ def analyse_recorded(source: Path, out: Path | None = None, runs_dir: Path = Pat
         manifest, src_spec = open_run(source)
         src_backend = (manifest.get("backend") or {}).get("name", "measured")
         name = name or manifest.get("name")
-    if out is None:
-        meta = rd.meta.model_dump(mode="json")
-        spec = {"kind": "friction_sweep", "name": name or source.name, "q0_rad": meta.get("q0"),
-                "controller": {"kind": rd.meta.controller.kind, "kp": rd.meta.controller.kp,
-                               "kd": rd.meta.controller.kd, "gravity_compensation": rd.meta.gravity_compensation},
-                "identification": dict(options or {}), "measured_meta": meta}
-        if rd.truth is not None:
-            spec["plant"] = rd.truth   # keeps the simulated truth for the report
-        run = RunDir.create(runs_dir, spec["name"], spec, None, "friction_sweep",
-                            {"backend": {"name": "sim" if rd.truth is not None else src_backend},
-                             "analysed_from": str(source.resolve())})
-        run.write_table("data", rd.data)
-        run.finish("completed", None)
-        target = run.path
-    else:
-        target = Path(out)
-        target.mkdir(parents=True, exist_ok=True)
+    meta = rd.meta.model_dump(mode="json")
+    spec = {"kind": "friction_sweep", "name": name or source.name, "q0_rad": meta.get("q0"),
+            "controller": {"kind": rd.meta.controller.kind, "kp": rd.meta.controller.kp,
+                           "kd": rd.meta.controller.kd, "gravity_compensation": rd.meta.gravity_compensation},
+            "identification": dict(options or {}), "measured_meta": meta}
+    if rd.truth is not None:
+        spec["plant"] = rd.truth   # keeps the simulated truth for the report
+    run = RunDir.create(Path(out) if out is not None else Path("runs"), spec["name"], spec, None, "friction_sweep",
+                        {"backend": {"name": "sim" if rd.truth is not None else src_backend},
+                         "analysed_from": str(source.resolve())})
+    run.write_table("data", rd.data)
+    run.finish("completed", None)
+    target = run.path
     write_identification(target, ident)
     header = f"Recorded sweep {source} ({'run directory' if src_spec else 'measured run'})."
     doc = friction_document(rd, ident, target, f"Friction identification: {name or source.name}", header)
