@@ -268,7 +268,6 @@ def validate_samples(df: pd.DataFrame, sample_rate_hz: float | None, source: str
             first = int(np.argmax(nan_rows)) + 1
             raise DataFormatError(f"{source}: {int(nan_rows.sum())} rows with NaN ({frac:.1%}), first at {row_name} "
                                   f"{first}; at most {MAX_NAN_FRACTION:.0%} can be dropped")
-        log.warning("%s: dropped %d rows with NaN values", source, int(nan_rows.sum()))
         df = df[~nan_rows].reset_index(drop=True)
         rows = rows[~nan_rows]
     t = df["t_s"].to_numpy()
@@ -281,6 +280,8 @@ def validate_samples(df: pd.DataFrame, sample_rate_hz: float | None, source: str
     if sample_rate_hz is not None and abs(rate - sample_rate_hz) > 0.05 * sample_rate_hz:
         raise DataFormatError(f"{source}: sample_rate_hz is {sample_rate_hz:g} but t says {rate:.1f} Hz "
                               f"(more than 5 % apart)")
+    if nan_rows.any():           # said once the file is accepted: an error stays the one line
+        log.warning("%s: dropped %d rows with NaN values", source, int(nan_rows.sum()))
     return df
 
 
