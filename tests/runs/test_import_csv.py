@@ -132,3 +132,20 @@ def test_a_full_wam7_log_with_reference_and_total_torque_reaches_the_analyses(tm
     with pytest.raises(DataFormatError, match=r"torque controller \(the controller's output, gravity compensation "
                                               r"added downstream and not logged\): not supported by this analysis"):
         load_run_data(json.loads(r.out)["run_dir"])
+
+
+def test_an_imported_subset_exports_and_imports_again_as_it_was_logged(tmp_path):
+    src = tmp_path / "lab.csv"
+    df = lab_csv(src, [2, 4])
+    r = run_cli("import", src, "--format", "csv", "--columns", MAP, "--robot", "wam7", "--joints", "2,4",
+                "--torque", "controller", "--out", tmp_path / "runs", "--json")
+    run = json.loads(r.out)["run_dir"]
+    assert run_cli("export", run, "--to", tmp_path / "m", "--csv").code == 0
+    meta = yaml.safe_load((tmp_path / "m" / "meta.yaml").read_text())
+    assert meta["joints"] == [2, 4] and meta["torque"] == "controller" and meta["q0"][0] is None
+    ext = pd.read_csv(tmp_path / "m" / "data.csv")
+    assert sorted(ext.columns) == ["q_2", "q_4", "q_ref_2", "q_ref_4", "t", "tau_2", "tau_4"]
+    r = run_cli("import", tmp_path / "m", "--out", tmp_path / "again", "--json")
+    assert r.code == 0, r.err
+    again = pd.read_parquet(json.loads(r.out)["run_dir"] + "/data.parquet")
+    assert np.array_equal(again["q_4_rad"].to_numpy(), df["pos4"].to_numpy())

@@ -390,9 +390,12 @@ def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
 
 def export_run(run_path: str | Path, to: str | Path, fmt: str = "parquet") -> Path:
     """Write a run directory in the measured-run format (``meta.yaml`` + ``data.parquet`` or ``data.csv``)."""
-    rd = load_run_data(run_path)
+    rd = load_run_data(run_path, partial_ok=True)     # a wam4 or a subset of joints exports as it was logged
     to = ensure_dir(to, "export directory")
     meta = rd.meta.model_dump(mode="json", exclude_none=False)
+    for key in ("joints", "torque"):                   # optional keys: absent when they say the default
+        if meta.get(key) is None:
+            meta.pop(key, None)
     (to / "meta.yaml").write_text(yaml.safe_dump(meta, sort_keys=False))
     ext = _to_external(rd.data)
     if fmt == "csv":
