@@ -5,12 +5,16 @@ Layout of ``<out>/<UTC timestamp>-<name>/``::
     spec.yaml          the resolved spec (every default filled in)
     manifest.json      seed, versions, git revision, backend, host, start/end, status and its reason
     data/part-*.parquet  sampled data, written in chunks while the run goes (each chunk a complete file)
-    data.parquet, data.csv  the same rows consolidated when the run ends (completed, failed or interrupted)
-    events.csv         t_s, kind, joint, detail: segment starts, faults, notes
+    data.parquet       the same rows consolidated when the run ends (completed, failed or interrupted), every
+                       bit; the chunks are removed once it is written and holds all their rows
+    data.csv           a readable copy, floats to CSV_SIGNIFICANT_DIGITS of each column's largest value
+    events.csv         t_s (to the microsecond), kind, joint, detail: segment starts, faults, notes
     report.md/.html, *.png   the report
 
 Status is ``running`` until the run ends, then ``completed``, ``failed`` (with the reason) or
-``interrupted`` (Ctrl-C or a termination signal). A run killed outright stays ``running`` with its chunks
+``interrupted`` (Ctrl-C or a termination signal). Chunk writes, the run directory's creation, the final
+status and file renames hold Ctrl-C, SIGTERM and SIGHUP back (:func:`signals_deferred`): an interrupt lands
+before or after them, never inside. A run killed outright (SIGKILL, power) stays ``running`` with its chunks
 readable; :func:`read_table` reads chunks when the consolidated file is missing.
 """
 
@@ -187,7 +191,7 @@ def write_table_pair(df: pd.DataFrame, run_dir: Path, name: str) -> None:
     tmp = [p.with_name(f".{p.name}.tmp") for p in final]
     try:
         df.to_parquet(tmp[0], index=False)
-        write_csv(df, tmp[1])
+        write_csv(df, tmp[1], CSV_SIGNIFICANT_DIGITS)
         with signals_deferred():
             for t, f in zip(tmp, final):
                 os.replace(t, f)
@@ -228,12 +232,41 @@ def signals_deferred():
             signal.raise_signal(s)
 
 
-def write_csv(df: pd.DataFrame, path: Path) -> None:
-    """CSV with a header row, no index, full float precision (pyarrow's writer: ~10x faster than pandas')."""
+CSV_SIGNIFICANT_DIGITS = 9
+"""Digits a run directory's ``<table>.csv`` keeps of each float column, counted from the column's largest
+magnitude: positions up to 3.1 rad to 1e-8 rad, torques up to 20 N m to 1e-7 N m, times to the microsecond for
+runs up to 1000 s; three orders of magnitude finer than the encoders (3.6e-5 rad on joint 1) or the torque
+commands. ``<table>.parquet`` keeps every bit and is what wamctl reads."""
+
+
+def write_csv(df: pd.DataFrame, path: Path, significant_digits: int | None = None) -> None:
+    """CSV with a header row, no index (pyarrow's writer: ~10x faster than pandas'). Floats in their shortest
+    round-trip form; with ``significant_digits``, each float column rounded first to that many digits of its
+    largest magnitude (``8.524`` rather than ``8.524000000000001``: the CSV is 2.5x smaller)."""
     import pyarrow as pa
     import pyarrow.csv as pcsv
+    if significant_digits is not None:
+        df = round_columns(df, significant_digits)
     pcsv.write_csv(pa.Table.from_pandas(df, preserve_index=False), path,
                    pcsv.WriteOptions(quoting_style="needed"))
+
+
+def round_columns(df: pd.DataFrame, significant_digits: int) -> pd.DataFrame:
+    """Each float column rounded to ``significant_digits`` of its largest finite magnitude (a fixed number of
+    decimals per column, so that the rounded value's shortest form has at most that many digits)."""
+    out = {}
+    for c in df.columns:
+        x = df[c]
+        if x.dtype.kind == "f" and len(x):
+            v = x.to_numpy()
+            finite = np.abs(v[np.isfinite(v)])
+            top = finite.max() if finite.size else 0.0
+            if top > 0:
+                decimals = significant_digits - int(np.ceil(np.log10(top)))
+                if decimals <= 22:        # 10**decimals exact: each value becomes the double nearest its decimal
+                    x = pd.Series(np.round(v, decimals), index=x.index, name=c)
+        out[c] = x
+    return pd.DataFrame(out, index=df.index)
 
 
 def read_chunks(chunk_dir: Path, columns: list[str] | None = None) -> pd.DataFrame:
