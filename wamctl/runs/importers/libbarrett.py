@@ -162,7 +162,7 @@ def time_note(t: np.ndarray | None, rate_hz: float, source: str) -> str:
     if abs(slope - 1.0) > SLOPE_TOLERANCE:
         raise DataFormatError(f"{source}: t advances {per_row * 1e3:.4g} ms a line (lines {half + 1}-{n}) but "
                               f"--rate-hz {rate_hz:g} means {period * 1e3:.4g} ms: check --rate-hz (500 Hz divided "
-                              "by the logger's PERIOD_MULTIPLIER) or the Ramp's slope")
+                              "by the logger's PERIOD_MULTIPLIER), or call the column skip if it is not the Ramp")
     lag = np.arange(n) * period - (t - t[0]) / slope      # how far the Ramp is behind the rows' clock
     full = int(np.argmax(lag[-1] - lag < tol))            # first row from which the Ramp keeps the clock's pace
     fine = _print_step(t[1:]) < 0.5 * period
