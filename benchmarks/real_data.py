@@ -1,0 +1,154 @@
+"""wamctl's import and estimators on public recordings of real WAMs (docs/real-data.md).
+
+The recordings are not in the repository (see docs/real-data.md for where each comes from and how its excerpt
+is cut); give the folder that holds them, one sub-folder per recording as named in tests/fixtures/real/:
+
+    python benchmarks/real_data.py --data DIR [--out DIR] [--holdout 0.25]
+
+For each recording it runs, as a user would, ``wamctl import`` and then ``wamctl identify``, ``wamctl
+friction-id --data`` and ``wamctl diagnose`` on the imported run, and prints each command's exit code and first
+line of error or its held-out figures. Beside them, the reference every estimator must beat: the datasheet arm
+(wamctl's rigid-body model, armature included) plus per-joint Coulomb + viscous friction and a constant offset
+fitted by least squares on the first part of the run, evaluated on the last ``--holdout`` part (identify's own
+default split is the last quarter). Accelerations: Savitzky-Golay second derivative of the logged positions
+(cubic, 0.1 s window); velocities: the logged ones. Reported per moving joint (range above 0.1 rad): the
+held-out torque RMS, and over the moving joints the relative error ||tau - tau_hat|| / ||tau|| (the figure of
+Sousa and Cortesao's identification of a real 7-DOF WAM: 6.7-8.5 % held out).
+
+The datasheet reference needs the whole arm's torque: it is computed only where the log's torque is ``total``
+(libbarrett's jtSum, wam_node's effort) and the robot is one wamctl's model describes. Nothing is asserted.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+from scipy.signal import savgol_filter
+
+ROOT = Path(__file__).resolve().parents[1]
+WAMCTL = str(Path(sys.executable).with_name("wamctl"))
+MOVING_RANGE_RAD = 0.1      # a joint whose logged position spans less than this is held, not moving
+SAVGOL_WINDOW_S = 0.1
+
+
+@dataclass(frozen=True)
+class Recording:
+    name: str               # the sub-folder (and tests/fixtures/real/<name>/PROVENANCE.md)
+    file: str               # the file inside it
+    robot: str              # wam7 | wam4
+    torque: str             # total | controller | measured
+    import_args: tuple[str, ...]
+
+
+RECORDINGS = (
+    Recording("alberta-wam7-j2j4-fourier", "state_4.json", "wam7", "total",
+              ("--format", "jointstate-json")),
+    Recording("cvrg-wam4-ctc-regulation", "run2.csv", "wam4", "total",
+              ("--format", "libbarrett-csv", "--rate-hz", "500",
+               "--layout", "t,q_ref[4],qd_ref[4],qdd_ref[4],q[4],qd[4],skip[4],tau[4]")),
+    Recording("cvrg-wam4-ctc-regulation", "run2.csv", "wam4", "controller",
+              ("--format", "libbarrett-csv", "--rate-hz", "500",
+               "--layout", "t,q_ref[4],qd_ref[4],qdd_ref[4],q[4],qd[4],tau[4],skip[4]")),
+    Recording("iitk-wam4-hosmc-j1-sine", "disturbancesHOSMC1_1.csv", "wam4", "controller",
+              ("--format", "libbarrett-csv", "--rate-hz", "500",
+               "--layout", "t,q_ref[4],qd_ref[4],q[4],qd[4],tau[4]")),
+)
+
+
+def run(args: list[str]) -> tuple[int, str]:
+    """Run a wamctl command; its exit code and everything it printed."""
+    done = subprocess.run([WAMCTL, *args], capture_output=True, text=True, cwd=ROOT)
+    return done.returncode, (done.stdout + done.stderr).strip()
+
+
+def first_error(text: str) -> str:
+    for line in text.splitlines():
+        if line.lower().startswith("error"):
+            return line
+    return text.splitlines()[-1] if text else ""
+
+
+def joint_columns(frame: pd.DataFrame, prefix: str, unit: str) -> list[str]:
+    return [c for c in frame.columns if c.startswith(prefix) and c.endswith(unit)
+            and c[len(prefix):-len(unit)].strip("_").isdigit()]
+
+
+def datasheet_reference(run_dir: Path, holdout: float) -> dict:
+    """Held-out torque of the datasheet arm + friction fitted on the training part (wam7 logs only)."""
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.friction import FrictionModel
+    from wamctl.model.params import N_JOINTS
+
+    frame = pd.read_csv(run_dir / "data.csv")
+    t_s = frame["t_s"].to_numpy()
+    q_cols = joint_columns(frame, "q_", "_rad")
+    joints = [int(c.split("_")[1]) for c in q_cols]
+    if len(joints) != N_JOINTS:
+        return {"skipped": f"the datasheet reference needs all {N_JOINTS} joints; the log has {joints}"}
+    q = frame[q_cols].to_numpy()
+    qd = frame[[f"qd_{j}_rad_s" for j in joints]].to_numpy()
+    tau = frame[[f"tau_{j}_Nm" for j in joints]].to_numpy()
+    dt_s = float(np.median(np.diff(t_s)))
+    window = int(round(SAVGOL_WINDOW_S / dt_s)) | 1
+    qdd = savgol_filter(q, window, 3, deriv=2, delta=dt_s, axis=0)
+    tau_rb = WamDynamics().inverse_dynamics_many(q, qd, qdd)
+    n_train = int(round(len(t_s) * (1.0 - holdout)))
+    edge = window                                   # the filter's ends are not used
+    train = slice(edge, n_train)
+    test = slice(n_train, len(t_s) - edge)
+    moving = [k for k in range(len(joints)) if np.ptp(q[:, k]) > MOVING_RANGE_RAD]
+    fitted = tau_rb.copy()
+    for k in range(len(joints)):
+        basis = np.column_stack([np.sign(qd[:, k]), qd[:, k], np.ones_like(qd[:, k])])
+        coef, *_ = np.linalg.lstsq(basis[train], (tau[:, k] - tau_rb[:, k])[train], rcond=None)
+        fitted[:, k] += basis @ coef
+    result = {"moving_joints": [joints[k] for k in moving], "train_rows": n_train - edge,
+              "held_out_rows": len(t_s) - edge - n_train}
+    declared = tau_rb + FrictionModel.table_4_1().friction_torque(qd)
+    for label, tau_hat in (("table_4_1_friction", declared), ("friction_fitted", fitted)):
+        err = tau[test] - tau_hat[test]
+        result[label] = {
+            "rms_Nm": {joints[k]: round(float(np.sqrt(np.mean(err[:, k] ** 2))), 3) for k in moving},
+            "relative_error_moving": round(float(np.linalg.norm(err[:, moving])
+                                                 / np.linalg.norm(tau[test][:, moving])), 4),
+            "relative_error_all": round(float(np.linalg.norm(err) / np.linalg.norm(tau[test])), 4)}
+    return result
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, required=True, help="folder with one sub-folder per recording")
+    parser.add_argument("--out", type=Path, default=Path("/tmp/wamctl-real-data"))
+    parser.add_argument("--holdout", type=float, default=0.25)
+    args = parser.parse_args()
+    args.out.mkdir(parents=True, exist_ok=True)
+    for rec in RECORDINGS:
+        source = args.data / rec.name / rec.file
+        print(f"## {rec.name}/{rec.file} ({rec.robot}, torque {rec.torque})")
+        if not source.exists():
+            print(f"  not found: {source}")
+            continue
+        code, text = run(["import", str(source), *rec.import_args, "--robot", rec.robot,
+                          "--torque", rec.torque, "--out", str(args.out / "runs"), "--json"])
+        print(f"  wamctl import: exit {code}" + ("" if code == 0 else f": {first_error(text)}"))
+        if code != 0:
+            continue
+        run_dir = Path(json.loads(text[text.index("{"):])["run_dir"])
+        if rec.torque == "total" and rec.robot == "wam7":
+            print(f"  datasheet arm + friction fitted, last {args.holdout:.0%} held out: "
+                  f"{json.dumps(datasheet_reference(run_dir, args.holdout))}")
+        for command in (["identify"], ["friction-id", "--data"], ["diagnose"]):
+            code, text = run([*command, str(run_dir), "--out", str(args.out / "analyses")])
+            tail = first_error(text) if code != 0 else text.splitlines()[-1] if text else ""
+            print(f"  wamctl {' '.join(command)}: exit {code}: {tail}")
+
+
+if __name__ == "__main__":
+    main()
