@@ -122,6 +122,34 @@ def datasheet_reference(run_dir: Path, holdout: float) -> dict:
     return result
 
 
+def joint1_reference(run_dir: Path, holdout: float) -> dict:
+    """Joint 1 alone where it is the only joint moving: its axis is vertical, so its torque has no gravity
+    and, the other joints held, no coupling; a constant inertia + Coulomb + viscous + offset fitted on the
+    training part is what any friction or inertia estimate of joint 1 should reach held out."""
+    frame = pd.read_csv(run_dir / "data.csv")
+    q_cols = joint_columns(frame, "q_", "_rad")
+    moving = [c for c in q_cols if np.ptp(frame[c].to_numpy()) > MOVING_RANGE_RAD]
+    if moving != ["q_1_rad"]:
+        return {"skipped": f"joints moving: {moving}, not joint 1 alone"}
+    t_s = frame["t_s"].to_numpy()
+    dt_s = float(np.median(np.diff(t_s)))
+    window = int(round(SAVGOL_WINDOW_S / dt_s)) | 1
+    q1 = frame["q_1_rad"].to_numpy()
+    qd1 = frame["qd_1_rad_s"].to_numpy()
+    tau1 = frame["tau_1_Nm"].to_numpy()
+    qdd1 = savgol_filter(q1, window, 3, deriv=2, delta=dt_s)
+    basis = np.column_stack([qdd1, np.sign(qd1), qd1, np.ones_like(qd1)])
+    n_train = int(round(len(t_s) * (1.0 - holdout)))
+    train, test = slice(window, n_train), slice(n_train, len(t_s) - window)
+    coef, *_ = np.linalg.lstsq(basis[train], tau1[train], rcond=None)
+    err = tau1[test] - basis[test] @ coef
+    return {"train_rows": n_train - window, "held_out_rows": len(t_s) - window - n_train,
+            "inertia_kg_m2": round(float(coef[0]), 4), "coulomb_Nm": round(float(coef[1]), 3),
+            "viscous_Nm_s_rad": round(float(coef[2]), 3), "offset_Nm": round(float(coef[3]), 3),
+            "rms_Nm": round(float(np.sqrt(np.mean(err ** 2))), 3),
+            "relative_error": round(float(np.linalg.norm(err) / np.linalg.norm(tau1[test])), 4)}
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True, help="folder with one sub-folder per recording")
@@ -144,6 +172,9 @@ def main() -> None:
         if rec.torque == "total" and rec.robot == "wam7":
             print(f"  datasheet arm + friction fitted, last {args.holdout:.0%} held out: "
                   f"{json.dumps(datasheet_reference(run_dir, args.holdout))}")
+        else:
+            print(f"  joint 1 alone, inertia + friction fitted, last {args.holdout:.0%} held out: "
+                  f"{json.dumps(joint1_reference(run_dir, args.holdout))}")
         for command in (["identify"], ["friction-id", "--data"], ["diagnose"]):
             code, text = run([*command, str(run_dir), "--out", str(args.out / "analyses")])
             tail = first_error(text) if code != 0 else text.splitlines()[-1] if text else ""
