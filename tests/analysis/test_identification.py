@@ -35,8 +35,9 @@ ROOT = Path(__file__).resolve().parents[2]
 SENSORS = {"position_noise_rad": 2.0e-5, "torque_noise_Nm": 0.02}
 # 8 physics sub-steps per 2 ms period (0.25 ms): at the default 2, the simulator's own semi-implicit Euler step
 # lets the viscous friction act with the velocity half a step late, a bias of 3-4 standard errors on some
-# viscous coefficients of this fast excitation (interval coverage 82 % instead of 91 % for this arm: reported in
-# docs/claims.md); the held-out torque is unaffected (<= 1.17 x the floor either way)
+# viscous coefficients of this fast excitation (interval coverage 82 % instead of 91 % for this arm, measured
+# before the per-joint instruments: reported in docs/claims.md); the held-out torque is unaffected (<= 1.17 x the
+# floor either way)
 BACKEND = {"kind": "sim", "physics_substeps": 8}
 
 
@@ -121,7 +122,22 @@ def test_model_file_runs_the_identified_arm_and_feeds_the_controller(arm, tmp_pa
     """The run directory's model.yaml is a plant (`plant: model.yaml`) and a declared model
     (`controller.declared_links: model.yaml`): its gravity matches the true arm's far better than the
     datasheet's."""
-    run_path, result, doc = identify_to_run_dir([arm["train"]], [arm["held"]], out=tmp_path)
+    run_path, result, doc = identify_to_run_dir([arm["train"]], [arm["held"]], out=tmp_path, force=True)
+    # the held-out check against the datasheet arm with friction fitted: better on joints 1-4 and 6 (0.09-0.95x),
+    # worse on the wrist joints 5 and 7 (1.065x, 1.010x: links off by 20 % there change less than the estimate's
+    # noise), so without --force the model would be model_rejected.yaml; the verdict is in the file all the same
+    check = result["held_out_check"]
+    print("held-out check", check["verdict"], {j: round(r, 4) for j, r in check["ratio"].items()})
+    assert check["verdict"] == "worse" and set(check["worse_joints"]) <= {5, 7} and check["forced"]
+    assert all(r <= 0.25 for j, r in check["ratio"].items() if j in (2, 3, 4))
+    assert max(check["ratio"].values()) <= 1.10
+    # instrumental variables on joints 1-6; joint 7 by least squares, said with its figure (its tracking error
+    # is 40 % of its motion under the default gains; the reference is an instrument up to 20 %)
+    runs = result["instruments_detail"]["runs"]
+    assert runs[0]["instrumented_joints"] == [1, 2, 3, 4, 5, 6] and runs[0]["least_squares_joints"] == [7]
+    assert 0.3 <= runs[0]["tracking_share"][7] <= 0.5
+    assert "least squares on joint(s) 7" in result["instruments"] and "joint 7: tracking error 40 %" in \
+        result["instruments"]
     for f in ("model.yaml", "identification.json", "parameters.csv", "validation.parquet", "report.md",
               "identification_validation.png", "identification_residuals.png", "identification_moved.png"):
         assert (run_path / f).stat().st_size > 0, f
@@ -150,7 +166,7 @@ def test_gravity_compensation_with_the_identified_model_reduces_the_static_rotat
     it, a move ends anywhere in the stick band (friction / kp) and the band, not the gravity compensation, sets
     the final error. The static error left is then the gravity mismatch over kp: smaller with the identified
     model declared (controller.declared_links: model.yaml) than with the datasheet's, on both joints."""
-    model = identify_to_run_dir([arm["train"]], [arm["held"]], out=tmp_path)[0] / "model.yaml"
+    model = identify_to_run_dir([arm["train"]], [arm["held"]], out=tmp_path, force=True)[0] / "model.yaml"
     plant = dict(arm["plant"], friction="none")
     static = {}
     for name, ctl in (("nominal", {}), ("identified", {"declared_links": str(model)})):

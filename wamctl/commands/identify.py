@@ -10,6 +10,8 @@ import typer
 
 from wamctl.commands.common import JsonOpt, QuietOpt, console, emit_json
 
+REJECTED_EXIT_CODE = 3      # identify: the held-out check did not pass; the model is not written as model.yaml
+
 
 def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, kind: excitation).",
                                                 show_default=False)],
@@ -57,6 +59,9 @@ def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (mea
                                  "the datasheet and Table 4.1.", show_default=False)] = None,
              out: Annotated[Path, typer.Option("--out", help="Parent directory of the run directory.")]
              = Path("runs"),
+             force: Annotated[bool, typer.Option("--force", help="Write model.yaml even when the held-out check "
+                                                 "finds the model worse than the declared arm (or cannot check "
+                                                 "it); the verdict is still reported.")] = False,
              quiet: QuietOpt = False, json: JsonOpt = False):
     """Identify the arm's own inertial parameters (base parameters, armature and friction) from measured runs.
 
@@ -65,17 +70,27 @@ def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (mea
     estimate (every link's pseudo-inertia positive definite, an SDP), validated on held-out data against the
     nominal model. What the data cannot determine is named, not printed. Writes a run directory with model.yaml
     (usable as plant:, controller.declared_links:, diagnose --model), identification.json, parameters.csv and a
-    report. Exit code 2 for unusable data.
+    report.
+
+    Held-out check: the identified model must predict held-out torque (the --validate runs, else the last quarter
+    of each run) at least as well as the declared arm with friction fitted on the same data, on every joint that
+    moves. If it does not (or cannot be checked), the model is written as model_rejected.yaml, not model.yaml
+    (unless --force), and the command exits with code 3. Exit code 2 for unusable data.
     """
     from wamctl.commands.common import print_document_tables, progress_bar
     from wamctl.experiments.identify import identify_to_run_dir
 
     with progress_bar("identify", enabled=not (quiet or json)) as progress:
-        path, result, doc = identify_to_run_dir(data, validate, model, out, progress=progress)
+        path, result, doc = identify_to_run_dir(data, validate, model, out, progress=progress, force=force)
+    check = result["held_out_check"]
+    code = 0 if check["model_written"] else REJECTED_EXIT_CODE
     if json:
-        emit_json({"run_dir": str(path), "model": str(path / "model.yaml"), "consistent": result["consistent"],
-                   "identifiability": result["identifiability"], "validation": result["validation"]})
-        return
+        emit_json({"run_dir": str(path), "model": str(path / "model.yaml") if check["model_written"] else None,
+                   "model_file": str(path / result["model_file"]), "held_out_check": check,
+                   "instruments": result["instruments"], "instruments_detail": result["instruments_detail"],
+                   "consistent": result["consistent"], "identifiability": result["identifiability"],
+                   "validation": result["validation"]})
+        raise typer.Exit(code)
     if not quiet:
         from wamctl.report.document import Document
 
@@ -86,7 +101,15 @@ def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (mea
     console.print(f"rank {ident['rank']} of {ident['n_base']} base parameters"
                   + (f"; not identified: {', '.join(und)}" if und else "")
                   + f"; physically consistent: {'yes' if result['consistent'] else 'no'}\n"
-                  f"model: {path / 'model.yaml'}  run directory: {path}", highlight=False)
+                  f"instruments: {result['instruments']}", highlight=False)
+    console.print(check["statement"], style=None if check["verdict"] == "better" else "bold red", highlight=False)
+    if check["model_written"]:
+        console.print(("model (written because of --force): " if check["forced"] else "model: ")
+                      + f"{path / 'model.yaml'}\nrun directory: {path}", highlight=False)
+    else:
+        console.print(f"model NOT written as model.yaml (kept as {path / result['model_file']}; --force writes it)"
+                      f"\nrun directory: {path}", highlight=False)
+    raise typer.Exit(code)
 
 
 def register(app: typer.Typer) -> None:

@@ -11,6 +11,13 @@ on held-out data -> a run directory (kind ``identification``)::
 Held-out data: the ``validate`` runs (best: another trajectory), or else the last quarter of each run (the
 model is then fitted on the first three quarters). Residuals are computed with the diagnosis' filter, so they
 compare with ``wamctl diagnose``'s.
+
+The held-out check (:func:`held_out_check`): on every joint with held-out rows the identified model's torque RMS
+is compared with the nominal model's (the declared arm with friction fitted on the same rows). ``better``: at
+most the nominal's on every such joint; ``worse``: above it on at least one; ``not_checked``: a joint that was
+fitted has no held-out rows (or none has). Only a ``better`` model is written as ``model.yaml``; otherwise it
+is written as ``model_rejected.yaml`` (``force=True``: as ``model.yaml`` all the same), and the verdict is in
+identification.json, the model file and the report's first lines.
 """
 
 from __future__ import annotations
@@ -24,6 +31,49 @@ from wamctl.errors import DataFormatError, SpecError
 
 log = logging.getLogger(__name__)
 HOLD_OUT_SHARE = 0.25
+REJECTED_MODEL = "model_rejected.yaml"
+
+
+def held_out_check(validation: dict, fitted_joints: list[int]) -> dict:
+    """The verdict of the held-out check (see the module doc) from :func:`validation_of`'s RMS and the 0-based
+    joints with fitting rows: ``{verdict, ratio: {joint: identified / nominal}, worse_joints, unchecked_joints,
+    not_moving_joints}`` (1-based joints)."""
+    nom = np.asarray(validation["rms"]["nominal"], float)
+    idf = np.asarray(validation["rms"]["identified"], float)
+    checked = [j for j in range(len(nom)) if np.isfinite(nom[j]) and np.isfinite(idf[j]) and nom[j] > 0]
+    ratio = {j + 1: float(idf[j] / nom[j]) for j in checked}
+    worse = [j for j, r in ratio.items() if r > 1.0]
+    unchecked = [j + 1 for j in fitted_joints if j not in checked]
+    verdict = "worse" if worse else ("not_checked" if unchecked or not checked else "better")
+    moved = set(fitted_joints) | set(checked)
+    return {"verdict": verdict, "ratio": ratio, "worse_joints": worse, "unchecked_joints": unchecked,
+            "not_moving_joints": [j + 1 for j in range(len(nom)) if j not in moved],
+            "rule": "identified held-out torque RMS <= nominal's (declared arm, friction fitted on the same data) "
+                    "on every joint that moves"}
+
+
+def check_statement(check: dict) -> str:
+    """One sentence for the terminal and the report's first line."""
+    ratios = ", ".join(f"joint {j} {r:.5g}x" for j, r in check["ratio"].items())
+    v = check["verdict"]
+    if v == "better":
+        s = (f"held-out check: the identified model is at least as good as the declared arm with friction fitted "
+             f"on every joint that moves (identified / declared RMS: {ratios})")
+    elif v == "worse":
+        s = (f"held-out check FAILED: the identified model predicts held-out torque worse than the declared arm "
+             f"with friction fitted on joint(s) {', '.join(map(str, check['worse_joints']))} "
+             f"(identified / declared RMS: {ratios})")
+        if check["unchecked_joints"]:
+            s += (f"; not checked (no held-out rows): joint(s) "
+                  f"{', '.join(map(str, check['unchecked_joints']))}")
+    else:
+        s = ("held-out check NOT DONE: no held-out rows for joint(s) "
+             f"{', '.join(map(str, check['unchecked_joints'])) or 'any'}"
+             + (f" (checked: {ratios})" if ratios else ""))
+    if check["not_moving_joints"]:
+        s += (f"; joint(s) {', '.join(map(str, check['not_moving_joints']))} did not move: not identified "
+              "(their parameters stay the declared arm's)")
+    return s
 
 
 def declared_arm(model: Path | None, payload):
@@ -139,8 +189,10 @@ def validation_of(est, held) -> dict:
 
 def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = None, model: Path | None = None,
                         out: Path = Path("runs"), name: str | None = None, formats=("md", "html", "json"),
-                        progress=None):
-    """``wamctl identify``: fit, then write the run directory; returns (run path, result dict, Document)."""
+                        progress=None, force: bool = False):
+    """``wamctl identify``: fit, then write the run directory; returns (run path, result dict, Document).
+    The model is written as ``model.yaml`` only when the held-out check says ``better`` or ``force``; else as
+    ``model_rejected.yaml`` (``result["model_file"]`` names the file written)."""
     import pandas as pd
     import yaml
 
@@ -154,19 +206,25 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
             "validate": [str(Path(p).resolve()) for p in (validate or [])],
             "model": str(Path(model).resolve()) if model else None,
             "options": {"row_rate_hz": est.row_rate_hz, "alpha": est.alpha, "hold_out_share":
-                        None if validate else HOLD_OUT_SHARE}}
+                        None if validate else HOLD_OUT_SHARE, "force": bool(force)}}
     run = RunDir.create(out, name, spec, None, "identification",
                         {"backend": {"name": "analysis"}, "source": provenance["data"]})
     provenance.update(created_utc=utc_now(), wamctl_version=package_versions()["wamctl"],
                       git_revision=git_revision(), run_dir=str(run.path.resolve()))
     held = {str(j + 1): {k: _num(validation["rms"][k][j]) for k in ("nominal", "identified")} for j in range(7)}
-    result = dict(est.to_dict(), validation={k: [_num(v) for v in a] for k, a in validation["rms"].items()},
+    fitted = sorted({j for rr in est.rows_ for j in rr.joints})
+    check = held_out_check(validation, fitted)
+    model_name = "model.yaml" if check["verdict"] == "better" or force else REJECTED_MODEL
+    check.update(statement=check_statement(check), model_written=model_name == "model.yaml", forced=bool(
+        force and check["verdict"] != "better"))
+    result = dict(est.to_dict(), held_out_check=check, model_file=model_name,
+                  validation={k: [_num(v) for v in a] for k, a in validation["rms"].items()},
                   validation_sources=validation["sources"], provenance=provenance,
                   filter=[{"source": rr.source, "window_s": rr.window_s, "gauss_s": rr.gauss_s,
                            "rows": rr.n_rows} for rr in est.rows_])
     run.write_json("identification.json", result)
-    mf = model_file(est, provenance, held)
-    (run.path / "model.yaml").write_text(yaml.safe_dump(mf, sort_keys=False))
+    mf = model_file(est, provenance, held, check)
+    (run.path / model_name).write_text(yaml.safe_dump(mf, sort_keys=False))
     est.table().to_csv(run.path / "parameters.csv", index=False)
     if validation["traces"]:
         pd.concat([pd.DataFrame(t) for t in validation["traces"]], ignore_index=True).to_parquet(

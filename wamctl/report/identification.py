@@ -49,16 +49,24 @@ def links_table(model: dict, margins: list) -> pd.DataFrame:
 def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
     out_dir = Path(out_dir or run_path)
     result = json.loads((run_path / "identification.json").read_text())
-    model = yaml.safe_load((run_path / "model.yaml").read_text())
+    model_name = result.get("model_file", "model.yaml")
+    model = yaml.safe_load((run_path / model_name).read_text())
     doc = Document(f"Identification: {manifest.get('name', run_path.name)}")
+    check = result.get("held_out_check")
+    if check:
+        doc.text(check_first_lines(check, model_name))
+        doc.data["held_out_check"] = {k: check[k] for k in ("verdict", "ratio", "worse_joints", "unchecked_joints",
+                                                            "not_moving_joints", "model_written")}
     ident = result["identifiability"]
     prov = result["provenance"]
     held = prov["validation"]
     held = held if isinstance(held, str) else ", ".join(Path(p).name for p in held)
     doc.text(f"From {len(prov['data'])} run(s), {result['n_rows']} rows (sample, sliding joint); declared arm: "
              f"{prov['declared']}; held out: {held}. "
-             f"Instruments: {result['instruments']}. Model file: model.yaml (usable as plant:, "
-             "controller.declared_links:, diagnose --model).")
+             f"Instruments: {result['instruments']}. Model file: {model_name}"
+             + (" (usable as plant:, controller.declared_links:, diagnose --model)." if model_name == "model.yaml"
+                else " (not model.yaml: see the held-out check above)."))
+    doc.data["instruments"] = result["instruments"]
     doc.heading("What the data determine")
     cond = ident["condition_number"]
     text = (f"Rank {ident['rank']} of {ident['n_base']} base parameters; condition number of the weighted, "
@@ -92,6 +100,17 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     doc.data.update(consistent=result["consistent"], not_identified=ident["undetermined"],
                     condition_number=cond)
     return doc
+
+
+def check_first_lines(check: dict, model_name: str) -> str:
+    """The report's first lines: the held-out check's statement and what was written."""
+    s = check["statement"][0].upper() + check["statement"][1:] + "."
+    if check["verdict"] != "better":
+        s += (f" The model is written as {model_name}"
+              + (" because --force was given." if model_name == "model.yaml" else
+                 ", not model.yaml: it is not an identified arm to use (wamctl identify --force writes it as "
+                 "model.yaml)."))
+    return s
 
 
 def _validation_figure(run_path: Path, out_dir: Path, doc: Document) -> None:

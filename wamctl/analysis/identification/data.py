@@ -94,7 +94,16 @@ class RunRows:
     reach_s: float
     window_s: float | None
     gauss_s: float | None
-    reference_tracks: bool = True
+    tracking_share: np.ndarray | None = None
+
+    @property
+    def reference_tracks(self) -> np.ndarray:
+        """(7,) bool per joint: its rows are instrumented by the reference (:func:`tracking_shares` at most
+        ``TRACKING_SHARE``); joints without rows are False."""
+        if self.tracking_share is None:
+            return np.isin(np.arange(N7), self.joints)
+        with np.errstate(invalid="ignore"):
+            return np.asarray(self.tracking_share <= TRACKING_SHARE) & np.isin(np.arange(N7), self.joints)
 
     @property
     def n_rows(self) -> int:
@@ -112,11 +121,11 @@ class RunRows:
         return replace(self, usable=self.usable & np.asarray(mask, bool)[:, None])
 
     def instruments(self) -> np.ndarray:
-        """The instruments' rows (r, 105), in the order of :meth:`stacked` (no mask): the reference's regressor
-        when the reference follows the motion (:func:`reference_tracks`), else the regressor itself (least
-        squares on this run's rows)."""
+        """The instruments' rows (r, 105), in the order of :meth:`stacked` (no mask): for the rows of a joint
+        whose reference follows its motion (:attr:`reference_tracks`) the reference's regressor, for the others
+        the regressor itself (least squares on that joint's rows)."""
         k, j = np.nonzero(self.usable)
-        return (self.Z if self.reference_tracks else self.Y)[k, j, :]
+        return np.where(self.reference_tracks[j][:, None], self.Z[k, j, :], self.Y[k, j, :])
 
 
 def signal_band_hz(t_s: np.ndarray, q_ref_rad: np.ndarray, share: float = SIGNAL_SHARE) -> float:
@@ -154,14 +163,15 @@ def auto_filter(t_s: np.ndarray, q_ref_rad: np.ndarray, rate_hz: float = ROW_RAT
     return best
 
 
-def reference_tracks(q_rad: np.ndarray, q_ref_rad: np.ndarray, joints: list[int]) -> bool:
-    """Whether the reference follows the motion closely enough to serve as an instrument: for every moving
-    joint, the tracking error's RMS is below ``TRACKING_SHARE`` of the motion's own RMS (about its mean)."""
+def tracking_shares(q_rad: np.ndarray, q_ref_rad: np.ndarray, joints: list[int]) -> np.ndarray:
+    """(7,) per joint: the RMS of its tracking error ``q - q_ref`` over the RMS of its motion (about its mean);
+    NaN for joints not in ``joints`` or that do not move."""
+    out = np.full(N7, np.nan)
     for j in joints:
-        motion = np.std(q_rad[:, j])
-        if motion <= 0 or np.sqrt(np.mean((q_rad[:, j] - q_ref_rad[:, j]) ** 2)) > TRACKING_SHARE * motion:
-            return False
-    return bool(joints)
+        motion = float(np.std(q_rad[:, j]))
+        if motion > 0:
+            out[j] = float(np.sqrt(np.mean((q_rad[:, j] - q_ref_rad[:, j]) ** 2))) / motion
+    return out
 
 
 def _dilate(mask: np.ndarray, reach: int) -> np.ndarray:
@@ -188,9 +198,19 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
     sliding = sig.moving & (np.abs(sig.qd_rad_s) >= MIN_SPEED_RAD_S)
     sliding[:, [j for j in range(N7) if j not in sig.joints]] = False
     sliding = sliding[keep]
-    Y = standard_regressor(dynamics, sig.q_rad[keep], sig.qd_rad_s[keep], sig.qdd_rad_s2[keep])
-    Z = standard_regressor(dynamics, sig.smooth(sig.q_ref_rad)[keep], sig.smooth(sig.q_ref_rad, 1)[keep],
-                           sig.smooth(sig.q_ref_rad, 2)[keep])
+    # a joint that never slides nor reaches MIN_SPEED_RAD_S is held: its speed and acceleration are the sensors'
+    # noise (on a real log with
+    # a noisy or missing reference, that noise made 48 of 76 base parameters look determined from two moving
+    # joints); at rest in both regressors, what only it could show stays undetermined, at the declared arm
+    held = ~sliding.any(axis=0) & (np.abs(sig.qd_rad_s[keep]).max(axis=0) < MIN_SPEED_RAD_S)
+    q, qd, qdd = sig.q_rad[keep].copy(), sig.qd_rad_s[keep].copy(), sig.qdd_rad_s2[keep].copy()
+    q_ref, qd_ref, qdd_ref = (sig.smooth(sig.q_ref_rad, d)[keep] for d in (0, 1, 2))
+    for a in (qd, qdd, qd_ref, qdd_ref):
+        a[:, held] = 0.0
+    for a in (q, q_ref):        # at its median position (its noise would separate columns that rest joins)
+        a[:, held] = np.median(a[:, held], axis=0)
+    Y = standard_regressor(dynamics, q, qd, qdd)
+    Z = standard_regressor(dynamics, q_ref, qd_ref, qdd_ref)
     tau = sig.tau_Nm[keep]
     reach2 = 0
     if window_s is not None:
@@ -211,7 +231,7 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
     joints = [j for j in sig.joints if usable[:, j].any()]
     return RunRows(str(data.source), sig.t_s[keep], sig.q_rad[keep], sig.qd_rad_s[keep], tau, usable, Y, Z,
                    joints, dict(sig.skipped), dt, sig.reach * sig.dt_s + reach2 * dt, window_s, gauss_s,
-                   reference_tracks(sig.q_raw_rad, sig.q_ref_rad, joints))
+                   tracking_shares(sig.q_raw_rad, sig.q_ref_rad, joints))
 
 
 

@@ -117,7 +117,7 @@ class InertialIdentification:
                       for r in runs]
         Y, y, jrow, groups = self._stack(self.rows_)
         Zs = np.vstack([rr.instruments() for rr in self.rows_]) if self.rows_ else np.zeros((0, N_STANDARD))
-        self.instrumented_ = any(rr.reference_tracks for rr in self.rows_)
+        self.instrumented_ = any(rr.reference_tracks.any() for rr in self.rows_)
         if len(y) < MIN_ROWS:
             raise DataFormatError(f"only {len(y)} usable (sliding) rows in the data; the identification needs "
                                   f"at least {MIN_ROWS}: did any joint move?")
@@ -177,10 +177,14 @@ class InertialIdentification:
         else:       # two-stage least squares: the regressor projected on the instruments' span
             Qz, _ = np.linalg.qr(Zw[:, cols])
             Xh = Qz @ (Qz.T @ Xc)
+        # the data term in the coordinates of Xh's QR factors (Xh = Q R): the HAC sandwich R^-1 S_Q R^-T with
+        # S_Q the scores' covariance in Q's orthonormal coordinates (well conditioned), never by inverting
+        # Xh^T Xh (its condition is the regressor's squared: 1e14 on a short two-joint log, where the inverse
+        # and its whitening lost every direction the data see poorly: objective 1e21, the fit ~0 N m)
+        Q, R = np.linalg.qr(Xh)
         gamma = np.linalg.lstsq(Xh, yw, rcond=None)[0]
         e = yw - Xc @ gamma
-        H_inv = np.linalg.pinv(Xh.T @ Xh)
-        scores = Xh * e[:, None]
+        scores = Q * e[:, None]
         reach_rows = max(rr.reach_s / rr.dt_s for rr in self.rows_)
         S = np.zeros((len(cols), len(cols)))
         lags = []
@@ -195,7 +199,13 @@ class InertialIdentification:
             nlags = min(n - 1, max(rule, int(np.ceil(HAC_REACHES * reach_rows))))
             lags.append(nlags)
             S += S_hac_simple(per_sample, nlags)
-        cov_c = H_inv @ S @ H_inv.T
+        ev, V = np.linalg.eigh(0.5 * (S + S.T))
+        ev = np.maximum(ev, max(ev.max(), 1e-300) * 1e-12)
+        # precision of gamma = R^T S^-1 R = W^T W; the data term ||W gamma - c||^2 with c = W gamma_hat
+        self._W_gamma = (V / np.sqrt(ev)).T @ R
+        self._c_gamma = (V / np.sqrt(ev)).T @ (Q.T @ yw)
+        R_inv = np.linalg.pinv(R)
+        cov_c = R_inv @ S @ R_inv.T
         self.hac_lags_ = lags
         self.beta_wls_ = np.full(nb, np.nan)
         self.cov_ = np.full((nb, nb), np.nan)
@@ -219,16 +229,13 @@ class InertialIdentification:
         import cvxpy as cp
 
         base = self.base_
-        C = self._cov_gamma
-        ev, V = np.linalg.eigh(0.5 * (C + C.T))
-        ev = np.maximum(ev, ev.max() * 1e-14)
-        W = (V / np.sqrt(ev)).T                  # whitening: W (gamma(beta) - gamma_hat) ~ N(0, 1)
+        W = self._W_gamma                        # W (gamma(beta) - gamma_hat) ~ N(0, 1)
         GK = self._G @ base.matrix               # gamma of the standard parameters
         K = base.matrix
         pi0 = self.pi_declared_
         s = prior_scale(pi0)
         Rs = (W @ GK) * s                        # in units of the prior: delta = (pi - pi0) / s
-        r0 = W @ (GK @ pi0 - self._gamma)
+        r0 = W @ (GK @ pi0) - self._c_gamma
         # the prior: weak (PRIOR_WEIGHT) along the standard directions that move a base parameter, full along
         # those that move none (they only split the base parameters into links: the declared arm decides)
         _, sv, Vt = np.linalg.svd(K * s, full_matrices=True)
@@ -348,10 +355,44 @@ class InertialIdentification:
             "data_only": np.where(ident, self.beta_wls_, np.nan), "data_only_se": np.where(ident, self.se_, np.nan),
             "data_share": np.where(ident, self.data_share_, np.nan), "status": self.status()})
 
+    def instruments_detail(self) -> dict:
+        """Per run and joint: the tracking error's share of the motion and whether the joint's rows were
+        instrumented by the reference (see :mod:`.data`, ``TRACKING_SHARE``) or fitted by least squares."""
+        from wamctl.analysis.identification.data import TRACKING_SHARE
+
+        runs = []
+        for rr in self.rows_:
+            share = rr.tracking_share if rr.tracking_share is not None else np.full(N7, np.nan)
+            iv = rr.reference_tracks
+            runs.append({"source": rr.source, "tracking_share": {j + 1: float(share[j]) for j in rr.joints
+                                                                 if np.isfinite(share[j])},
+                         "instrumented_joints": [j + 1 for j in rr.joints if iv[j]],
+                         "least_squares_joints": [j + 1 for j in rr.joints if not iv[j]]})
+        return {"threshold": TRACKING_SHARE, "runs": runs}
+
+    def instruments_statement(self) -> str:
+        """One sentence: which joints' rows the reference instruments, which are fitted by least squares and why
+        (the tracking error's share of the joint's motion, against the threshold)."""
+        d = self.instruments_detail()
+        iv = sorted({j for r in d["runs"] for j in r["instrumented_joints"]})
+        worst: dict[int, float] = {}
+        for r in d["runs"]:
+            for j in r["least_squares_joints"]:
+                worst[j] = max(worst.get(j, 0.0), r["tracking_share"].get(j, float("nan")))
+        if not worst:
+            return (f"instrumental variables (the reference) on every joint that moves ({_joints(iv)})" if iv else
+                    "none (no rows)")
+        why = "; ".join(f"joint {j}: tracking error {100 * v:.0f} % of its motion" if np.isfinite(v) else
+                        f"joint {j}: no reference motion" for j, v in sorted(worst.items()))
+        head = (f"instrumental variables (the reference) on joint(s) {_joints(iv)}, least squares on joint(s) "
+                f"{_joints(sorted(worst))}" if iv else "least squares on every joint (no instrumental variables)")
+        return (f"{head}: the reference is an instrument only where it follows the motion (tracking error at "
+                f"most {100 * d['threshold']:.0f} % of the motion); {why}")
+
     def to_dict(self) -> dict:
         return {"n_rows": int(self.n_rows_), "sigma_Nm": _floats(self.sigma_Nm_),
                 "identifiability": self.identifiability_.to_dict(), "hac_lags": [int(x) for x in self.hac_lags_],
-                "instruments": "reference" if self.instrumented_ else "none (least squares)",
+                "instruments": self.instruments_statement(), "instruments_detail": self.instruments_detail(),
                 "consistent": bool((self.margin_ > 0).all()), "pseudo_inertia_margin": _floats(self.margin_),
                 "optimiser": self.opt_, "links": self.links_.to_mapping(),
                 "base": self.table().replace({np.nan: None}).to_dict("records")}
@@ -367,6 +408,10 @@ def _both(a, b):
     return replace(a, identified=identified, null_share=np.maximum(a.null_share, b.null_share),
                    rank=min(a.rank, int(identified.sum()) + (a.rank - int(a.identified.sum()))),
                    null_directions=a.null_directions or b.null_directions, names=names)
+
+
+def _joints(js) -> str:
+    return ", ".join(str(j) for j in js)
 
 
 def _floats(a) -> list:

@@ -25,9 +25,10 @@ from wamctl.io import MODEL_FILE_FORMAT
 from wamctl.model import params as P
 
 
-def model_file(est, provenance: dict, held_out: dict | None = None) -> dict:
+def model_file(est, provenance: dict, held_out: dict | None = None, check: dict | None = None) -> dict:
     """The model file mapping of a fitted :class:`~wamctl.analysis.identification.estimator.
-    InertialIdentification`; ``provenance`` is written as given, ``held_out`` ({joint: {model: RMS}}) too."""
+    InertialIdentification`; ``provenance`` is written as given, ``held_out`` ({joint: {model: RMS}}) and the
+    held-out check's verdict (``check``) too."""
     links = est.links_.to_mapping()
     fr = est.friction_
     joints = {j + 1: {"fc_pos_Nm": float(fr.fc_pos_Nm[j]), "fc_neg_Nm": float(fr.fc_neg_Nm[j]),
@@ -45,5 +46,8 @@ def model_file(est, provenance: dict, held_out: dict | None = None) -> dict:
     }
     if held_out:
         summary["held_out_rms_Nm"] = held_out
+    if check:
+        summary["held_out_check"] = {"verdict": check["verdict"], "statement": check["statement"],
+                                     "ratio": {int(k): float(v) for k, v in check["ratio"].items()}}
     return {"format": MODEL_FILE_FORMAT, "links": links, "friction": {"joints": joints},
             "provenance": provenance, "identification": summary}
