@@ -126,17 +126,20 @@ def print_table(title: str, table, out: Console | None = None) -> None:
     from rich.table import Table
     from rich.text import Text
 
+    from wamctl.report.document import column_label
+
     out = out or console
     names, rows, is_key = table.cells(na="-")
     numeric = table.numeric()
-    heads = [n.replace("_", " ") for n in names]
+    heads = [column_label(n) for n in names]            # units with their slash: speed peak (rad/s)
+    units = [len(h) - h.rfind(" (") - 1 if h.endswith(")") and " (" in h else 0 for h in heads]  # kept whole
     no_wrap = [k or num for k, num in zip(is_key, numeric)]   # sized to their longest cell: never wrapped
     least, natural = [], []
     for c, head in enumerate(heads):
         cells = [r[c] for r in rows]
         longest = max((len(x) for x in cells), default=0)
         body = longest if no_wrap[c] else min(max((_words(x) for x in cells), default=0), _TEXT_MIN_CAP)
-        least.append(max(body, _words(head), 1))
+        least.append(max(body, _words(head), units[c], 1))
         natural.append(max(longest, len(head), 1))
     parts = pack_columns(least, is_key, out.width)
     out.print(Text(title, style="bold"), soft_wrap=False)

@@ -80,11 +80,27 @@ def _show_result(sw, result, quiet: bool, json: bool) -> None:
                "skipped": result.skipped, "workers": result.n_workers, "at once": result.max_concurrent,
                "wall (s)": round(result.wall_s, 1), "busy": eff}
         print_frame(f"sweep {sw.name}: {len(sw.points)} points", pd.DataFrame([row]))
+        _show_summary(sw, result.sweep_dir)
     if not json:
         colour = "green" if result.ok else "red"
+        report = [p for p in result.report if Path(p).suffix == ".html"]
         (console if result.ok else err_console).print(
             f"[{colour}]{'completed' if result.ok else 'some points failed'}[/]  sweep directory: "
-            f"{result.sweep_dir}", highlight=False)
+            f"{result.sweep_dir}" + (f"\nreport: {report[0]}" if report else ""), highlight=False, soft_wrap=True)
+
+
+def _show_summary(sw, sweep_dir: Path) -> None:
+    """The result of the sweep (the tables its report shows first): the key figures over the completed points
+    and their means per value of each swept parameter."""
+    from wamctl.report.sweep import read_index, summary_tables, sweep_parameters
+
+    idx = read_index(sweep_dir)
+    _, params = sweep_parameters(sweep_dir, idx)
+    tables = summary_tables(idx, params)
+    for _, heading, table, caption in tables:
+        print_frame(f"sweep {sw.name}: {heading}", table, caption)
+    if not tables:
+        console.print("no key figures: no point completed with a report", highlight=False)
 
 
 def _dry_run(sw, checks: list[str], as_json: bool) -> None:

@@ -9,7 +9,8 @@ holds every table in full precision). Conventions shared by the formats:
   the first column. The key is always shown: first, left-aligned, and in HTML kept in view when a wide table
   scrolls sideways; on the terminal it is repeated in every part of a table split to fit the width.
 * **One number format per column** (:func:`format_column`), chosen from the column's values and name: whole
-  numbers as integers; p-values with three decimals or, when one is below 0.001, in scientific notation;
+  numbers as integers (and the counts of a row keyed ``n``, :data:`COUNT_ROWS`, under rows of means);
+  p-values with three decimals or, when one is below 0.001, in scientific notation;
   otherwise fixed decimals, as many as the column's smallest magnitude needs for ``digits`` significant digits
   (a value typed with fewer decimals, such as a published figure, shows as typed), or scientific notation for
   the whole column when that would take more than 6 decimals or a value reaches 1e6.
@@ -36,6 +37,7 @@ from wamctl.runs.store import atomic_write_text, json_default
 
 DEFAULT_DIGITS = 4          # significant digits of a column's smallest magnitude
 MAX_DECIMALS = 6            # beyond this, a column goes to scientific notation
+COUNT_ROWS = frozenset({"n", "N", "count", "n_points", "n_runs"})   # row keys whose cells are counts
 _P_COLUMN = re.compile(r"(^|_)(p|p_value|pvalue|p_gg|p_hf|p_holm|p_unc|p_corr|p_adj)(_|$)", re.IGNORECASE)
 
 
@@ -65,11 +67,21 @@ class Table(NamedTuple):
         return display_frame(self.df, self.key)[0]
 
     def cells(self, na: str = "") -> tuple[list[str], list[list[str]], list[bool]]:
-        """(column names, rows of formatted cells, per column: is it a key column)."""
+        """(column names, rows of formatted cells, per column: is it a key column). A row keyed as a count
+        (:data:`COUNT_ROWS`: the ``n`` under Mean, SD, SEM) shows its whole numbers as integers, whatever the
+        decimals of their columns."""
         frame, key = display_frame(self.df, self.key)
         cols = [format_column(frame.iloc[:, i], self.digits, str(c), na) for i, c in enumerate(frame.columns)]
         rows = [list(r) for r in zip(*cols)] if cols else []
-        return [str(c) for c in frame.columns], rows, [str(c) in key for c in frame.columns]
+        is_key = [str(c) in key for c in frame.columns]
+        for r, row in enumerate(rows):
+            if not any(k and row[c] in COUNT_ROWS for c, k in enumerate(is_key)):
+                continue
+            for c, k in enumerate(is_key):
+                v = frame.iat[r, c]
+                if not k and _is_numeric(frame.iloc[:, c]) and not _missing(v) and _whole(v):
+                    row[c] = str(int(round(float(v))))
+        return [str(c) for c in frame.columns], rows, is_key
 
     def numeric(self) -> list[bool]:
         """Per shown column: holds numbers (right-aligned, never wrapped)."""
@@ -106,6 +118,12 @@ def _is_numeric(s: pd.Series) -> bool:
     vals = [v for v in s if not _missing(v)]
     return bool(vals) and all(isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, bool)
                               for v in vals)
+
+
+def _whole(v) -> bool:
+    """A finite whole number (a count), not a bool."""
+    return (isinstance(v, (int, float, np.integer, np.floating)) and not isinstance(v, (bool, np.bool_))
+            and math.isfinite(float(v)) and float(v) == round(float(v)) and abs(float(v)) < 1e15)
 
 
 def _missing(v) -> bool:
@@ -175,6 +193,42 @@ def format_column(s: pd.Series, digits: int = DEFAULT_DIGITS, name: str = "", na
         spec = column_format(s.tolist(), digits, name)
         return [format_value(v, spec, na) for v in s]
     return [format_value(v, "", na) for v in s]
+
+
+# ---------------------------------------------------------------------------------------------- column labels
+# unit suffixes of column names (units in names: velocity_rad_s), longest first, and how a reader writes them
+_UNITS: tuple[tuple[tuple[str, ...], str], ...] = (
+    (("Nm", "s", "rad"), "N m s/rad"), (("Nm", "s2", "rad"), "N m s\u00b2/rad"), (("Nm", "rad", "s"), "N m/(rad s)"),
+    (("kg", "m2"), "kg m\u00b2"), (("Nm", "rad"), "N m/rad"), (("rad", "s2"), "rad/s\u00b2"), (("rad", "s"), "rad/s"),
+    (("m", "s"), "m/s"), (("m", "s2"), "m/s\u00b2"), (("Nm",), "N m"), (("N",), "N"), (("rad",), "rad"),
+    (("mrad",), "mrad"), (("deg",), "deg"), (("s",), "s"), (("ms",), "ms"), (("us",), "\u00b5s"), (("m",), "m"),
+    (("mm",), "mm"), (("kg",), "kg"), (("Hz",), "Hz"), (("pct",), "%"), (("px",), "px"),
+)
+
+
+def split_unit(name: str) -> tuple[str, str]:
+    """(what, unit) of a column name whose unit is its suffix: ``speed_peak_rad_s`` -> (``speed peak``,
+    ``rad/s``), ``sigma2_pos_Nm_s_rad`` -> (``sigma2 pos``, ``N m s/rad``), ``hit_pct`` -> (``hit``, ``%``);
+    (name with spaces for underscores, ``""``) when it has none."""
+    parts = str(name).split("_")
+    for suffix, unit in _UNITS:
+        n = len(suffix)
+        if len(parts) > n and tuple(parts[-n:]) == suffix:
+            return " ".join(parts[:-n]), unit
+    return " ".join(parts), ""
+
+
+def column_label(name: str) -> str:
+    """A column name as a reader writes it: words, then the unit in parentheses with its slash
+    (``speed_peak_rad_s`` -> ``speed peak (rad/s)``)."""
+    base, dot, tail = str(name).rpartition(".")
+    if dot and base and tail.isalnum():                 # a key figure of one joint: rpe_pct.1 -> rpe.1 (%)
+        what, unit = split_unit(base)
+        return f"{what}.{tail} ({unit})" if unit else f"{what}.{tail}"
+    what, unit = split_unit(name)
+    if unit and what.endswith(" per"):                  # bytes_per_s -> bytes/s
+        return f"{what[:-4]}/{unit}"
+    return f"{what} ({unit})" if unit else what
 
 
 # ---------------------------------------------------------------------------------------------- the document

@@ -29,13 +29,49 @@ def read_index(sweep_dir: str | Path) -> pd.DataFrame:
     return pd.read_csv(p)
 
 
+def summary_tables(idx: pd.DataFrame, params: list[str]) -> list[tuple[str, str, pd.DataFrame, str]]:
+    """The result of a sweep, in a few short tables: (name, heading, table, caption) of the key figures over
+    the completed points (n, mean, SD, min, max: one row per figure), then their means per value of each swept
+    parameter with 2..20 distinct values. What the report shows first and ``wamctl sweep`` prints."""
+    from wamctl.report.combined import spread_table
+
+    figs = key_figure_columns(idx, params)
+    ok = idx[idx["status"] == "completed"]
+    out: list[tuple[str, str, pd.DataFrame, str]] = []
+    if not figs or not len(ok):
+        return out
+    overall = spread_table(ok[figs].to_dict("records"))
+    if not overall.empty:
+        out.append(("summary", f"Key figures over the {len(ok)} completed points", overall,
+                    "n: points with the figure; sd with n - 1; e.g. rpe_pct.j: RPE of joint j (%)"))
+    for p in params:
+        if 2 <= ok[p].nunique() <= 20:
+            g = ok.groupby(p)[figs].mean()
+            g.insert(0, "n_points", ok.groupby(p).size())
+            out.append((f"by_{p}", f"Mean key figures by {p}", g,
+                        f"means over the completed points with each value of {p}"))
+    return out
+
+
+def key_figure_columns(idx: pd.DataFrame, params: list[str]) -> list[str]:
+    """The index's numeric columns that are key figures of the runs (not bookkeeping, not parameters)."""
+    figs = [c for c in idx.columns if c not in set(INDEX_COLUMNS) | set(params) | {"pid"}]
+    return [c for c in figs if pd.api.types.is_numeric_dtype(idx[c])]
+
+
+def sweep_parameters(sweep_dir: str | Path, idx: pd.DataFrame) -> tuple[dict, list[str]]:
+    """(sweep manifest, swept parameters found in the index)."""
+    m = json.loads((Path(sweep_dir) / "sweep.json").read_text())
+    return m, [p for p in m.get("parameters", []) if p in idx.columns]
+
+
 def sweep_report(sweep_dir: str | Path) -> Document:
-    """The combined report of a sweep directory: the index, the key figures of every point, and their means
-    per value of each swept parameter (parameters with 2..20 distinct values)."""
+    """The combined report of a sweep directory: first the result (the key figures over the completed points,
+    their means and SDs per value of each swept parameter with 2..20 distinct values, a figure per parameter),
+    then the index and the key figures of every point."""
     d = Path(sweep_dir)
-    m = json.loads((d / "sweep.json").read_text())
     idx = read_index(d)
-    params = [p for p in m.get("parameters", []) if p in idx.columns]
+    m, params = sweep_parameters(d, idx)
     counts = idx["status"].value_counts().to_dict()
     doc = Document(f"Sweep {m.get('name')}: {len(idx)} points of {m.get('kind')}")
     doc.text(f"Spec {m.get('source')}; swept: {', '.join(params) or 'nothing'}. Status: "
@@ -49,34 +85,32 @@ def sweep_report(sweep_dir: str | Path) -> Document:
                  f"({s.get('scheduler')}); at most {s.get('max_concurrent')} points at once"
                  + (f", workers busy {100 * eff:.0f} % of the time" if eff is not None else "")
                  + (" - interrupted" if s.get("interrupted") else "") + ".")
+    doc.data["counts"] = {str(k): int(v) for k, v in counts.items()}
+    figs = key_figure_columns(idx, params)
+    ok = idx[idx["status"] == "completed"]
+    for name, heading, table, caption in summary_tables(idx, params):     # the result first
+        doc.heading(heading)
+        doc.table(name, table, caption)
+        if not name.startswith("by_"):
+            continue
+        p = name[3:]
+        doc.data.setdefault("by_parameter", {})[p] = json.loads(table.to_json(orient="index"))
+        sd = ok.groupby(p)[figs].std(ddof=1)
+        sd.insert(0, "n_points", ok.groupby(p).size())
+        doc.table(f"sd_by_{p}", sd, f"standard deviation over the completed points with each value of {p} "
+                  "(empty with one point); the figure shows every point, where a mean hides groups")
+        doc.data.setdefault("sd_by_parameter", {})[p] = json.loads(sd.to_json(orient="index"))
+        doc.figure(_points_by_value(ok, p, figs, d / f"by_{_file_safe(p)}.png"),
+                   f"each completed point's key figures against {p} (dots, spread sideways so that equal "
+                   "values stay visible); bars: the mean")
     base = ["point"] + params + ["status", "attempts", "duration_s", "run_dir", "error"]
     doc.heading("Points")
     doc.table("points", idx[[c for c in base if c in idx.columns]].set_index("point"),
               "run_dir is relative to the sweep directory; each run has its own report there.", digits=3)
-    figs = [c for c in idx.columns if c not in set(INDEX_COLUMNS) | set(params) | {"pid"}]
-    figs = [c for c in figs if pd.api.types.is_numeric_dtype(idx[c])]
-    ok = idx[idx["status"] == "completed"]
-    doc.data["counts"] = {str(k): int(v) for k, v in counts.items()}
     if figs and len(ok):
         doc.heading("Key figures per point")
         doc.table("key_figures", ok[["point"] + params + figs].set_index("point"),
                   "numbers from each run's report (e.g. rpe_pct.j: RPE of joint j, %)")
-        for p in params:
-            nvals = ok[p].nunique()
-            if 2 <= nvals <= 20:
-                g = ok.groupby(p)[figs].mean()
-                g.insert(0, "n_points", ok.groupby(p).size())
-                doc.heading(f"Mean key figures by {p}")
-                doc.table(f"by_{p}", g, f"means over the completed points with each value of {p}")
-                doc.data.setdefault("by_parameter", {})[p] = json.loads(g.to_json(orient="index"))
-                sd = ok.groupby(p)[figs].std(ddof=1)
-                sd.insert(0, "n_points", ok.groupby(p).size())
-                doc.table(f"sd_by_{p}", sd, f"standard deviation over the completed points with each value of {p} "
-                          "(empty with one point); the figure shows every point, where a mean hides groups")
-                doc.data.setdefault("sd_by_parameter", {})[p] = json.loads(sd.to_json(orient="index"))
-                doc.figure(_points_by_value(ok, p, figs, d / f"by_{_file_safe(p)}.png"),
-                           f"each completed point's key figures against {p} (dots, spread sideways so that equal "
-                           "values stay visible); bars: the mean")
     return doc
 
 

@@ -1,0 +1,109 @@
+"""Reading the output (issue 32, item 12): units keep their slash in terminal headers, counts print as
+integers, the sweep's result comes first (report) and is printed (terminal), long paths are printed whole."""
+
+from __future__ import annotations
+
+import json
+import re
+
+import pandas as pd
+import pytest
+from cli_runs import SWEEP, run_cli, write_yaml
+
+from wamctl.report.document import Document, column_label
+
+
+@pytest.mark.parametrize("name,label", [
+    ("speed_peak_rad_s", "speed peak (rad/s)"), ("sigma2_pos_Nm_s_rad", "sigma2 pos (N m s/rad)"),
+    ("viscous_neg_Nm_s_rad", "viscous neg (N m s/rad)"), ("acceleration_peak_rad_s2", "acceleration peak (rad/s²)"),
+    ("fc_pos_Nm", "fc pos (N m)"), ("t_s", "t (s)"), ("hit_pct", "hit (%)"), ("I1_kg_m2", "I1 (kg m²)"),
+    ("bytes_per_s", "bytes/s"), ("rpe_pct.3", "rpe.3 (%)"), ("joint", "joint"), ("n_points", "n points")])
+def test_column_labels_keep_their_units(name, label):
+    assert column_label(name) == label
+
+
+def _printed(table: pd.DataFrame, columns: int = 80) -> str:
+    from rich.console import Console
+
+    from wamctl.commands.common import print_frame
+    con = Console(width=columns, record=True, file=open("/dev/null", "w"))   # noqa: SIM115 - closed with con
+    print_frame("t", table, out=con)
+    text = con.export_text()
+    con.file.close()
+    return text
+
+
+def test_terminal_headers_read_rad_per_s_and_n_m_s_per_rad():
+    df = pd.DataFrame({"speed_peak_rad_s": [0.5, 1.25], "sigma2_pos_Nm_s_rad": [0.1234, 0.05],
+                       "torque_peak_Nm": [3.5, 12.0]}, index=pd.Index([1, 2], name="joint"))
+    out = _printed(df)
+    for unit in ("(rad/s)", "(N m s/rad)", "(N m)"):
+        assert unit in out, out
+    assert "rad s" not in out and "Nm s rad" not in out
+    # a narrow terminal wraps a header between words, never inside its unit
+    narrow = _printed(df, columns=40)
+    assert "(N m s/rad)" in narrow, narrow
+
+
+def test_a_count_row_under_means_prints_integers():
+    df = pd.DataFrame({"E1": [37.0, 50.0, 49.111, 17.091, 9.0], "E2": [75.0, 87.5, 71.625, 18.554, 8.0]},
+                      index=pd.Index(["1", "2", "Mean", "SD", "n"], name="subject"))
+    names, rows, _ = Document("t").table("a", df).blocks[0][1].cells()
+    assert rows[-1] == ["n", "9", "8"]                      # was 9.000, 8.000
+    assert rows[2] == ["Mean", "49.111", "71.625"] and rows[0] == ["1", "37.000", "75.000"]  # one format per column
+    md = Document("t").table("a", df).to_markdown()
+    assert "| n | 9 | 8 |" in md
+
+
+@pytest.fixture(scope="module")
+def sweep_cli(tmp_path_factory):
+    """``wamctl sweep`` of two points on an in-process Dask scheduler (no worker processes to start), into a
+    folder whose path is longer than 80 characters."""
+    import distributed
+
+    root = tmp_path_factory.mktemp("sweep_cli")
+    out = root / ("a-parent-folder-whose-name-is-long-enough-to-pass-80-columns-" + "x" * 20)
+    with distributed.LocalCluster(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0") as c:
+        r = run_cli("sweep", write_yaml(root / "sweep.yaml", SWEEP), "--scheduler", c.scheduler_address,
+                    "--out", out)
+    assert r.code == 0, (r.out[-2000:], r.err[-2000:], r.tb)
+    (sweep_dir,) = out.iterdir()
+    return r, sweep_dir
+
+
+def test_the_sweep_command_prints_its_result(sweep_cli):
+    r, sweep_dir = sweep_cli
+    rep = json.loads((sweep_dir / "report.json").read_text())
+    summary = {row["figure"]: row for row in rep["tables"]["summary"]}
+    assert set(summary) == {"rpe_pct.1", "rpe_pct.7"} and {row["n"] for row in summary.values()} == {2}
+    assert "sweep tiny: Key figures over the 2 completed points" in r.out
+    for fig, row in summary.items():     # each figure's line: n, mean, sd, min, max as the report has them
+        line = next(ln for ln in r.out.splitlines() if ln.startswith(fig + " "))
+        n, mean, sd, lo, hi = map(float, line.split()[1:6])
+        assert n == 2
+        for got, want in ((mean, row["mean"]), (sd, row["sd"]), (lo, row["min"]), (hi, row["max"])):
+            assert got == pytest.approx(want, rel=1e-3, abs=1e-4), (fig, line)
+    assert "sweep tiny: Mean key figures by seed" in r.out
+
+
+def test_the_sweep_report_puts_its_result_before_the_point_tables(sweep_cli):
+    _, sweep_dir = sweep_cli
+    rep = json.loads((sweep_dir / "report.json").read_text())
+    assert list(rep["tables"]) == ["summary", "by_seed", "sd_by_seed", "points", "key_figures"]
+    md = (sweep_dir / "report.md").read_text()
+    assert md.index("## Key figures over the 2 completed points") < md.index("## Points")
+
+
+def test_long_paths_are_printed_whole(sweep_cli):
+    r, sweep_dir = sweep_cli
+    assert len(str(sweep_dir)) > 80
+    lines = r.out.splitlines()
+    assert f"completed  sweep directory: {sweep_dir}" in lines
+    assert f"report: {sweep_dir / 'report.html'}" in lines
+    # a status line of `wamctl report` and the files it wrote: whole paths too
+    point = json.loads((sweep_dir / "index.json").read_text())["points"][0]
+    rep = run_cli("report", sweep_dir / point["run_dir"])
+    assert rep.code == 0, rep.err
+    wrote = [ln for ln in rep.out.splitlines() if ln.startswith("wrote ")]
+    assert len(wrote) == 3 and all(re.fullmatch(r"wrote /\S+/report\.(md|html|json)", ln) for ln in wrote), wrote
+    assert all(len(ln) > 80 for ln in wrote)
