@@ -158,7 +158,8 @@ def test_missing_file(tmp_path):
 @pytest.fixture(scope="module")
 def finished_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("finished")
-    spec = write(tmp / "rot.yaml", rotation_spec(rotation={"joints": [2, 6], "mode": "one_at_a_time"}))
+    spec = write(tmp / "rot.yaml", rotation_spec(rotation={"joints": [2, 6], "mode": "one_at_a_time",
+                                                             "amplitude_rad": -0.5}))
     r = wamctl("run", spec, "--out", tmp / "runs", "--quiet")
     assert r.returncode == 0, r.stderr
     return only_run_dir(tmp / "runs")
@@ -230,7 +231,8 @@ def test_isolated_nan_rows_are_dropped_with_a_count(finished_run, tmp_path):
 # ------------------------------------------------------------------------------ interruption
 @pytest.mark.parametrize("sig", [signal.SIGINT, signal.SIGTERM])
 def test_killed_run_keeps_every_chunk_and_says_interrupted(tmp_path, sig):
-    spec = write(tmp_path / "long.yaml", rotation_spec(rotation={"mode": "one_at_a_time"}))
+    # -0.5 rad: joint 2's return from +0.5 rad would need more than its torque limit (refused, issue 32)
+    spec = write(tmp_path / "long.yaml", rotation_spec(rotation={"mode": "one_at_a_time", "amplitude_rad": -0.5}))
     runs = tmp_path / "runs"
     # a shell that runs this suite in the background (nohup, CI runners) hands its children SIGINT ignored, and
     # Python then never installs its Ctrl-C handler: the child gets the terminal's default back, as a terminal has

@@ -32,7 +32,8 @@ FUZZ = settings(deadline=None, database=None, derandomize=True, print_blob=True,
 
 CAN_SIM = {"kind": "rotation", "name": "can", "seed": 1,
            "backend": {"kind": "can", "interface": "virtual", "channel": "fuzz", "simulate_pucks": True},
-           "rotation": {"joints": [2], "mode": "one_at_a_time", "hold_s": 0.2, "settle_s": 0.0}}
+           "rotation": {"joints": [2], "mode": "one_at_a_time", "amplitude_rad": -0.5, "hold_s": 0.2,
+                        "settle_s": 0.0}}   # -0.5 rad: the return from +0.5 rad would saturate joint 2 (refused)
 FF = {"kind": "rotation", "name": "ff", "controller": {"kind": "pd_g_ff", "friction_ff": "friction_model.yaml"},
       "plant": {"friction": "friction_model.yaml"}, "rotation": {"joints": [7], "hold_s": 0.2}}
 SPECS = [ROTATION, FRICTION, IFT, HMI, SWEEP, CAN_SIM, FF]

@@ -62,3 +62,65 @@ def test_another_test_says_what_differs_and_shows_no_thesis_column(data, control
     assert caption.startswith("No thesis column: the thesis rotated each joint 0.5 rad at 0.083 rad/s")
     for s in says:
         assert s in caption
+
+
+# ------------------------------------------------------------------------------ issue 32, item 5: moves cut off
+SPEC = {"controller": {"kind": "pd_g"}, "rotation": {"mode": "one_at_a_time", "amplitude_rad": 0.5, "hold_s": 1.0}}
+
+
+def test_a_move_cut_off_mid_ramp_is_not_finished_and_has_no_rpe():
+    data = rotation_data(joints=(1, 4))                # 0.5 rad at 0.083 rad/s, then a 1 s hold: 8.02 s
+    cut = data[data["t_s"] < 1.43]                     # interrupted 1.43 s in: the reference at 0.0774 rad
+    assert cut["q_ref_4_rad"].iloc[-1] == pytest.approx(0.0774, abs=1e-3)
+    table = rotation_table(cut, SPEC)
+    assert table["move"].tolist() == ["not finished", "not finished"]
+    assert table["rpe_pct"].isna().all() and table["final_error_rad"].isna().all()
+    assert table["amplitude_rad"].tolist() == [0.5, 0.5]      # the rotation asked for, not 0.0774
+    # from the data alone (no spec): the reference still moving at the last sample is enough
+    assert rotation_table(cut, {"controller": {"kind": "pd_g"}})["rpe_pct"].isna().all()
+
+
+def test_a_move_cut_off_in_its_hold_is_not_finished_and_a_whole_one_is():
+    data = rotation_data(joints=(1,))
+    t_end = data["t_s"].iloc[-1]
+    cut = data[data["t_s"] < t_end - 0.5]              # at the target, but only half of the 1 s hold
+    assert rotation_table(cut, SPEC)["move"].tolist() == ["not finished"]
+    whole = rotation_table(data, SPEC)
+    assert "move" not in whole                         # every move finished: no column
+    assert whole["rpe_pct"].tolist() == pytest.approx([100 * 1e-3 * np.tanh(0.5) / 0.5])
+
+
+def test_the_report_of_an_interrupted_run_warns_first_scores_no_cut_move_and_plots_the_whole_run(tmp_path,
+                                                                                                 monkeypatch):
+    from wamctl.analysis.loop_events import TORQUE_SATURATION, LoopEvent
+    from wamctl.report import rotation as rotation_report
+    from wamctl.report import write_report
+    from wamctl.runs.store import RunDir
+
+    moving = rotation_data(joints=(1, 4))
+    still = pd.concat([moving.iloc[:1]] * 250, ignore_index=True).assign(t_s=np.arange(250) * 0.002)
+    data = pd.concat([still, moving.assign(t_s=moving["t_s"] + 0.5)], ignore_index=True)   # 0.5 s settle first
+    data = data[data["t_s"] < 1.93]                    # interrupted mid-ramp
+    spec = {"kind": "rotation", "name": "cut", **SPEC}
+    run = RunDir.create(tmp_path, "cut", spec, 0, "rotation")
+    run.write_table("data", data)
+    stuck = LoopEvent(TORQUE_SATURATION, 2, 0.2, 1.1, -20.0, 20.0)
+    run.event(0.0, "segment", None, "move joints 1,4")
+    run.event(stuck.start_s, stuck.kind, stuck.joint, stuck.detail)
+    run.finish("interrupted", "stopped by SIGINT")
+    figures = {}
+
+    def keep(fig, path):
+        figures[path.name] = [(ax.get_title(), ax.lines[0].get_xdata()[0], ax.lines[0].get_xdata()[-1])
+                              for ax in fig.axes if ax.get_visible()]
+        return path
+    monkeypatch.setattr(rotation_report, "save", keep)
+    doc = write_report(run.path, tmp_path / "report", ("json", "md"))
+    assert doc.blocks[0] == ("warn", "joint 2 at torque limit 0.20-1.30 s (1.1 s), peak -20.0 N m")
+    assert doc.data["rpe_pct"] == {} and doc.data["not_finished"] == [1, 4]
+    md = (tmp_path / "report" / "report.md").read_text()
+    assert md.index("joint 2 at torque limit") < md.index("Relative position error")
+    assert "Not finished: the move of joints 1, 4" in md
+    for name in ("rotation_errors.png", "rotation_positions.png"):     # the whole run, not the move's samples,
+        assert figures[name] == [(f"joint {j}", 0.0, pytest.approx(1.928))    # and the joint with a warning too
+                                 for j in ("1", "2 (not moved)", "4")]

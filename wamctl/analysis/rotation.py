@@ -7,6 +7,12 @@ For each joint whose reference moves: the *target* is the reference value farthe
 
 with the move amplitude as the "desired joint position" (the rotation asked for). Errors are
 ``e = q_ref - q`` (measured position). Input tables use the run columns ``q_ref_{j}_rad`` and ``q_{j}_rad``.
+
+A move is *finished* when its reference reached its end and stayed there for the hold that follows it; a run
+that ended before (interrupted, failed) has moves that are not, and those get no final error and no RPE: the
+last sample of a move cut off mid-ramp is not where the move ends. Given the planned amplitude and hold
+(``amplitude_rad``, ``hold_s``, from the spec), both are checked; from the data alone, only that the reference
+was not still moving at the last sample.
 """
 
 from __future__ import annotations
@@ -19,6 +25,8 @@ import pandas as pd
 from wamctl.model import params as P
 
 MOVE_TOL_RAD = 1e-9
+END_TOL = 1e-4
+"""A move reached its planned end when its reference came within this fraction of the amplitude of it."""
 
 
 @dataclass
@@ -27,16 +35,22 @@ class JointRotation:
     start_rad: float
     target_rad: float
     i_start: int        # first sample where the reference leaves its start
-    i_final: int        # last sample of the hold at the target
+    i_final: int        # last sample of the hold at the target (or of the data, for a move not finished)
+    finished: bool = True   # the reference reached its end and held it (see the module doc)
 
     @property
     def amplitude_rad(self) -> float:
         return self.target_rad - self.start_rad
 
 
-def find_rotations(data: pd.DataFrame) -> list[JointRotation]:
-    """The move of each joint whose reference changes."""
+def find_rotations(data: pd.DataFrame, amplitude_rad: float | None = None,
+                   hold_s: float = 0.0) -> list[JointRotation]:
+    """The move of each joint whose reference changes; ``amplitude_rad`` and ``hold_s``: the planned move and
+    the hold after it, when known (a move that did not reach ``start + amplitude_rad`` or was held less than
+    ``hold_s`` is not finished)."""
     out = []
+    t = data["t_s"].to_numpy()
+    dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
     for j in range(1, P.N_JOINTS + 1):
         ref = data[f"q_ref_{j}_rad"].to_numpy()
         dev = np.abs(ref - ref[0])
@@ -49,27 +63,37 @@ def find_rotations(data: pd.DataFrame) -> list[JointRotation]:
         while i_final + 1 < len(ref) and at_target[i_final + 1]:
             i_final += 1
         i_start = int(np.argmax(dev > MOVE_TOL_RAD))
-        out.append(JointRotation(j, float(ref[0]), float(target), i_start, i_final))
+        moving_at_end = i_final == len(ref) - 1 and abs(ref[-1] - ref[-2]) > MOVE_TOL_RAD
+        finished = not moving_at_end
+        if amplitude_rad is not None:
+            reached = abs(target - (ref[0] + amplitude_rad)) <= END_TOL * abs(amplitude_rad)
+            held = t[i_final] - t[i_peak] >= hold_s - 1.5 * dt
+            finished = finished and reached and held
+        out.append(JointRotation(j, float(ref[0]), float(target), i_start, i_final, finished))
     return out
 
 
-def rotation_metrics(data: pd.DataFrame) -> pd.DataFrame:
-    """Per moved joint: amplitude, final error, RPE, max and mean absolute error during the move.
+def rotation_metrics(data: pd.DataFrame, amplitude_rad: float | None = None, hold_s: float = 0.0) -> pd.DataFrame:
+    """Per moved joint: amplitude, final error, RPE, max and mean absolute error during the move, and whether
+    the move finished (:func:`find_rotations`; a move not finished has no final error and no RPE: NaN).
 
     Returns
     -------
     DataFrame indexed by joint with columns ``amplitude_rad, final_error_rad, rpe_pct, max_abs_error_rad,
-    mean_abs_error_rad``.
+    mean_abs_error_rad, finished``.
     """
     rows = []
-    for r in find_rotations(data):
+    for r in find_rotations(data, amplitude_rad, hold_s):
         e = (data[f"q_ref_{r.joint}_rad"] - data[f"q_{r.joint}_rad"]).to_numpy()
         window = e[r.i_start: r.i_final + 1]
-        rows.append({"joint": r.joint, "amplitude_rad": r.amplitude_rad, "final_error_rad": e[r.i_final],
-                     "rpe_pct": abs(e[r.i_final] / r.amplitude_rad) * 100.0,
+        final = e[r.i_final] if r.finished else np.nan
+        # the rotation made (the reference's own, as recorded); of a move cut off, the rotation asked for
+        asked = amplitude_rad if amplitude_rad is not None and not r.finished else r.amplitude_rad
+        rows.append({"joint": r.joint, "amplitude_rad": asked, "final_error_rad": final,
+                     "rpe_pct": abs(final / asked) * 100.0,
                      "max_abs_error_rad": float(np.abs(window).max()),
-                     "mean_abs_error_rad": float(np.abs(window).mean())})
-    cols = ["amplitude_rad", "final_error_rad", "rpe_pct", "max_abs_error_rad", "mean_abs_error_rad"]
+                     "mean_abs_error_rad": float(np.abs(window).mean()), "finished": r.finished})
+    cols = ["amplitude_rad", "final_error_rad", "rpe_pct", "max_abs_error_rad", "mean_abs_error_rad", "finished"]
     if not rows:
         return pd.DataFrame(columns=cols, index=pd.Index([], name="joint"))
     return pd.DataFrame(rows).set_index("joint")[cols]
@@ -94,6 +118,9 @@ def thesis_test_differences(data: pd.DataFrame, controller: dict | None = None) 
     rots = find_rotations(data)
     if not rots:
         return ["no joint moves"]
+    rots = [r for r in rots if r.finished]     # a move cut off mid-ramp says nothing of its size
+    if not rots:
+        return ["no finished move"]
     out = []
     amps = sorted({round(abs(r.amplitude_rad), 4) for r in rots
                    if not np.isclose(abs(r.amplitude_rad), P.ROTATION_AMPLITUDE_RAD, rtol=1e-3)})

@@ -235,15 +235,22 @@ def show_outcome(outcome, quiet: bool, as_json: bool, files: dict | None = None)
     """A finished run on the terminal: write its report, print its tables (or a JSON summary) and the status;
     exit code 0 when it completed, 2 when it was refused before anything moved, else 1."""
     from wamctl.report import write_report
+    from wamctl.report.loop_warnings import run_warnings
 
     doc = write_report(outcome.path) if outcome.status == "completed" else None
     shown = {k: (str(v) if v is not None and Path(v).exists() else None) for k, v in (files or {}).items()}
+    loop_warnings = run_warnings(outcome.path)   # torque limit, tracking error: any kind, any status
     if as_json:
         emit_json({"run_dir": str(outcome.path), "status": outcome.status, "reason": outcome.reason, **shown,
-                   "report": doc.to_json() if doc else None})
+                   "warnings": loop_warnings, "report": doc.to_json() if doc else None})
     else:
         if doc is not None:
             (print_warnings if quiet else print_document_tables)(doc)
+        from rich.text import Text
+        said = set((doc.data.get("warnings") or []) if doc is not None else [])
+        for line in loop_warnings:
+            if line not in said:
+                console.print(Text.assemble(("warning: ", "bold yellow"), line))
         colour = "green" if outcome.status == "completed" else "red"
         msg = f"[{colour}]{outcome.status}[/]" + (f": {outcome.reason}" if outcome.reason else "")
         lines = [f"{msg}  run directory: {outcome.path}"] + [f"{k.replace('_', ' ')}: {v}" for k, v in shown.items()

@@ -10,6 +10,7 @@ Experiment modules (one per kind) expose::
 from __future__ import annotations
 
 import logging
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -39,6 +40,9 @@ class Plan:
     reference: Reference
     summary: list[str] = field(default_factory=list)
     feedforward_Nm: np.ndarray | None = None
+    torque_check: Callable[[], str] | None = None
+    """Checks the torque the reference needs against the limits (:func:`check_planned_torque`): returns the
+    check made, raises SpecError naming the move that would saturate. Called by :meth:`check_limits`."""
 
     @property
     def duration_s(self) -> float:
@@ -69,6 +73,8 @@ class Plan:
                 raise SpecError(f"controller.friction_ff: joint {j + 1} feed-forward {ff[j]:.2f} N m exceeds the "
                                 f"torque limit {P.TAU_MAX_NM[j]} N m")
             done.append("feed-forward torques within the torque limits")
+        if self.torque_check is not None:
+            done.append(self.torque_check())
         return done
 
 
@@ -106,6 +112,64 @@ def declared_feedforward_Nm(spec: Common, reference: Reference, friction, with_i
     return friction_feedforward_Nm(reference.qd_rad_s, reference.qdd_rad_s2, friction, inertia)
 
 
+def planning_dynamics(spec: Common, base_dir: Path | None = None) -> WamDynamics:
+    """The rigid body a plan is checked with: the declared links, and the payload the spec puts at the wrist
+    (the plant's, else the declared one: the friction sweep's gravity check makes the same choice)."""
+    p = spec.plant.effects.payload or spec.controller.declared_payload
+    return WamDynamics(Payload(p.mass_kg, tuple(p.com_m)) if p else None,
+                       declared_links(spec.controller.declared_links, base_dir))
+
+
+def planned_torque_Nm(spec: Common, reference: Reference, base_dir: Path | None = None) -> np.ndarray:
+    """(n, 7) torque the reference needs at every pose, N m: rigid body (gravity, Coriolis, acceleration) of
+    :func:`planning_dynamics` plus the spec's friction (``plant.friction``: Coulomb level in the direction of
+    motion and viscous term)."""
+    dyn = planning_dynamics(spec, base_dir)
+    friction = resolve_friction(spec.plant.friction, base_dir)
+    return (dyn.inverse_dynamics_many(reference.q_rad, reference.qd_rad_s, reference.qdd_rad_s2)
+            + friction.friction_torque(reference.qd_rad_s))
+
+
+def check_planned_torque(spec: Common, reference: Reference, base_dir: Path | None = None,
+                         field_name: str = "plan") -> str:
+    """The torque every pose of ``reference`` needs (:func:`planned_torque_Nm`) against the torque limits.
+
+    A joint that needs more than its limit would sit at the limit, off its reference, until the pose changes
+    (the demo's joint 2 before issue 32: -17.2 N m of gravity and 3.56 N m of Coulomb friction against 20 N m),
+    so the plan is refused, as the friction sweep refuses one whose gravity load leaves too little: a SpecError
+    naming the first such move (its index among the plan's moves, label, times), the joint, the torque needed
+    (gravity, friction, the rest) and the limit. Returns the check made."""
+    need = planned_torque_Nm(spec, reference, base_dir)
+    ratio = np.abs(need) / P.TAU_MAX_NM
+    over = ratio > 1.0
+    if not over.any():
+        k, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
+        return (f"torque needed at most {ratio[k, j]:.0%} of a limit (joint {j + 1}: {need[k, j]:+.1f} of "
+                f"{P.TAU_MAX_NM[j]:g} N m at {reference.t_s[k]:.2f} s)")
+    bounds = [i for i, _ in reference.segments] + [len(reference)]
+    moving = np.abs(reference.qd_rad_s).max(axis=1) > 0
+    bad, move_no = [], 0
+    for (i0, label), i1 in zip(reference.segments, bounds[1:]):
+        is_move = bool(moving[i0:i1].any())
+        move_no += is_move
+        if over[i0:i1].any():
+            bad.append((i0, i1, label, move_no if is_move else None))
+    n_moves = move_no
+    i0, i1, label, move_no = bad[0]
+    k, j = np.unravel_index(int(np.argmax(ratio[i0:i1])), ratio[i0:i1].shape)
+    k += i0
+    gravity = planning_dynamics(spec, base_dir).gravity(reference.q_rad[k])[j]
+    coulomb = resolve_friction(spec.plant.friction, base_dir).friction_torque(reference.qd_rad_s[k])[j]
+    rest = need[k, j] - gravity - coulomb
+    where = f"move {move_no} of {n_moves}" if move_no else "hold"
+    more = f"; {len(bad) - 1} more segment{'s' if len(bad) > 2 else ''} too" if len(bad) > 1 else ""
+    raise SpecError(f"{field_name}: {where} ({label}, {reference.t_s[i0]:.2f}-{reference.t_s[i1 - 1]:.2f} s) "
+                    f"would saturate joint {j + 1}: it needs {need[k, j]:+.2f} N m at {reference.t_s[k]:.2f} s "
+                    f"(gravity {gravity:+.2f}, friction {coulomb:+.2f}, acceleration {rest:+.2f}) against its"
+                    f" {P.TAU_MAX_NM[j]:g} N m torque limit{more}; change q0_rad, the direction or "
+                    "size of the move")
+
+
 def make_joint_controller(spec: Common, feedforward_Nm: np.ndarray | None = None) -> JointController:
     kp, kd, ki = spec.controller.gains()
     gravity = declared_dynamics(spec).gravity_view if spec.controller.gravity_compensation else None
@@ -133,7 +197,23 @@ def closed_loop_stage(backend: ArmBackend, controller: JointController, referenc
             writer.close()
         if run is not None:
             _record_backend_state(backend, run, t_offset_s)
+            _record_loop_events(rec, backend, run)
     return rec.result()
+
+
+def _record_loop_events(rec: LoopRecorder, backend: ArmBackend, run: RunDir) -> None:
+    """After a stage (even a failed one): each stretch of a joint held at its torque limit (the backend's) or
+    off its reference becomes one event of the run (:mod:`wamctl.analysis.loop_events`). The same on every
+    backend: the rows are the loop's, with the torque the backend applied."""
+    import pandas as pd
+
+    from wamctl.analysis.loop_events import loop_events_of_table
+    try:
+        data = pd.DataFrame(rec.result(), columns=rec.columns)
+        for e in loop_events_of_table(data, backend.limits.tau_max_Nm):
+            run.event(e.start_s, e.kind, e.joint, e.detail)
+    except Exception:  # noqa: BLE001 - bookkeeping must not mask the stage's own outcome
+        log.exception("recording the loop's events failed")
 
 
 def _record_backend_state(backend: ArmBackend, run: RunDir, t_offset_s: float) -> None:

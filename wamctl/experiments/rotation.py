@@ -7,7 +7,13 @@ from pathlib import Path
 
 from wamctl.backends import make_backend
 from wamctl.control.trajectory import ReferenceBuilder
-from wamctl.experiments.common import Plan, closed_loop_stage, feedforward_for, make_joint_controller
+from wamctl.experiments.common import (
+    Plan,
+    check_planned_torque,
+    closed_loop_stage,
+    feedforward_for,
+    make_joint_controller,
+)
 from wamctl.model import params as P
 from wamctl.runs.store import RunDir
 from wamctl.specs.rotation import RotationSpec
@@ -33,7 +39,8 @@ def plan(spec: RotationSpec, base_dir: Path | None = None) -> Plan:
                f"plant effects: {', '.join(spec.plant.effects.names()) or 'none'}",
                f"{len(ref)} ticks at {P.CONTROL_RATE_HZ:.0f} Hz = {len(ref) / P.CONTROL_RATE_HZ:.1f} s of arm time"]
     summary += [f"  {ref.t_s[i]:7.2f} s  {label}" for i, label in ref.segments]
-    return Plan(ref, summary, feedforward_for(spec, ref, base_dir))
+    return Plan(ref, summary, feedforward_for(spec, ref, base_dir),
+                torque_check=lambda: check_planned_torque(spec, ref, base_dir, "rotation"))
 
 
 def execute(spec: RotationSpec, plan: Plan, run: RunDir, progress=None, base_dir: Path | None = None) -> None:
