@@ -133,6 +133,12 @@ def test_held_out_check_is_said_in_json_report_and_model_file(real_like, tmp_pat
     assert "joint(s) 1, 3, 5, 6, 7 did not move: not identified" in first
     mf = yaml.safe_load((run / "model.yaml").read_text())
     assert mf["identification"]["held_out_check"]["verdict"] == "better"
+    # where the rows went (the real log used 395 of its candidates, unsaid): every candidate accounted for once,
+    # the fitted rows are the used ones, and the report says it
+    (acc,) = result["row_accounting"]
+    assert acc["used"] + acc["near_stop"] + acc["slow"] + acc["filter_reach"] + acc["held_out"] == acc["candidates"]
+    assert acc["used"] == result["n_rows"] and acc["candidates"] >= 2 * acc["used"] > 0 and acc["held_out"] > 0
+    assert f"Rows used: {acc['used']} of {acc['candidates']} candidates" in (run / "report.md").read_text()
 
 
 def test_a_model_worse_than_the_declared_arm_is_not_written_and_exits_3(real_like, tmp_path):

@@ -52,9 +52,15 @@ def held_out_check(validation: dict, fitted_joints: list[int]) -> dict:
                     "on every joint that moves"}
 
 
+def _ratio(r: float) -> str:
+    """Three significant digits, more where those would read 1 for a ratio that is not exactly 1."""
+    t = f"{r:.3g}"
+    return t if float(t) != 1.0 or r == 1.0 else f"{r:.5f}"
+
+
 def check_statement(check: dict) -> str:
     """One sentence for the terminal and the report's first line."""
-    ratios = ", ".join(f"joint {j} {r:.5g}x" for j, r in check["ratio"].items())
+    ratios = ", ".join(f"joint {j} {_ratio(r)}x" for j, r in check["ratio"].items())
     v = check["verdict"]
     if v == "better":
         s = (f"held-out check: the identified model is at least as good as the declared arm with friction fitted "

@@ -67,6 +67,18 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
              + (" (usable as plant:, controller.declared_links:, diagnose --model)." if model_name == "model.yaml"
                 else " (not model.yaml: see the held-out check above)."))
     doc.data["instruments"] = result["instruments"]
+    acc = result.get("row_accounting") or []
+    if acc:
+        tot = {k: sum(a.get(k, 0) for a in acc)
+               for k in ("candidates", "near_stop", "slow", "filter_reach", "held_out", "used")}
+        doc.text(f"Rows used: {tot['used']} of {tot['candidates']} candidates (sample at the row rate, joint "
+                 f"commanded to move); left out: {tot['near_stop']} near a stop or the record's ends (the "
+                 f"classic friction model does not hold at stick), {tot['slow']} slower than "
+                 f"{acc[0]['min_speed_rad_s']} rad/s, {tot['filter_reach']} within the second filter's reach "
+                 f"({max(a['second_filter_reach_s'] for a in acc):.3g} s) of those"
+                 + (f", {tot['held_out']} held out (with the filters' reach before the held-out block)."
+                    if tot["held_out"] else "."))
+        doc.data["row_accounting"] = tot
     doc.heading("What the data determine")
     cond = ident["condition_number"]
     text = (f"Rank {ident['rank']} of {ident['n_base']} base parameters; condition number of the weighted, "

@@ -77,6 +77,8 @@ class RunRows:
     joints : 0-based joints with usable rows.
     skipped : {0-based joint: why} for joints commanded to move that yield no rows.
     dt_s : period of the kept samples. reach_s : the filters' reach on either side, s.
+    tracking_share : (7,) tracking error RMS / motion RMS per joint (:func:`tracking_shares`).
+    accounting : where the candidate rows (kept sample, joint commanded to move) went (:func:`row_accounting`).
     window_s, gauss_s : the second filter (None: none).
     """
 
@@ -95,6 +97,7 @@ class RunRows:
     window_s: float | None
     gauss_s: float | None
     tracking_share: np.ndarray | None = None
+    accounting: dict | None = None
 
     @property
     def reference_tracks(self) -> np.ndarray:
@@ -117,8 +120,14 @@ class RunRows:
         return self.Y[k, j, :], self.tau_Nm[k, j], j, k
 
     def restricted(self, mask: np.ndarray) -> RunRows:
-        """A copy whose usable rows are limited to the samples ``mask`` (m,) bool (e.g. a fitting block)."""
-        return replace(self, usable=self.usable & np.asarray(mask, bool)[:, None])
+        """A copy whose usable rows are limited to the samples ``mask`` (m,) bool (e.g. a fitting block); the rows
+        left out count as ``held_out`` in the accounting."""
+        usable = self.usable & np.asarray(mask, bool)[:, None]
+        acc = self.accounting
+        if acc is not None:
+            used = int(usable[:, self.joints].sum()) if self.joints else 0
+            acc = dict(acc, used=used, held_out=acc.get("held_out", 0) + acc["used"] - used)
+        return replace(self, usable=usable, accounting=acc)
 
     def instruments(self) -> np.ndarray:
         """The instruments' rows (r, 105), in the order of :meth:`stacked` (no mask): for the rows of a joint
@@ -172,6 +181,19 @@ def tracking_shares(q_rad: np.ndarray, q_ref_rad: np.ndarray, joints: list[int])
         if motion > 0:
             out[j] = float(np.sqrt(np.mean((q_rad[:, j] - q_ref_rad[:, j]) ** 2))) / motion
     return out
+
+
+def row_accounting(moving: np.ndarray, fast: np.ndarray, usable: np.ndarray, joints: list[int],
+                   reach2_s: float) -> dict:
+    """Where the candidate rows (kept sample, joint commanded to move) went: ``near_stop`` (within the first
+    filter's reach of a stop or of the record's ends: the diagnosis' ``moving`` mask), ``slow`` (below
+    ``MIN_SPEED_RAD_S``), ``filter_reach`` (sliding, but within the second filter's reach of such a sample),
+    ``used``."""
+    j = list(joints)
+    mv, fa, us = moving[:, j], fast[:, j], usable[:, j]
+    return {"candidates": int(mv.size), "near_stop": int((~mv).sum()), "slow": int((mv & ~fa).sum()),
+            "filter_reach": int((mv & fa & ~us).sum()), "used": int(us.sum()), "second_filter_reach_s":
+            float(reach2_s), "min_speed_rad_s": MIN_SPEED_RAD_S}
 
 
 def _dilate(mask: np.ndarray, reach: int) -> np.ndarray:
@@ -229,9 +251,11 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
     if reach2:
         usable[:reach2] = usable[-reach2:] = False
     joints = [j for j in sig.joints if usable[:, j].any()]
+    accounting = row_accounting(sig.moving[keep], np.abs(sig.qd_rad_s[keep]) >= MIN_SPEED_RAD_S, usable,
+                                list(sig.joints), reach2 * dt)
     return RunRows(str(data.source), sig.t_s[keep], sig.q_rad[keep], sig.qd_rad_s[keep], tau, usable, Y, Z,
                    joints, dict(sig.skipped), dt, sig.reach * sig.dt_s + reach2 * dt, window_s, gauss_s,
-                   tracking_shares(sig.q_raw_rad, sig.q_ref_rad, joints))
+                   tracking_shares(sig.q_raw_rad, sig.q_ref_rad, joints), accounting)
 
 
 
