@@ -63,8 +63,10 @@ RECORDINGS = (
 
 
 def run(args: list[str]) -> tuple[int, str]:
-    """Run a wamctl command; its exit code and everything it printed."""
+    """Run a wamctl command; its exit code and what it printed (stdout alone when it exits 0 with --json)."""
     done = subprocess.run([WAMCTL, *args], capture_output=True, text=True, cwd=ROOT)
+    if done.returncode == 0 and "--json" in args:
+        return 0, done.stdout.strip()
     return done.returncode, (done.stdout + done.stderr).strip()
 
 
@@ -150,6 +152,87 @@ def joint1_reference(run_dir: Path, holdout: float) -> dict:
             "relative_error": round(float(np.linalg.norm(err) / np.linalg.norm(tau1[test])), 4)}
 
 
+def model_torque(q, qd, qdd, model_file: Path | None):
+    """Torque of the datasheet arm (``None``: Table 4.1 friction) or of a wamctl-model/1 file (links, friction and
+    a payload effect, as `identify` and `diagnose` write them; what the file leaves out stays the datasheet's)."""
+    from wamctl.io import load_yaml
+    from wamctl.model.dynamics import Payload, WamDynamics
+    from wamctl.model.friction import FrictionModel
+    from wamctl.model.params import LinkParameters
+
+    data = load_yaml(model_file) if model_file else {}
+    links = LinkParameters.datasheet().with_overrides(data.get("links"))
+    load = (data.get("effects") or {}).get("payload")
+    payload = Payload(float(load["mass_kg"]), tuple(load.get("com_m") or (0.0, 0.0, 0.0))) if load else None
+    friction = (FrictionModel.from_dict(data["friction"]) if data.get("friction")
+                else FrictionModel.table_4_1())
+    return WamDynamics(payload=payload, links=links).inverse_dynamics_many(q, qd, qdd) + friction.friction_torque(qd)
+
+
+def held_out_models(test_run: Path, models: dict[str, Path | None]) -> dict:
+    """Each model's torque RMS per moving joint and relative error on the whole of ``test_run`` (a run kept out
+    of every fit), unfiltered torque, Savitzky-Golay accelerations, the filter's ends left out."""
+    frame = pd.read_csv(test_run / "data.csv")
+    t_s = frame["t_s"].to_numpy()
+    q_cols = joint_columns(frame, "q_", "_rad")
+    joints = [int(c.split("_")[1]) for c in q_cols]
+    q = frame[q_cols].to_numpy()
+    qd = frame[[f"qd_{j}_rad_s" for j in joints]].to_numpy()
+    tau = frame[[f"tau_{j}_Nm" for j in joints]].to_numpy()
+    dt_s = float(np.median(np.diff(t_s)))
+    window = int(round(SAVGOL_WINDOW_S / dt_s)) | 1
+    qdd = savgol_filter(q, window, 3, deriv=2, delta=dt_s, axis=0)
+    rows = slice(window, len(t_s) - window)
+    moving = [k for k in range(len(joints)) if np.ptp(q[:, k]) > MOVING_RANGE_RAD]
+    out = {"rows": len(t_s) - 2 * window, "moving_joints": [joints[k] for k in moving]}
+    for label, path in models.items():
+        err = (tau - model_torque(q, qd, qdd, path))[rows]
+        out[label] = {"rms_Nm": {joints[k]: round(float(np.sqrt(np.mean(err[:, k] ** 2))), 3) for k in moving},
+                      "relative_error_moving": round(float(np.linalg.norm(err[:, moving])
+                                                           / np.linalg.norm(tau[rows][:, moving])), 4),
+                      "relative_error_all": round(float(np.linalg.norm(err) / np.linalg.norm(tau[rows])), 4)}
+    return out
+
+
+def import_json(records: list[dict], path: Path, out: Path, name: str) -> Path:
+    """JointState records as a CSV whose reference is the measured position and velocity (the workaround a user
+    has while the analyses want a reference), imported with ``--format csv``."""
+    pd.DataFrame({"time": [r["time"] for r in records],
+                  **{f"pos{j + 1}": [r["position"][j] for r in records] for j in range(7)},
+                  **{f"vel{j + 1}": [r["velocity"][j] for r in records] for j in range(7)},
+                  **{f"eff{j + 1}": [r["effort"][j] for r in records] for j in range(7)}}
+                 ).to_csv(path, index=False, float_format="%.17g")
+    code, text = run(["import", str(path), "--format", "csv", "--robot", "wam7", "--torque", "total",
+                      "--columns", "t=time,q=pos{j},qd=vel{j},tau=eff{j},q_ref=pos{j},qd_ref=vel{j}",
+                      "--out", str(out), "--name", name, "--json"])
+    if code != 0:
+        raise SystemExit(f"import of {path}: {first_error(text)}")
+    return Path(json.loads(text[text.index("{"):])["run_dir"])
+
+
+def reference_is_measurement(source: Path, out: Path, holdout: float) -> None:
+    """identify and diagnose on the first part of a JointState log whose reference is set to the measurement,
+    every model then checked on the last part, which no fit has seen."""
+    records = json.loads(source.read_text())
+    out.mkdir(parents=True, exist_ok=True)
+    n_train = int(round(len(records) * (1.0 - holdout)))
+    train = import_json(records[:n_train], out / "train.csv", out / "runs", "train")
+    test = import_json(records[n_train:], out / "test.csv", out / "runs", "held-out")
+    models: dict[str, Path | None] = {"datasheet arm + Table 4.1 friction": None}
+    for command in (["identify", str(train), "--validate", str(test)], ["diagnose", str(train)]):
+        code, text = run([*command, "--out", str(out / "analyses"), "--json"])
+        if code != 0:
+            print(f"  wamctl {command[0]} (reference = measurement): exit {code}: {first_error(text)}")
+            continue
+        summary = json.loads(text[text.index("{"):])
+        print(f"  wamctl {command[0]} (reference = measurement): exit 0; "
+              + (summary["held_out_check"]["statement"] if command[0] == "identify"
+                 else f"effects found: {summary['effects_found']}"))
+        models[f"{command[0]}'s model.yaml"] = Path(summary["run_dir"]) / "model.yaml"
+    print(f"  on the last {holdout:.0%} ({len(records) - n_train} records): "
+          f"{json.dumps(held_out_models(test, models))}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--data", type=Path, required=True, help="folder with one sub-folder per recording")
@@ -179,6 +262,8 @@ def main() -> None:
             code, text = run([*command, str(run_dir), "--out", str(args.out / "analyses")])
             tail = first_error(text) if code != 0 else text.splitlines()[-1] if text else ""
             print(f"  wamctl {' '.join(command)}: exit {code}: {tail}")
+        if rec.file.endswith(".json"):
+            reference_is_measurement(source, args.out / rec.name, args.holdout)
 
 
 if __name__ == "__main__":
