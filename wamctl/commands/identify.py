@@ -32,10 +32,14 @@ def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, 
 
     with progress_bar("excitation design", enabled=not (quiet or json)) as progress:
         path, design, use = run_excite(spec, out, progress)
+    import json as json_module
+
+    outlook = json_module.loads((path / "design.json").read_text())["instruments_outlook"]
     if json:
         emit_json({"out": str(path), "spec": str(path / "excitation.yaml"), "condition_number":
                    design.condition_number, "criterion": design.criterion, "limits_used": {
-                       k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in use.used.items()}})
+                       k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in use.used.items()},
+                   "instruments_outlook": outlook})
         return
     if not quiet:
         from wamctl.report.document import Document
@@ -44,6 +48,7 @@ def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, 
         shares = limits_table(use)[[c for c in limits_table(use).columns if c.endswith("_used_pct")]]
         print_document_tables(Document("Excitation design").table("limits used (%)", shares.rename(
             columns=lambda c: c.removesuffix("_used_pct")), digits=1))
+    console.print(outlook["statement"], highlight=False)
     console.print(f"condition number {design.condition_number:.4g} ({design.criterion}, {design.n_target} base "
                   f"parameters); limits used: {limits_summary(use)}\ndesigned spec: {path / 'excitation.yaml'} "
                   f"(run it with `wamctl run`)  report: {path / 'report.md'}", highlight=False)

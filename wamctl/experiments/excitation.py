@@ -24,6 +24,7 @@ from wamctl.analysis.identification.excitation import (
     FourierTrajectory,
     LimitUse,
     design_excitation,
+    predicted_tracking_share,
     sampled_limit_use,
 )
 from wamctl.backends import make_backend
@@ -111,6 +112,28 @@ class ExcitationPlan(Plan):
         return done
 
 
+def instruments_outlook(spec: ExcitationSpec, traj: FourierTrajectory, base_dir: Path | None = None) -> dict:
+    """What ``wamctl identify`` will do with a run of this trajectory under the spec's controller: the predicted
+    tracking error per moving joint (:func:`predicted_tracking_share`) and which joints' rows the reference will
+    instrument (at most ``TRACKING_SHARE`` of the motion) or least squares will fit, with one sentence."""
+    from wamctl.analysis.identification.data import TRACKING_SHARE
+
+    dyn, friction = declared_model(spec, base_dir)
+    kp, kd, _ = spec.controller.gains()
+    share = predicted_tracking_share(traj, dyn, friction, kp, kd)
+    moving = [j + 1 for j in traj.moving]
+    ls = [j for j in moving if not share[j - 1] <= TRACKING_SHARE]
+    statement = ("identify will use instrumental variables (the reference) on every moving joint (predicted "
+                 f"tracking error at most {100 * np.nanmax(share):.0f} % of the motion; the limit is "
+                 f"{100 * TRACKING_SHARE:.0f} %)") if not ls else (
+        "identify will fit joint(s) " + ", ".join(map(str, ls)) + " by least squares, not instrumental variables: "
+        + "; ".join(f"joint {j}'s predicted tracking error is {100 * share[j - 1]:.0f} % of its motion under "
+                    f"kp {kp[j - 1]:g}" for j in ls)
+        + f" (the reference is an instrument up to {100 * TRACKING_SHARE:.0f} %; raise the gain or the amplitude)")
+    return {"tracking_share_predicted": {j: float(share[j - 1]) for j in moving}, "threshold": TRACKING_SHARE,
+            "least_squares_joints": ls, "statement": statement}
+
+
 def limits_summary(use: LimitUse) -> str:
     parts = []
     for kind, label in LIMIT_LABELS.items():
@@ -132,6 +155,7 @@ def plan(spec: ExcitationSpec, base_dir: Path | None = None) -> ExcitationPlan:
                f"({ex.design.criterion})",
                f"controller {spec.controller.kind}, backend {spec.backend.kind}",
                f"limits used: {limits_summary(use)}",
+               instruments_outlook(spec, traj, base_dir)["statement"],
                f"{len(ref)} ticks at {P.CONTROL_RATE_HZ:.0f} Hz = {len(ref) / P.CONTROL_RATE_HZ:.1f} s of arm time"]
     return ExcitationPlan(ref, summary, feedforward_for(spec, ref, base_dir), trajectory=traj, limit_use=use)
 
@@ -186,11 +210,13 @@ def excite(spec_path: Path, out: Path | None = None, progress=None) -> tuple[Pat
     header = (f"# designed by `wamctl excite {spec_path.name}`: {des.criterion}, condition number "
               f"{des.condition_number:.4g} over {des.n_target} base parameters\n")
     (out / "excitation.yaml").write_text(header + yaml.safe_dump(designed, sort_keys=False))
+    outlook = instruments_outlook(spec, des.trajectory, base_dir)
     summary = {"spec": str(spec_path.resolve()), "criterion": des.criterion, "objective": des.objective,
+               "instruments_outlook": outlook,
                "condition_number": des.condition_number, "base_parameters_targeted": des.n_target,
                "starts": des.starts, "limits_used": _use_dict(use), "trajectory": des.trajectory.to_dict()}
     (out / "design.json").write_text(_json(summary))
-    design_document(spec, des, use, limits_of(spec), out)
+    design_document(spec, des, use, limits_of(spec), out, outlook)
     return out, des, use
 
 

@@ -31,8 +31,9 @@ def limits_table(use) -> pd.DataFrame:
     return pd.DataFrame(rows).set_index("joint")
 
 
-def design_document(spec, design, use, limits, out_dir: Path) -> Document:
-    """The report of a design (written into ``out_dir`` as report.md/html/json + a figure of one period)."""
+def design_document(spec, design, use, limits, out_dir: Path, outlook: dict | None = None) -> Document:
+    """The report of a design (written into ``out_dir`` as report.md/html/json + a figure of one period);
+    ``outlook``: :func:`wamctl.experiments.excitation.instruments_outlook`."""
     ex = spec.excitation
     doc = Document(f"Excitation design: {spec.name}")
     doc.text(f"Fourier series of {ex.harmonics} harmonics, period {ex.period_s:g} s, joints {ex.joints}, q0 = "
@@ -44,6 +45,12 @@ def design_document(spec, design, use, limits, out_dir: Path) -> Document:
              + f", {worst[2]:.0%} used; wrist speed peak {use.peak['cartesian_speed']:.3f} m/s of "
                f"{limits.cartesian_speed_m_s:g} m/s. All limits checked at {P.CONTROL_RATE_HZ:.0f} Hz over the "
                "whole period.")
+    if outlook:
+        doc.text(outlook["statement"][0].upper() + outlook["statement"][1:] + ". Predicted tracking error over "
+                 "the motion per joint (PD + gravity, the spec's gains, the declared model): "
+                 + ", ".join(f"joint {j} {100 * v:.1f} %" for j, v in outlook["tracking_share_predicted"].items())
+                 + ".")
+        doc.data["instruments_outlook"] = outlook
     doc.heading("Limits reached")
     doc.table("limits", limits_table(use), "peak of each quantity over one period and the share of its "
               "limit used (position: distance from the middle of the range with margin, as a share of its half).")
