@@ -27,7 +27,8 @@ CHECK_JS = r"""
 window.addEventListener('load', () => {
   const vw = window.innerWidth, bottom = document.body.getBoundingClientRect().bottom;
   const out = {viewport: vw, height: Math.ceil(bottom) + 24,
-    page_width: document.documentElement.scrollWidth, tables: [], images: [], too_wide: [], split_numbers: []};
+    page_width: document.documentElement.scrollWidth, tables: [], images: [], too_wide: [], split_numbers: [],
+    wide_notes: [...document.querySelectorAll('.wide-note')].map(p => p.textContent), hidden_columns: {}};
   const inScroll = el => el.closest('.tw') !== null && !el.classList.contains('tw');
   for (const el of document.body.querySelectorAll('*')) {
     const r = el.getBoundingClientRect();
@@ -38,6 +39,9 @@ window.addEventListener('load', () => {
     const head = t.querySelector('thead th');
     const rows = [...t.querySelectorAll('tbody tr')];
     const keys = rows.map(tr => tr.firstElementChild);
+    if (box) { const right = box.getBoundingClientRect().right;
+      out.hidden_columns[t.dataset.name || '?'] =
+        [...t.querySelectorAll('thead th')].filter(h => h.getBoundingClientRect().right > right + 1).length; }
     out.tables.push({name: t.dataset.name || '?', key: head ? head.innerText.replace(/\s+/g, '') : '',
       key_marked: !!head && head.classList.contains('key') && keys.every(c => c.classList.contains('key')),
       key_values: keys.map(c => c.innerText.trim()),

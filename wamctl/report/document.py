@@ -302,7 +302,7 @@ class Document:
         return (f"<!doctype html><html lang='en'><head><meta charset='utf-8'>"
                 f"<meta name='viewport' content='width=device-width, initial-scale=1'>"
                 f"<title>{html.escape(self.title)}</title><style>{_STYLE}</style></head>"
-                f"<body>{''.join(body)}</body></html>")
+                f"<body>{''.join(body)}{_WIDE_TABLES_JS}</body></html>")
 
     def to_json(self) -> dict:
         tables = {}
@@ -377,7 +377,16 @@ _STYLE = (
     "body{font-family:system-ui,sans-serif;max-width:1180px;margin:1.5em auto;padding:0 1em;color:#222;"
     "line-height:1.4}"
     "h1{font-size:1.6em}h2{font-size:1.25em;margin-top:1.6em}"
-    ".tw{overflow-x:auto;max-width:100%;margin:0.8em 0}"
+    # a table wider than the page scrolls inside its box: a shadow on the side with more columns (CSS only,
+    # Lea Verou's scroll shadows), a scrollbar that stays drawn, and a line above it saying so (_WIDE_TABLES_JS)
+    ".tw{overflow-x:auto;max-width:100%;margin:0.8em 0;background:"
+    "linear-gradient(to right,#fff 30%,rgba(255,255,255,0)) left/2.5em 100% no-repeat local,"
+    "linear-gradient(to left,#fff 30%,rgba(255,255,255,0)) right/2.5em 100% no-repeat local,"
+    "radial-gradient(farthest-side at 0 50%,rgba(0,0,0,.28),rgba(0,0,0,0)) left/14px 100% no-repeat scroll,"
+    "radial-gradient(farthest-side at 100% 50%,rgba(0,0,0,.28),rgba(0,0,0,0)) right/14px 100% no-repeat scroll}"
+    ".tw::-webkit-scrollbar{height:10px}.tw::-webkit-scrollbar-thumb{background:#aaa;border-radius:5px}"
+    ".tw::-webkit-scrollbar-track{background:#eee}"
+    ".wide-note{color:#8a5a00;font-size:0.88em;margin:0.8em 0 -0.5em}"
     "table.t{border-collapse:collapse;font-size:0.92em}"
     "table.t th,table.t td{padding:3px 8px;border-bottom:1px solid #ddd;text-align:right;vertical-align:top}"
     "table.t thead th{vertical-align:bottom;font-weight:600;border-bottom:2px solid #999;max-width:11em;"
@@ -391,6 +400,16 @@ _STYLE = (
     "figure{margin:1em 0}img{max-width:100%;height:auto}"
     ".warn{background:#fff4ce;border-left:4px solid #e0a800;padding:0.5em 0.8em}"
 )
+
+
+# once the page is laid out: above every table wider than its box, how many columns lie beyond the right edge
+_WIDE_TABLES_JS = (
+    "<script>addEventListener('load',()=>{for(const b of document.querySelectorAll('.tw')){"
+    "if(b.scrollWidth<=b.clientWidth+1)continue;const r=b.getBoundingClientRect().right;"
+    "const n=[...b.querySelectorAll('thead th')].filter(h=>h.getBoundingClientRect().right>r+1).length;"
+    "const p=document.createElement('p');p.className='wide-note';"
+    "p.textContent=`\u2192 ${n} more column${n===1?'':'s'} to the right: scroll the table sideways`;"
+    "b.before(p);}});</script>")
 
 
 def _header_html(name: str) -> str:
