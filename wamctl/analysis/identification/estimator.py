@@ -13,14 +13,16 @@ Method (``InertialIdentification(...).fit(runs)``)
 4. Instrumental variables: in closed loop the actuation noise moves the arm, so the measured accelerations
    are correlated with the torque residual and least squares is biased (on the simulator: held-out RMS 2-18x
    the noise floor). The instruments are the reference's regressor through the same filters (exogenous, close
-   to the motion; :func:`.data.reference_tracks` decides per run, else that run's rows enter by least
-   squares).
+   to the motion; :attr:`.data.RunRows.reference_tracks` decides per joint, else that joint's rows enter by
+   least squares; :meth:`InertialIdentification.instruments_statement` says which and why).
 5. Uncertainty: the residuals of filtered signals are correlated in time, so the covariance is a
    heteroskedasticity- and autocorrelation-consistent sandwich (Newey-West, statsmodels' ``S_hac_simple``)
    over each run's per-sample scores (the joints of one sample summed: their errors are correlated too),
    ``nlags`` covering ``HAC_REACHES`` filter reaches (at least Newey and West's rule).
 6. The physically consistent estimate, a convex program (cvxpy, Clarabel): standard parameters minimising the
-   Mahalanobis distance of their base parameters to the IV estimate (metric: its HAC covariance) plus a prior
+   Mahalanobis distance of their base parameters to the IV estimate (metric: its HAC precision, formed from the
+   regressor's QR factors as ``R^T S_Q^-1 R``, never by inverting the covariance: on a short log where two
+   joints move the covariance's condition number is 1e14 and its inverse lost the torque) plus a prior
    at the declared arm, subject to every link's pseudo-inertia positive definite (a linear matrix inequality),
    armature and friction levels non-negative. The prior is weak (``PRIOR_WEIGHT``: ten times
    :func:`prior_scale`) along the standard directions that move a base parameter, and full along those that
