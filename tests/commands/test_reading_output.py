@@ -107,3 +107,33 @@ def test_long_paths_are_printed_whole(sweep_cli):
     wrote = [ln for ln in rep.out.splitlines() if ln.startswith("wrote ")]
     assert len(wrote) == 3 and all(re.fullmatch(r"wrote /\S+/report\.(md|html|json)", ln) for ln in wrote), wrote
     assert all(len(ln) > 80 for ln in wrote)
+
+
+def test_run_help_names_every_kind_a_spec_can_have():
+    from wamctl.specs.registry import SPEC_KINDS
+
+    r = run_cli("run", "--help", columns=200)
+    first = " ".join(r.out.split()).split("Run any experiment spec (")[1].split(")")[0]
+    assert sorted(first.split(", ")) == sorted(SPEC_KINDS) and "excitation" in SPEC_KINDS
+
+
+@pytest.mark.parametrize("field,value,said", [
+    ("plant.friction", "table_4_2", "'table_4_2' is neither a friction name (table_4_1, none) nor a friction model "
+                                    "file; did you mean table_4_1?"),
+    ("plant.friction", "Table41", "'Table41' is neither a friction name (table_4_1, none) nor a friction model "
+                                  "file; did you mean table_4_1?"),
+    ("plant.friction", "datasheet", "'datasheet' is neither a friction name (table_4_1, none) nor a friction "
+                                    "model file"),
+    ("controller.friction_ff", "tabel_4_1", "'tabel_4_1' is neither a friction name (table_4_1, none) nor a "
+                                            "friction model file; did you mean table_4_1?"),
+    ("plant.friction", "missing.yaml", "friction model file not found: missing.yaml")])
+def test_a_misspelt_friction_name_gets_the_valid_names(tmp_path, field, value, said):
+    spec = {"kind": "rotation", "name": "x", "rotation": {"joints": [7]}}
+    if field == "plant.friction":
+        spec["plant"] = {"friction": value}
+    else:
+        spec["controller"] = {"kind": "pd_g_ff", "friction_ff": value}
+    for cmd in ("validate", "run --dry-run"):
+        r = run_cli(*cmd.split(), write_yaml(tmp_path / "s.yaml", spec))
+        assert r.code == 2 and r.exc is None
+        assert r.err.strip().splitlines() == [f"error: {tmp_path / 's.yaml'}: {field}: {said}"], r.err

@@ -13,7 +13,8 @@ def run(spec: SpecArg, out: OutOpt = None,
         dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan and check every setpoint "
                                               "against the limits; move nothing.")] = False,
         quiet: QuietOpt = False, json: JsonOpt = False, yes: YesOpt = False):
-    """Run any experiment spec (rotation, friction_sweep, ift, hmi_block) into a new run directory, then report.
+    """Run any experiment spec (rotation, friction_sweep, ift, hmi_block, excitation) into a new run directory,
+    then report.
 
     The run directory (runs/<UTC time>-<name>/) holds the resolved spec, a manifest (seed, versions, git
     revision, backend, status), the data as Parquet and CSV, events, and the report. Exit code 0 when the run

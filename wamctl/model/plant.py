@@ -54,8 +54,23 @@ def resolve_friction(value, base_dir: Path | None = None) -> FrictionModel:
         return FrictionModel.from_dict(value, "plant.friction")
     path = resolve_path(value, base_dir)
     if not path.is_file():
-        raise SpecError(f"friction model file not found: {value}")
+        raise SpecError(_not_found(str(value)))
     return FrictionModel.load(path)
+
+
+FRICTION_NAMES = ("table_4_1", "none")    # the friction a spec can name instead of giving a file
+
+
+def _not_found(value: str) -> str:
+    """The error for a friction value that is no file: a value that reads as a misspelt name (no folder, no
+    file suffix) gets the valid names, the closest first."""
+    import difflib
+
+    if "/" in value or "." in value:
+        return f"friction model file not found: {value}"
+    close = difflib.get_close_matches(value.lower(), FRICTION_NAMES, n=1, cutoff=0.5)
+    return (f"{value!r} is neither a friction name ({', '.join(FRICTION_NAMES)}) nor a friction model file"
+            + (f"; did you mean {close[0]}?" if close else ""))
 
 
 def joint_mask(joints) -> np.ndarray:
