@@ -78,3 +78,11 @@ def test_report_of_nothing_but_non_runs_is_one_line_exit_2(tmp_path):
     assert r.code == 2 and r.exc is None
     assert r.err.strip().count("\n") == 0, r.err
     assert "x.txt: a file, not a run directory" in r.err and "missing: no such file or directory" in r.err
+
+
+def test_export_prints_its_paths_whole(one_run, tmp_path):
+    to = tmp_path / ("a-folder-name-long-enough-that-the-line-passes-eighty-columns-" + "y" * 30)
+    r = run_cli("export", one_run, "--to", to)
+    assert r.code == 0, r.err
+    lines = [ln for ln in r.out.splitlines() if ln.startswith("exported ")]
+    assert len(lines) == 1 and lines[0].endswith(f" -> {to}") and len(lines[0]) > 80, r.out

@@ -17,7 +17,7 @@ def export_cmd(run_dir: Annotated[Path, typer.Argument(help="A run directory.", 
     """Export a run in the measured-run format (wamctl-measured/1): meta.yaml + data.parquet (or data.csv)."""
     from wamctl.runs.measured import export_run
     p = export_run(run_dir, to, "csv" if csv else "parquet")
-    console.print(f"exported {run_dir} -> {p}", highlight=False)
+    console.print(f"exported {run_dir} -> {p}", highlight=False, soft_wrap=True)   # paths whole
 
 
 def import_cmd(

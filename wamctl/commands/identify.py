@@ -110,10 +110,10 @@ def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (mea
     console.print(check["statement"], style=None if check["verdict"] == "better" else "bold red", highlight=False)
     if check["model_written"]:
         console.print(("model (written because of --force): " if check["forced"] else "model: ")
-                      + f"{path / 'model.yaml'}\nrun directory: {path}", highlight=False)
+                      + f"{path / 'model.yaml'}\nrun directory: {path}", highlight=False, soft_wrap=True)
     else:
         console.print(f"model NOT written as model.yaml (kept as {path / result['model_file']}; --force writes it)"
-                      f"\nrun directory: {path}", highlight=False)
+                      f"\nrun directory: {path}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
