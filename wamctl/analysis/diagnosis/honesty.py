@@ -47,7 +47,8 @@ def against_declared(diag) -> dict:
     """{0-based joint: {"torque_rms_declared_Nm", "torque_rms_final_Nm", "ratio", "worse", "note"}} for every
     diagnosed joint: the held-out torque RMS of the declared model (classic friction fitted on the same data, or
     the given model file's) and of the final model as the model file writes it; ``worse`` when the final one is
-    larger."""
+    larger. Where the two differ, ``note`` says how the figure relates to model.yaml (the arm's payload added;
+    a link refit that the file does not carry)."""
     out = {}
     payload = getattr(diag, "payload_", None) is not None and getattr(diag, "payload_pi_", None)
     for j, res in diag.joints_.items():
@@ -56,6 +57,9 @@ def against_declared(diag) -> dict:
         if payload and not own and "payload" in diag.jd_[j].extra:
             after = rms_with_arm_payload(diag, j)
             note = "with the arm's payload, which the model file carries and this joint's own model did not keep"
+        if any(t["name"] == "link_parameters" for t in res.kept):
+            note = "; ".join(x for x in (note, "with the arm's link refit, which model.yaml does not carry (it "
+                                               "writes effects and the declared links)") if x)
         ok = np.isfinite(before) and np.isfinite(after)
         out[j] = {"torque_rms_declared_Nm": float(before), "torque_rms_final_Nm": float(after),
                   "ratio": float(after / before) if ok and before > 0 else float("nan"),
