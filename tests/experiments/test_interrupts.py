@@ -270,3 +270,31 @@ def test_sigterm_during_diagnose_marks_its_run_directory_interrupted(tmp_path):
         assert "its report was interrupted" in err and not (made[0].parent / "report.html").exists(), err
     else:
         assert m["status"] == "interrupted" and m["reason"] == "stopped by SIGTERM", m
+
+
+SWEEP = {"kind": "rotation", "name": "tiny", "seed": 0, "q0_rad": Q0,
+         "plant": {"friction": "table_4_1", "sensors": {"position_noise_rad": 1e-4}},
+         "rotation": {"joints": [1, 7], "mode": "all_together", "amplitude_rad": 0.05, "velocity_rad_s": 0.25,
+                      "tc_s": 0.1, "settle_s": 0.0, "hold_s": 0.1},
+         "vary": {"grid": {"seed": [1, 2, 3, 4]}}}
+
+
+def test_ctrl_c_to_the_process_group_while_the_sweep_cluster_starts(tmp_path):
+    """Ctrl-C reaches every process of the terminal's group: while the Dask workers were starting it cut their
+    imports (a traceback per worker, "Nanny failed to start", exit 1). Sent here as soon as the sweep has
+    three child processes (the resource tracker and the first workers, still importing)."""
+    spec = tmp_path / "sweep.yaml"
+    spec.write_text(yaml.safe_dump(SWEEP))
+    runs = tmp_path / "runs"
+    proc = subprocess.Popen([sys.executable, "-m", "wamctl", "sweep", str(spec), "--out", str(runs), "--workers",
+                             "2", "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+                            start_new_session=True, preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
+    import psutil
+    made = _wait_for(lambda: list(runs.glob("*-sweep/index.csv")) if runs.exists() else [], proc)
+    # the moment the worker processes are spawned (they import distributed for a second or more)
+    _wait_for(lambda: len(psutil.Process(proc.pid).children(recursive=True)) >= 3, proc)
+    os.killpg(proc.pid, signal.SIGINT)
+    _, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err[-3000:]
+    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err[-3000:]
+    assert err.startswith(f"error: {made[0].parent}: sweep interrupted, "), err

@@ -207,9 +207,9 @@ def analyse_recorded(source: Path, out: Path | None = None, name: str | None = N
                         {"backend": {"name": "sim" if rd.truth is not None else src_backend},
                          "analysed_from": str(source.resolve())})
     run.write_table("data", rd.data)
-    run.finish("completed", None)
     target = run.path
     write_identification(target, ident)
+    run.finish("completed", None)    # after the friction model: an interrupt before it leaves the run `interrupted`
     header = f"Recorded sweep {source} ({'run directory' if src_spec else 'measured run'})."
     doc = friction_document(rd, ident, target, f"Friction identification: {name or source.name}", header)
     doc.write(target, "report")

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import logging
 import os
+from contextlib import contextmanager
 
 from wamctl.errors import BackendError
 
@@ -53,11 +54,31 @@ def start_local_cluster(n_workers: int | None = None):
     # through its future (the exception, or KilledWorker after the allowed deaths) and is written to the index;
     # what the workers log at ERROR is the cluster's plumbing, e.g. a heartbeat that finds the scheduler gone
     # while the cluster closes after Ctrl-C on a loaded machine, printed with a traceback after "sweep interrupted".
-    cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                       dashboard_address=":0", silence_logs=logging.CRITICAL)
+    with _sigint_blocked():
+        cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
+                                           dashboard_address=":0", silence_logs=logging.CRITICAL)
     client = distributed.Client(cluster)
     client.register_plugin(_ignore_sigint_plugin(), name="wamctl-ignore-sigint")
     return cluster, client
+
+
+@contextmanager
+def _sigint_blocked():
+    """SIGINT blocked in this thread while the cluster starts (issue 32): the processes and threads started
+    meanwhile inherit the mask, so a Ctrl-C to the process group cannot cut a worker's start-up (a traceback
+    per worker, then "Nanny failed to start"); this process gets it when the block ends."""
+    import signal
+    from multiprocessing import resource_tracker
+    resource_tracker.ensure_running()     # started later, it would unblock SIGINT in this thread (SIG_UNBLOCK)
+    try:
+        old = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
+    except (AttributeError, OSError, ValueError):
+        yield
+        return
+    try:
+        yield
+    finally:
+        signal.pthread_sigmask(signal.SIG_SETMASK, old)
 
 
 def _ignore_sigint_plugin():
