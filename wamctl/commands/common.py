@@ -251,10 +251,8 @@ def show_outcome(outcome, quiet: bool, as_json: bool, files: dict | None = None)
         for line in loop_warnings:
             if line not in said:
                 console.print(Text.assemble(("warning: ", "bold yellow"), line))
-        colour = "green" if outcome.status == "completed" else "red"
-        msg = f"[{colour}]{outcome.status}[/]" + (f": {outcome.reason}" if outcome.reason else "")
-        lines = [f"{msg}  run directory: {outcome.path}"] + [f"{k.replace('_', ' ')}: {v}" for k, v in shown.items()
-                                                             if v is not None]
+        lines = [status_line(outcome.status, outcome.reason, outcome.path)] + [
+            f"{k.replace('_', ' ')}: {v}" for k, v in shown.items() if v is not None]
         (console if outcome.status == "completed" else err_console).print("\n".join(lines), highlight=False,
                                                                           soft_wrap=True)
     if outcome.status != "completed":
