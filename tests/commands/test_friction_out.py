@@ -37,3 +37,26 @@ def test_help_says_what_out_means():
     r = run_cli("friction-id", "--help", columns=200)
     out = " ".join(r.out.split())
     assert "--out <path> Parent directory of the new directory written (a run directory with a spec or --data" in out
+
+
+def test_compare_writes_a_new_folder_under_out(tmp_path):
+    from cli_runs import ROTATION
+
+    runs = {}
+    for kind in ("pd_g", "pd_g_ff"):
+        ctl = {"kind": kind, **({"friction_ff": "table_4_1"} if kind == "pd_g_ff" else {})}
+        spec = dict(ROTATION, name=kind, controller=ctl, rotation=dict(ROTATION["rotation"], joints=[7]))
+        r = run_cli("run", write_yaml(tmp_path / f"{kind}.yaml", spec), "--out", tmp_path / kind, "--quiet")
+        assert r.code == 0, r.err
+        (runs[kind],) = (tmp_path / kind).iterdir()
+    for _ in range(2):
+        r = run_cli("friction-id", "--compare", runs["pd_g"], "--compare", runs["pd_g_ff"], "--out", tmp_path / "c",
+                    "--quiet")
+        assert r.code == 0, r.err
+    made = sorted((tmp_path / "c").iterdir())
+    assert len(made) == 2 and all(p.name.endswith("-ff-comparison") for p in made)
+    for p in made:
+        assert sorted(f.name for f in p.glob("ff_comparison.*")) == ["ff_comparison.html", "ff_comparison.json",
+                                                                   "ff_comparison.md"]
+    assert [ln.split()[-1] for ln in r.out.splitlines() if ln.startswith("wrote ")] == \
+        [str(made[-1] / f"ff_comparison.{f}") for f in ("md", "html", "json")]
