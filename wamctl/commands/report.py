@@ -52,7 +52,7 @@ def report(run_dirs: Annotated[list[Path] | None, typer.Argument(help="One or mo
                    "skipped": [{"path": str(p), "why": why} for p, why in done.skipped]})
         return
     for p, why in done.skipped:
-        console.print(f"skipped {p}: {why}", highlight=False, soft_wrap=True)
+        console.print(f"skipped ({why}): {p}", highlight=False, soft_wrap=True)   # the path last, whole
     ended = [(p, m) for p, m in done.runs if m.get("status") != "completed"]
     for p, m in ended:     # first: a report of a run that did not complete reads as one that did
         console.print(status_line(m.get("status"), m.get("reason"), p), highlight=False, soft_wrap=True)
