@@ -11,7 +11,7 @@ import pandas as pd
 from wamctl.errors import DataFormatError
 from wamctl.hmi.strategy import Hold, Motion
 from wamctl.model import params as P
-from wamctl.runs.store import atomic_write
+from wamctl.runs.store import atomic_write, signals_deferred
 
 MOTION_CODES: tuple[str, ...] = tuple(m.value for m in Motion)
 HOLD_CODES: tuple[str, ...] = tuple(h.value for h in Hold)
@@ -52,10 +52,11 @@ def read_done(run_path: Path) -> tuple[list[dict], list[dict]]:
 def write_tables(run_path: Path, trial_rows: list[dict], event_rows: list[dict]) -> None:
     """``trials.csv/.parquet`` (in trial order) and ``hmi_events.csv``."""
     trials = pd.DataFrame(trial_rows, columns=TRIAL_TABLE_COLUMNS).sort_values("trial")
-    atomic_write(run_path / f"{TRIALS_TABLE}.csv", lambda p: trials.to_csv(p, index=False))
-    atomic_write(run_path / f"{TRIALS_TABLE}.parquet", lambda p: trials.to_parquet(p, index=False))
     events = pd.DataFrame(event_rows, columns=EVENT_COLUMNS)
-    atomic_write(run_path / EVENTS_FILE, lambda p: events.to_csv(p, index=False))
+    with signals_deferred():    # the three files agree whenever Ctrl-C comes (issue 32)
+        atomic_write(run_path / f"{TRIALS_TABLE}.csv", lambda p: trials.to_csv(p, index=False))
+        atomic_write(run_path / f"{TRIALS_TABLE}.parquet", lambda p: trials.to_parquet(p, index=False))
+        atomic_write(run_path / EVENTS_FILE, lambda p: events.to_csv(p, index=False))
 
 
 def write_trajectory_part(run_path: Path, number: int, rows: list[list[float]]) -> None:
@@ -73,5 +74,6 @@ def consolidate_trajectory(run_path: Path) -> None:
     if not parts:
         return
     df = pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
-    df.to_parquet(run_path / f"{TRAJECTORY_TABLE}.parquet", index=False)
-    df.to_csv(run_path / f"{TRAJECTORY_TABLE}.csv", index=False)
+    with signals_deferred():    # never a half-written file (issue 32)
+        df.to_parquet(run_path / f"{TRAJECTORY_TABLE}.parquet", index=False)
+        df.to_csv(run_path / f"{TRAJECTORY_TABLE}.csv", index=False)

@@ -24,7 +24,7 @@ from wamctl.experiments.ift.state import (
     write_parquet,
 )
 from wamctl.report.ift import ITERATIONS_TABLE
-from wamctl.runs.store import RunDir, atomic_write_text, utc_now
+from wamctl.runs.store import RunDir, atomic_write_text, signals_deferred, utc_now
 from wamctl.specs.ift import IftSpec, gain_bounds
 
 
@@ -47,14 +47,15 @@ class IftTuner(IftExperiments):
                 "joints": {str(j): st.to_dict() for j, st in self.joints.items()}}
 
     def save_state(self) -> None:
-        atomic_write_text(self.run.path / STATE_FILE, json.dumps(self.state_dict(), indent=2))
-        df = iterations_frame(self.rows)
-        write_parquet(self.run.path / f"{ITERATIONS_TABLE}.parquet", df)
-        df.to_csv(self.run.path / f"{ITERATIONS_TABLE}.csv", index=False)
-        self.run.flush_events()
-        self.run.update_manifest(ift={"last_completed_iteration": self.iteration, "phase": self.phase,
-                                      "plant_experiments": self.plant_experiments,
-                                      "model_experiments": self.model_experiments})
+        with signals_deferred():   # the state, its tables and the manifest agree whenever Ctrl-C comes (issue 32)
+            atomic_write_text(self.run.path / STATE_FILE, json.dumps(self.state_dict(), indent=2))
+            df = iterations_frame(self.rows)
+            write_parquet(self.run.path / f"{ITERATIONS_TABLE}.parquet", df)
+            df.to_csv(self.run.path / f"{ITERATIONS_TABLE}.csv", index=False)
+            self.run.flush_events()
+            self.run.update_manifest(ift={"last_completed_iteration": self.iteration, "phase": self.phase,
+                                          "plant_experiments": self.plant_experiments,
+                                          "model_experiments": self.model_experiments})
 
     def load_state(self) -> None:
         path = self.run.path / STATE_FILE
