@@ -90,6 +90,22 @@ def test_a_move_cut_off_in_its_hold_is_not_finished_and_a_whole_one_is():
     assert whole["rpe_pct"].tolist() == pytest.approx([100 * 1e-3 * np.tanh(0.5) / 0.5])
 
 
+def test_a_plan_without_a_settle_starts_one_step_into_its_move_and_still_finishes():
+    # the sweep tests' tiny rotation: 0.05 rad at 0.25 rad/s, t_c 0.1 s, no settle: the first sample of the
+    # reference is already 5e-6 rad into the move (a tenth of a thousandth of the amplitude)
+    from wamctl.experiments.rotation import plan
+    from wamctl.specs import parse_spec
+    rot = {"mode": "all_together", "amplitude_rad": 0.05, "velocity_rad_s": 0.25, "tc_s": 0.1, "settle_s": 0.0,
+           "hold_s": 0.1}
+    spec = parse_spec({"kind": "rotation", "q0_rad": [0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0], "rotation": rot})
+    ref = plan(spec).reference
+    data = pd.DataFrame({"t_s": ref.t_s} | {f"q_ref_{j}_rad": ref.q_rad[:, j - 1] for j in range(1, 8)}
+                        | {f"q_{j}_rad": ref.q_rad[:, j - 1] - 1e-3 for j in range(1, 8)})
+    table = rotation_table(data, {"controller": {"kind": "pd_g"}, "rotation": rot})
+    assert list(table.index) == list(range(1, 8)) and "move" not in table
+    assert table["rpe_pct"].tolist() == pytest.approx([2.0] * 7, rel=1e-3)
+
+
 def test_the_report_of_an_interrupted_run_warns_first_scores_no_cut_move_and_plots_the_whole_run(tmp_path,
                                                                                                  monkeypatch):
     from wamctl.analysis.loop_events import TORQUE_SATURATION, LoopEvent

@@ -25,8 +25,9 @@ import pandas as pd
 from wamctl.model import params as P
 
 MOVE_TOL_RAD = 1e-9
-END_TOL = 1e-4
-"""A move reached its planned end when its reference came within this fraction of the amplitude of it."""
+END_TOL = 1e-3
+"""A move reached its planned end when its reference came within this fraction of the amplitude of it (the
+first sample of a run without a settle is already one step into the move: 5e-6 rad of a 0.05 rad move)."""
 
 
 @dataclass

@@ -120,12 +120,24 @@ def planning_dynamics(spec: Common, base_dir: Path | None = None) -> WamDynamics
                        declared_links(spec.controller.declared_links, base_dir))
 
 
-def planned_torque_Nm(spec: Common, reference: Reference, base_dir: Path | None = None) -> np.ndarray:
+def _declared_friction(spec: Common, base_dir: Path | None):
+    """The friction the spec declares (``plant.friction``); none when it cannot be read (a missing file is
+    :func:`wamctl.specs.common.check_files`' to name, or the run's: the torque check does not pre-empt it)."""
+    from wamctl.errors import WamctlError
+    from wamctl.model.friction import FrictionModel
+    try:
+        return resolve_friction(spec.plant.friction, base_dir)
+    except WamctlError:
+        return FrictionModel.zero()
+
+
+def planned_torque_Nm(spec: Common, reference: Reference, base_dir: Path | None = None,
+                      friction=None) -> np.ndarray:
     """(n, 7) torque the reference needs at every pose, N m: rigid body (gravity, Coriolis, acceleration) of
-    :func:`planning_dynamics` plus the spec's friction (``plant.friction``: Coulomb level in the direction of
-    motion and viscous term)."""
+    :func:`planning_dynamics` plus the spec's friction (``friction``, default ``plant.friction``: the Coulomb
+    level in the direction of motion and the viscous term)."""
     dyn = planning_dynamics(spec, base_dir)
-    friction = resolve_friction(spec.plant.friction, base_dir)
+    friction = _declared_friction(spec, base_dir) if friction is None else friction
     return (dyn.inverse_dynamics_many(reference.q_rad, reference.qd_rad_s, reference.qdd_rad_s2)
             + friction.friction_torque(reference.qd_rad_s))
 
@@ -139,7 +151,8 @@ def check_planned_torque(spec: Common, reference: Reference, base_dir: Path | No
     so the plan is refused, as the friction sweep refuses one whose gravity load leaves too little: a SpecError
     naming the first such move (its index among the plan's moves, label, times), the joint, the torque needed
     (gravity, friction, the rest) and the limit. Returns the check made."""
-    need = planned_torque_Nm(spec, reference, base_dir)
+    friction = _declared_friction(spec, base_dir)
+    need = planned_torque_Nm(spec, reference, base_dir, friction)
     ratio = np.abs(need) / P.TAU_MAX_NM
     over = ratio > 1.0
     if not over.any():
@@ -159,7 +172,7 @@ def check_planned_torque(spec: Common, reference: Reference, base_dir: Path | No
     k, j = np.unravel_index(int(np.argmax(ratio[i0:i1])), ratio[i0:i1].shape)
     k += i0
     gravity = planning_dynamics(spec, base_dir).gravity(reference.q_rad[k])[j]
-    coulomb = resolve_friction(spec.plant.friction, base_dir).friction_torque(reference.qd_rad_s[k])[j]
+    coulomb = friction.friction_torque(reference.qd_rad_s[k])[j]
     rest = need[k, j] - gravity - coulomb
     where = f"move {move_no} of {n_moves}" if move_no else "hold"
     more = f"; {len(bad) - 1} more segment{'s' if len(bad) > 2 else ''} too" if len(bad) > 1 else ""
