@@ -78,7 +78,7 @@ def check_statement(check: dict) -> str:
              + (f" (checked: {ratios})" if ratios else ""))
     if check["not_moving_joints"]:
         s += (f"; joint(s) {', '.join(map(str, check['not_moving_joints']))} did not move: not identified "
-              "(their parameters stay the declared arm's)")
+              "(what only they could show stays the declared arm's)")
     return s
 
 

@@ -86,8 +86,10 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
             f"Rank {ident['rank']} of {ident['n_base']} base parameters (condition number over the determined "
             f"directions {ident['condition_number_identified']:.4g}).")
     if ident["undetermined"]:
-        text += (f" Not identified (the data cannot determine them; their values stay the declared arm's): "
-                 f"{', '.join(ident['undetermined'])}.")
+        text += (f" Not identified (the data cannot determine them one by one, so no number is printed): "
+                 f"{', '.join(ident['undetermined'])}. Every standard parameter no data row sees keeps the declared "
+                 "arm's value; the others move only as far as the combinations the data see require (the declared "
+                 "arm decides the split).")
     weak = [r["parameter"] for r in result["base"] if r["status"] == "weak"]
     if weak:
         text += (f" Weakly identified (the declared arm weighs more than the data): {', '.join(weak)}.")
