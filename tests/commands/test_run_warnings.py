@@ -4,6 +4,7 @@ reference is one warning line (not one per tick), within 80 columns, also with -
 from __future__ import annotations
 
 import json
+import uuid
 
 from cli_runs import Q0, run_cli, write_yaml
 
@@ -29,3 +30,18 @@ def test_a_joint_stuck_at_its_torque_limit_is_one_warning_line_after_the_run(tmp
     r = run_cli("run", spec, "--out", tmp_path / "runs", "--json")
     assert r.code == 0, r.err
     assert json.loads(r.out)["warnings"] == [x.removeprefix("warning: ") for x in lines]
+
+
+def test_a_failed_run_on_the_can_arm_says_its_warnings_too(tmp_path):
+    # the same stuck joint over CAN (simulated pucks), the E-stop pressed at cycle 400 (0.8 s): the run fails,
+    # no report is written, and the loop's warnings are still said before the status line
+    spec = dict(STUCK, name="stuck-can", rotation=dict(STUCK["rotation"]),
+                backend={"kind": "can", "interface": "virtual", "channel": f"wamctl-test-{uuid.uuid4().hex[:12]}",
+                         "simulate_pucks": True, "watchdog_cycles": 25, "reply_timeout_s": 0.05,
+                         "simulated_fault": {"kind": "estop", "at_cycle": 400}})
+    r = run_cli("run", write_yaml(tmp_path / "stuck_can.yaml", spec), "--out", tmp_path / "runs", "--quiet")
+    assert r.exc is None and r.code == 1, r.tb or r.err
+    assert "failed: safety limit: E-stop on the pendant" in r.err
+    lines = [x for x in r.out.splitlines() if x.startswith("warning: ")]
+    assert [x.split(" 0.")[0] for x in lines] == ["warning: joint 1 at torque limit", "warning: joint 1 error >"]
+    assert lines[0].endswith("-0.80 s (0.6 s), peak +25.0 N m")      # until the E-stop at 0.8 s
