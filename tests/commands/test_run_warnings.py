@@ -1,12 +1,14 @@
 """Issue 32, item 2, on the terminal: after a run, each stretch of a joint at its torque limit or off its
-reference is one warning line (not one per tick), within 80 columns, also with --quiet, and in --json."""
+reference is one warning line (not one per tick), within 80 columns, also with --quiet, in --json and after a
+failed run; and validate / run --dry-run refuse a plan that would saturate, in one line."""
 
 from __future__ import annotations
 
 import json
 import uuid
 
-from cli_runs import Q0, run_cli, write_yaml
+import yaml
+from cli_runs import Q0, ROOT, run_cli, write_yaml
 
 # Joint 1 with a breakaway of 6 x its Coulomb level (26.8 N m) above its 25 N m limit: it never starts, the PD
 # error grows until its torque sits at the limit. The plan check cannot see it (it uses the Coulomb level the
@@ -45,3 +47,15 @@ def test_a_failed_run_on_the_can_arm_says_its_warnings_too(tmp_path):
     lines = [x for x in r.out.splitlines() if x.startswith("warning: ")]
     assert [x.split(" 0.")[0] for x in lines] == ["warning: joint 1 at torque limit", "warning: joint 1 error >"]
     assert lines[0].endswith("-0.80 s (0.6 s), peak +25.0 N m")      # until the E-stop at 0.8 s
+
+
+def test_validate_and_dry_run_refuse_the_old_demo_in_one_line(tmp_path):
+    # configs/rotation.yaml before issue 32 (+0.5 rad): joint 2's return needs more than its 20 N m
+    raw = yaml.safe_load((ROOT / "configs" / "rotation.yaml").read_text())
+    raw["rotation"]["amplitude_rad"] = 0.5
+    spec = write_yaml(tmp_path / "old_demo.yaml", raw)
+    for args in (("validate", spec), ("run", spec, "--dry-run")):
+        r = run_cli(*args)
+        assert r.exc is None and r.code == 2, (args, r.tb, r.out)
+        assert r.err.startswith("error: rotation: move 4 of 14 (return joint 2, 24.07-31.09 s) would saturate joint 2")
+        assert len(r.err.strip().splitlines()) == 1 and "nothing moved" not in r.out
