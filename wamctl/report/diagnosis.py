@@ -180,6 +180,9 @@ def _figures(run_path: Path, out_dir: Path, result: dict, doc: Document) -> None
     if pos_path.is_file():
         pos = pd.read_parquet(pos_path)
         t = pos["t_s"].to_numpy()
+        if len(t) > 2:      # windows spread over a long run: no line drawn across the stretch not simulated
+            dt = np.diff(t)
+            pos = pos.mask(pd.Series(np.r_[False, dt > 1.5 * np.median(dt)], index=pos.index), axis=0)
         fig, axes = joint_grid(len(joints), "Measured positions and closed-loop re-simulation (held-out)",
                                height_per_row=2.4)
         for ax, j in zip(axes, joints):
