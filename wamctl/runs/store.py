@@ -357,8 +357,9 @@ class RunDir:
             if not w.closed:
                 try:
                     w.close()
-                except Exception:  # noqa: BLE001 - the chunks stay readable; the run's outcome is what matters
-                    log.exception("%s: consolidating %s failed; its chunks stay", self.path, w.name)
+                except Exception as exc:  # noqa: BLE001 - the chunks stay readable; the run's outcome matters
+                    log.warning("%s: consolidating %s failed (%s: %s); its chunks stay readable", self.path,
+                                w.name, type(exc).__name__, exc)
 
     # ------------------------------------------------------------------ tables
     def table(self, name: str, columns: list[str], chunk_rows: int = 2500) -> TableWriter:
@@ -400,9 +401,15 @@ def end_open_runs(reason: str) -> list[Path]:
     the runner (an analysis writing its run directory)."""
     ended = []
     for run in list(_OPEN_RUNS.values()):
-        run.close_tables()
-        run.finish("interrupted", reason)
-        ended.append(run.path)
+        _OPEN_RUNS.pop(run.path, None)
+        if not (run.path / "manifest.json").is_file():      # removed meanwhile: nothing to mark
+            continue
+        try:
+            run.close_tables()
+            run.finish("interrupted", reason)
+            ended.append(run.path)
+        except (OSError, ValueError, DataFormatError) as exc:
+            log.warning("%s: marking it interrupted failed (%s)", run.path, exc)
     return ended
 
 
