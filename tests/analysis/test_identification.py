@@ -124,7 +124,7 @@ def test_model_file_runs_the_identified_arm_and_feeds_the_controller(arm, tmp_pa
     datasheet's."""
     run_path, result, doc = identify_to_run_dir([arm["train"]], [arm["held"]], out=tmp_path, force=True)
     # the held-out check against the datasheet arm with friction fitted: better on joints 1-4 and 6 (0.09-0.95x),
-    # worse on the wrist joints 5 and 7 (1.065x, 1.010x: links off by 20 % there change less than the estimate's
+    # worse on the wrist joints 5 and 7 (1.013x, 1.007x: links off by 20 % there change less than the estimate's
     # noise), so without --force the model would be model_rejected.yaml; the verdict is in the file all the same
     check = result["held_out_check"]
     print("held-out check", check["verdict"], {j: round(r, 4) for j, r in check["ratio"].items()})
@@ -222,7 +222,7 @@ def test_unusable_input_is_one_line_and_exit_code_2(tmp_path):
 def test_a_run_that_does_not_excite_the_arm_is_not_offered_as_a_model(tmp_path):
     """Issue 32: identify on the demo's rotation run offered a model 5800x worse than the datasheet on joints 6-7,
     exit 0, no warning. A rotation run of joints 6 and 7 (0.3 rad at 0.083 rad/s, the demo's settings), identified
-    with its last quarter held out: the held-out check fails on joint 7 (3.1x the declared arm's RMS measured),
+    with its last quarter held out: the held-out check fails on joint 7 (2.95x the declared arm's RMS measured),
     joint 6 has no held-out rows and is said unchecked, joints 1-5 did not move and are said not identified, and
     the model is written as model_rejected.yaml, never model.yaml."""
     spec = {"kind": "rotation", "name": "rot67", "seed": 1, "backend": {"kind": "sim"},

@@ -62,6 +62,7 @@ SIGNAL_SHARE = 0.99     # of the reference's acceleration energy that sets the s
 BAND_MARGIN = 3.0       # the second filter's cut-off at least this many times the signal band
 TRACKING_SHARE = 0.2    # a joint whose reference is further from its motion is fitted by least squares
 MIN_SPEED_RAD_S = 0.02  # slower sliding is left out (see the module doc)
+HELD_RANGE_RAD = 0.05   # a joint without sliding rows whose position spans less than this is held (at rest)
 WINDOWS_S = (0.06, 0.08, 0.1, 0.15, 0.2, 0.3, 0.4)     # candidate Savitzky-Golay windows (Gaussian: a quarter)
 
 
@@ -225,11 +226,12 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
     sliding = sig.moving & (np.abs(sig.qd_rad_s) >= MIN_SPEED_RAD_S)
     sliding[:, [j for j in range(N7) if j not in sig.joints]] = False
     sliding = sliding[keep]
-    # a joint that never slides nor reaches MIN_SPEED_RAD_S is held: its speed and acceleration are the sensors'
-    # noise (on a real log with
+    # a joint that never slides, and never reaches MIN_SPEED_RAD_S or spans less than HELD_RANGE_RAD, is held:
+    # its speed and acceleration are the sensors' noise (on a real log with
     # a noisy or missing reference, that noise made 48 of 76 base parameters look determined from two moving
     # joints); at rest in both regressors, what only it could show stays undetermined, at the declared arm
-    held = ~sliding.any(axis=0) & (np.abs(sig.qd_rad_s[keep]).max(axis=0) < MIN_SPEED_RAD_S)
+    held = ~sliding.any(axis=0) & ((np.abs(sig.qd_rad_s[keep]).max(axis=0) < MIN_SPEED_RAD_S)
+                                   | (np.ptp(sig.q_rad, axis=0) < HELD_RANGE_RAD))
     q, qd, qdd = sig.q_rad[keep].copy(), sig.qd_rad_s[keep].copy(), sig.qdd_rad_s2[keep].copy()
     q_ref, qd_ref, qdd_ref = (sig.smooth(sig.q_ref_rad, d)[keep] for d in (0, 1, 2))
     for a in (qd, qdd, qd_ref, qdd_ref):
