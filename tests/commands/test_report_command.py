@@ -86,3 +86,13 @@ def test_export_prints_its_paths_whole(one_run, tmp_path):
     assert r.code == 0, r.err
     lines = [ln for ln in r.out.splitlines() if ln.startswith("exported ")]
     assert len(lines) == 1 and lines[0].endswith(f" -> {to}") and len(lines[0]) > 80, r.out
+
+
+def test_diagnose_prints_its_run_directory_whole(one_run, tmp_path):
+    """The path alone on its line, unwrapped: rich broke a path longer than the terminal mid-word."""
+    long = tmp_path / ("a-folder-name-long-enough-that-the-path-passes-eighty-columns-" + "z" * 30)
+    assert run_cli("export", one_run, "--to", tmp_path / "m").code == 0
+    r = run_cli("diagnose", tmp_path / "m", "--out", long, "--quiet")
+    assert r.code == 0, r.err
+    (made,) = long.iterdir()
+    assert f"run directory: {made}" in r.out.splitlines(), r.out

@@ -57,7 +57,8 @@ def diagnose(data: DataArg,
     amb = "; ".join(" / ".join(g) for g in result.get("ambiguous") or [])
     msg = f"effects found: {found}" + (f" (ambiguous: {amb})" if amb else "") if result.get("conclusive") \
         else f"nothing concluded: {result.get('reason')}"
-    console.print(f"{msg}  run directory: {path}", highlight=False)
+    console.print(msg, highlight=False)
+    console.print(f"run directory: {path}", highlight=False, soft_wrap=True)     # alone and whole: to be copied
 
 
 def register(app: typer.Typer) -> None:
