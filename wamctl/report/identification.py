@@ -104,8 +104,9 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     doc.heading("Base parameters")
     doc.table("parameters", parameter_table(result), "estimate: the physically consistent estimate; interval: "
               f"{100 * (1 - spec.get('options', {}).get('alpha', 0.05)):.0f} % (posterior: data with HAC "
-              "errors + a weak prior at the declared arm); moved_se: (estimate - declared) / standard error; "
-              "data_share: the data's share of the information. Expressions in parameters.csv.", digits=5)
+              "errors + a prior at the declared arm, 30 % of each declared value); moved_se: (estimate - declared) "
+              "/ standard error; data_share: the data's share of the information. Expressions in parameters.csv.",
+              digits=5)
     _moved_figure(result, out_dir, doc)
     doc.heading("Physical consistency")
     doc.table("links", links_table(model, result["pseudo_inertia_margin"]),
