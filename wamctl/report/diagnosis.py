@@ -56,9 +56,12 @@ def summary_table(result: dict) -> pd.DataFrame:
 
 
 def position_span(result: dict) -> str | None:
-    """Which part of the run the closed-loop position check simulated, in one line (None: no check ran)."""
+    """Which part of the run the closed-loop position check simulated, or why it was skipped, in one line (None:
+    nothing was checked, as when nothing was concluded)."""
     pc = result.get("position_check") or {}
     spans = pc.get("spans_s")
+    if pc.get("skipped"):
+        return f"position check: skipped ({pc['skipped']})"
     if not spans:
         return None
     if pc.get("whole_run"):
@@ -282,7 +285,7 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     elif (pc.get("controller_gains") or {}).get("source"):
         doc.text(f"Closed-loop check: controller gains {pc['controller_gains']['source']}.")
     span = position_span(result)
-    if span:
+    if span and not pc.get("skipped"):         # a skipped check is said above
         doc.text(span[0].upper() + span[1:] + ".")
     for line in not_diagnosed(result):
         doc.text(line[0].upper() + line[1:] + ".")

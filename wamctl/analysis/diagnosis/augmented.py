@@ -200,11 +200,11 @@ def check_windows(sig, window: int = WINDOW_SAMPLES, budget: int = MAX_SIM_SAMPL
     velocity there: near rest, the state is known best)."""
     n = sig.n
     window = max(min(int(window), int(budget)), 10)
-    speed = np.max(np.abs(sig.qd_rad_s) / np.maximum(sig.v_stick_rad_s, 1e-6)[None, :], axis=1)
+    v_stick = np.maximum(sig.v_stick_rad_s, 1e-6)[None, :]
 
-    def restful(a: int, b: int) -> int:          # the slowest sample in [a, b)
+    def restful(a: int, b: int) -> int:          # the slowest sample in [a, b), speed in stick thresholds
         b = min(max(b, a + 1), n)
-        return a + int(np.argmin(speed[a:b]))
+        return a + int(np.argmin(np.max(np.abs(sig.qd_rad_s[a:b]) / v_stick, axis=1)))
 
     if n <= budget:
         bounds, a = [], 0

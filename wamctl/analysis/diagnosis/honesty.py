@@ -48,7 +48,8 @@ def against_declared(diag) -> dict:
     diagnosed joint: the held-out torque RMS of the declared model (classic friction fitted on the same data, or
     the given model file's) and of the final model as the model file writes it; ``worse`` when the final one is
     larger. Where the two differ, ``note`` says how the figure relates to model.yaml (the arm's payload added;
-    a link refit that the file does not carry)."""
+    the arm's delay not counted at a joint whose own model left it out; a link refit that the file does not
+    carry)."""
     out = {}
     payload = getattr(diag, "payload_", None) is not None and getattr(diag, "payload_pi_", None)
     for j, res in diag.joints_.items():
@@ -57,6 +58,9 @@ def against_declared(diag) -> dict:
         if payload and not own and "payload" in diag.jd_[j].extra:
             after = rms_with_arm_payload(diag, j)
             note = "with the arm's payload, which the model file carries and this joint's own model did not keep"
+        if "delay" in diag.effects_found_ and not any(t["name"] == "delay" for t in res.kept):
+            note = "; ".join(x for x in (note, "without the arm's delay, which model.yaml writes for every joint "
+                                               "and this joint's own model left out (not counted here)") if x)
         if any(t["name"] == "link_parameters" for t in res.kept):
             note = "; ".join(x for x in (note, "with the arm's link refit, which model.yaml does not carry (it "
                                                "writes effects and the declared links)") if x)
