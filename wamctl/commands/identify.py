@@ -79,8 +79,9 @@ def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (mea
 
     Held-out check: the identified model must predict held-out torque (the --validate runs, else the last quarter
     of each run) at least as well as the declared arm with friction fitted on the same data, on every joint that
-    moves. If it does not (or cannot be checked), the model is written as model_rejected.yaml, not model.yaml
-    (unless --force), and the command exits with code 3. Exit code 2 for unusable data.
+    moves, or be above it by less than the held-out data can tell (Diebold-Mariano, one-sided, 5 %; said with the
+    ratio and p). If it is significantly worse (or cannot be checked), the model is written as model_rejected.yaml,
+    not model.yaml (unless --force), and the command exits with code 3. Exit code 2 for unusable data.
     """
     from wamctl.commands.common import print_document_tables, progress_bar
     from wamctl.experiments.identify import identify_to_run_dir
@@ -107,7 +108,7 @@ def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (mea
                   + (f"; not identified: {', '.join(und)}" if und else "")
                   + f"; physically consistent: {'yes' if result['consistent'] else 'no'}\n"
                   f"instruments: {result['instruments']}", highlight=False)
-    console.print(check["statement"], style=None if check["verdict"] == "better" else "bold red", highlight=False)
+    console.print(check["statement"], style={"better": None, "no_worse": "yellow"}.get(check["verdict"], "bold red"), highlight=False)
     if check["model_written"]:
         console.print(("model (written because of --force): " if check["forced"] else "model: ")
                       + f"{path / 'model.yaml'}\nrun directory: {path}", highlight=False, soft_wrap=True)

@@ -14,10 +14,13 @@ compare with ``wamctl diagnose``'s.
 
 The held-out check (:func:`held_out_check`): on every joint with held-out rows the identified model's torque RMS
 is compared with the nominal model's (the declared arm with friction fitted on the same rows). ``better``: at
-most the nominal's on every such joint; ``worse``: above it on at least one; ``not_checked``: a joint that was
-fitted has no held-out rows (or none has). Only a ``better`` model is written as ``model.yaml``; otherwise it
-is written as ``model_rejected.yaml`` (``force=True``: as ``model.yaml`` all the same), and the verdict is in
-identification.json, the model file and the report's first lines.
+most the nominal's on every such joint; ``no_worse``: above it on some joint, but by less than the held-out data
+can tell (Diebold and Mariano's test of equal predictive accuracy, one-sided at 5 %, with a HAC variance: the
+filtered residuals are correlated in time), each such joint said with its ratio and p; ``worse``: above it, and
+significantly, on at least one; ``not_checked``: a joint that was fitted has no held-out rows (or none has). A
+``better`` or ``no_worse`` model is written as ``model.yaml``; otherwise as ``model_rejected.yaml``
+(``force=True``: as ``model.yaml`` all the same), and the verdict is in identification.json, the model file and
+the report's first lines.
 """
 
 from __future__ import annotations
@@ -32,30 +35,51 @@ from wamctl.errors import DataFormatError, SpecError
 log = logging.getLogger(__name__)
 HOLD_OUT_SHARE = 0.25
 REJECTED_MODEL = "model_rejected.yaml"
+WRITTEN_VERDICTS = ("better", "no_worse")   # written as model.yaml; any other only with --force
 
 
-def held_out_check(validation: dict, fitted_joints: list[int]) -> dict:
-    """The verdict of the held-out check (see the module doc) from :func:`validation_of`'s RMS and the 0-based
-    joints with fitting rows: ``{verdict, ratio: {joint: identified / nominal}, worse_joints, unchecked_joints,
-    not_moving_joints}`` (1-based joints)."""
+def held_out_check(validation: dict, fitted_joints: list[int], alpha: float = 0.05) -> dict:
+    """The verdict of the held-out check (see the module doc) from :func:`validation_of`'s RMS and comparison and
+    the 0-based joints with fitting rows: ``{verdict, ratio: {joint: identified / nominal}, p_worse: {joint: p},
+    worse_joints, within_noise_joints, unchecked_joints, not_moving_joints}`` (1-based joints).
+
+    A joint is ``worse`` when its identified RMS is above the nominal's and Diebold and Mariano's test rejects
+    "not worse" at ``alpha`` (one-sided); above it but not rejected, it is ``within noise`` of the nominal (the
+    held-out data cannot tell the two apart), and said with its ratio."""
     nom = np.asarray(validation["rms"]["nominal"], float)
     idf = np.asarray(validation["rms"]["identified"], float)
+    comp = validation.get("comparison", {})
     checked = [j for j in range(len(nom)) if np.isfinite(nom[j]) and np.isfinite(idf[j]) and nom[j] > 0]
     ratio = {j + 1: float(idf[j] / nom[j]) for j in checked}
-    worse = [j for j, r in ratio.items() if r > 1.0]
+    p_worse = {j + 1: float(comp[j]["p_worse"]) if j in comp else float("nan") for j in checked}
+    above = [j for j, r in ratio.items() if r > 1.0]
+    # a joint above the nominal is worse unless the test says the held-out data cannot tell (p >= alpha)
+    worse = [j for j in above if not (np.isfinite(p_worse[j]) and p_worse[j] >= alpha)]
+    within = [j for j in above if j not in worse]
     unchecked = [j + 1 for j in fitted_joints if j not in checked]
-    verdict = "worse" if worse else ("not_checked" if unchecked or not checked else "better")
+    if worse:
+        verdict = "worse"
+    elif unchecked or not checked:
+        verdict = "not_checked"
+    else:
+        verdict = "no_worse" if within else "better"
     moved = set(fitted_joints) | set(checked)
-    return {"verdict": verdict, "ratio": ratio, "worse_joints": worse, "unchecked_joints": unchecked,
+    return {"verdict": verdict, "ratio": ratio, "p_worse": p_worse, "worse_joints": worse,
+            "within_noise_joints": within, "unchecked_joints": unchecked,
             "not_moving_joints": [j + 1 for j in range(len(nom)) if j not in moved],
             "rule": "identified held-out torque RMS <= nominal's (declared arm, friction fitted on the same data) "
-                    "on every joint that moves"}
+                    f"on every joint that moves, or above it by less than the held-out data can tell (Diebold-"
+                    f"Mariano, one-sided, HAC variance, alpha {alpha})"}
 
 
 def _ratio(r: float) -> str:
     """Three significant digits, more where those would read 1 for a ratio that is not exactly 1."""
     t = f"{r:.3g}"
     return t if float(t) != 1.0 or r == 1.0 else f"{r:.5f}"
+
+
+def _p(p: float) -> str:
+    return "p < 1e-4" if p < 1e-4 else f"p = {p:.2g}"
 
 
 def check_statement(check: dict) -> str:
@@ -65,10 +89,16 @@ def check_statement(check: dict) -> str:
     if v == "better":
         s = (f"held-out check: the identified model is at least as good as the declared arm with friction fitted "
              f"on every joint that moves (identified / declared RMS: {ratios})")
+    elif v == "no_worse":
+        within = ", ".join(f"joint {j} {_ratio(check['ratio'][j])}x ({_p(check['p_worse'][j])})"
+                           for j in check["within_noise_joints"])
+        s = (f"held-out check: the identified model is no worse than the declared arm with friction fitted within "
+             f"what the held-out data can tell; above it on {within}, not significantly (identified / declared "
+             f"RMS: {ratios})")
     elif v == "worse":
+        worse = ", ".join(f"{j} ({_p(check['p_worse'][j])})" for j in check["worse_joints"])
         s = (f"held-out check FAILED: the identified model predicts held-out torque worse than the declared arm "
-             f"with friction fitted on joint(s) {', '.join(map(str, check['worse_joints']))} "
-             f"(identified / declared RMS: {ratios})")
+             f"with friction fitted on joint(s) {worse} (identified / declared RMS: {ratios})")
         if check["unchecked_joints"]:
             s += (f"; not checked (no held-out rows): joint(s) "
                   f"{', '.join(map(str, check['unchecked_joints']))}")
@@ -190,7 +220,8 @@ def validation_of(est, held) -> dict:
         pnom, _, _, _ = est.predict(vr, "nominal", m)
         traces.append({"run": i, "t_s": vr.t_s[k], "joint": j + 1, "measured_Nm": y, "nominal_Nm": pnom,
                        "identified_Nm": pid})
-    return {"rms": rms, "traces": traces, "sources": [vr.source for vr in rows]}
+    return {"rms": rms, "comparison": est.held_out_comparison(rows, masks), "traces": traces,
+            "sources": [vr.source for vr in rows]}
 
 
 def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = None, model: Path | None = None,
@@ -220,9 +251,9 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
     held = {str(j + 1): {k: _num(validation["rms"][k][j]) for k in ("nominal", "identified")} for j in range(7)}
     fitted = sorted({j for rr in est.rows_ for j in rr.joints})
     check = held_out_check(validation, fitted)
-    model_name = "model.yaml" if check["verdict"] == "better" or force else REJECTED_MODEL
+    model_name = "model.yaml" if check["verdict"] in WRITTEN_VERDICTS or force else REJECTED_MODEL
     check.update(statement=check_statement(check), model_written=model_name == "model.yaml", forced=bool(
-        force and check["verdict"] != "better"))
+        force and check["verdict"] not in WRITTEN_VERDICTS))
     result = dict(est.to_dict(), held_out_check=check, model_file=model_name,
                   validation={k: [_num(v) for v in a] for k, a in validation["rms"].items()},
                   validation_sources=validation["sources"], provenance=provenance,

@@ -55,8 +55,9 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     check = result.get("held_out_check")
     if check:
         doc.text(check_first_lines(check, model_name))
-        doc.data["held_out_check"] = {k: check[k] for k in ("verdict", "ratio", "worse_joints", "unchecked_joints",
-                                                            "not_moving_joints", "model_written")}
+        doc.data["held_out_check"] = {k: check.get(k) for k in ("verdict", "ratio", "p_worse", "worse_joints",
+                                                                "within_noise_joints", "unchecked_joints",
+                                                                "not_moving_joints", "model_written")}
     ident = result["identifiability"]
     prov = result["provenance"]
     held = prov["validation"]
@@ -120,7 +121,7 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
 def check_first_lines(check: dict, model_name: str) -> str:
     """The report's first lines: the held-out check's statement and what was written."""
     s = check["statement"][0].upper() + check["statement"][1:] + "."
-    if check["verdict"] != "better":
+    if check["verdict"] not in ("better", "no_worse"):
         s += (f" The model is written as {model_name}"
               + (" because --force was given." if model_name == "model.yaml" else
                  ", not model.yaml: it is not an identified arm to use (wamctl identify --force writes it as "
