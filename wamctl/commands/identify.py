@@ -108,7 +108,8 @@ def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (mea
                   + (f"; not identified: {', '.join(und)}" if und else "")
                   + f"; physically consistent: {'yes' if result['consistent'] else 'no'}\n"
                   f"instruments: {result['instruments']}", highlight=False)
-    console.print(check["statement"], style={"better": None, "no_worse": "yellow"}.get(check["verdict"], "bold red"), highlight=False)
+    style = {"better": None, "no_worse": "yellow"}.get(check["verdict"], "bold red")
+    console.print(check["statement"], style=style, highlight=False)
     if check["model_written"]:
         console.print(("model (written because of --force): " if check["forced"] else "model: ")
                       + f"{path / 'model.yaml'}\nrun directory: {path}", highlight=False, soft_wrap=True)
