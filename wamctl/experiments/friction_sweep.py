@@ -24,6 +24,7 @@ from wamctl.backends import make_backend
 from wamctl.control.trajectory import ReferenceBuilder
 from wamctl.experiments.common import (
     Plan,
+    check_planned_torque,
     closed_loop_stage,
     declared_dynamics,
     feedforward_for,
@@ -77,11 +78,20 @@ def plan(spec: FrictionSweepSpec, base_dir: Path | None = None) -> Plan:
     for j in s.joints:
         summary.append(f"  joint {j}: first {'+' if spec.first_sign(j) > 0 else '-'}, speeds {s.speeds(j)} rad/s, "
                        "travel " + ", ".join(f"{s.move_travel(j, v, kp):.3g}" for v in s.speeds(j)) + " rad")
+    val = {}
     if spec.validation is not None:
         val = validation_specs(spec, None)
         extra = sum(len(_rotation_plan(v).reference) for v in val.values()) / P.CONTROL_RATE_HZ
         summary.append(f"then the rotation test under pd_g and pd_g_ff (identified model): {extra:.1f} s more")
-    return Plan(ref, summary, feedforward_for(spec, ref, base_dir))
+
+    def torque_check() -> str:   # the sweep's and the validation rotation's poses, as a rotation test's
+        checks = [check_planned_torque(spec, ref, base_dir, "sweep")]
+        if val:
+            v = next(iter(val.values()))    # both strategies run the same reference
+            checks.append("validation: " + check_planned_torque(v, _rotation_plan(v).reference, base_dir,
+                                                                "validation"))
+        return "; ".join(checks)
+    return Plan(ref, summary, feedforward_for(spec, ref, base_dir), torque_check=torque_check)
 
 
 # ------------------------------------------------------------------------------------------------ execute

@@ -9,7 +9,7 @@ from pydantic import ValidationError
 
 from wamctl.control.trajectory import Reference, ReferenceBuilder
 from wamctl.errors import SpecError
-from wamctl.experiments.common import Plan, declared_feedforward_Nm
+from wamctl.experiments.common import Plan, check_planned_torque, declared_feedforward_Nm
 from wamctl.io import resolve_path
 from wamctl.model import params as P
 from wamctl.model.friction import FrictionModel
@@ -78,8 +78,10 @@ def plan(spec: IftSpec, base_dir: Path | None = None) -> Plan:
     ret = returns_to_start(spec)
     refs = [task_reference(spec, j, ret)[0] for j in s.joints]
     q = np.concatenate([r.q_rad for r in refs])   # every joint's experiment once, for the limit checks
+    starts = np.cumsum([0] + [len(r) for r in refs[:-1]])
     ref = Reference(np.arange(len(q)) * DT_S, q, np.concatenate([r.qd_rad_s for r in refs]),
-                    np.concatenate([r.qdd_rad_s2 for r in refs]), [])
+                    np.concatenate([r.qdd_rad_s2 for r in refs]),
+                    [(int(i0 + i), label) for i0, r in zip(starts, refs) for i, label in r.segments])
     # the model and the measured runs must resolve now (a dry run names a missing file)
     mspec, mdir = model_plant_spec(spec, base_dir)
     Plant(mspec, mdir)
@@ -92,7 +94,8 @@ def plan(spec: IftSpec, base_dir: Path | None = None) -> Plan:
             p = resolve_path(r, base_dir)
             if not p.is_dir():
                 raise SpecError(f"ift.plant.runs: {r}: no such directory")
-    return Plan(ref, _summary(spec, mspec), ff)
+    return Plan(ref, _summary(spec, mspec), ff,
+                torque_check=lambda: check_planned_torque(spec, ref, base_dir, "ift.task"))
 
 
 def _summary(spec: IftSpec, mspec: PlantSpec) -> list[str]:
