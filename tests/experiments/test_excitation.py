@@ -43,7 +43,29 @@ def designed(tmp_path_factory):
     spec_file = d / "small.yaml"
     spec_file.write_text(yaml.safe_dump(small_spec()))
     out, design, use = excite(spec_file, d / "design")
+    # issue 32 item 11: --out is the parent folder, the design a new stamped folder in it (never the spec's folder)
+    assert out.parent == d / "design" and out.name.endswith("-small-design")
     return {"dir": out, "design": design, "use": use, "spec": out / "excitation.yaml", "tmp": d}
+
+
+def test_excite_writes_beside_the_runs_not_the_spec_and_keeps_its_files_reachable(tmp_path, monkeypatch):
+    """Issue 32 item 11: without --out the design goes to the spec's out_dir (runs/ from the working directory),
+    not into the spec's folder; a friction file named relative to the spec's folder is made absolute in the
+    designed spec, so it runs from its new folder."""
+    from wamctl.model.friction import FrictionModel
+
+    cfg = tmp_path / "configs"
+    cfg.mkdir()
+    FrictionModel.table_4_1().save(cfg / "friction.yaml")
+    raw = small_spec(design={"starts": 1, "max_iterations": 5, "grid_points": 40})
+    raw["plant"]["friction"] = "friction.yaml"
+    (cfg / "small.yaml").write_text(yaml.safe_dump(raw))
+    monkeypatch.chdir(tmp_path)
+    out, _, _ = excite(cfg / "small.yaml")
+    assert out.parent.resolve() == (tmp_path / "runs").resolve() and not list(cfg.glob("*-design"))
+    designed = yaml.safe_load((out / "excitation.yaml").read_text())
+    assert designed["plant"]["friction"] == str((cfg / "friction.yaml").resolve())
+    assert load_spec(out / "excitation.yaml").plant.friction == str((cfg / "friction.yaml").resolve())
 
 
 def test_excite_writes_a_designed_spec_and_a_report(designed):

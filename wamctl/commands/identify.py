@@ -15,8 +15,9 @@ REJECTED_EXIT_CODE = 3      # identify: the held-out check did not pass; the mod
 
 def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, kind: excitation).",
                                                 show_default=False)],
-           out: Annotated[Path | None, typer.Option("--out", help="Directory for the designed spec and the design "
-                                                    "report (default: <spec folder>/<name>-design).",
+           out: Annotated[Path | None, typer.Option("--out", help="Parent folder of the new <time>-<name>-design "
+                                                    "folder with the designed spec and its report (default: the "
+                                                    "spec's out_dir, runs/).",
                                                     show_default=False)] = None,
            quiet: QuietOpt = False, json: JsonOpt = False):
     """Design an exciting trajectory for `wamctl identify` (finite Fourier series per joint).

@@ -176,9 +176,27 @@ def _use_dict(use: LimitUse) -> dict:
     return {k: (np.asarray(v).tolist() if np.ndim(v) else float(v)) for k, v in use.used.items()}
 
 
-def designed_spec(raw: dict, traj: FourierTrajectory) -> dict:
-    """The input spec mapping with the designed coefficients in ``excitation.coefficients``."""
-    out = dict(raw)
+def _files_absolute(value, base_dir: Path):
+    """``value`` (a spec mapping, list or scalar) with every string that names an existing file relative to the
+    spec's folder ``base_dir`` (a friction or model file) made absolute, so that the spec runs from another
+    folder."""
+    from wamctl.io import resolve_path
+
+    if isinstance(value, dict):
+        return {k: _files_absolute(v, base_dir) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_files_absolute(v, base_dir) for v in value]
+    if isinstance(value, str) and not Path(value).is_absolute() and Path(value).suffix:
+        p = resolve_path(value, base_dir)
+        if p.is_file():
+            return str(p.resolve())
+    return value
+
+
+def designed_spec(raw: dict, traj: FourierTrajectory, base_dir: Path | None = None) -> dict:
+    """The input spec mapping with the designed coefficients in ``excitation.coefficients`` (and, given the
+    spec's folder ``base_dir``, the files it names made absolute: the designed spec is written elsewhere)."""
+    out = dict(_files_absolute(raw, base_dir) if base_dir is not None else raw)
     ex = dict(out.get("excitation") or {})
     ex["coefficients"] = {j + 1: {"a_rad_s": [float(v) for v in traj.a[j]], "b_rad_s": [float(v) for v in traj.b[j]]}
                           for j in traj.moving}
@@ -187,12 +205,15 @@ def designed_spec(raw: dict, traj: FourierTrajectory) -> dict:
 
 
 def excite(spec_path: Path, out: Path | None = None, progress=None) -> tuple[Path, ExcitationDesign, LimitUse]:
-    """``wamctl excite``: design the spec's trajectory, write ``excitation.yaml`` (the spec, designed),
-    ``design.json`` and the design report into ``out`` (default: ``<spec folder>/<name>-design``).
+    """``wamctl excite``: design the spec's trajectory, write ``excitation.yaml`` (the spec, designed, the files
+    it names made absolute), ``design.json`` and the design report into a new folder
+    ``<out>/<UTC timestamp>-<name>-design`` (``out`` as every command's ``--out``: the parent; default the
+    spec's ``out_dir``, ``runs``).
 
     Returns (the directory, the design, the limits used at the control rate)."""
     from wamctl.io import load_yaml
     from wamctl.report.excitation import design_document
+    from wamctl.runs.store import new_stamped_dir
     from wamctl.specs import load_spec
 
     spec_path = Path(spec_path)
@@ -203,10 +224,9 @@ def excite(spec_path: Path, out: Path | None = None, progress=None) -> tuple[Pat
     des = design(spec, base_dir, progress)
     dyn, friction = declared_model(spec, base_dir)
     use = sampled_limit_use(des.trajectory, limits_of(spec), dyn, friction)
-    out = Path(out) if out is not None else spec_path.parent / f"{spec.name}-design"
-    out.mkdir(parents=True, exist_ok=True)
+    out = new_stamped_dir(out if out is not None else spec.out_dir, f"{spec.name}-design")
     raw = load_yaml(spec_path)
-    designed = designed_spec(raw, des.trajectory)
+    designed = designed_spec(raw, des.trajectory, base_dir)
     header = (f"# designed by `wamctl excite {spec_path.name}`: {des.criterion}, condition number "
               f"{des.condition_number:.4g} over {des.n_target} base parameters\n")
     (out / "excitation.yaml").write_text(header + yaml.safe_dump(designed, sort_keys=False))
