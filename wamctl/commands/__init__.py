@@ -7,5 +7,5 @@ CLI, and tests never take library code from here.
 """
 
 # command modules, in the order their commands appear in ``wamctl --help``
-COMMAND_MODULES = ("data", "report", "run", "friction", "diagnose", "identify", "ift", "hmi", "gaze", "bus",
+COMMAND_MODULES = ("data", "report", "runs", "run", "friction", "diagnose", "identify", "ift", "hmi", "gaze", "bus",
                    "sim_arm", "sweep")

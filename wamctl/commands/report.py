@@ -38,6 +38,8 @@ def report(run_dirs: Annotated[list[Path] | None, typer.Argument(help="One or mo
     if not run_dirs and not hmi_results:
         raise WamctlError("nothing to report: give run directories and/or --hmi-results FILE.csv")
     done = report_runs(run_dirs, out, formats) if run_dirs else Reported()
+    from wamctl.runs.catalog import shown_status  # a `running` run whose process is gone: abandoned
+    done.runs = [(p, {**m, "status": shown_status(m)}) for p, m in done.runs]
     docs, written = done.docs, done.written
     for csv in hmi_results or []:
         from wamctl.report.hmi_stats import hmi_results_report
