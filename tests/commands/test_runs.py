@@ -183,3 +183,19 @@ def test_killed_run_is_abandoned_then_marked_and_reported(tmp_path):
     assert r.code == 0 and json.loads(r.out)["runs"][0]["status"] == "interrupted"
     assert catalog.mark_abandoned(run) is False              # once only
     RunDir  # noqa: B018 - the store's writer is what marked it
+
+
+def test_a_run_ending_rewrites_the_index(tmp_path):
+    """`wamctl run` (the runner) rewrites <out>/index.html when a run ends, with a row linking its report; an
+    index that cannot be written (a folder in its place) leaves the run completed."""
+    p = tmp_path / "spec.yaml"
+    rot = {"joints": [4], "amplitude_rad": -0.1, "velocity_rad_s": 0.05}
+    p.write_text(yaml.safe_dump(rotation_spec(name="indexed", rotation=rot)))
+    r = run_cli("run", str(p), "--out", str(tmp_path / "runs"), "-q", "--json")
+    assert r.code == 0, r.err
+    run = Path(json.loads(r.out)["run_dir"])
+    page = (tmp_path / "runs" / "index.html").read_text()
+    assert page.count("<tr>") == 2 and f'href="{run.name}/report.html"' in page
+    (tmp_path / "runs2" / "index.html").mkdir(parents=True)
+    r = run_cli("run", str(p), "--out", str(tmp_path / "runs2"), "-q", "--json")
+    assert r.code == 0 and json.loads(r.out)["status"] == "completed"

@@ -151,6 +151,7 @@ def run_spec(spec: Common, base_dir: Path | None = None, out_dir: str | Path | N
     log.info("run directory %s", run.path)
     outcome = record_outcome(run, lambda: mod.execute(spec, p, run, progress, base_dir),
                              resume_hint=hasattr(mod, "resume"))
+    _rewrite_index(run.path.parent)
     if make_report:
         try:
             with signals_as_interrupt():
@@ -159,3 +160,13 @@ def run_spec(spec: Common, base_dir: Path | None = None, out_dir: str | Path | N
             raise RunInterrupted(f"{run.path}: the run {outcome.status}; its report was interrupted, "
                                  f"`wamctl report {run.path}` writes it") from None
     return outcome
+
+
+def _rewrite_index(folder: Path) -> None:
+    """``index.html`` of the folder of runs (issue 30): reads manifests and report JSONs only; a failure is
+    logged, never the run's."""
+    try:
+        from wamctl.report.index_page import write_index
+        write_index(folder)
+    except Exception:  # noqa: BLE001 - the index is a convenience; the run's outcome is what matters
+        log.warning("could not rewrite %s/index.html", folder, exc_info=True)

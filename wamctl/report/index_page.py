@@ -45,6 +45,8 @@ def index_html(folder: Path, entries: list[catalog.RunEntry]) -> str:
     rows = []
     for e in entries:
         rel = os.path.relpath(e.path, folder)
+        if e.report is None and e.manifest_status == "completed":   # its report is written right after the run
+            e.report = str(Path(e.path) / "report.html")
         report = os.path.relpath(e.report, folder) if e.report else None
         name = f'<a href="{e_(report)}">{e_(e.name)}</a>' if report else e_(e.name)
         dur = "" if e.duration_s is None else f"{e.duration_s:.3f}"
