@@ -41,6 +41,10 @@ def dask_versions() -> dict:
     return out
 
 
+LOOPBACK = "127.0.0.1"
+"""Where a local cluster's scheduler, workers and dashboard listen."""
+
+
 def start_local_cluster(n_workers: int | None = None):
     """A ``LocalCluster`` of ``n_workers`` single-threaded worker processes (default: one per core) and
     its client. Returns ``(cluster, client)``.
@@ -55,8 +59,10 @@ def start_local_cluster(n_workers: int | None = None):
     # what the workers log at ERROR is the cluster's plumbing, e.g. a heartbeat that finds the scheduler gone
     # while the cluster closes after Ctrl-C on a loaded machine, printed with a traceback after "sweep interrupted".
     with _sigint_blocked():
-        cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True,
-                                           dashboard_address=":0", silence_logs=logging.CRITICAL)
+        # nothing it opens is reachable from the lab network: scheduler, workers and dashboard on the loopback
+        # interface only (the dashboard's ":0" listened on every interface; issue 30)
+        cluster = distributed.LocalCluster(n_workers=n, threads_per_worker=1, processes=True, host=LOOPBACK,
+                                           dashboard_address=f"{LOOPBACK}:0", silence_logs=logging.CRITICAL)
     client = distributed.Client(cluster)
     client.register_plugin(_ignore_sigint_plugin(), name="wamctl-ignore-sigint")
     return cluster, client
