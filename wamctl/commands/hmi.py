@@ -7,7 +7,16 @@ from typing import Annotated
 
 import typer
 
-from wamctl.commands.common import JsonOpt, OutOpt, QuietOpt, console, progress_bar, run_and_report, show_outcome
+from wamctl.commands.common import (
+    JsonOpt,
+    OutOpt,
+    QuietOpt,
+    YesOpt,
+    console,
+    progress_bar,
+    run_and_report,
+    show_outcome,
+)
 
 
 def _console_prompt(message: str) -> None:
@@ -25,7 +34,7 @@ def hmi_session(
             show_default=False)] = None,
         dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan (start pose, spots, trials) and "
                                               "check it; move nothing.")] = False,
-        quiet: QuietOpt = False, json: JsonOpt = False):
+        quiet: QuietOpt = False, json: JsonOpt = False, yes: YesOpt = False):
     """Run a block of gaze-controlled reach-and-grasp trials (kind hmi_block) and report hits and times.
 
     The gaze (a virtual subject by default, a recorded gaze file, or a live tracker on a serial port or any
@@ -45,7 +54,7 @@ def hmi_session(
     if resume is None:
         if spec is None:
             raise SpecError("give a spec (SPEC.yaml) or --resume RUN_DIR")
-        run_and_report(spec, out, dry_run, quiet, json, expect_kind="hmi_block")
+        run_and_report(spec, out, dry_run, quiet, json, expect_kind="hmi_block", yes=yes)
         return
     if dry_run:
         raise SpecError("--dry-run and --resume exclude each other")
@@ -54,7 +63,12 @@ def hmi_session(
         s = load_spec(spec)
         if s.kind != "hmi_block":
             raise SpecError(f"{spec}: kind: this command runs `hmi_block` specs, not `{s.kind}`")
-    with progress_bar(f"hmi_block {resume.name} (resumed)", enabled=not (quiet or json)) as progress:
+    from wamctl.backends.can.operator import use_operator
+    from wamctl.commands.terminal_operator import TerminalOperator
+
+    label = f"hmi_block {resume.name} (resumed)"
+    with progress_bar(label, enabled=not (quiet or json)) as progress, \
+            use_operator(TerminalOperator(yes=yes, progress=progress, label=label)):  # a CAN arm's questions
         outcome = hmi_block.resume(resume, s, progress)
     show_outcome(outcome, quiet, json)
 
