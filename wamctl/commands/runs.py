@@ -83,5 +83,31 @@ def runs(dirs: Annotated[list[Path] | None, typer.Argument(help="Folders of run 
         console.print(f"wrote {p}", highlight=False, soft_wrap=True)
 
 
+def compare(run_dirs: Annotated[list[Path], typer.Argument(help="Two or more run directories of one kind.",
+                                                          show_default=False)],
+            out: Annotated[Path | None, typer.Option("--out", help="Where to write compare.md/.html/.json and the "
+                                                     "figures (default: compare/ beside the first run).")] = None,
+            quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No tables on the terminal.")] = False,
+            json: JsonOpt = False):
+    """Put runs of one kind side by side: spec differences, each table with the differences to the first run,
+    figures overlaid (rotation error traces, friction maps), and a test of the difference with its 95 % interval
+    where the runs have repeated measures (an HMI block's trials). Runs of different kinds are refused (exit 2).
+    """
+    from wamctl.commands.common import print_document_tables
+    from wamctl.report.compare import compare as compare_runs
+
+    dest = out or Path(run_dirs[0]).parent / "compare"
+    doc = compare_runs(run_dirs, dest)
+    written = doc.write(dest, "compare")
+    if json:
+        emit_json({"report": doc.to_json(), "written": [str(p) for p in written]})
+        return
+    if not quiet:
+        print_document_tables(doc)
+    for p in written:
+        console.print(f"wrote {p}", highlight=False, soft_wrap=True)
+
+
 def register(app: typer.Typer) -> None:
     app.command()(runs)
+    app.command()(compare)

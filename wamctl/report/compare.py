@@ -1,0 +1,160 @@
+"""``wamctl compare``: runs of one kind side by side (issue 30): the spec differences, each report table with the
+runs' values and the difference to the first run, figures overlaid (rotation error traces, friction maps), and
+where the runs have repeated measures (an HMI block's trials) a test of the difference with its 95 % interval."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pandas as pd
+
+from wamctl.errors import WamctlError
+from wamctl.report import write_report
+from wamctl.report.document import Document
+from wamctl.report.figures import joint_grid, save
+from wamctl.runs.store import open_run, read_table
+
+
+def _flatten(d, prefix="") -> dict:
+    out = {}
+    if isinstance(d, dict):
+        for k, v in d.items():
+            out.update(_flatten(v, f"{prefix}{k}."))
+    else:
+        out[prefix[:-1]] = d
+    return out
+
+
+def spec_differences(specs: list[dict], labels: list[str]) -> pd.DataFrame:
+    """The spec keys (dotted) whose values differ between the runs, one column per run."""
+    flat = [_flatten(s) for s in specs]
+    keys = sorted(set().union(*flat))
+    rows = [{"key": k, **{lab: json.dumps(f.get(k), default=str) for lab, f in zip(labels, flat)}}
+            for k in keys if len({json.dumps(f.get(k), sort_keys=True, default=str) for f in flat}) > 1]
+    return pd.DataFrame(rows, columns=["key", *labels]).set_index("key")
+
+
+def side_by_side(tables: list[pd.DataFrame], labels: list[str]) -> pd.DataFrame:
+    """One report table of each run, keyed by its first column: each numeric column per run (``<column>.<label>``),
+    and for every run after the first its difference to the first (``<column>.Δ<label>``: label minus A)."""
+    key = tables[0].columns[0]
+    idx = [t.set_index(key) for t in tables if key in t.columns]
+    if len(idx) != len(tables):
+        return pd.DataFrame()
+    numeric = [c for c in idx[0].columns if all(c in t.columns and pd.api.types.is_numeric_dtype(t[c]) for t in idx)]
+    out = {}
+    for c in numeric:
+        for lab, t in zip(labels, idx):
+            out[f"{c}.{lab}"] = t[c]
+        for lab, t in zip(labels[1:], idx[1:]):
+            out[f"{c}.Δ{lab}"] = t[c] - idx[0][c]
+    return pd.DataFrame(out)
+
+
+def welch(a: np.ndarray, b: np.ndarray) -> dict:
+    """Welch's t-test of mean(b) - mean(a) with its 95 % interval."""
+    from scipy import stats
+    r = stats.ttest_ind(b, a, equal_var=False)
+    ci = r.confidence_interval(0.95)
+    return {"n_a": len(a), "n_b": len(b), "mean_a": float(np.mean(a)), "mean_b": float(np.mean(b)),
+            "difference": float(np.mean(b) - np.mean(a)), "ci95_low": float(ci.low), "ci95_high": float(ci.high),
+            "t": float(r.statistic), "p": float(r.pvalue)}
+
+
+def _rotation_overlay(runs: list[Path], labels: list[str], out_dir: Path) -> Path | None:
+    datas = [read_table(r) for r in runs]
+    joints = [j for j in range(1, 8) if all(f"q_{j}_rad" in d and np.ptp(d[f"q_ref_{j}_rad"]) > 0 for d in datas)]
+    if not joints:
+        return None
+    fig, axes = joint_grid(len(joints), "Tracking error q_ref - q, runs overlaid")
+    for ax, j in zip(axes, joints):
+        for lab, d in zip(labels, datas):
+            ax.plot(d["t_s"], 1e3 * (d[f"q_ref_{j}_rad"] - d[f"q_{j}_rad"]), lw=0.8, label=lab)
+        ax.set_title(f"joint {j}")
+        ax.set_xlabel("t (s)")
+        ax.set_ylabel("error (mrad)")
+        ax.legend(fontsize=7)
+    return save(fig, out_dir / "compare_rotation_errors.png")
+
+
+def _friction_overlay(runs: list[Path], labels: list[str], out_dir: Path) -> Path | None:
+    maps = []
+    for r in runs:
+        p = r / "friction_map.csv"
+        if not p.is_file():
+            return None
+        maps.append(pd.read_csv(p))
+    joints = sorted(set.intersection(*[set(m["joint"]) for m in maps]))
+    if not joints:
+        return None
+    fig, axes = joint_grid(len(joints), "Friction-velocity maps, runs overlaid")
+    for ax, j in zip(axes, joints):
+        for lab, m in zip(labels, maps):
+            mj = m[(m["joint"] == j) & m["accepted"].astype(bool)].sort_values("velocity_rad_s")
+            ax.plot(mj["velocity_rad_s"], mj["friction_Nm"], "o-", ms=3, lw=0.8, label=lab)
+        ax.set_xscale("symlog", linthresh=1e-2)
+        ax.set_title(f"joint {j}")
+        ax.set_xlabel("velocity (rad/s)")
+        ax.set_ylabel("friction (N m)")
+        ax.legend(fontsize=7)
+    return save(fig, out_dir / "compare_friction_maps.png")
+
+
+def compare(run_dirs: list[Path], out_dir: Path) -> Document:
+    """The comparison document of ``run_dirs`` (figures written into ``out_dir``). WamctlError (one line, exit
+    2) for fewer than two runs or runs of different kinds."""
+    runs = [Path(r) for r in run_dirs]
+    if len(runs) < 2:
+        raise WamctlError("compare: give two or more run directories")
+    opened = [open_run(r) for r in runs]
+    kinds = [m.get("kind") for m, _ in opened]
+    if len(set(kinds)) > 1:
+        raise WamctlError("compare: runs of different kinds (" + ", ".join(f"{r.name}: {k}" for r, k in
+                                                                          zip(runs, kinds)) + "); compare one kind")
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    labels = [chr(ord("A") + i) if i < 26 else str(i) for i in range(len(runs))]
+    doc = Document(f"{kinds[0]}: {len(runs)} runs compared")
+    doc.table("runs", pd.DataFrame({"run": labels, "name": [m.get("name") for m, _ in opened],
+                                    "status": [m.get("status") for m, _ in opened],
+                                    "directory": [r.name for r in runs]}))
+    diffs = spec_differences([s for _, s in opened], labels)
+    doc.heading("Spec differences")
+    if len(diffs):
+        doc.table("spec differences", diffs)
+    else:
+        doc.text("The specs are the same.")
+    reports = []
+    for r in runs:
+        p = r / "report.json"
+        reports.append(json.loads(p.read_text()) if p.is_file() else write_report(r).to_json())
+    doc.data["runs"] = [str(r) for r in runs]
+    for name in reports[0].get("tables", {}):
+        if not all(name in rep.get("tables", {}) for rep in reports):
+            continue
+        frames = [pd.DataFrame(rep["tables"][name]) for rep in reports]
+        if not all(len(f) and len(f.columns) for f in frames):
+            continue
+        sbs = side_by_side(frames, labels)
+        if len(sbs.columns):
+            doc.heading(name)
+            doc.table(name, sbs, "each run's value (.A, .B, ...) and its difference to run A (.ΔB = B - A)")
+    tests = {}
+    if kinds[0] == "hmi_block" and all((r / "trials.csv").is_file() for r in runs):
+        trials = [pd.read_csv(r / "trials.csv") for r in runs]
+        for lab, t in zip(labels[1:], trials[1:]):
+            a, b = trials[0]["time_s"].dropna().to_numpy(float), t["time_s"].dropna().to_numpy(float)
+            if len(a) > 1 and len(b) > 1:
+                tests[f"time_s {lab} - A"] = welch(a, b)
+        if tests:
+            doc.heading("Execution time: the difference tested")
+            doc.table("time difference (Welch t-test)", pd.DataFrame(tests).T,
+                      "mean of the later run minus the first run's, with its 95 % interval")
+    doc.data["tests"] = tests
+    for fig in (_rotation_overlay(runs, labels, out_dir) if kinds[0] == "rotation" else None,
+                _friction_overlay(runs, labels, out_dir) if kinds[0] == "friction_sweep" else None):
+        if fig is not None:
+            doc.figure(fig, fig.stem.replace("_", " "))
+    return doc
