@@ -186,11 +186,15 @@ def test_killed_run_is_abandoned_then_marked_and_reported(tmp_path):
 
 
 def test_a_run_ending_rewrites_the_index(tmp_path):
-    """`wamctl run` (the runner) rewrites <out>/index.html when a run ends, with a row linking its report; an
-    index that cannot be written (a folder in its place) leaves the run completed."""
+    """`wamctl run` (the runner) rewrites <out>/index.html when a run ends, once `wamctl runs --html` made one,
+    with a row linking its report; an index that cannot be written (a folder in its place) leaves the run
+    completed; a folder without an index gets none."""
     p = tmp_path / "spec.yaml"
     rot = {"joints": [4], "amplitude_rad": -0.1, "velocity_rad_s": 0.05}
     p.write_text(yaml.safe_dump(rotation_spec(name="indexed", rotation=rot)))
+    (tmp_path / "runs").mkdir()
+    assert run_cli("runs", str(tmp_path / "runs"), "--html").code == 0
+    assert (tmp_path / "runs" / "index.html").read_text().count("<tr>") == 1
     r = run_cli("run", str(p), "--out", str(tmp_path / "runs"), "-q", "--json")
     assert r.code == 0, r.err
     run = Path(json.loads(r.out)["run_dir"])
@@ -199,3 +203,5 @@ def test_a_run_ending_rewrites_the_index(tmp_path):
     (tmp_path / "runs2" / "index.html").mkdir(parents=True)
     r = run_cli("run", str(p), "--out", str(tmp_path / "runs2"), "-q", "--json")
     assert r.code == 0 and json.loads(r.out)["status"] == "completed"
+    r = run_cli("run", str(p), "--out", str(tmp_path / "runs3"), "-q", "--json")
+    assert r.code == 0 and [x.name for x in (tmp_path / "runs3").iterdir() if not x.is_dir()] == []

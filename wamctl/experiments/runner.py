@@ -163,8 +163,11 @@ def run_spec(spec: Common, base_dir: Path | None = None, out_dir: str | Path | N
 
 
 def _rewrite_index(folder: Path) -> None:
-    """``index.html`` of the folder of runs (issue 30): reads manifests and report JSONs only; a failure is
-    logged, never the run's."""
+    """``index.html`` of the folder of runs (issue 30), where one is kept (made by ``wamctl runs --html``; a
+    folder without one gets none: sweep points, scratch folders): reads manifests and report JSONs only; a
+    failure is logged, never the run's."""
+    if not (folder / "index.html").exists():
+        return
     try:
         from wamctl.report.index_page import write_index
         write_index(folder)
