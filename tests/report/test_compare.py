@@ -79,3 +79,11 @@ def test_rotation_runs_compared_with_overlaid_errors(tmp_path):
     assert row["rpe_pct.ΔB"] < 0                       # the stiffer joint ends nearer its target
     assert (tmp_path / "cmp" / "compare_rotation_errors.png").stat().st_size > 10_000
     assert (tmp_path / "cmp" / "compare.html").is_file()
+
+
+def test_tables_with_flags_and_repeated_keys_side_by_side():
+    """A friction map's table: several rows per joint and a boolean column (subtracting it raised)."""
+    a = pd.DataFrame({"joint": [1, 1, 7], "friction_Nm": [4.5, -4.4, 0.2], "accepted": [True, True, False]})
+    b = a.assign(friction_Nm=[4.0, -4.0, 0.25])
+    s = side_by_side([a, b], ["A", "B"])
+    assert s["friction_Nm.ΔB"].round(12).tolist() == [-0.5, 0.4, 0.05] and "accepted.A" not in s

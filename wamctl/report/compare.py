@@ -43,7 +43,10 @@ def side_by_side(tables: list[pd.DataFrame], labels: list[str]) -> pd.DataFrame:
     idx = [t.set_index(key) for t in tables if key in t.columns]
     if len(idx) != len(tables):
         return pd.DataFrame()
-    numeric = [c for c in idx[0].columns if all(c in t.columns and pd.api.types.is_numeric_dtype(t[c]) for t in idx)]
+    numeric = [c for c in idx[0].columns if all(c in t.columns and pd.api.types.is_numeric_dtype(t[c])
+                                                and not pd.api.types.is_bool_dtype(t[c]) for t in idx)]
+    if any(not t.index.is_unique for t in idx):        # not keyed by its first column: rows side by side
+        idx = [t.reset_index(drop=True) for t in idx]
     out = {}
     for c in numeric:
         for lab, t in zip(labels, idx):
