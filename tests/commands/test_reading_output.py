@@ -22,27 +22,15 @@ def test_column_labels_keep_their_units(name, label):
     assert column_label(name) == label
 
 
-def _printed(table: pd.DataFrame, columns: int = 80) -> str:
-    from rich.console import Console
-
-    from wamctl.commands.common import print_frame
-    con = Console(width=columns, record=True, file=open("/dev/null", "w"))   # noqa: SIM115 - closed with con
-    print_frame("t", table, out=con)
-    text = con.export_text()
-    con.file.close()
-    return text
-
-
-def test_terminal_headers_read_rad_per_s_and_n_m_s_per_rad():
-    df = pd.DataFrame({"speed_peak_rad_s": [0.5, 1.25], "sigma2_pos_Nm_s_rad": [0.1234, 0.05],
-                       "torque_peak_Nm": [3.5, 12.0]}, index=pd.Index([1, 2], name="joint"))
-    out = _printed(df)
-    for unit in ("(rad/s)", "(N m s/rad)", "(N m)"):
-        assert unit in out, out
-    assert "rad s" not in out and "Nm s rad" not in out
-    # a narrow terminal wraps a header between words, never inside its unit
-    narrow = _printed(df, columns=40)
-    assert "(N m s/rad)" in narrow, narrow
+def test_terminal_headers_read_rad_per_s_and_n_m_s_per_rad(small_runs, tmp_path):
+    """friction-id's tables on the terminal (its viscous coefficients in N m s/rad), at 80 columns and, through
+    `wamctl report`, at 40: a header wraps between words, never inside its unit."""
+    out = small_runs.printed["friction-id"].out
+    assert "(N m s/rad)" in out and "(N m)" in out, out
+    assert "Nm s rad" not in out
+    r = run_cli("report", small_runs.runs["friction_sweep"], "--out", tmp_path, columns=40)
+    assert r.code == 0, r.err[-2000:]
+    assert "(N m s/rad)" in r.out, r.out
 
 
 def test_a_count_row_under_means_prints_integers():

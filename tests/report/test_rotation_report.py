@@ -140,3 +140,20 @@ def test_the_report_of_an_interrupted_run_warns_first_scores_no_cut_move_and_plo
     for name in ("rotation_errors.png", "rotation_positions.png"):     # the whole run, not the move's samples,
         assert figures[name] == [(f"joint {j}", 0.0, pytest.approx(1.928))    # and the joint with a warning too
                                  for j in ("1", "2 (not moved)", "4")]
+
+
+def test_the_report_of_a_run_interrupted_before_its_first_sample_says_so(tmp_path):
+    """A Ctrl-C in the first moments leaves a data table of no rows (issue 32): `wamctl report` on it said
+    `IndexError: index 0 is out of bounds` with a traceback; it reports the run as interrupted, nothing scored."""
+    from cli_runs import run_cli
+
+    from wamctl.runs.store import RunDir
+
+    spec = {"kind": "rotation", "name": "early", **SPEC}
+    run = RunDir.create(tmp_path, "early", spec, 0, "rotation")
+    run.write_table("data", rotation_data(joints=(1,)).iloc[:0])
+    run.finish("interrupted", "stopped by Ctrl-C")
+    r = run_cli("report", run.path, "--out", tmp_path / "report")
+    assert r.exc is None, r.tb
+    assert r.code == 0 and r.out.splitlines()[0].startswith("interrupted: stopped by Ctrl-C"), (r.out, r.err)
+    assert '"rpe_pct": {}' in (tmp_path / "report" / "report.json").read_text()     # nothing scored

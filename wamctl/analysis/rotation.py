@@ -51,6 +51,8 @@ def find_rotations(data: pd.DataFrame, amplitude_rad: float | None = None,
     ``hold_s`` is not finished)."""
     out = []
     t = data["t_s"].to_numpy()
+    if len(t) == 0:          # a run interrupted before its first sample: no move to find
+        return out
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
     for j in range(1, P.N_JOINTS + 1):
         ref = data[f"q_ref_{j}_rad"].to_numpy()
