@@ -82,6 +82,18 @@ def status_line(status: str | None, reason: str | None, run_dir) -> str:
     return f"[{colour}]{status}[/]" + (f": {reason}" if reason else "") + f"  run directory: {run_dir}"
 
 
+def show_written_document(doc, written, as_json: bool = False, quiet: bool = False) -> None:
+    """A report just written (``compare``, ``friction-id --compare``): its JSON and files with ``--json``, else its
+    tables (unless ``--quiet``) and the files written, one whole path a line."""
+    if as_json:
+        emit_json({"report": doc.to_json(), "written": [str(p) for p in written]})
+        return
+    if not quiet:
+        print_document_tables(doc)
+    for p in written:
+        console.print(f"wrote {p}", highlight=False, soft_wrap=True)
+
+
 def print_document_tables(doc, out: Console | None = None) -> None:
     """The tables of a report :class:`~wamctl.report.document.Document` on the terminal, then its warnings.
 

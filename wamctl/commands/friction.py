@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from wamctl.commands.common import console, emit_json
+from wamctl.commands.common import console, emit_json, show_written_document
 
 
 def friction_id(
@@ -105,7 +105,6 @@ def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options
 
 
 def _compare(runs: list[Path], out: Path | None, quiet: bool, as_json: bool) -> None:
-    from wamctl.commands.common import print_document_tables
     from wamctl.errors import SpecError
     from wamctl.report.friction import comparison_document
     from wamctl.runs.store import new_stamped_dir
@@ -115,13 +114,7 @@ def _compare(runs: list[Path], out: Path | None, quiet: bool, as_json: bool) -> 
     target = new_stamped_dir(out if out is not None else Path("runs"), "ff-comparison")
     doc = comparison_document(runs[0], runs[1], target)
     written = doc.write(target, "ff_comparison")
-    if as_json:
-        emit_json({"report": doc.to_json(), "written": [str(p) for p in written]})
-        return
-    if not quiet:
-        print_document_tables(doc)
-    for p in written:
-        console.print(f"wrote {p}", highlight=False, soft_wrap=True)
+    show_written_document(doc, written, as_json, quiet)
 
 
 def register(app: typer.Typer) -> None:

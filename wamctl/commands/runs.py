@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from wamctl.commands.common import JsonOpt, console, emit_json
+from wamctl.commands.common import JsonOpt, console, emit_json, show_written_document
 
 
 def runs(dirs: Annotated[list[Path] | None, typer.Argument(help="Folders of run directories (default: ./runs).",
@@ -93,19 +93,12 @@ def compare(run_dirs: Annotated[list[Path], typer.Argument(help="Two or more run
     figures overlaid (rotation error traces, friction maps), and a test of the difference with its 95 % interval
     where the runs have repeated measures (an HMI block's trials). Runs of different kinds are refused (exit 2).
     """
-    from wamctl.commands.common import print_document_tables
     from wamctl.report.compare import compare as compare_runs
 
     dest = out or Path(run_dirs[0]).parent / "compare"
     doc = compare_runs(run_dirs, dest)
     written = doc.write(dest, "compare")
-    if json:
-        emit_json({"report": doc.to_json(), "written": [str(p) for p in written]})
-        return
-    if not quiet:
-        print_document_tables(doc)
-    for p in written:
-        console.print(f"wrote {p}", highlight=False, soft_wrap=True)
+    show_written_document(doc, written, json, quiet)
 
 
 def register(app: typer.Typer) -> None:
