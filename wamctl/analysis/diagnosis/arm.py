@@ -178,6 +178,22 @@ def payload_links_summary(dec: dict | None) -> dict | None:
                             "wide_factor": WIDE_PRIOR, "payload_com_box_m": PAYLOAD_COM_BOX_M}}
 
 
+def held_out_with_fixed(des: Design, jd, kept: list, fixed) -> np.ndarray:
+    """(n,) held-out torque residual of a joint's model ``kept`` with a torque held fixed: for each fold, the
+    joint's other coefficients refitted without the fold on the torque less ``fixed(fold)`` ((n,) N m, e.g. a
+    payload's), and the fold scored; NaN where a fold has no samples or too few are left to fit."""
+    e = np.full(jd.n, np.nan)
+    for f in range(des.n_folds):
+        te = jd.fold == f
+        tr = ~te
+        if not te.any() or tr.sum() < 20:
+            continue
+        y, X = target_and_design(des, jd, kept, f)
+        y = y - fixed(f)
+        e[te] = y[te] - X[te] @ lstsq(X[tr], y[tr])
+    return e
+
+
 def payload_inconsistency(des: Design, joints: dict, jds: dict, fit: dict, factor: float = 2.0) -> str | None:
     """Why the payload fitted at some joints is not one for the arm, or None: a payload changes the torque of
     every joint it hangs from, so at each diagnosed joint that did not keep it and where its torque would be
@@ -193,16 +209,7 @@ def payload_inconsistency(des: Design, joints: dict, jds: dict, fit: dict, facto
         ss0 = finite_ss(e_after)
         if ss0 <= 0 or np.sum(pt ** 2) < ss0:
             continue
-        e_with = np.full(jd.n, np.nan)
-        for f in range(des.n_folds):
-            te = jd.fold == f
-            tr = ~te
-            if not te.any() or tr.sum() < 20:
-                continue
-            y, X = target_and_design(des, jd, res.kept, f)
-            y = y - pt
-            th = lstsq(X[tr], y[tr])
-            e_with[te] = y[te] - X[te] @ th
+        e_with = held_out_with_fixed(des, jd, res.kept, lambda f, pt=pt: pt)
         e_with[~np.isfinite(e_after)] = np.nan
         if finite_ss(e_with) > factor * ss0:
             return (f"the payload fitted at joints {fit['joints_fitted']} ({fit['mass_kg']:.3g} kg) would make the "

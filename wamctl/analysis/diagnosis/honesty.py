@@ -16,8 +16,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.design import target_and_design
-from wamctl.analysis.diagnosis.stats import lstsq
+from wamctl.analysis.diagnosis.arm import held_out_with_fixed
 
 
 def _rms(*parts) -> float:
@@ -29,16 +28,8 @@ def rms_with_arm_payload(diag, j: int) -> float:
     """Held-out torque RMS (sliding samples and the joint's own stall residual) of 0-based joint ``j``'s final
     model with the arm's payload added as the model file writes it (fitted without each fold, fixed), the joint's
     other coefficients refitted without the fold."""
-    des, jd, res = diag.design_, diag.jd_[j], diag.joints_[j]
-    e = np.full(jd.n, np.nan)
-    for f in range(des.n_folds):
-        te = jd.fold == f
-        tr = ~te
-        if not te.any() or tr.sum() < 20:
-            continue
-        y, X = target_and_design(des, jd, res.kept, f)
-        y = y - jd.extra["payload"] @ diag.payload_pi_[f]
-        e[te] = y[te] - X[te] @ lstsq(X[tr], y[tr])
+    jd, res = diag.jd_[j], diag.joints_[j]
+    e = held_out_with_fixed(diag.design_, jd, res.kept, lambda f: jd.extra["payload"] @ diag.payload_pi_[f])
     e[~np.isfinite(res.e_after)] = np.nan
     return _rms(e, res.stall_after)
 
