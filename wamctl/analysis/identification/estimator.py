@@ -84,6 +84,13 @@ def prior_scale(pi0: np.ndarray) -> np.ndarray:
     return np.maximum(0.3 * np.abs(pi0), floors)
 
 
+def hac_lags(n: int, reach_rows: float) -> int:
+    """Newey-West lags for ``n`` filtered rows: ``HAC_REACHES`` filter reaches (``reach_rows`` rows each), at
+    least Newey and West's rule, at most n - 1."""
+    rule = int(np.floor(4 * (n / 100.0) ** (2.0 / 9.0)))
+    return min(n - 1, max(rule, int(np.ceil(HAC_REACHES * reach_rows))))
+
+
 class InertialIdentification:
     """Base parameters of the WAM from measured runs (see the module doc).
 
@@ -205,8 +212,7 @@ class InertialIdentification:
             np.add.at(per_sample, k, scores[sel])
             per_sample = per_sample[np.unique(k)]
             n = len(per_sample)
-            rule = int(np.floor(4 * (n / 100.0) ** (2.0 / 9.0)))             # Newey and West's
-            nlags = min(n - 1, max(rule, int(np.ceil(HAC_REACHES * reach_rows))))
+            nlags = hac_lags(n, reach_rows)
             lags.append(nlags)
             S += S_hac_simple(per_sample, nlags)
         ev, V = np.linalg.eigh(0.5 * (S + S.T))
@@ -356,8 +362,8 @@ class InertialIdentification:
         variance by the Newey-West sandwich (lags: ``HAC_REACHES`` filter reaches, at least Newey and West's rule;
         the filtered residuals are correlated in time), summed over the runs.
 
-        Returns ``{0-based joint: {"ratio": RMS_identified / RMS_nominal, "p_worse": one-sided p of E[d] <= 0,
-        "n": samples}}`` for every joint with held-out rows (``p_worse`` NaN when d has no variance)."""
+        Returns ``{0-based joint: {"p_worse": one-sided p of E[d] <= 0, "n": samples}}`` for every joint with
+        held-out rows (``p_worse`` NaN when d has no variance)."""
         from scipy.stats import norm
 
         acc: dict[int, list] = {}
@@ -367,23 +373,18 @@ class InertialIdentification:
             reach_rows = rr.reach_s / rr.dt_s
             for jj in np.unique(j):
                 sel = j == jj
-                dj, yj = d[sel], y[sel]
+                dj = d[sel]
                 n = len(dj)
-                rule = int(np.floor(4 * (n / 100.0) ** (2.0 / 9.0)))
-                nlags = min(n - 1, max(rule, int(np.ceil(HAC_REACHES * reach_rows))))
-                a = acc.setdefault(int(jj), [0.0, 0.0, 0, 0.0, 0.0])
+                a = acc.setdefault(int(jj), [0.0, 0.0, 0])
                 a[0] += dj.sum()
-                if n > 1:
-                    a[1] += float(S_hac_simple((dj - dj.mean())[:, None], nlags)[0, 0])   # n x long-run variance
+                if n > 1:       # n x the long-run variance
+                    a[1] += float(S_hac_simple((dj - dj.mean())[:, None], hac_lags(n, reach_rows))[0, 0])
                 a[2] += n
-                a[3] += float(((yj - (Y[sel] @ self.pi_)) ** 2).sum())
-                a[4] += float(((yj - (Y[sel] @ self.pi_nominal_)) ** 2).sum())
         out = {}
-        for jj, (dsum, var_sum, n, sse_id, sse_nom) in acc.items():
+        for jj, (dsum, var_sum, n) in acc.items():
             se = np.sqrt(var_sum) / n if var_sum > 0 else np.nan
             p = float(norm.sf((dsum / n) / se)) if np.isfinite(se) and se > 0 else float("nan")
-            out[jj] = {"ratio": float(np.sqrt(sse_id / sse_nom)) if sse_nom > 0 else float("nan"),
-                       "p_worse": p, "n": int(n)}
+            out[jj] = {"p_worse": p, "n": int(n)}
         return out
 
     def status(self) -> np.ndarray:
