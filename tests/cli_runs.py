@@ -157,6 +157,11 @@ def make_small_runs(root: Path) -> SmallRuns:
     csv = ROOT / "tests" / "fixtures" / "hmi" / "thesis_t6_10_subjects.csv"
     cli("report --hmi-results", "report", "--hmi-results", csv, "--out", root / "hmi_results")
     s.reports["hmi_results"] = root / "hmi_results" / f"{csv.stem}_report.html"
+    # the lab's view of the runs folder (issue 30): the index page and two rotation runs side by side
+    cli("runs --html", "runs", runs, "--html")
+    s.reports["runs_index"] = runs / "index.html"
+    cli("compare", "compare", s.runs["rotation"], s.runs["rotation_seed_4"], "--out", root / "compare")
+    s.reports["compare"] = root / "compare" / "compare.html"
     return s
 
 

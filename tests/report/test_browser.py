@@ -70,7 +70,7 @@ window.addEventListener('load', () => {
 EXPECTED_KEYS = {("rotation", "rotation"): "joint", ("diagnosis", "summary"): "joint",
                  ("friction_sweep", "friction_parameters"): "joint", ("ift", "thesis_table_5_1"): "joint",
                  ("ift", "ift_gains"): "joint", ("hmi_block", "trials"): "trial", ("combined", "runs"): "run",
-                 ("sweep", "points"): "point"}
+                 ("sweep", "points"): "point", ("runs_index", "runs"): "run"}
 
 
 def chromium() -> str | None:
@@ -123,7 +123,7 @@ def rendered(small_runs, tmp_path_factory):
 def test_every_kind_of_report_is_rendered(rendered, small_runs):
     found, work = rendered
     assert set(found) == {"rotation", "friction_sweep", "ift", "hmi_block", "measured", "diagnosis", "combined",
-                          "sweep", "hmi_results"}
+                          "sweep", "hmi_results", "runs_index", "compare"}
     for name in found:
         assert (work / "screenshots" / f"{name}.png").stat().st_size > 20_000, name
 
