@@ -50,7 +50,7 @@ def find_rotations(data: pd.DataFrame, amplitude_rad: float | None = None,
     the hold after it, when known (a move that did not reach ``start + amplitude_rad`` or was held less than
     ``hold_s`` is not finished)."""
     out = []
-    t = data["t_s"].to_numpy()
+    t = data["t_s"].to_numpy() if "t_s" in data else np.empty(0)   # a dead run's empty table has no columns
     if len(t) == 0:          # a run interrupted before its first sample: no move to find
         return out
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0

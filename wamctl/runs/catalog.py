@@ -369,15 +369,19 @@ def format_start(start_utc: str | None, short: bool = False) -> str:
 
 
 # ----------------------------------------------------------------------------------------------- marking
-def mark_abandoned(path: Path) -> bool:
+def mark_abandoned(path: Path, known_dead: str | None = None) -> bool:
     """Record a dead run (shown ``abandoned``) as ``interrupted`` with :data:`ABANDONED_REASON`: each table's
     chunks consolidated into ``<table>.parquet``/``.csv`` by the store (every sample kept; the chunks stay if
-    anything fails), then the manifest. Returns False (nothing written) for a run that is not abandoned."""
+    anything fails), then the manifest. Returns False (nothing written) for a run that is not abandoned.
+
+    ``known_dead``: the caller knows the run's process is gone though its pid cannot tell (a sweep whose own
+    cluster is closed, a point that Dask gave to another worker); said in the manifest (``abandoned.known_by``).
+    The run must still say ``running``."""
     from wamctl.runs.store import RunDir, read_chunks, remove_chunks, signals_deferred, utc_now, write_table_pair
 
     path = Path(path)
     m = read_json(path / "manifest.json")
-    if shown_status(m) != ABANDONED:
+    if (m.get("status") != "running") if known_dead else (shown_status(m) != ABANDONED):
         return False
     consolidated = {}
     for d in sorted(p for p in path.iterdir() if p.is_dir()):
@@ -392,5 +396,6 @@ def mark_abandoned(path: Path) -> bool:
                 if last else utc_now())
     with signals_deferred():       # the end is the run's last write; when it was marked is said beside it
         RunDir(path).update_manifest(status="interrupted", reason=ABANDONED_REASON, end_utc=last_utc,
-                                     abandoned={"marked_utc": utc_now(), "rows": consolidated})
+                                     abandoned={"marked_utc": utc_now(), "rows": consolidated,
+                                                "known_by": known_dead or "its pid (gone)"})
     return True

@@ -14,12 +14,12 @@ from wamctl.errors import WamctlError
 from wamctl.experiments.runner import RunInterrupted, run_spec
 from wamctl.report import write_report
 from wamctl.report.document import key_figures
-from wamctl.runs.store import RunDir, utc_now
+from wamctl.runs import catalog
+from wamctl.runs.store import RunDir
 from wamctl.specs import parse_spec
 
 log = logging.getLogger(__name__)
 
-ABANDONED = "abandoned: the process running this attempt stopped (worker lost or sweep interrupted)"
 
 
 def run_dirs(point_dir: Path) -> list[Path]:
@@ -37,14 +37,11 @@ def read_manifest(run_dir: Path) -> dict:
         return {}
 
 
-def mark_abandoned(point_dir: Path) -> list[Path]:
-    """Mark the point's run directories still ``running`` as failed (their process is gone); returns them."""
-    out = []
-    for d in run_dirs(point_dir):
-        if read_manifest(d).get("status") == "running":
-            RunDir(d).update_manifest(status="failed", reason=ABANDONED, end_utc=utc_now())
-            out.append(d)
-    return out
+def mark_abandoned(point_dir: Path, known_by: str) -> list[Path]:
+    """Record the point's run directories still ``running`` (their process is gone, ``known_by`` says how) as
+    ``wamctl runs --mark-abandoned`` does: ``interrupted``, reason ``process ended without closing the run``,
+    their chunks consolidated (every sample kept). Returns them."""
+    return [d for d in run_dirs(point_dir) if catalog.mark_abandoned(d, known_dead=known_by)]
 
 
 def _worker_name() -> str:
@@ -65,7 +62,7 @@ def run_point(spec: dict, point_id: str, point_dir: str, base_dir: str | None, v
     t0 = time.time()
     pdir = Path(point_dir)
     pdir.mkdir(parents=True, exist_ok=True)
-    mark_abandoned(pdir)
+    mark_abandoned(pdir, "sweep: the point given to another worker (the one running it was lost)")
     rec = {"point": point_id, "status": "failed", "run_status": None, "run_dir": None, "error": None,
            "worker": _worker_name(), "pid": os.getpid(), "start_unix_s": t0, "figures": {}}
     base = Path(base_dir) if base_dir else None

@@ -303,7 +303,7 @@ def _reconcile(sweep: Sweep, index: SweepIndex, abandon: bool) -> None:
             continue
         pdir = index.dir / "runs" / p.point_id
         if abandon:
-            mark_abandoned(pdir)
+            mark_abandoned(pdir, "sweep: its own cluster closed after the sweep was stopped")
         found = _completed_run(p, pdir)
         if found is not None:
             index.update(_adopt(p, found, False))
@@ -340,7 +340,7 @@ def _record_of(fut, point: SweepPoint, point_dir: Path) -> dict:
                         f"{rec['attempts'] or 'repeatedly'} times; the point was given up")
     else:
         rec["error"] = f"{name}: {exc}"
-    mark_abandoned(point_dir)
+    mark_abandoned(point_dir, f"sweep: Dask gave the point up ({name})")
     dirs = run_dirs(point_dir)
     if dirs:
         rec["run_dir"] = str(dirs[-1])
