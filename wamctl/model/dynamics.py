@@ -205,6 +205,15 @@ class WamDynamics:
         """(7,) joint armature (reflected rotor inertia) of this model."""
         return np.array(self.model.armature)
 
+    def chain_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """The model as arrays for :mod:`wamctl.model.chain_kernels` (payload included): joint placements in
+        the parent joint's frame, rotations (n, 3, 3) and translations (n, 3); spatial inertias (n, 6, 6) about
+        each joint's origin, linear first; armature (n,); gravity (3,), m/s^2."""
+        n = self.model.njoints - 1
+        rot = np.array([self.model.jointPlacements[i + 1].rotation for i in range(n)])
+        trans = np.array([self.model.jointPlacements[i + 1].translation for i in range(n)])
+        inertia = np.array([self.model.inertias[i + 1].matrix() for i in range(n)])
+        return rot, trans, inertia, np.array(self.model.armature), np.array(self.model.gravity.linear)
 
 
 def links_from_standard(pi: np.ndarray, armature_kg_m2: np.ndarray) -> P.LinkParameters:
