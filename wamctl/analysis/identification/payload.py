@@ -1,0 +1,433 @@
+"""A payload at the wrist identified as its own job (``wamctl identify --payload``; issue 29 item 1).
+
+Dynamic variant (:func:`identify_payload`)
+------------------------------------------
+One designed trajectory is run loaded and bare in the order loaded-bare-bare-loaded (ABBA, ``wamctl excite
+SPEC --payload-schedule``). Each run goes through the identification's rows (:func:`.data.run_rows`: the
+diagnosis' filter, the second, parallel filter over the torque and every regressor column alike). At every
+kept sample the *mean over the loaded runs* minus the *mean over the bare runs* of the torque residual
+``tau - Y pi_declared`` (the declared arm without payload: links, armature, friction) is
+
+    d = Y7 p + e,
+
+``Y7`` the link-7 columns of the standard regressor (:meth:`wamctl.model.dynamics.WamDynamics.torque_regressor`)
+averaged over the loaded runs, ``p`` the payload's ten standard parameters about the joint-7 frame's origin
+(``m, m c_x, m c_y, m c_z, I_xx, I_xy, I_yy, I_xz, I_yz, I_zz``). The arm's own error (links, friction) is the
+same in the loaded and bare runs of one trajectory and cancels; what the declared arm predicts differently
+because the loaded motion differs a little from the bare one is in ``Y pi_declared``. A friction that changes
+linearly in time over the schedule (warming up) cancels in the ABBA means: the loaded runs' mean time equals the
+bare runs'. In any other order it does not, and it leaks into ``p`` (the tests show it).
+
+Fit: least squares on the usable rows (every run's joint sliding there), each joint's rows weighted by ``1 /
+sigma_j`` (its residual RMS). Which of the ten parameters the trajectory determines: those whose unit vector lies
+in the weighted regressor's row space (columns scaled to unit norm, singular values above ``RANK_TOL`` of the
+largest); the others are ``not identified``, never printed as numbers. Intervals: 95 %, from the
+heteroskedasticity- and autocorrelation-consistent covariance (Newey-West over the per-sample scores,
+:func:`.estimator.hac_lags` of the rows' filter reach), mapped to mass, centre of mass (link-7 frame, DH frame 7,
+as :class:`wamctl.model.dynamics.Payload`) and inertia about the centre of mass by the delta method.
+
+Static variant (:func:`identify_payload_static`)
+------------------------------------------------
+A few held poses: segments where the reference rests for at least ``MIN_HOLD_S``, the torque averaged over the
+last half of each (the loop settled). At rest the torque is gravity (plus the joints' stick friction, which the
+controller's residual error leaves unknown: approaching each pose the same way in the loaded and bare runs makes
+it alike), so ``d`` is the gravity rows of ``Y7``: mass and first moment only (inertia needs motion: said). Its
+intervals are ordinary least squares' over the poses (one average per pose and joint, independent), widened by
+Student's t.
+
+The payload file (``wamctl-payload/1``, :func:`payload_file`; documented in docs/payload.md) is what
+``plant.effects.payload`` and ``controller.declared_payload`` accept as a path, and ``diagnose --payload``.
+
+No I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+from scipy import stats
+from statsmodels.stats.sandwich_covariance import S_hac_simple
+
+from wamctl.analysis.identification.base import standard_vector
+from wamctl.analysis.identification.data import RunRows, run_rows
+from wamctl.analysis.identification.estimator import hac_lags
+from wamctl.errors import DataFormatError
+from wamctl.model import params as P
+
+N7 = P.N_JOINTS
+LINK7 = slice(60, 70)                   # link 7's standard inertial parameters in the standard regressor
+PARAMETER_NAMES = ("m", "mc_x", "mc_y", "mc_z", "I_xx", "I_xy", "I_yy", "I_xz", "I_yz", "I_zz")
+INERTIA_NAMES = ("I_xx", "I_yy", "I_zz", "I_xy", "I_xz", "I_yz")     # about the COM, link-7 frame
+_INERTIA_INDEX = {"I_xx": (0, 0), "I_yy": (1, 1), "I_zz": (2, 2), "I_xy": (0, 1), "I_xz": (0, 2), "I_yz": (1, 2)}
+_O_INDEX = {(0, 0): 4, (0, 1): 5, (1, 1): 6, (0, 2): 7, (1, 2): 8, (2, 2): 9}
+PAYLOAD_FILE_FORMAT = "wamctl-payload/1"
+RANK_TOL = 1e-6             # singular values below this share of the largest: directions the data do not see
+DETERMINED_TOL = 1e-3       # a parameter's unit vector may leave the row space by this much and count as determined
+REFERENCE_TOL_RAD = 1e-6    # runs of one trajectory: references equal to this
+MIN_ROWS = 50
+MIN_HOLD_S = 1.0            # static variant: a rest of the reference at least this long is a held pose
+HOLD_SPEED_RAD_S = 1e-9     # the reference at rest
+
+
+@dataclass
+class PayloadEstimate:
+    """The identified payload.
+
+    Attributes
+    ----------
+    method : "dynamic" or "static".
+    p : (10,) standard parameters about the joint-7 frame's origin (NaN where not determined).
+    cov : (10, 10) their covariance (NaN rows/columns where not determined).
+    determined : (10,) bool.
+    mass_kg, mass_ci_kg : the mass and its 95 % interval (None: not identified).
+    com_m, com_ci_m : (3,) centre of mass in the link-7 frame and intervals (None per axis: not identified).
+    inertia_kg_m2, inertia_ci_kg_m2 : {name: value / interval} about the COM, link-7 axes (None: not identified).
+    n_rows : rows fitted. hac_lags : Newey-West lags (dynamic). sigma_Nm : (7,) per-joint residual RMS.
+    residual_rms_Nm : of the weighted fit, in N m. order : the loaded/bare order statement.
+    """
+
+    method: str
+    p: np.ndarray
+    cov: np.ndarray
+    determined: np.ndarray
+    mass_kg: float | None
+    mass_ci_kg: tuple | None
+    com_m: list
+    com_ci_m: list
+    inertia_kg_m2: dict
+    inertia_ci_kg_m2: dict
+    n_rows: int
+    sigma_Nm: np.ndarray
+    residual_rms_Nm: float
+    hac_lags: list = field(default_factory=list)
+    order: str = ""
+    sources: dict = field(default_factory=dict)
+
+    @property
+    def not_identified(self) -> list[str]:
+        """Names of the quantities the data cannot determine."""
+        out = [] if self.mass_kg is not None else ["mass"]
+        out += [f"com_{a}" for a, v in zip("xyz", self.com_m) if v is None]
+        out += [k for k, v in self.inertia_kg_m2.items() if v is None]
+        return out
+
+    def table(self):
+        """One row per quantity: value, 95 % interval, status (identified / not identified)."""
+        import pandas as pd
+
+        rows = [("mass_kg", self.mass_kg, self.mass_ci_kg)]
+        rows += [(f"com_{a}_m", v, ci) for a, v, ci in zip("xyz", self.com_m, self.com_ci_m)]
+        rows += [(f"{k}_kg_m2", self.inertia_kg_m2[k], self.inertia_ci_kg_m2[k]) for k in INERTIA_NAMES]
+        return pd.DataFrame([{"quantity": n, "value": v, "ci95_low": ci[0] if ci else None,
+                              "ci95_high": ci[1] if ci else None,
+                              "status": "identified" if v is not None else "not identified"} for n, v, ci in rows])
+
+    def to_dict(self) -> dict:
+        return {"method": self.method, "mass_kg": self.mass_kg, "mass_ci95_kg": _lst(self.mass_ci_kg),
+                "com_m": self.com_m, "com_ci95_m": [_lst(c) for c in self.com_ci_m],
+                "inertia_about_com_kg_m2": self.inertia_kg_m2,
+                "inertia_ci95_kg_m2": {k: _lst(v) for k, v in self.inertia_ci_kg_m2.items()},
+                "not_identified": self.not_identified,
+                "standard_parameters": {n: (None if not d else float(v))
+                                        for n, v, d in zip(PARAMETER_NAMES, self.p, self.determined)},
+                "n_rows": self.n_rows, "sigma_Nm": [None if not np.isfinite(s) else float(s) for s in self.sigma_Nm],
+                "residual_rms_Nm": self.residual_rms_Nm, "hac_lags": list(self.hac_lags), "order": self.order,
+                "sources": self.sources}
+
+
+def _lst(ci):
+    return None if ci is None else [float(ci[0]), float(ci[1])]
+
+
+# ------------------------------------------------------------------------------------------- checks
+def check_same_trajectory(datas, labels) -> None:
+    """Raise DataFormatError (one line, naming the runs) unless every run follows one reference."""
+    first, name0 = datas[0], labels[0]
+    r0 = first.col("q_ref")
+    for d, name in zip(datas[1:], labels[1:]):
+        r = d.col("q_ref")
+        if r.shape != r0.shape or abs(float(d.meta.sample_rate_hz) - float(first.meta.sample_rate_hz)) > 1e-9:
+            raise DataFormatError(f"{name} and {name0} are runs of different trajectories ({len(r)} and {len(r0)} "
+                                  f"samples at {d.meta.sample_rate_hz:g} and {first.meta.sample_rate_hz:g} Hz): the "
+                                  "payload is identified from one trajectory run loaded and bare")
+        both = np.isfinite(r) & np.isfinite(r0)
+        dev = np.where(both, np.abs(r - r0), 0.0)
+        if float(dev.max(initial=0.0)) > REFERENCE_TOL_RAD:
+            k, j = np.unravel_index(int(np.argmax(dev)), dev.shape)
+            raise DataFormatError(f"{name} and {name0} are runs of different trajectories (references differ by "
+                                  f"{dev[k, j]:.3g} rad at joint {j + 1}, t = {d.t_s[k]:.3f} s): the payload is "
+                                  "identified from one trajectory run loaded and bare")
+
+
+def order_statement(starts: list[tuple[str, str]]) -> str:
+    """The loaded (A) / bare (B) order of runs given as (role, start time) and whether it balances a linear drift
+    (the loaded runs' mean position in the schedule equals the bare runs')."""
+    if not starts or any(s is None for _, s in starts):
+        return "order unknown (start times not recorded): a linear friction drift cancels only in an ABBA order"
+    roles = [r for r, _ in sorted(starts, key=lambda x: x[1])]
+    seq = "".join("A" if r == "loaded" else "B" for r in roles)
+    pos = np.arange(len(roles))
+    a = pos[[r == "loaded" for r in roles]].mean()
+    b = pos[[r == "bare" for r in roles]].mean()
+    if abs(a - b) < 1e-9:
+        return f"order {seq} (A loaded, B bare): balanced, a friction drift linear in time cancels"
+    return (f"order {seq} (A loaded, B bare): NOT balanced (loaded mean position {a:.1f}, bare {b:.1f}): a friction "
+            "drift between runs biases the estimate; run loaded-bare-bare-loaded")
+
+
+# ------------------------------------------------------------------------------------------- frame
+def _frame(dynamics_cls):
+    """(R, o): a point ``c`` of the link-7 frame sits at ``R c + o`` in the joint-7 frame (probed through the
+    model's own placement of a payload, so that the file means what ``Payload`` means)."""
+    from wamctl.model.dynamics import Payload
+
+    base = dynamics_cls().standard_parameters()[LINK7]
+    o = dynamics_cls(Payload(1.0, (0.0, 0.0, 0.0))).standard_parameters()[LINK7][1:4] - base[1:4]
+    R = np.column_stack([dynamics_cls(Payload(1.0, tuple(np.eye(3)[i]))).standard_parameters()[LINK7][1:4]
+                         - base[1:4] - o for i in range(3)])
+    return R, o
+
+
+def payload_standard(mass_kg: float, com_m, inertia_kg_m2: dict | None = None) -> np.ndarray:
+    """(10,) standard parameters about the joint-7 origin of a payload (mass, COM and inertia about the COM in
+    the link-7 frame)."""
+    from wamctl.model.dynamics import WamDynamics
+
+    R, o = _frame(WamDynamics)
+    c = R @ np.asarray(com_m, float) + o
+    Ic = np.zeros((3, 3))
+    for k, (a, b) in _INERTIA_INDEX.items():
+        Ic[a, b] = Ic[b, a] = float((inertia_kg_m2 or {}).get(k, 0.0))
+    Io = R @ Ic @ R.T + mass_kg * (c @ c * np.eye(3) - np.outer(c, c))
+    return np.array([mass_kg, *(mass_kg * c)] + [Io[a, b] for (a, b) in _O_INDEX])
+
+
+def _physical(p: np.ndarray, R: np.ndarray, o: np.ndarray) -> np.ndarray:
+    """(10,) -> mass, COM (3, link-7 frame), inertia about the COM (6, INERTIA_NAMES, link-7 axes)."""
+    m = p[0]
+    c = p[1:4] / m
+    Io = np.zeros((3, 3))
+    for (a, b), i in _O_INDEX.items():
+        Io[a, b] = Io[b, a] = p[i]
+    Ic = R.T @ (Io - m * (c @ c * np.eye(3) - np.outer(c, c))) @ R
+    return np.concatenate([[m], R.T @ (c - o), [Ic[_INERTIA_INDEX[k]] for k in INERTIA_NAMES]])
+
+
+def _dependencies(R: np.ndarray) -> list[np.ndarray]:
+    """For each of the 10 physical outputs, the standard parameters it depends on (through R's pattern)."""
+    rot = np.abs(R) > 1e-12
+    first = np.arange(1, 4)
+    deps = [np.array([0])]
+    for i in range(3):
+        deps.append(np.concatenate([[0], first[rot[:, i]]]))
+    for k in INERTIA_NAMES:
+        a, b = _INERTIA_INDEX[k]
+        rows = np.flatnonzero(rot[:, a] | rot[:, b])
+        inertia = [_O_INDEX[tuple(sorted((x, y)))] for x in rows for y in rows]
+        deps.append(np.unique(np.concatenate([[0, 1, 2, 3], inertia])))
+    return deps
+
+
+def _estimate(method, p, cov, determined, alpha, **kw) -> PayloadEstimate:
+    """Mass, COM, inertia about the COM and their intervals (delta method) from the standard parameters."""
+    from wamctl.model.dynamics import WamDynamics
+
+    R, o = _frame(WamDynamics)
+    dof = kw.pop("dof", None)
+    z = float(stats.t.ppf(1 - alpha / 2, dof) if dof is not None else stats.norm.ppf(1 - alpha / 2))
+    deps = _dependencies(R)
+    known = np.array([bool(determined[d].all()) for d in deps])
+    if not determined[0] or not p[0] > 0:
+        known[:] = False
+    vals = np.full(10, np.nan)
+    cis: list = [None] * 10
+    if known.any():
+        q = np.where(determined, p, 0.0)
+        y0 = _physical(q, R, o)
+        idx = np.flatnonzero(determined)
+        J = np.zeros((10, len(idx)))
+        for n, i in enumerate(idx):
+            h = 1e-6 * max(abs(q[i]), 1e-3)
+            dq = q.copy()
+            dq[i] += h
+            J[:, n] = (_physical(dq, R, o) - y0) / h
+        C = J @ cov[np.ix_(idx, idx)] @ J.T
+        for i in np.flatnonzero(known):
+            vals[i] = y0[i]
+            half = z * np.sqrt(max(C[i, i], 0.0))
+            cis[i] = (y0[i] - half, y0[i] + half)
+    f = [None if np.isnan(v) else float(v) for v in vals]
+    return PayloadEstimate(method, np.where(determined, p, np.nan), cov, determined, f[0], cis[0], f[1:4], cis[1:4],
+                           dict(zip(INERTIA_NAMES, f[4:])), dict(zip(INERTIA_NAMES, cis[4:])), **kw)
+
+
+def _determined(X: np.ndarray) -> np.ndarray:
+    scale = np.linalg.norm(X, axis=0)
+    scale[scale == 0] = 1.0
+    _, s, Vt = np.linalg.svd(X / scale, full_matrices=True)
+    keep = np.zeros(Vt.shape[0], bool)
+    if len(s) and s[0] > 0:
+        keep[:len(s)] = s > RANK_TOL * s[0]
+    null = Vt[~keep]
+    return np.linalg.norm(null, axis=0) < DETERMINED_TOL if len(null) else np.ones(X.shape[1], bool)
+
+
+def _weights(X, d, jrow, determined):
+    beta = np.linalg.lstsq(X[:, determined], d, rcond=None)[0]
+    e = d - X[:, determined] @ beta
+    sig = np.full(N7, np.nan)
+    for j in range(N7):
+        ej = e[jrow == j]
+        if len(ej):
+            sig[j] = max(float(np.sqrt(np.mean(ej ** 2))), 1e-9)
+    return sig
+
+
+# ------------------------------------------------------------------------------------------- dynamic
+def difference_rows(loaded: list[RunRows], bare: list[RunRows], pi_declared: np.ndarray):
+    """(X (r, 10), d (r,), joint (r,), sample (r,)): the rows where every run's joint slides, in time order."""
+    n = min(len(r.t_s) for r in loaded + bare)
+    usable = np.ones((n, N7), bool)
+    for r in loaded + bare:
+        usable &= r.usable[:n]
+
+    def mean_residual(rows):
+        return np.mean([r.tau_Nm[:n] - r.Y[:n] @ pi_declared for r in rows], axis=0)
+
+    D = mean_residual(loaded) - mean_residual(bare)
+    Y7 = np.mean([r.Y[:n, :, LINK7] for r in loaded], axis=0)
+    k, j = np.nonzero(usable)
+    return Y7[k, j, :], D[k, j], j, k
+
+
+def identify_payload(loaded, bare, dynamics=None, friction=None, alpha: float = 0.05, labels=None,
+                     starts=None) -> PayloadEstimate:
+    """The payload from runs of one trajectory, loaded and bare (:class:`wamctl.runs.measured.RunData`); see the
+    module doc. ``dynamics``/``friction``: the declared arm without payload (datasheet, Table 4.1 by default).
+    ``labels``: {"loaded": [...], "bare": [...]} names for messages; ``starts``: [(role, start time)] for the
+    order statement. Raises DataFormatError for runs of different trajectories or too few rows."""
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.friction import FrictionModel
+
+    if not loaded or not bare:
+        raise DataFormatError("identify --payload: give at least one --loaded and one --bare run")
+    labels = labels or {"loaded": [f"loaded run {i + 1}" for i in range(len(loaded))],
+                        "bare": [f"bare run {i + 1}" for i in range(len(bare))]}
+    check_same_trajectory(list(loaded) + list(bare), list(labels["loaded"]) + list(labels["bare"]))
+    dyn = dynamics if dynamics is not None else WamDynamics()
+    fr = friction if friction is not None else FrictionModel.table_4_1()
+    pi = standard_vector(dyn, fr)
+    lrows = [run_rows(d, dyn) for d in loaded]
+    brows = [run_rows(d, dyn) for d in bare]
+    X, d, jrow, k = difference_rows(lrows, brows, pi)
+    if len(d) < MIN_ROWS:
+        raise DataFormatError(f"only {len(d)} rows where every run's joints slide; the payload needs at least "
+                              f"{MIN_ROWS}: do the runs move?")
+    det = _determined(X)
+    sig = _weights(X, d, jrow, det)
+    w = 1.0 / sig[jrow]
+    Xw, dw = X[:, det] * w[:, None], d * w
+    Q, Rq = np.linalg.qr(Xw)
+    beta = np.linalg.solve(Rq, Q.T @ dw)
+    e = dw - Xw @ beta
+    per_sample = np.zeros((k.max() + 1, int(det.sum())))
+    np.add.at(per_sample, k, Q * e[:, None])
+    per_sample = per_sample[np.unique(k)]
+    reach = max(r.reach_s / r.dt_s for r in lrows + brows)
+    lags = hac_lags(len(per_sample), reach)
+    S = S_hac_simple(per_sample, lags)
+    Ri = np.linalg.inv(Rq)
+    cov_d = Ri @ S @ Ri.T
+    p = np.zeros(10)
+    p[det] = beta
+    cov = np.full((10, 10), np.nan)
+    cov[np.ix_(det, det)] = cov_d
+    rms = float(np.sqrt(np.mean((d - X[:, det] @ beta) ** 2)))
+    return _estimate("dynamic", p, cov, det, alpha, n_rows=len(d), sigma_Nm=sig, residual_rms_Nm=rms,
+                     hac_lags=[lags], order=order_statement(starts or []), sources=labels)
+
+
+# ------------------------------------------------------------------------------------------- static
+def held_poses(data, min_hold_s: float = MIN_HOLD_S) -> list[tuple[np.ndarray, np.ndarray]]:
+    """[(q_ref (7,), mean torque (7,))] over the last half of each rest of the reference at least ``min_hold_s``
+    long."""
+    t, qr, tau = data.t_s, data.col("q_ref"), data.col("tau")
+    qr0 = np.where(np.isfinite(qr), qr, 0.0)
+    still = np.r_[False, np.all(np.abs(np.diff(qr0, axis=0)) <= HOLD_SPEED_RAD_S, axis=1)]
+    out = []
+    edges = np.flatnonzero(np.diff(np.r_[0, still.astype(int), 0]))
+    for a, b in zip(edges[::2], edges[1::2]):
+        if t[b - 1] - t[a] >= min_hold_s:
+            half = slice(a + (b - a) // 2, b)
+            out.append((qr0[b - 1], np.nanmean(tau[half], axis=0)))
+    return out
+
+
+def identify_payload_static(loaded, bare, alpha: float = 0.05, labels=None,
+                            min_hold_s: float = MIN_HOLD_S) -> PayloadEstimate:
+    """Mass and centre of mass from held poses (see the module doc): the runs' rests, loaded minus bare at each
+    pose, gravity rows of the link-7 regressor. Inertia is not identified (no motion)."""
+    from wamctl.model.dynamics import WamDynamics
+
+    if not loaded or not bare:
+        raise DataFormatError("identify --payload --static: give at least one --loaded and one --bare run")
+    labels = labels or {"loaded": [f"loaded run {i + 1}" for i in range(len(loaded))],
+                        "bare": [f"bare run {i + 1}" for i in range(len(bare))]}
+    check_same_trajectory(list(loaded) + list(bare), list(labels["loaded"]) + list(labels["bare"]))
+    joints = sorted({j - 1 for d in list(loaded) + list(bare) for j in d.meta.logged_joints})
+    poses_l = [held_poses(d, min_hold_s) for d in loaded]
+    poses_b = [held_poses(d, min_hold_s) for d in bare]
+    n = min(len(x) for x in poses_l + poses_b)
+    if n == 0:
+        raise DataFormatError(f"identify --payload --static: no held pose (the reference at rest >= {min_hold_s:g} s) "
+                              "in the runs")
+    dyn = WamDynamics()
+    X, d, jrow = [], [], []
+    z = np.zeros(N7)
+    for i in range(n):
+        q = poses_l[0][i][0]
+        tl = np.mean([x[i][1] for x in poses_l], axis=0)
+        tb = np.mean([x[i][1] for x in poses_b], axis=0)
+        G = dyn.torque_regressor(q, z, z)[0][:, LINK7][:, :4]
+        for j in joints:
+            X.append(G[j])
+            d.append(tl[j] - tb[j])
+            jrow.append(j)
+    X, d, jrow = np.array(X), np.array(d), np.array(jrow)
+    det = np.zeros(10, bool)
+    det[:4] = _determined(X)
+    Xd = X[:, det[:4]]
+    dof = len(d) - Xd.shape[1]
+    if dof < 1:
+        raise DataFormatError(f"identify --payload --static: {n} held pose(s) give {len(d)} rows for "
+                              f"{Xd.shape[1]} parameters; hold more poses")
+    beta, *_ = np.linalg.lstsq(Xd, d, rcond=None)
+    e = d - Xd @ beta
+    s2 = float(e @ e) / dof
+    cov_d = s2 * np.linalg.inv(Xd.T @ Xd)
+    p = np.zeros(10)
+    p[det] = beta
+    cov = np.full((10, 10), np.nan)
+    cov[np.ix_(det, det)] = cov_d
+    sig = np.full(N7, np.nan)
+    for j in joints:
+        sig[j] = float(np.sqrt(np.mean(e[jrow == j] ** 2)))
+    return _estimate("static", p, cov, det, alpha, dof=dof, n_rows=len(d), sigma_Nm=sig,
+                     residual_rms_Nm=float(np.sqrt(np.mean(e ** 2))), order=f"{n} held poses", sources=labels)
+
+
+# ------------------------------------------------------------------------------------------- file
+def payload_file(est: PayloadEstimate, provenance: dict) -> dict:
+    """The payload file (``wamctl-payload/1``): ``mass_kg`` and ``com_m`` (what the model uses: a point mass in
+    the link-7 frame; a COM axis the data do not determine is written as 0 and named under ``not_identified``),
+    the intervals, the inertia about the COM where determined, and the provenance."""
+    if est.mass_kg is None:
+        raise DataFormatError("the data do not determine the payload's mass; no payload file can be written")
+    return {"format": PAYLOAD_FILE_FORMAT, "mass_kg": est.mass_kg,
+            "com_m": [0.0 if v is None else v for v in est.com_m],
+            "mass_ci95_kg": _lst(est.mass_ci_kg), "com_ci95_m": [_lst(c) for c in est.com_ci_m],
+            "inertia_about_com_kg_m2": est.inertia_kg_m2,
+            "inertia_ci95_kg_m2": {k: _lst(v) for k, v in est.inertia_ci_kg_m2.items()},
+            "not_identified": est.not_identified, "method": est.method, "order": est.order,
+            "provenance": provenance}
