@@ -65,6 +65,9 @@ def hmi_session(
             raise SpecError(f"{spec}: kind: this command runs `hmi_block` specs, not `{s.kind}`")
     from wamctl.backends.can.operator import use_operator
     from wamctl.commands.terminal_operator import TerminalOperator
+    from wamctl.runs.catalog import ready_to_resume
+
+    ready_to_resume(resume)             # a live run refused; an abandoned one recorded first, its samples kept
 
     label = f"hmi_block {resume.name} (resumed)"
     with progress_bar(label, enabled=not (quiet or json)) as progress, \

@@ -39,6 +39,8 @@ def tune_ift(spec: SpecArg, out: OutOpt = None,
         raise SpecError(f"{spec}: kind: this command runs `ift` specs, not `{s.kind}`")
     if dry_run:
         raise SpecError("--dry-run and --resume exclude each other")
+    from wamctl.runs.catalog import ready_to_resume
+    ready_to_resume(resume)             # a live run refused; an abandoned one recorded first, its samples kept
     with progress_bar(f"ift {s.name} (resumed)", enabled=not (quiet or json)) as progress:
         outcome = ift.resume(resume, s, spec.resolve().parent, progress)
     show_outcome(outcome, quiet, json)

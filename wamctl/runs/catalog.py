@@ -26,6 +26,9 @@ ABANDONED_REASON = "process ended without closing the run"
 ABANDONED = "abandoned"
 """The status shown for a run whose manifest says ``running`` while its process is gone."""
 _MAX_DEPTH = 4          # runs/<sweep>/points/<point>/<run>: how deep a folder is searched for run directories
+_PARTS_RESUMED_FROM = {"hmi_block": ("trajectory",)}
+"""Tables whose parts a kind's ``--resume`` reads back (an HMI block's trajectory: one part per trial, all of
+them consolidated again at the block's end): marking keeps them beside the consolidated file."""
 _START_SLACK_S = 2.0    # a process started this much after the manifest's start time is not the run's
 
 
@@ -389,7 +392,8 @@ def mark_abandoned(path: Path, known_dead: str | None = None) -> bool:
             continue
         df = read_chunks(d)
         write_table_pair(df, path, d.name)
-        remove_chunks(path, d.name, len(df))
+        if d.name not in _PARTS_RESUMED_FROM.get(m.get("kind"), ()):
+            remove_chunks(path, d.name, len(df))
         consolidated[d.name] = len(df)
     last = _last_write_unix_s(path)
     last_utc = (_dt.datetime.fromtimestamp(last, _dt.timezone.utc).isoformat(timespec="milliseconds")
@@ -399,3 +403,26 @@ def mark_abandoned(path: Path, known_dead: str | None = None) -> bool:
                                      abandoned={"marked_utc": utc_now(), "rows": consolidated,
                                                 "known_by": known_dead or "its pid (gone)"})
     return True
+
+
+def ready_to_resume(path: Path) -> str:
+    """Before ``--resume``: a run whose process is still alive here, or that says ``running`` on another host
+    (which cannot be checked from here), is refused in one line; an abandoned one is first recorded as
+    ``--mark-abandoned`` does (its chunks consolidated: the resumed run's own chunks, numbered from 0, must not
+    overwrite them). Returns the status as it was shown."""
+    from wamctl.errors import SpecError
+
+    path = Path(path)
+    m = read_json(path / "manifest.json")
+    if not m:
+        raise SpecError(f"{path}: --resume needs a run directory (no readable manifest.json there)")
+    status = shown_status(m)
+    if status == "running":
+        raise SpecError(f"{path}: the run is still running (pid {m.get('pid')} on this host); stop it (Ctrl-C) "
+                        f"or wait for it before --resume")
+    if status.startswith("running?"):
+        raise SpecError(f"{path}: the run says running on host {m.get('host')}, which cannot be checked from "
+                        f"here; resume it there, or mark it with `wamctl runs --mark-abandoned` on that host")
+    if status == ABANDONED:
+        mark_abandoned(path)
+    return status
