@@ -55,8 +55,9 @@ def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, 
                   f"(run it with `wamctl run`)  report: {path / 'report.md'}", highlight=False)
 
 
-def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (measured-run directories or run "
-                                                         "directories), any sample rate.", show_default=False)],
+def identify(data: Annotated[list[Path] | None, typer.Argument(help="Measured runs (measured-run directories or "
+                                                                "run directories), any sample rate.",
+                                                                show_default=False)] = None,
              validate: Annotated[list[Path] | None, typer.Option(
                  "--validate", help="Held-out runs (best: another trajectory); repeat the option. Default: the "
                                     "last quarter of each run is held out.", show_default=False)] = None,
@@ -68,6 +69,17 @@ def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (mea
              force: Annotated[bool, typer.Option("--force", help="Write model.yaml even when the held-out check "
                                                  "finds the model worse than the declared arm (or cannot check "
                                                  "it); the verdict is still reported.")] = False,
+             payload: Annotated[bool, typer.Option("--payload", help="Identify a payload at the wrist from one "
+                                                   "trajectory run loaded (--loaded) and bare (--bare), best in "
+                                                   "the order of `wamctl excite SPEC --payload-schedule`; writes "
+                                                   "payload.yaml (docs/payload.md).")] = False,
+             loaded: Annotated[list[Path] | None, typer.Option("--loaded", help="--payload: a run with the "
+                                                               "payload; repeat the option.",
+                                                               show_default=False)] = None,
+             bare: Annotated[list[Path] | None, typer.Option("--bare", help="--payload: a run without it; "
+                                                             "repeat the option.", show_default=False)] = None,
+             static: Annotated[bool, typer.Option("--static", help="--payload from held poses (the reference at "
+                                                  "rest >= 1 s): mass and centre of mass only.")] = False,
              quiet: QuietOpt = False, json: JsonOpt = False):
     """Identify the arm's own inertial parameters (base parameters, armature and friction) from measured runs.
 
@@ -87,6 +99,11 @@ def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (mea
     from wamctl.commands.common import print_document_tables, progress_bar
     from wamctl.experiments.identify import identify_to_run_dir
 
+    if payload or loaded or bare or static:
+        _identify_payload(data, loaded, bare, model, out, static, quiet, json)
+        return
+    if not data:
+        raise typer.BadParameter("give measured runs (or --payload --loaded RUN --bare RUN)", param_hint="DATA")
     with progress_bar("identify", enabled=not (quiet or json)) as progress:
         path, result, doc = identify_to_run_dir(data, validate, model, out, progress=progress, force=force)
     check = result["held_out_check"]
@@ -118,6 +135,30 @@ def identify(data: Annotated[list[Path], typer.Argument(help="Measured runs (mea
         console.print(f"model NOT written as model.yaml (kept as {path / result['model_file']}; --force writes it)"
                       f"\nrun directory: {path}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
+
+
+def _identify_payload(data, loaded, bare, model, out, static, quiet, json):
+    """``identify --payload``: see :func:`wamctl.experiments.identify.identify_payload_to_run_dir`."""
+    from wamctl.commands.common import print_document_tables
+    from wamctl.errors import SpecError
+    from wamctl.experiments.identify import identify_payload_to_run_dir
+
+    if data:
+        raise SpecError("identify --payload takes its runs as --loaded RUN and --bare RUN, not as arguments")
+    if not loaded or not bare:
+        raise SpecError("identify --payload: give at least one --loaded RUN and one --bare RUN")
+    path, result, doc = identify_payload_to_run_dir(list(loaded), list(bare), model, out, static=static)
+    if json:
+        emit_json({"run_dir": str(path), "payload_file": str(path / "payload.yaml"),
+                   **{k: result[k] for k in ("method", "mass_kg", "mass_ci95_kg", "com_m", "com_ci95_m",
+                                             "inertia_about_com_kg_m2", "inertia_ci95_kg_m2", "not_identified",
+                                             "order")}})
+        return
+    if not quiet:
+        print_document_tables(doc)
+    und = result["not_identified"]
+    console.print(f"{result['order']}\nnot identified: {', '.join(und) if und else 'none'}\npayload file: "
+                  f"{path / 'payload.yaml'}\nrun directory: {path}", highlight=False, soft_wrap=True)
 
 
 def register(app: typer.Typer) -> None:

@@ -121,12 +121,13 @@ def declared_arm(model: Path | None, payload):
     from wamctl.model.dynamics import WamDynamics
     from wamctl.model.friction import FRICTION_FILE_FORMAT, FrictionModel
     from wamctl.model.plant import resolve_friction
+    from wamctl.model.urdf import is_urdf
     from wamctl.specs import PlantSpec, format_validation_error, load_model_file
     from wamctl.specs.common import link_parameters
 
     if model is None:
         return WamDynamics(payload), FrictionModel.table_4_1(), "datasheet links, Table 4.1 friction"
-    raw = load_yaml(model)
+    raw = None if is_urdf(model) else load_yaml(model)     # a URDF: its links, Table 4.1 friction
     if isinstance(raw, dict) and (raw.get("format") == FRICTION_FILE_FORMAT or "joints" in raw):
         return WamDynamics(payload), FrictionModel.load(model), f"datasheet links, friction of {model}"
     try:
@@ -262,6 +263,10 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
     run.write_json("identification.json", result)
     mf = model_file(est, provenance, held, check)
     (run.path / model_name).write_text(yaml.safe_dump(mf, sort_keys=False))
+    from wamctl.model.urdf import wam_urdf     # the same links as a URDF (pinocchio, ROS, MuJoCo read it)
+    (run.path / Path(model_name).with_suffix(".urdf")).write_text(wam_urdf(est.links_, comment=(
+        f"wamctl identify {provenance['run_dir']}: the identified links ({check['verdict']}); DH frames of "
+        "wamctl.model.params, armature on each joint's dynamics element")))
     est.table().to_csv(run.path / "parameters.csv", index=False)
     if validation["traces"]:
         pd.concat([pd.DataFrame(t) for t in validation["traces"]], ignore_index=True).to_parquet(
@@ -274,3 +279,58 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
 def _num(v):
     v = float(v)
     return v if np.isfinite(v) else None
+
+
+# ----------------------------------------------------------------------------------------------- payload
+def _start_utc(path: Path) -> str | None:
+    import json
+
+    m = Path(path) / "manifest.json"
+    try:
+        return json.loads(m.read_text()).get("start_utc") if m.exists() else None
+    except (OSError, ValueError):
+        return None
+
+
+def identify_payload_to_run_dir(loaded: list[Path], bare: list[Path], model: Path | None = None,
+                                out: Path = Path("runs"), name: str | None = None, static: bool = False,
+                                formats=("md", "html", "json")):
+    """``wamctl identify --payload``: the payload from runs of one trajectory loaded and bare
+    (:mod:`wamctl.analysis.identification.payload`); writes a run directory with ``payload.yaml`` (the payload
+    file), ``payload.json``, ``payload.csv`` and a report. Returns (run path, result dict, Document)."""
+    import yaml
+
+    from wamctl.analysis.identification.payload import identify_payload, identify_payload_static, payload_file
+    from wamctl.report import write_report
+    from wamctl.runs.measured import load_run_data
+    from wamctl.runs.store import RunDir, git_revision, package_versions, utc_now
+
+    if not loaded or not bare:
+        raise SpecError("identify --payload: give at least one --loaded and one --bare run")
+    ld = [load_run_data(p) for p in loaded]
+    bd = [load_run_data(p) for p in bare]
+    labels = {"loaded": [str(Path(p).resolve()) for p in loaded], "bare": [str(Path(p).resolve()) for p in bare]}
+    if static:
+        est = identify_payload_static(ld, bd, labels=labels)
+        described = "gravity of held poses (declared arm not used: it cancels)"
+    else:
+        dyn, friction, described = declared_arm(model, None)
+        starts = [("loaded", _start_utc(p)) for p in loaded] + [("bare", _start_utc(p)) for p in bare]
+        est = identify_payload(ld, bd, dyn, friction, labels=labels, starts=starts)
+    name = name or f"payload-{Path(loaded[0]).name}"
+    spec = {"kind": "identification", "name": name, "payload": True, "loaded": labels["loaded"],
+            "bare": labels["bare"], "model": str(Path(model).resolve()) if model else None,
+            "options": {"static": bool(static)}}
+    run = RunDir.create(out, name, spec, None, "identification",
+                        {"backend": {"name": "analysis"}, "source": labels["loaded"] + labels["bare"]})
+    provenance = {"tool": "wamctl identify --payload" + (" --static" if static else ""), "loaded": labels["loaded"],
+                  "bare": labels["bare"], "declared": described, "created_utc": utc_now(),
+                  "wamctl_version": package_versions()["wamctl"], "git_revision": git_revision(),
+                  "run_dir": str(run.path.resolve())}
+    result = dict(est.to_dict(), provenance=provenance)
+    run.write_json("payload.json", result)
+    (run.path / "payload.yaml").write_text(yaml.safe_dump(payload_file(est, provenance), sort_keys=False))
+    est.table().to_csv(run.path / "payload.csv", index=False)
+    run.finish("completed", None, not_identified=est.not_identified)
+    doc = write_report(run.path, formats=formats)
+    return run.path, result, doc

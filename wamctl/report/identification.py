@@ -48,6 +48,8 @@ def links_table(model: dict, margins: list) -> pd.DataFrame:
 
 def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
     out_dir = Path(out_dir or run_path)
+    if (run_path / "payload.json").exists():
+        return payload_report(run_path, manifest)
     result = json.loads((run_path / "identification.json").read_text())
     model_name = result.get("model_file", "model.yaml")
     model = yaml.safe_load((run_path / model_name).read_text())
@@ -187,3 +189,25 @@ def _moved_figure(result: dict, out_dir: Path, doc: Document) -> None:
     ax.grid(alpha=0.3)
     doc.figure(save(fig, out_dir / "identification_moved.png"), "relative change of each base parameter from "
                "the declared value, with its interval")
+
+
+def payload_report(run_path: Path, manifest: dict) -> Document:
+    """The report of ``wamctl identify --payload`` (``payload.json``): the payload with its 95 % intervals, what
+    the runs do not determine, the loaded/bare order, and the fit's residual per joint."""
+    r = json.loads((run_path / "payload.json").read_text())
+    doc = Document(f"Payload identification: {manifest.get('name', run_path.name)}")
+    m, ci = r["mass_kg"], r["mass_ci95_kg"]
+    doc.text(("mass not identified" if m is None else f"mass {m:.4g} kg (95 % interval {ci[0]:.4g} to {ci[1]:.4g})")
+             + f"; {r['method']} ({'held poses: gravity only' if r['method'] == 'static' else r['order']}); "
+             + (f"not identified: {', '.join(r['not_identified'])}" if r["not_identified"]
+                else "every quantity identified") + ". Payload file: payload.yaml (plant.effects.payload, "
+             "controller.declared_payload, diagnose --payload).")
+    tab = pd.read_csv(run_path / "payload.csv")
+    doc.table("payload", tab, caption="mass, centre of mass (link-7 frame) and inertia about the centre of mass "
+                                      "(link-7 axes), 95 % intervals (HAC for the dynamic variant); 'not "
+                                      "identified': the runs do not determine it", digits=5)
+    sig = pd.DataFrame({"joint": range(1, P.N_JOINTS + 1), "residual_rms_Nm": r["sigma_Nm"]})
+    doc.table("payload residual", sig, caption="RMS of the loaded-minus-bare residual per joint", digits=4)
+    doc.data["payload"] = {k: r.get(k) for k in ("method", "mass_kg", "mass_ci95_kg", "com_m", "com_ci95_m",
+                                                 "not_identified", "order")}
+    return doc

@@ -257,6 +257,8 @@ def _estimate(method, p, cov, determined, alpha, **kw) -> PayloadEstimate:
             vals[i] = y0[i]
             half = z * np.sqrt(max(C[i, i], 0.0))
             cis[i] = (y0[i] - half, y0[i] + half)
+    if cis[0] is not None and cis[0][0] <= 0.0:     # a mass the data cannot tell from none: nothing to place
+        vals[1:], cis[1:] = np.nan, [None] * 9
     f = [None if np.isnan(v) else float(v) for v in vals]
     return PayloadEstimate(method, np.where(determined, p, np.nan), cov, determined, f[0], cis[0], f[1:4], cis[1:4],
                            dict(zip(INERTIA_NAMES, f[4:])), dict(zip(INERTIA_NAMES, cis[4:])), **kw)
