@@ -23,14 +23,18 @@ from wamctl.analysis.identification.excitation import (
     ExcitationLimits,
     FourierTrajectory,
     LimitUse,
+    World,
+    WorldClearance,
     design_excitation,
     predicted_tracking_share,
     sampled_limit_use,
+    world_clearance,
 )
 from wamctl.backends import make_backend
 from wamctl.control.trajectory import Reference
 from wamctl.errors import SpecError
 from wamctl.experiments.common import Plan, closed_loop_stage, declared_dynamics, feedforward_for, make_joint_controller
+from wamctl.model import collision as C
 from wamctl.model import params as P
 from wamctl.model.plant import resolve_friction
 from wamctl.runs.store import RunDir
@@ -45,7 +49,17 @@ LIMIT_LABELS = {"position": "joint range (with margin)", "speed": "speed", "acce
 def limits_of(spec: ExcitationSpec) -> ExcitationLimits:
     lim = spec.excitation.limits
     q_min, q_max, qd, qdd = lim.arrays()
-    return ExcitationLimits(q_min, q_max, qd, qdd, 1.0 - lim.torque_margin, lim.max_cartesian_speed_m_s)
+    return ExcitationLimits(q_min, q_max, qd, qdd, 1.0 - lim.torque_margin, lim.max_cartesian_speed_m_s,
+                            world_of(spec))
+
+
+def world_of(spec: ExcitationSpec) -> World:
+    """The spec's ``excitation.world``: capsules, table, box, clearance."""
+    w = spec.excitation.world
+    geometry = C.ArmGeometry.default(w.tool_length_m, w.table_z_m, w.radii_m.mapping())
+    box = w.box
+    return World(geometry, w.self_collision, w.table_z_m, None if box is None else np.asarray(box.min_m, float),
+                 None if box is None else np.asarray(box.max_m, float), w.clearance_m)
 
 
 def declared_model(spec: ExcitationSpec, base_dir: Path | None):
@@ -100,6 +114,7 @@ class ExcitationPlan(Plan):
 
     trajectory: FourierTrajectory | None = None
     limit_use: LimitUse | None = None
+    clearance: WorldClearance | None = None
 
     def check_limits(self) -> list[str]:
         done = super().check_limits()
@@ -109,7 +124,19 @@ class ExcitationPlan(Plan):
             raise SpecError(f"excitation: {where}{LIMIT_LABELS[worst_kind]} at {share:.0%} of its limit; "
                             "redesign with `wamctl excite`")
         done.append("excitation within its limits over the whole trajectory: " + limits_summary(self.limit_use))
+        if self.clearance is not None:
+            if not self.clearance.respected:
+                raise SpecError("excitation.world: " + clearance_failure(self.clearance)
+                                + "; redesign with `wamctl excite`")
+            done.append("excitation clear of the world over the whole trajectory: " + self.clearance.statement())
         return done
+
+
+def clearance_failure(clear: WorldClearance) -> str:
+    w = clear.worst
+    return (f"{w.kind} distance {w.between} reaches {w.distance_m:.3f} m at t = {w.index * clear.dt_s:.3f} s "
+            f"of the period (at least {w.distance_m - clear.sampling_bound_m:.3f} m between samples), below the "
+            f"clearance {clear.clearance_m:g} m")
 
 
 def instruments_outlook(spec: ExcitationSpec, traj: FourierTrajectory, base_dir: Path | None = None) -> dict:
@@ -148,6 +175,8 @@ def plan(spec: ExcitationSpec, base_dir: Path | None = None) -> ExcitationPlan:
     ref = reference_of(spec, traj)
     dyn, friction = declared_model(spec, base_dir)
     use = sampled_limit_use(traj, limits_of(spec), dyn, friction)
+    world = world_of(spec)
+    clear = world_clearance(traj, world, dyn, limits_of(spec)) if world.active else None
     ex = spec.excitation
     summary = [f"excitation: joints {ex.joints}, Fourier series of {ex.harmonics} harmonics, period "
                f"{ex.period_s:g} s x {ex.periods}, holds of {ex.settle_s:g} s at q0",
@@ -155,9 +184,11 @@ def plan(spec: ExcitationSpec, base_dir: Path | None = None) -> ExcitationPlan:
                f"({ex.design.criterion})",
                f"controller {spec.controller.kind}, backend {spec.backend.kind}",
                f"limits used: {limits_summary(use)}",
+               "world: " + (clear.statement() if clear is not None else "none checked"),
                instruments_outlook(spec, traj, base_dir)["statement"],
                f"{len(ref)} ticks at {P.CONTROL_RATE_HZ:.0f} Hz = {len(ref) / P.CONTROL_RATE_HZ:.1f} s of arm time"]
-    return ExcitationPlan(ref, summary, feedforward_for(spec, ref, base_dir), trajectory=traj, limit_use=use)
+    return ExcitationPlan(ref, summary, feedforward_for(spec, ref, base_dir), trajectory=traj, limit_use=use,
+                          clearance=clear)
 
 
 def execute(spec: ExcitationSpec, plan: ExcitationPlan, run: RunDir, progress=None,
@@ -166,7 +197,8 @@ def execute(spec: ExcitationSpec, plan: ExcitationPlan, run: RunDir, progress=No
         run.event(plan.reference.t_s[i], "segment", None, label)
     run.write_json("excitation.json", {"trajectory": plan.trajectory.to_dict(),
                                        "q0_rad": [float(v) for v in plan.trajectory.q0_rad],
-                                       "limits_used": _use_dict(plan.limit_use)})
+                                       "limits_used": _use_dict(plan.limit_use),
+                                       "world": plan.clearance.to_dict() if plan.clearance is not None else None})
     controller = make_joint_controller(spec, plan.feedforward_Nm)  # built before the arm is live (no heartbeat gap)
     with make_backend(spec, base_dir) as backend:
         closed_loop_stage(backend, controller, plan.reference, run, progress)
@@ -234,7 +266,9 @@ def excite(spec_path: Path, out: Path | None = None, progress=None) -> tuple[Pat
     summary = {"spec": str(spec_path.resolve()), "criterion": des.criterion, "objective": des.objective,
                "instruments_outlook": outlook,
                "condition_number": des.condition_number, "base_parameters_targeted": des.n_target,
-               "starts": des.starts, "limits_used": _use_dict(use), "trajectory": des.trajectory.to_dict()}
+               "starts": des.starts, "limits_used": _use_dict(use), "trajectory": des.trajectory.to_dict(),
+               "world": des.clearance.to_dict() if des.clearance is not None else None,
+               "scaled_back_to": des.scaled_back}
     (out / "design.json").write_text(_json(summary))
     design_document(spec, des, use, limits_of(spec), out, outlook)
     return out, des, use

@@ -215,6 +215,19 @@ class WamDynamics:
         inertia = np.array([self.model.inertias[i + 1].matrix() for i in range(n)])
         return rot, trans, inertia, np.array(self.model.armature), np.array(self.model.gravity.linear)
 
+    def joint_frames(self, q: np.ndarray) -> np.ndarray:
+        """Homogeneous transforms of DH frames 0..7 in frame 0 (frame i at the output of ``A_i``; frame 0 the
+        shoulder): (8, 4, 4) for q (7,), (n, 8, 4, 4) for states (n, 7)."""
+        qs = np.atleast_2d(np.asarray(q, float))
+        out = np.empty((len(qs), P.N_JOINTS + 1, 4, 4))
+        out[:, 0] = np.eye(4)
+        fixed = [_dh_fixed(i) for i in range(P.N_JOINTS)]
+        for k, qk in enumerate(qs):
+            pin.forwardKinematics(self.model, self.data, qk)
+            for i in range(P.N_JOINTS):
+                out[k, i + 1] = (self.data.oMi[i + 1] * fixed[i]).homogeneous
+        return out[0] if np.ndim(q) == 1 else out
+
 
 def links_from_standard(pi: np.ndarray, armature_kg_m2: np.ndarray) -> P.LinkParameters:
     """The :class:`LinkParameters` (DH-frame COM, inertia about the COM) of standard inertial parameters.

@@ -51,6 +51,8 @@ def design_document(spec, design, use, limits, out_dir: Path, outlook: dict | No
                  + ", ".join(f"joint {j} {100 * v:.1f} %" for j, v in outlook["tracking_share_predicted"].items())
                  + ".")
         doc.data["instruments_outlook"] = outlook
+    if design.clearance is not None:
+        world_section(doc, design.clearance, spec, getattr(design, "scaled_back", 1.0))
     doc.heading("Limits reached")
     doc.table("limits", limits_table(use), "peak of each quantity over one period and the share of its "
               "limit used (position: distance from the middle of the range with margin, as a share of its half).")
@@ -74,6 +76,38 @@ def design_document(spec, design, use, limits, out_dir: Path, outlook: dict | No
     doc.figure(save(fig, Path(out_dir) / "excitation_design.png"), "one period; grey: joint range with margin")
     doc.write(Path(out_dir), "report")
     return doc
+
+
+WORLD_KINDS = {"self": "self-collision (non-adjacent links)", "table": "table plane", "box": "workspace box"}
+
+
+def world_table(clearance) -> pd.DataFrame:
+    """Per kind: the smallest distance sampled, between what, when, and the distance the whole period keeps at
+    least (the sampling's bound subtracted)."""
+    rows = [{"kind": WORLD_KINDS[k], "between": c.between, "smallest_sampled_m": c.distance_m,
+             "at_t_s": c.index * clearance.dt_s, "at_least_m": clearance.guaranteed_m(k),
+             "clearance_m": clearance.clearance_m, "kept": clearance.guaranteed_m(k) >= clearance.clearance_m - 1e-12}
+            for k, c in clearance.smallest.items()]
+    return pd.DataFrame(rows).set_index("kind")
+
+
+def world_section(doc: Document, clearance, spec, scaled_back: float = 1.0) -> None:
+    """The smallest distances to the world reached over one period (``excitation.world``)."""
+    w = spec.excitation.world
+    doc.heading("The world around the arm")
+    said = [f"self-collision {'checked' if w.self_collision else 'not checked'}",
+            f"table plane at z = {w.table_z_m:g} m" if w.table_z_m is not None else "no table",
+            f"workspace box {w.box.min_m} to {w.box.max_m} m" if w.box is not None else "no workspace box"]
+    doc.text("Capsules along the arm (shoulder, upper arm, forearm, wrist and hand"
+             + (f" with a tool of {w.tool_length_m:g} m" if w.tool_length_m else "") + "); " + ", ".join(said)
+             + f"; clearance {clearance.clearance_m:g} m. Sampled every {1e3 * clearance.dt_s:.1f} ms over the whole "
+             f"period; between samples no distance can shrink by more than {1e3 * clearance.sampling_bound_m:.1f} mm "
+             "(joint speeds x lever arms), so each distance is given as at least the smallest sampled minus that."
+             + (f" SLSQP's design crossed the clearance between its grid points: scaled back toward q0 to "
+                f"{scaled_back:.3f} of its amplitude." if scaled_back < 1.0 else ""))
+    doc.table("world", world_table(clearance), "smallest distance (surface to surface; box: inside the box) of "
+              "each kind over one period, the links it is between and its time in the period")
+    doc.data["world"] = clearance.to_dict()
 
 
 def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:

@@ -7,7 +7,7 @@ spec without coefficients is designed when it is planned (deterministic: the spe
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
@@ -56,6 +56,54 @@ class DesignSpec(Strict):
                                                             "table_4_1, none or a friction/model file")
 
 
+Vec3 = Annotated[list[float], Field(min_length=3, max_length=3)]
+
+
+class BoxSpec(Strict):
+    """A workspace box in frame 0 (the shoulder at the origin, z up), m: the moving links stay inside."""
+    min_m: Vec3
+    max_m: Vec3
+
+    @model_validator(mode="after")
+    def _check(self):
+        for k, axis in enumerate("xyz"):
+            if not self.min_m[k] < self.max_m[k]:
+                raise ValueError(f"min_m: {axis} {self.min_m[k]:g} m is not below max_m's {self.max_m[k]:g} m")
+            if not self.min_m[k] < 0.0 < self.max_m[k]:
+                raise ValueError(f"min_m/max_m: the shoulder (0 on {axis}) is outside the box")
+        return self
+
+
+class RadiiSpec(Strict):
+    """Capsule radii, m (default: :data:`wamctl.model.collision.RADIUS_M`)."""
+    shoulder: float | None = Field(None, gt=0.0, le=0.3)
+    upper_arm: float | None = Field(None, gt=0.0, le=0.2)
+    forearm: float | None = Field(None, gt=0.0, le=0.2)
+    wrist: float | None = Field(None, gt=0.0, le=0.2)
+
+    def mapping(self) -> dict:
+        names = {"shoulder": "shoulder", "upper_arm": "upper arm", "forearm": "forearm", "wrist": "wrist and hand"}
+        return {names[k]: v for k, v in self.model_dump().items() if v is not None}
+
+
+class WorldSpec(Strict):
+    """The arm's surroundings the trajectory keeps ``clearance_m`` from over the whole period (see
+    :mod:`wamctl.model.collision` for the capsules)."""
+    self_collision: bool = Field(True, description="non-adjacent links kept apart")
+    table_z_m: float | None = Field(None, ge=-1.5, lt=0.0, description="a table or floor plane at this height "
+                                    "in frame 0 (the shoulder at 0, z up); the base stands on it")
+    box: BoxSpec | None = None
+    clearance_m: float = Field(0.02, ge=0.0, le=0.3, description="distance kept from each obstacle")
+    tool_length_m: float = Field(0.0, ge=0.0, le=0.5, description="a tool beyond the flange along z7")
+    radii_m: RadiiSpec = RadiiSpec()
+
+    @model_validator(mode="after")
+    def _check(self):
+        if self.box is not None and self.table_z_m is not None and self.box.max_m[2] <= self.table_z_m:
+            raise ValueError(f"box.max_m: z {self.box.max_m[2]:g} m is at or below the table ({self.table_z_m:g} m)")
+        return self
+
+
 class JointCoefficients(Strict):
     a_rad_s: list[float]
     b_rad_s: list[float]
@@ -72,6 +120,7 @@ class ExcitationSection(Strict):
     settle_s: float = Field(1.0, ge=0.0, le=30.0, description="hold at q0 before and after")
     limits: ExcitationLimitsSpec = ExcitationLimitsSpec()
     design: DesignSpec = DesignSpec()
+    world: WorldSpec = WorldSpec()
     coefficients: dict[Joint, JointCoefficients] | None = Field(
         None, description="the designed series (written by `wamctl excite`); absent: designed when planned")
 

@@ -20,6 +20,14 @@ parameters' units, smooth) or ``condition`` (minimise the condition number of th
 regressor). scipy's SLSQP from several random feasible starts; the best design is then checked at the control
 rate and shrunk if a limit is crossed between grid points. The base columns used are those the moving joints
 can determine (:func:`target_columns`).
+
+The world around the arm (:class:`World`, optional): self-collision between the arm's capsules, a table plane
+and a workspace box (:mod:`wamctl.model.collision`), each kept ``clearance_m`` away on the grid as constraints of
+SLSQP, then over the whole period at the control rate with the sampling's own bound subtracted
+(:func:`world_clearance`: between two samples nothing moves farther than ``dt x sum_j |qd_j| lever_j``). A
+candidate SLSQP leaves infeasible is repaired (its coefficients scaled back toward ``q0`` until every limit
+holds) rather than dropped; the chosen design is scaled back the same way if the dense check finds a crossing
+between grid points.
 """
 
 from __future__ import annotations
@@ -39,6 +47,7 @@ from wamctl.analysis.identification.base import (
     standard_regressor,
     standard_vector,
 )
+from wamctl.model import collision as C
 from wamctl.model import params as P
 
 log = logging.getLogger(__name__)
@@ -115,12 +124,97 @@ class ExcitationLimits:
     qdd_max_rad_s2: np.ndarray
     torque_fraction: float = 0.7
     cartesian_speed_m_s: float = 0.8
+    world: World | None = None
 
     @property
     def tau_max_Nm(self) -> np.ndarray:
         return self.torque_fraction * P.TAU_MAX_NM
 
     KINDS = ("position", "speed", "acceleration", "torque", "cartesian_speed")
+
+
+@dataclass
+class World:
+    """The arm's surroundings the trajectory keeps ``clearance_m`` from: its own links (``self_collision``), a
+    table plane at ``table_z_m`` (frame 0: the shoulder at 0, z up), a workspace box (``box_min_m``,
+    ``box_max_m``, (3,) each) the arm's moving links stay inside. ``geometry``: the capsules."""
+
+    geometry: C.ArmGeometry
+    self_collision: bool = True
+    table_z_m: float | None = None
+    box_min_m: np.ndarray | None = None
+    box_max_m: np.ndarray | None = None
+    clearance_m: float = 0.02
+
+    @property
+    def active(self) -> bool:
+        return self.self_collision or self.table_z_m is not None or self.box_min_m is not None
+
+    def distances(self, frames: np.ndarray) -> dict[str, dict[str, np.ndarray]]:
+        return C.distances(frames, self.geometry, self.table_z_m, self.box_min_m, self.box_max_m,
+                           self.self_collision)
+
+    def margins(self, frames: np.ndarray) -> np.ndarray:
+        """``(distance - clearance) / 0.1 m`` of every kind, pair or link and sample, flattened (>= 0 where it
+        holds; scaled to the order of the other margins)."""
+        dist = self.distances(frames)
+        parts = [(d - self.clearance_m) / 0.1 for per in dist.values() for d in per.values()]
+        return np.concatenate(parts) if parts else np.zeros(0)
+
+
+@dataclass
+class WorldClearance:
+    """The smallest distances over one period sampled every ``dt_s``: per kind (``self``, ``table``, ``box``) a
+    :class:`wamctl.model.collision.Clearance` (sampled); ``sampling_bound_m``: how much smaller the distance
+    can be between samples; ``clearance_m``: what the world asks."""
+
+    smallest: dict
+    sampling_bound_m: float
+    dt_s: float
+    clearance_m: float
+
+    def guaranteed_m(self, kind: str) -> float:
+        """The distance the whole period keeps at least (sampled minus the sampling's bound)."""
+        return self.smallest[kind].distance_m - self.sampling_bound_m
+
+    @property
+    def worst(self):
+        """The :class:`Clearance` whose guaranteed distance is smallest, or None."""
+        return min(self.smallest.values(), key=lambda c: c.distance_m, default=None)
+
+    @property
+    def respected(self) -> bool:
+        w = self.worst
+        return w is None or w.distance_m - self.sampling_bound_m >= self.clearance_m - 1e-12
+
+    def statement(self) -> str:
+        w = self.worst
+        if w is None:
+            return "no world (self-collision, table, box) checked"
+        return (f"smallest distance {w.distance_m - self.sampling_bound_m:.3f} m ({w.kind}: {w.between}) at "
+                f"least, against a clearance of {self.clearance_m:g} m")
+
+    def to_dict(self) -> dict:
+        return {"clearance_m": self.clearance_m, "sampling_dt_s": self.dt_s,
+                "sampling_bound_m": self.sampling_bound_m,
+                "smallest": {k: {**c.to_dict(), "guaranteed_m": self.guaranteed_m(k)}
+                             for k, c in self.smallest.items()},
+                "respected": self.respected}
+
+
+def world_clearance(traj: FourierTrajectory, world: World, dynamics, limits: ExcitationLimits | None = None,
+                    rate_hz: float = P.CONTROL_RATE_HZ) -> WorldClearance:
+    """The world's smallest distances over one period sampled at ``rate_hz``, with the bound of what the
+    sampling can miss: ``dt x sum_j (max |qd_j| + qdd_max_j dt / 2) lever_j`` (the speed between samples is at
+    most the sampled one plus the acceleration limit over half a step; the nearest sample is at most ``dt / 2``
+    away and two moving links each move that far)."""
+    dt = 1.0 / rate_hz
+    t = np.arange(int(round(traj.period_s * rate_hz)) + 1) * dt
+    q, qd, qdd = traj.evaluate(t)
+    acc = np.abs(qdd).max(axis=0) if limits is None else np.maximum(limits.qdd_max_rad_s2, np.abs(qdd).max(axis=0))
+    speed = np.abs(qd).max(axis=0) + acc * dt / 2
+    bound = float(dt * speed @ world.geometry.levers_m())
+    return WorldClearance(C.smallest(world.distances(dynamics.joint_frames(q))), bound, dt, world.clearance_m)
 
 
 @dataclass
@@ -197,6 +291,7 @@ class Criterion:
         self.cols = self.base.independent[target_columns(joints, self.base)]
         self.pi_nominal = standard_vector(dynamics, friction)
         self.t_grid = (np.arange(n_grid) + 0.5) * period_s / n_grid
+        self.world = limits.world if limits.world is not None and limits.world.active else None
         self._mid = 0.5 * (limits.q_min_rad + limits.q_max_rad)[joints]
         self._half = 0.5 * (limits.q_max_rad - limits.q_min_rad)[joints]
         self._cache: tuple[bytes, tuple] | None = None
@@ -227,7 +322,8 @@ class Criterion:
             (1.0 - np.abs(qd[:, J]) / lim.qd_max_rad_s[J]).ravel(),
             (1.0 - np.abs(qdd[:, J]) / lim.qdd_max_rad_s2[J]).ravel(),
             (1.0 - np.abs(tau[:, J]) / lim.tau_max_Nm[J]).ravel(),
-            1.0 - self.dyn.link7_speed_m_s(q, qd) / lim.cartesian_speed_m_s])
+            1.0 - self.dyn.link7_speed_m_s(q, qd) / lim.cartesian_speed_m_s,
+            self.world.margins(self.dyn.joint_frames(q)) if self.world is not None else np.zeros(0)])
         self._cache = (key, (ev, margins))
         return ev, margins
 
@@ -258,8 +354,10 @@ class Criterion:
         n, nj = len(self.t_grid), len(self.joints)
         kinds = ("position", "speed", "acceleration", "torque")
         block = k // (n * nj)
-        if block >= len(kinds):
+        if block >= len(kinds) and k < len(kinds) * n * nj + n:
             return "cartesian_speed", None, float(1.0 - m[k])
+        if block >= len(kinds):
+            return "world", None, float(1.0 - m[k])
         return kinds[block], self.joints[k % nj] + 1, float(1.0 - m[k])
 
     def joint_kinematic_scale(self, x: np.ndarray) -> np.ndarray:
@@ -288,6 +386,8 @@ class ExcitationDesign:
     condition_number: float
     n_target: int
     starts: list[dict]
+    clearance: WorldClearance | None = None
+    scaled_back: float = 1.0
 
 
 def design_excitation(q0_rad, joints: list[int], period_s: float, harmonics: int, limits: ExcitationLimits,
@@ -311,22 +411,63 @@ def design_excitation(q0_rad, joints: list[int], period_s: float, harmonics: int
             res = minimize(crit.objective, x0, method="SLSQP",
                            constraints=[{"type": "ineq", "fun": crit.margins}],
                            options={"maxiter": max_iterations, "ftol": 1e-7})
-            x = res.x if crit.margins(res.x).min() >= 0 else x0
+            x, scale = res.x, 1.0
+            if crit.margins(x).min() < 0:   # repaired: scaled back toward q0 until every limit holds
+                scale = _largest_scale(lambda c, end=res.x: crit.margins(c * end).min() >= 0)
+                x = scale * res.x
+                if crit.objective(x0) < crit.objective(x):
+                    x, scale = x0, 0.0
             f = crit.objective(x)
             tried.append({"start": s + 1, "objective": f, "condition_number": crit.condition_number(x),
-                          "iterations": int(res.nit), "message": str(res.message)})
+                          "iterations": int(res.nit), "message": str(res.message),
+                          "repair": ("none" if scale == 1.0 else "SLSQP's end infeasible: its start kept"
+                                     if scale == 0.0 else f"SLSQP's end infeasible: scaled back to {scale:.4g}")})
             if best is None or f < best[0]:
                 best = (f, x)
             if progress:
                 progress(s + 1, starts, f"excitation design: start {s + 1}/{starts}")
     if best is None:
+        if crit.world is not None:
+            q0_clear = world_clearance(crit.trajectory(np.zeros(crit.n_free)), crit.world, dynamics, limits)
+            if not q0_clear.respected:
+                w = q0_clear.worst
+                raise ValueError(f"no feasible excitation: at q0 the {w.kind} distance {w.between} is "
+                                 f"{w.distance_m:.3f} m, below the clearance {crit.world.clearance_m:g} m; choose "
+                                 "another q0_rad or change world")
         kind, joint, share = crit.worst(1e-4 * crit.joint_kinematic_scale(np.ones(crit.n_free)))
         where = f"joint {joint} " if joint else ""
         raise ValueError(f"no feasible excitation: barely moving from q0, {where}{kind} is at {share:.0%} of its "
                          "limit (torque: gravity and Coulomb friction of the declared model against the torque "
                          "margin); choose another q0_rad or relax the limit")
     f, x = best
-    return ExcitationDesign(crit.trajectory(x), criterion, f, crit.condition_number(x), int(len(crit.cols)), tried)
+    clear, scale = None, 1.0
+    if crit.world is not None:
+        clear = world_clearance(crit.trajectory(x), crit.world, dynamics, limits)
+        if not clear.respected:     # a crossing between grid points: scaled back toward q0 until clear
+            scale = _largest_scale(lambda c: world_clearance(crit.trajectory(c * x), crit.world, dynamics,
+                                                             limits).respected, steps=12)
+            if scale == 0.0:
+                w = clear.worst
+                raise ValueError(f"no feasible excitation: the {w.kind} distance {w.between} reaches "
+                                 f"{w.distance_m:.3f} m and no scaled-back trajectory keeps "
+                                 f"{crit.world.clearance_m:g} m; choose another q0_rad or change world")
+            x = scale * x
+            clear = world_clearance(crit.trajectory(x), crit.world, dynamics, limits)
+            f = crit.objective(x)
+            log.info("excitation: scaled back to %.3f to keep the world's clearance between grid points", scale)
+    return ExcitationDesign(crit.trajectory(x), criterion, f, crit.condition_number(x), int(len(crit.cols)), tried,
+                            clear, scale)
+
+
+def _largest_scale(feasible, steps: int = 25) -> float:
+    """The largest ``c`` in [0, 1] with ``feasible(c)`` (bisection, feasible at 0 assumed), 0 if none."""
+    if feasible(1.0):
+        return 1.0
+    lo, hi = 0.0, 1.0
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        lo, hi = (mid, hi) if feasible(mid) else (lo, mid)
+    return lo
 
 
 def _feasible_start(crit: Criterion, direction: np.ndarray) -> np.ndarray | None:
