@@ -263,7 +263,8 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
     run.write_json("identification.json", result)
     mf = model_file(est, provenance, held, check)
     (run.path / model_name).write_text(yaml.safe_dump(mf, sort_keys=False))
-    from wamctl.model.urdf import wam_urdf     # the same links as a URDF (pinocchio, ROS, MuJoCo read it)
+    # the same links as a URDF (pinocchio, ROS and MuJoCo read it)
+    from wamctl.model.urdf import wam_urdf
     (run.path / Path(model_name).with_suffix(".urdf")).write_text(wam_urdf(est.links_, comment=(
         f"wamctl identify {provenance['run_dir']}: the identified links ({check['verdict']}); DH frames of "
         "wamctl.model.params, armature on each joint's dynamics element")))

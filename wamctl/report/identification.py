@@ -67,6 +67,7 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     doc.text(f"From {len(prov['data'])} run(s), {result['n_rows']} rows (sample, sliding joint); declared arm: "
              f"{prov['declared']}; held out: {held}. "
              f"Instruments: {result['instruments']}. Model file: {model_name}"
+             + f", and the same links as a URDF, {Path(model_name).with_suffix('.urdf')}"
              + (" (usable as plant:, controller.declared_links:, diagnose --model)." if model_name == "model.yaml"
                 else " (not model.yaml: see the held-out check above)."))
     doc.data["instruments"] = result["instruments"]

@@ -13,6 +13,7 @@ from pydantic import Field, TypeAdapter, ValidationError
 
 from wamctl.errors import SpecError
 from wamctl.io import load_yaml, resolve_path
+from wamctl.model.urdf import is_urdf
 from wamctl.specs.common import Common, PlantSpec, check_files
 from wamctl.specs.registry import KINDS, SPEC_KINDS, resolve
 
@@ -61,7 +62,9 @@ def parse_spec(data: Any, source: str = "spec") -> Common:
 def load_model_file(path: str | Path) -> dict:
     """A model file (``format: wamctl-model/1``): a plant description (``friction``, ``effects``, ``sensors``,
     ``links``) as written by ``wamctl diagnose`` or ``wamctl identify``; usable wherever a spec takes
-    ``plant:``."""
+    ``plant:``. A URDF of the WAM (:mod:`wamctl.model.urdf`) gives its ``links`` (datasheet friction)."""
+    if is_urdf(path):
+        return {"links": _urdf_links(path)}
     data = load_yaml(path)
     if not isinstance(data, dict):
         raise SpecError(f"{path}: a model file is a mapping with friction/effects/sensors")
@@ -69,9 +72,22 @@ def load_model_file(path: str | Path) -> dict:
     return data
 
 
+def _urdf_links(path) -> dict:
+    from wamctl.model.urdf import UrdfError, urdf_links_mapping
+
+    if not Path(path).is_file():
+        raise SpecError(f"{path}: no such file")
+    try:
+        return urdf_links_mapping(path)
+    except UrdfError as exc:
+        raise SpecError(f"not a URDF of the 7-DOF WAM: {exc}") from None
+
+
 def load_model_links(path: str | Path) -> dict:
     """The ``links:`` section of a model file (as ``wamctl identify`` writes it), for
-    ``controller.declared_links: FILE``."""
+    ``controller.declared_links: FILE``; a URDF of the WAM gives its links too."""
+    if is_urdf(path):
+        return _urdf_links(path)
     data = load_yaml(path)
     if not isinstance(data, dict) or not isinstance(data.get("links"), dict):
         raise SpecError(f"{path}: no links: section; controller.declared_links takes a model file with link "
