@@ -82,6 +82,10 @@ def test_excite_writes_a_designed_spec_and_a_report(designed):
     outlook = json.loads((d / "design.json").read_text())["instruments_outlook"]
     assert set(outlook["tracking_share_predicted"]) == {"2", "4"} and outlook["threshold"] == 0.2
     assert outlook["statement"][1:] in md and "Predicted tracking error" in md
+    # issue 29 item 3: self-collision checked by default, its smallest distance and the pair in both
+    world = json.loads((d / "design.json").read_text())["world"]
+    assert set(world["smallest"]) == {"self"} and world["respected"]
+    assert world["smallest"]["self"]["between"] in md and "The world around the arm" in md
     # the design is deterministic (the spec's seed): the same spec gives the same coefficients
     p = plan(spec, designed["spec"].parent)
     assert np.allclose(p.trajectory.a[1], spec.excitation.coefficients[2].a_rad_s)
