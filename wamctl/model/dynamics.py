@@ -2,13 +2,16 @@
 
 Conventions
 -----------
-* Built in code from the standard DH table of :mod:`wamctl.model.params`: pinocchio joint ``i`` sits on
-  DH frame ``i-1`` (its z axis is the joint axis); link ``i``'s inertia, given about its COM in DH frame
+* Any arm of :mod:`wamctl.model.robots` (``robot=``, default the wam7; a :class:`LinkParameters` carries its
+  robot's name): n joints, n links, the robot's DH table, limits and armature.
+* Built in code from the robot's standard DH table (:mod:`wamctl.model.params` for the wam7): pinocchio joint
+  ``i`` sits on DH frame ``i-1`` (its z axis is the joint axis); link ``i``'s inertia, given about its COM in DH frame
   ``i``, is moved into joint ``i``'s frame through the fixed part ``Tz(d_i) Tx(a_i) Rx(alpha_i)`` of
-  ``A_i``. A frame ``"link7"`` carries DH frame 7 (the wrist flange).
+  ``A_i``. A frame ``"link7"`` carries the flange: DH frame 7 on the wam7, DH frame 4 moved along its z by
+  libbarrett's toolplate (0.36 m, the forearm's end) on the wam4 (``link7_*`` methods: the flange of any arm).
 * Reflected rotor inertia is the joint armature (used by pinocchio's CRBA and ABA).
 * Gravity is -9.81 m/s^2 along z0; frame 0 is at the shoulder.
-* An optional payload (point mass, COM in the link-7 frame) is added to link 7.
+* An optional payload (point mass, COM in the flange frame) is added to the last link.
 * Link parameters (mass, COM, inertia, armature) come from a :class:`~wamctl.model.params.LinkParameters`,
   the datasheet's by default; ``WamDynamics(links=...)`` builds the arm of a model file (``links:``, e.g. an
   identified arm, :mod:`wamctl.analysis.identification`).
@@ -26,8 +29,9 @@ import numpy as np
 import pinocchio as pin
 
 from wamctl.model import params as P
+from wamctl.model.robots import Robot, get_robot
 
-N_STANDARD_INERTIAL = 10 * P.N_JOINTS     # standard inertial parameters of the seven links
+N_STANDARD_INERTIAL = 10 * P.N_JOINTS     # standard inertial parameters of the wam7's seven links
 
 
 @dataclass(frozen=True)
@@ -44,11 +48,13 @@ class Payload:
     com_m: tuple[float, float, float] = (0.0, 0.0, 0.0)
 
 
-def _dh_fixed(i: int) -> pin.SE3:
-    """Fixed part of A_i after the joint rotation: Tz(d) Tx(a) Rx(alpha), for 0-based i."""
-    ca, sa = np.cos(P.DH_ALPHA_RAD[i]), np.sin(P.DH_ALPHA_RAD[i])
+def _dh_fixed(i: int, robot: Robot | str | None = None) -> pin.SE3:
+    """Fixed part of A_i after the joint rotation: Tz(d) Tx(a) Rx(alpha), for 0-based i (the robot's DH table,
+    default the wam7)."""
+    r = get_robot(robot)
+    ca, sa = np.cos(r.dh_alpha_rad[i]), np.sin(r.dh_alpha_rad[i])
     rot = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
-    return pin.SE3(rot, np.array([P.DH_A_M[i], 0.0, P.DH_D_M[i]]))
+    return pin.SE3(rot, np.array([r.dh_a_m[i], 0.0, r.dh_d_m[i]]))
 
 
 def _link_inertia(i: int, links: P.LinkParameters) -> pin.Inertia:
@@ -57,38 +63,50 @@ def _link_inertia(i: int, links: P.LinkParameters) -> pin.Inertia:
 
 
 def build_wam7_model(payload: Payload | None = None, links: P.LinkParameters | None = None) -> pin.Model:
-    """Build the 7-DOF WAM as a pinocchio model.
+    """Build the 7-DOF WAM as a pinocchio model (:func:`build_model` of the wam7)."""
+    return build_model("wam7" if links is None else links.robot, payload, links)
+
+
+def build_model(robot: Robot | str | None = None, payload: Payload | None = None,
+                links: P.LinkParameters | None = None) -> pin.Model:
+    """Build a registered arm (:mod:`wamctl.model.robots`, default the wam7) as a pinocchio model.
 
     Parameters
     ----------
+    robot : Robot or its name
     payload : Payload, optional
-        Point mass added to link 7.
+        Point mass added to the last link, COM in the flange frame.
     links : LinkParameters, optional
-        Link masses, COMs, inertias and armature; default :meth:`LinkParameters.datasheet`.
+        Link masses, COMs, inertias and armature; default the robot's :meth:`LinkParameters.datasheet`; must be
+        of the same robot.
 
     Returns
     -------
-    pinocchio.Model with nq = nv = 7, armature, position, velocity and effort limits set.
+    pinocchio.Model with nq = nv = the robot's joints, armature, position, velocity and effort limits set.
     """
-    links = links if links is not None else P.LinkParameters.datasheet()
+    r = get_robot(robot)
+    links = links if links is not None else P.LinkParameters.datasheet(r.name)
+    if links.robot != r.name:
+        raise ValueError(f"links of {links.robot} for a {r.name} model")
     model = pin.Model()
-    model.name = "wam7"
+    model.name = r.name
     parent = 0
     placement = pin.SE3.Identity()
-    for i in range(P.N_JOINTS):
+    for i in range(r.n_joints):
         jid = model.addJoint(parent, pin.JointModelRZ(), placement, f"joint{i + 1}")
-        fixed = _dh_fixed(i)
+        fixed = _dh_fixed(i, r)
         model.appendBodyToJoint(jid, fixed.act(_link_inertia(i, links)), pin.SE3.Identity())
         parent, placement = jid, fixed
+    placement = placement * pin.SE3(np.eye(3), np.array([0.0, 0.0, r.flange_d_m]))
     model.addFrame(pin.Frame("link7", parent, placement, pin.FrameType.OP_FRAME))
     if payload is not None and payload.mass_kg > 0:
         point = pin.Inertia(float(payload.mass_kg), np.asarray(payload.com_m, float), np.zeros((3, 3)))
         model.appendBodyToJoint(parent, placement.act(point), pin.SE3.Identity())
     model.armature = np.array(links.armature_kg_m2)
-    model.lowerPositionLimit = P.Q_MIN_RAD.copy()
-    model.upperPositionLimit = P.Q_MAX_RAD.copy()
-    model.velocityLimit = P.QD_MAX_RAD_S.copy()
-    model.effortLimit = P.TAU_MAX_NM.copy()
+    model.lowerPositionLimit = np.array(r.q_min_rad)
+    model.upperPositionLimit = np.array(r.q_max_rad)
+    model.velocityLimit = np.array(r.qd_max_rad_s)
+    model.effortLimit = np.array(r.tau_max_Nm)
     model.gravity = pin.Motion(np.array([0.0, 0.0, -P.GRAVITY_M_S2]), np.zeros(3))
     return model
 
@@ -96,15 +114,26 @@ def build_wam7_model(payload: Payload | None = None, links: P.LinkParameters | N
 class WamDynamics:
     """Rigid-body dynamics of the WAM: a pinocchio model and its workspace, with snake_case methods.
 
-    All arrays are (7,) in radians, rad/s, rad/s^2 and N m; matrices (7, 7).
+    All arrays are (n,) in radians, rad/s, rad/s^2 and N m; matrices (n, n); n the robot's joints (7 for the
+    default wam7). ``robot`` names the arm (:mod:`wamctl.model.robots`); ``links`` of another robot are refused.
     """
 
-    def __init__(self, payload: Payload | None = None, links: P.LinkParameters | None = None):
+    def __init__(self, payload: Payload | None = None, links: P.LinkParameters | None = None,
+                 robot: Robot | str | None = None):
+        if robot is None and links is not None:
+            robot = links.robot
+        self.robot = get_robot(robot)
+        self.n_joints = self.robot.n_joints
         self.payload = payload
-        self.links = links if links is not None else P.LinkParameters.datasheet()
-        self.model = build_wam7_model(payload, self.links)
+        self.links = links if links is not None else P.LinkParameters.datasheet(self.robot.name)
+        self.model = build_model(self.robot, payload, self.links)
         self.data = self.model.createData()
         self._link7 = self.model.getFrameId("link7")
+
+    @property
+    def n_standard(self) -> int:
+        """Standard inertial parameters of this arm: 10 per link."""
+        return 10 * self.n_joints
 
     def gravity(self, q: np.ndarray) -> np.ndarray:
         """Gravity torque g(q), N m."""
@@ -115,12 +144,12 @@ class WamDynamics:
         return pin.computeGeneralizedGravity(self.model, self.data, q)
 
     def mass_matrix(self, q: np.ndarray) -> np.ndarray:
-        """Joint-space inertia B(q) including armature, symmetric (7, 7)."""
+        """Joint-space inertia B(q) including armature, symmetric (n, n)."""
         m = pin.crba(self.model, self.data, q)
         return np.triu(m) + np.triu(m, 1).T
 
     def mass_matrix_inverse(self, q: np.ndarray) -> np.ndarray:
-        """B(q)^-1 (7, 7)."""
+        """B(q)^-1 (n, n)."""
         m = pin.computeMinverse(self.model, self.data, q)
         return np.triu(m) + np.triu(m, 1).T
 
@@ -168,7 +197,7 @@ class WamDynamics:
     def inverse_dynamics_many(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """:meth:`inverse_dynamics` of states (n, 7): (n, 7)."""
         q, qd, qdd = (np.ascontiguousarray(np.atleast_2d(x), dtype=float) for x in (q, qd, qdd))
-        out = np.empty((len(q), P.N_JOINTS))
+        out = np.empty((len(q), self.n_joints))
         model, data, rnea = self.model, self.data, pin.rnea
         for k in range(len(q)):
             out[k] = rnea(model, data, q[k], qd[k], qdd[k])
@@ -177,33 +206,48 @@ class WamDynamics:
     def gravity_many(self, q: np.ndarray) -> np.ndarray:
         """:meth:`gravity` of positions (n, 7): (n, 7)."""
         q = np.ascontiguousarray(np.atleast_2d(q), dtype=float)
-        out = np.empty((len(q), P.N_JOINTS))
+        out = np.empty((len(q), self.n_joints))
         model, data, grav = self.model, self.data, pin.computeGeneralizedGravity
         for k in range(len(q)):
             out[k] = grav(model, data, q[k])
         return out
 
     def regressor_basis(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        """Joint torque regressor Y (7, 70) with tau = Y @ pi for the standard inertial parameters."""
+        """Joint torque regressor Y (n, 10 n), (7, 70) on the wam7, with tau = Y @ pi for the standard inertial
+        parameters."""
         return pin.computeJointTorqueRegressor(self.model, self.data, q, qd, qdd).copy()
 
     def torque_regressor(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
-        """:meth:`regressor_basis` along a trajectory: (n, 7, 70) for states (n, 7). The regressor depends on
+        """:meth:`regressor_basis` along a trajectory: (k, n, 10 n) for states (k, n). The regressor depends on
         the kinematics only, never on the link parameters or the payload."""
         q, qd, qdd = (np.atleast_2d(np.asarray(x, float)) for x in (q, qd, qdd))
-        out = np.empty((len(q), P.N_JOINTS, N_STANDARD_INERTIAL))
+        out = np.empty((len(q), self.n_joints, self.n_standard))
         for k in range(len(q)):
             out[k] = pin.computeJointTorqueRegressor(self.model, self.data, q[k], qd[k], qdd[k])
         return out
 
     def standard_parameters(self) -> np.ndarray:
-        """(70,) standard inertial parameters of this arm (payload included in link 7), see the module doc."""
-        return np.concatenate([self.model.inertias[i + 1].toDynamicParameters() for i in range(P.N_JOINTS)])
+        """(10 n,) standard inertial parameters of this arm (payload included in the last link), see the module
+        doc."""
+        return np.concatenate([self.model.inertias[i + 1].toDynamicParameters() for i in range(self.n_joints)])
 
     @property
     def armature_kg_m2(self) -> np.ndarray:
-        """(7,) joint armature (reflected rotor inertia) of this model."""
+        """(n,) joint armature (reflected rotor inertia) of this model."""
         return np.array(self.model.armature)
+
+    def joint_frames(self, q: np.ndarray) -> np.ndarray:
+        """Homogeneous transforms of DH frames 0..7 in frame 0 (frame i at the output of ``A_i``; frame 0 the
+        shoulder): (8, 4, 4) for q (7,), (n, 8, 4, 4) for states (n, 7)."""
+        qs = np.atleast_2d(np.asarray(q, float))
+        out = np.empty((len(qs), self.n_joints + 1, 4, 4))
+        out[:, 0] = np.eye(4)
+        fixed = [_dh_fixed(i, self.robot) for i in range(self.n_joints)]
+        for k, qk in enumerate(qs):
+            pin.forwardKinematics(self.model, self.data, qk)
+            for i in range(self.n_joints):
+                out[k, i + 1] = (self.data.oMi[i + 1] * fixed[i]).homogeneous
+        return out[0] if np.ndim(q) == 1 else out
 
     def chain_arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """The model as arrays for :mod:`wamctl.model.chain_kernels` (payload included): joint placements in
@@ -215,38 +259,29 @@ class WamDynamics:
         inertia = np.array([self.model.inertias[i + 1].matrix() for i in range(n)])
         return rot, trans, inertia, np.array(self.model.armature), np.array(self.model.gravity.linear)
 
-    def joint_frames(self, q: np.ndarray) -> np.ndarray:
-        """Homogeneous transforms of DH frames 0..7 in frame 0 (frame i at the output of ``A_i``; frame 0 the
-        shoulder): (8, 4, 4) for q (7,), (n, 8, 4, 4) for states (n, 7)."""
-        qs = np.atleast_2d(np.asarray(q, float))
-        out = np.empty((len(qs), P.N_JOINTS + 1, 4, 4))
-        out[:, 0] = np.eye(4)
-        fixed = [_dh_fixed(i) for i in range(P.N_JOINTS)]
-        for k, qk in enumerate(qs):
-            pin.forwardKinematics(self.model, self.data, qk)
-            for i in range(P.N_JOINTS):
-                out[k, i + 1] = (self.data.oMi[i + 1] * fixed[i]).homogeneous
-        return out[0] if np.ndim(q) == 1 else out
 
-
-def links_from_standard(pi: np.ndarray, armature_kg_m2: np.ndarray) -> P.LinkParameters:
+def links_from_standard(pi: np.ndarray, armature_kg_m2: np.ndarray,
+                        robot: Robot | str | None = None) -> P.LinkParameters:
     """The :class:`LinkParameters` (DH-frame COM, inertia about the COM) of standard inertial parameters.
 
     Parameters
     ----------
-    pi : (70,) standard parameters in the order of :meth:`WamDynamics.standard_parameters`; each link's mass
+    pi : (10 n,) standard parameters in the order of :meth:`WamDynamics.standard_parameters`; each link's mass
         must be positive.
-    armature_kg_m2 : (7,)
+    armature_kg_m2 : (n,)
+    robot : the arm (default the wam7)
 
     ``WamDynamics(links=links_from_standard(pi, a)).standard_parameters()`` gives ``pi`` back (to rounding).
     """
-    pi = np.asarray(pi, float).reshape(P.N_JOINTS, 10)
-    mass, com, inertia = np.zeros(P.N_JOINTS), np.zeros((P.N_JOINTS, 3)), np.zeros((P.N_JOINTS, 6))
-    for i in range(P.N_JOINTS):
+    r = get_robot(robot)
+    n = r.n_joints
+    pi = np.asarray(pi, float).reshape(n, 10)
+    mass, com, inertia = np.zeros(n), np.zeros((n, 3)), np.zeros((n, 6))
+    for i in range(n):
         if not pi[i, 0] > 0:
             raise ValueError(f"link {i + 1}: mass {pi[i, 0]:g} kg; standard parameters need a positive mass")
-        body = _dh_fixed(i).actInv(pin.Inertia.FromDynamicParameters(pi[i]))
+        body = _dh_fixed(i, r).actInv(pin.Inertia.FromDynamicParameters(pi[i]))
         mass[i], com[i] = body.mass, body.lever
         m = body.inertia
         inertia[i] = [m[0, 0], m[1, 1], m[2, 2], m[0, 1], m[0, 2], m[1, 2]]
-    return P.LinkParameters(mass, com, inertia, armature_kg_m2)
+    return P.LinkParameters(mass, com, inertia, armature_kg_m2, robot=r.name)

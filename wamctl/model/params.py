@@ -111,11 +111,14 @@ class LinkParameters:
     with 1-based joint numbers; keys left out keep the datasheet's value.
     """
 
-    __slots__ = ("mass_kg", "com_m", "inertia_kg_m2", "armature_kg_m2")
+    __slots__ = ("mass_kg", "com_m", "inertia_kg_m2", "armature_kg_m2", "robot")
 
-    def __init__(self, mass_kg, com_m, inertia_kg_m2, armature_kg_m2):
-        shapes = {"mass_kg": (N_JOINTS,), "com_m": (N_JOINTS, 3), "inertia_kg_m2": (N_JOINTS, 6),
-                  "armature_kg_m2": (N_JOINTS,)}
+    def __init__(self, mass_kg, com_m, inertia_kg_m2, armature_kg_m2, robot: str = "wam7"):
+        from wamctl.model.robots import get_robot  # robots builds the wam7 from this module's numbers
+
+        n = get_robot(robot).n_joints
+        object.__setattr__(self, "robot", get_robot(robot).name)
+        shapes = {"mass_kg": (n,), "com_m": (n, 3), "inertia_kg_m2": (n, 6), "armature_kg_m2": (n,)}
         for name, value in zip(LINK_KEYS, (mass_kg, com_m, inertia_kg_m2, armature_kg_m2)):
             arr = np.array(value, dtype=float)
             if arr.shape != shapes[name]:
@@ -129,16 +132,24 @@ class LinkParameters:
         raise AttributeError("LinkParameters is immutable; use with_overrides()")
 
     @classmethod
-    def datasheet(cls) -> LinkParameters:
-        """The libbarrett wam7w.conf numbers (Sept 2008) and the reflected rotor inertia."""
-        return cls(LINK_MASS_KG, LINK_COM_M, LINK_INERTIA_KG_M2, ARMATURE_KG_M2)
+    def datasheet(cls, robot=None) -> LinkParameters:
+        """The robot's datasheet links (default the wam7: libbarrett wam7w.conf, Sept 2008) and the reflected
+        rotor inertia (:mod:`wamctl.model.robots`)."""
+        from wamctl.model.robots import get_robot
+
+        r = get_robot(robot)
+        return cls(r.link_mass_kg, r.link_com_m, r.link_inertia_kg_m2, r.armature_kg_m2, robot=r.name)
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.mass_kg)
 
     def __eq__(self, other) -> bool:
-        return isinstance(other, LinkParameters) and all(
+        return isinstance(other, LinkParameters) and self.robot == other.robot and all(
             np.array_equal(getattr(self, k), getattr(other, k)) for k in LINK_KEYS)
 
     def __hash__(self) -> int:
-        return hash(tuple(getattr(self, k).tobytes() for k in LINK_KEYS))
+        return hash((self.robot,) + tuple(getattr(self, k).tobytes() for k in LINK_KEYS))
 
     def __repr__(self) -> str:
         changed = sorted(self.to_mapping(changed_only=True))
@@ -154,8 +165,8 @@ class LinkParameters:
         out = {k: np.array(getattr(self, k)) for k in LINK_KEYS}
         for key, entry in links.items():
             j = int(key)
-            if not 1 <= j <= N_JOINTS:
-                raise ValueError(f"links.{key}: joint numbers are 1..{N_JOINTS}")
+            if not 1 <= j <= self.n_joints:
+                raise ValueError(f"links.{key}: joint numbers of {self.robot} are 1..{self.n_joints}")
             if hasattr(entry, "model_dump"):        # a validated spec entry
                 entry = entry.model_dump()
             for name, value in (entry or {}).items():
@@ -172,14 +183,14 @@ class LinkParameters:
             raise ValueError(f"links.{int(np.argmax(out['mass_kg'] <= 0)) + 1}.mass_kg: must be > 0")
         if (out["armature_kg_m2"] < 0).any():
             raise ValueError(f"links.{int(np.argmax(out['armature_kg_m2'] < 0)) + 1}.armature_kg_m2: must be >= 0")
-        return LinkParameters(**out)
+        return LinkParameters(**out, robot=self.robot)
 
     def to_mapping(self, changed_only: bool = False) -> dict:
         """``{joint: {key: value}}`` (1-based, plain floats and lists); ``changed_only``: only the entries that
         differ from the datasheet."""
-        ref = LinkParameters.datasheet()
+        ref = LinkParameters.datasheet(self.robot)
         out = {}
-        for j in range(N_JOINTS):
+        for j in range(self.n_joints):
             entry = {}
             for name in LINK_KEYS:
                 v = getattr(self, name)[j]
@@ -196,7 +207,7 @@ class LinkParameters:
         moment at most the sum of the other two); together these are exactly a positive semidefinite
         pseudo-inertia (Wensing, Kim and Slotine, 2017)."""
         out = {}
-        for i in range(N_JOINTS):
+        for i in range(self.n_joints):
             if not self.mass_kg[i] > 0:
                 out[i + 1] = f"mass {self.mass_kg[i]:g} kg"
                 continue
