@@ -221,8 +221,10 @@ def validation_of(est, held) -> dict:
         pnom, _, _, _ = est.predict(vr, "nominal", m)
         traces.append({"run": i, "t_s": vr.t_s[k], "joint": j + 1, "measured_Nm": y, "nominal_Nm": pnom,
                        "identified_Nm": pid})
+    from wamctl.analysis.identification.metrics import relative_errors
+
     return {"rms": rms, "comparison": est.held_out_comparison(rows, masks), "traces": traces,
-            "sources": [vr.source for vr in rows]}
+            "sources": [vr.source for vr in rows], "relative_error": relative_errors(est, rows, masks)}
 
 
 def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = None, model: Path | None = None,
@@ -254,10 +256,15 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
     check = held_out_check(validation, fitted)
     model_name = "model.yaml" if check["verdict"] in WRITTEN_VERDICTS or force else REJECTED_MODEL
     check.update(statement=check_statement(check), model_written=model_name == "model.yaml", forced=bool(
-        force and check["verdict"] not in WRITTEN_VERDICTS))
+        force and check["verdict"] not in WRITTEN_VERDICTS), model_file=model_name,
+        relative_error_held_out=[{k: e[k] for k in ("source", "identified", "identified_ci95", "nominal")}
+                                 for e in validation["relative_error"]["held_out"]])
+    from wamctl.analysis.identification.metrics import physical_checks, prior_moves
     result = dict(est.to_dict(), held_out_check=check, model_file=model_name,
                   validation={k: [_num(v) for v in a] for k, a in validation["rms"].items()},
                   validation_sources=validation["sources"], provenance=provenance,
+                  relative_error=validation["relative_error"], prior_moves=prior_moves(est),
+                  physical_checks=physical_checks(est.links_, est.dynamics_.links),
                   filter=[{"source": rr.source, "window_s": rr.window_s, "gauss_s": rr.gauss_s,
                            "rows": rr.n_rows} for rr in est.rows_])
     run.write_json("identification.json", result)
