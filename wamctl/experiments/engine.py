@@ -16,6 +16,7 @@ import numpy as np
 from numba import njit
 
 from wamctl.backends.base import ArmBackend
+from wamctl.backends.sim_fused import FusedLoop, fused_supported
 from wamctl.control.controllers import JointController
 from wamctl.control.trajectory import Reference
 from wamctl.model import params as P
@@ -73,9 +74,16 @@ def _record(rows, i, t, q_ref, q, tau, q_true, qd_true):
 
 
 def run_loop(backend: ArmBackend, controller: JointController, reference: Reference,
-             recorder: LoopRecorder, progress=None, chunk_ticks: int = 2500) -> None:
+             recorder: LoopRecorder, progress=None, chunk_ticks: int = 2500, *, fused: bool = True) -> None:
     """Execute ``reference`` tick by tick. Raises whatever the backend raises (safety faults, Ctrl-C);
-    the caller flushes ``recorder`` and records the status."""
+    the caller flushes ``recorder`` and records the status.
+
+    On the simulator with a plain joint controller (:func:`wamctl.backends.sim_fused.fused_supported`) the ticks
+    run compiled, in chunks that end where this loop flushes the recorder or reports progress, with the same
+    results as the Python path (``fused=False``, kept for comparison)."""
+    if fused and fused_supported(backend, controller):
+        _run_fused(backend, controller, reference, recorder, progress, chunk_ticks)
+        return
     rows = recorder.rows
     truth = backend.truth() if hasattr(backend, "truth") else (np.zeros(P.N_JOINTS), np.zeros(P.N_JOINTS))
     q_ref = reference.q_rad
@@ -92,5 +100,36 @@ def run_loop(backend: ArmBackend, controller: JointController, reference: Refere
             recorder.flush()
         if progress is not None and k % update_every == 0:
             progress(k, n)
+    if progress is not None:
+        progress(n, n)
+
+
+def _run_fused(backend, controller, reference, recorder, progress, chunk_ticks) -> None:
+    """:func:`run_loop` through :class:`wamctl.backends.sim_fused.FusedLoop`: the Python-side work (flush,
+    progress) at the ticks the Python path does it; a tick that would fault runs on the Python path, which
+    raises."""
+    loop = FusedLoop(backend, controller)
+    q_ref = np.ascontiguousarray(reference.q_rad, dtype=float)
+    t_s = np.ascontiguousarray(reference.t_s + recorder.t_offset_s, dtype=float)
+    n = len(reference)
+    update_every = max(1, n // 200)
+    k = 0
+    while k < n:
+        end = n
+        if recorder.writer is not None:          # the tick after which the Python path flushes
+            end = min(end, k + max(1, chunk_ticks - (recorder.n - recorder._flushed)))
+        if progress is not None:                 # the tick after which it reports progress
+            end = min(end, k + (-k) % update_every + 1)
+        done = loop.advance(k, end, q_ref, t_s, recorder)
+        if done < end - k:                       # tick k + done faults: the Python path raises it
+            k += done
+            q = backend.read_positions()
+            tau = backend.command_torques(controller.update(q_ref[k], q))
+            raise RuntimeError(f"the compiled loop stopped before tick {k} but the tick ran ({tau})")
+        k = end
+        if recorder.writer is not None and recorder.n - recorder._flushed >= chunk_ticks:
+            recorder.flush()
+        if progress is not None and (k - 1) % update_every == 0:
+            progress(k - 1, n)
     if progress is not None:
         progress(n, n)
