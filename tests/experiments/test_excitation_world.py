@@ -85,6 +85,26 @@ def test_coefficients_that_cross_the_table_are_refused_with_the_link_and_distanc
     assert any("excitation clear of the world" in c for c in checks)
 
 
+def test_a_crossing_trajectory_is_repaired_by_scaling_it_back_toward_q0(unconstrained):
+    """The repair the design applies when its dense check finds a crossing: the same motion made smaller about
+    q0, by the largest factor that keeps the clearance (the factor found to 1 / 2^12)."""
+    from wamctl.analysis.identification.excitation import scaled_back_clear
+    from wamctl.experiments.excitation import limits_of
+
+    spec = parse_spec(world_spec({"table_z_m": TABLE_Z_M}))
+    traj, scale, clear = scaled_back_clear(unconstrained.trajectory, world_of(spec), WamDynamics(), limits_of(spec))
+    assert 0.1 < scale < 0.95 and clear.respected       # 0.256
+    t = np.linspace(0, traj.period_s, 50)
+    q_old, q_new = unconstrained.trajectory.evaluate(t)[0], traj.evaluate(t)[0]
+    assert np.allclose(q_new - traj.q0_rad, scale * (q_old - traj.q0_rad), atol=1e-12)
+    assert dense_distances(traj)["table"].distance_m >= 0.02 - 1e-9
+    # a little larger is not clear: the factor is the largest
+    bigger = type(traj)(traj.q0_rad, traj.period_s, (scale + 2 ** -10) / scale * traj.a,
+                        (scale + 2 ** -10) / scale * traj.b)
+    from wamctl.analysis.identification.excitation import world_clearance
+    assert not world_clearance(bigger, world_of(spec), WamDynamics(), limits_of(spec)).respected
+
+
 def test_folded_elbow_at_q0_is_refused_naming_the_pair(tmp_path):
     raw = world_spec({"tool_length_m": 0.1}, q0=(0.0, 0.0, 0.0, 2.9, 0.0, 1.3, 0.0))   # -0.065 m
     q0 = np.array(raw["q0_rad"])

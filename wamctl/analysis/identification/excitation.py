@@ -421,7 +421,7 @@ def design_excitation(q0_rad, joints: list[int], period_s: float, harmonics: int
             tried.append({"start": s + 1, "objective": f, "condition_number": crit.condition_number(x),
                           "iterations": int(res.nit), "message": str(res.message),
                           "repair": ("none" if scale == 1.0 else "SLSQP's end infeasible: its start kept"
-                                     if scale == 0.0 else f"SLSQP's end infeasible: scaled back to {scale:.4g}")})
+                                     if scale == 0.0 else f"SLSQP's end infeasible: scaled back to {scale:.6f}")})
             if best is None or f < best[0]:
                 best = (f, x)
             if progress:
@@ -444,19 +444,30 @@ def design_excitation(q0_rad, joints: list[int], period_s: float, harmonics: int
     if crit.world is not None:
         clear = world_clearance(crit.trajectory(x), crit.world, dynamics, limits)
         if not clear.respected:     # a crossing between grid points: scaled back toward q0 until clear
-            scale = _largest_scale(lambda c: world_clearance(crit.trajectory(c * x), crit.world, dynamics,
-                                                             limits).respected, steps=12)
-            if scale == 0.0:
-                w = clear.worst
-                raise ValueError(f"no feasible excitation: the {w.kind} distance {w.between} reaches "
-                                 f"{w.distance_m:.3f} m and no scaled-back trajectory keeps "
-                                 f"{crit.world.clearance_m:g} m; choose another q0_rad or change world")
+            traj, scale, clear = scaled_back_clear(crit.trajectory(x), crit.world, dynamics, limits)
             x = scale * x
-            clear = world_clearance(crit.trajectory(x), crit.world, dynamics, limits)
             f = crit.objective(x)
             log.info("excitation: scaled back to %.3f to keep the world's clearance between grid points", scale)
     return ExcitationDesign(crit.trajectory(x), criterion, f, crit.condition_number(x), int(len(crit.cols)), tried,
                             clear, scale)
+
+
+def scaled_back_clear(traj: FourierTrajectory, world: World, dynamics, limits: ExcitationLimits | None = None,
+                      steps: int = 12) -> tuple[FourierTrajectory, float, WorldClearance]:
+    """The repair of a trajectory that comes closer to the world than its clearance: its coefficients scaled by
+    the largest ``c`` in [0, 1] (bisection, ``steps`` halvings) that keeps the clearance over the whole period
+    (``q0 + c (q(t) - q0)``: the same motion, smaller, toward q0). Returns (trajectory, c, its clearance);
+    raises ValueError naming the obstacle when even q0 is too close."""
+    def scaled(c):
+        return FourierTrajectory(traj.q0_rad, traj.period_s, c * traj.a, c * traj.b)
+
+    at_q0 = world_clearance(scaled(0.0), world, dynamics, limits)
+    if not at_q0.respected:
+        w = at_q0.worst
+        raise ValueError(f"no feasible excitation: at q0 the {w.kind} distance {w.between} is {w.distance_m:.3f} "
+                         f"m, below the clearance {world.clearance_m:g} m; choose another q0_rad or change world")
+    c = _largest_scale(lambda v: world_clearance(scaled(v), world, dynamics, limits).respected, steps)
+    return scaled(c), c, world_clearance(scaled(c), world, dynamics, limits)
 
 
 def _largest_scale(feasible, steps: int = 25) -> float:
