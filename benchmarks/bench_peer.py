@@ -4,7 +4,9 @@ The task is bench_sim's: the seven-joint rotation (0.5 rad at 0.083 rad/s, all j
 7.3 s of arm time) at 500 Hz under PD + gravity with libbarrett's gains, torque held over each 2 ms period
 (zero-order hold), two physics steps per period. Both simulators run inside the same engine
 (:func:`wamctl.experiments.engine.run_loop`: safety checks, the same ``JointController`` with pinocchio
-gravity compensation, the same recorder and the same encoder model), so only the physics differs:
+gravity compensation, the same recorder and the same encoder model), so only the physics differs; wamctl's
+simulator runs that engine compiled whole (:mod:`wamctl.backends.sim_fused`, what ``wamctl run`` does), the
+MuJoCo peer (a subclass with its own physics) through its Python path, and a row gives wamctl's Python path too:
 
 * wamctl: semi-implicit Euler on pinocchio's ABA + implicit, coupled stick/slip friction (Table 4.1, one
   level per direction);
@@ -89,14 +91,14 @@ def controller() -> JointController:
     return JointController(P.KP, P.KD, np.zeros(7), 1 / P.CONTROL_RATE_HZ, gravity=WamDynamics().gravity_view)
 
 
-def timed_loop(make_backend, reference) -> tuple[float, np.ndarray]:
+def timed_loop(make_backend, reference, fused: bool = True) -> tuple[float, np.ndarray]:
     """(seconds, recorded rows) of one closed loop; the backend is built before the clock starts."""
     backend = make_backend()
     ctl = controller()
     rec = LoopRecorder(len(reference), with_truth=True)
     t0 = time.perf_counter()
     with backend:
-        run_loop(backend, ctl, reference, rec)
+        run_loop(backend, ctl, reference, rec, fused=fused)
     return time.perf_counter() - t0, rec.result()
 
 
@@ -199,6 +201,8 @@ def main() -> None:
             t, r = timed_loop(make, ref)
             times[name] = min(times.get(name, np.inf), t)
             rows[name] = r
+        t, _ = timed_loop(cases["wamctl sim, Table 4.1 friction, encoders"], ref, fused=False)
+        times["wamctl sim, friction, Python path"] = min(times.get("wamctl sim, friction, Python path", np.inf), t)
         t = closed_loop(ref, args.substeps)
         times["wamctl sim as in bench_sim"] = min(times.get("wamctl sim as in bench_sim", np.inf), t)
         times["bare pinocchio aba+integrate"] = min(times.get("bare pinocchio aba+integrate", np.inf),
@@ -213,7 +217,8 @@ def main() -> None:
     r_0 = times["wamctl sim, frictionless, ideal sensors"] / times["MuJoCo, frictionless, ideal sensors"]
     r_b = times["bare pinocchio aba+integrate"] / times["bare MuJoCo mj_step"]
     print(f"\nwamctl / MuJoCo closed loop: {r_f:.2f}x with friction, {r_0:.2f}x frictionless; "
-          f"bare floors pinocchio / MuJoCo: {r_b:.2f}x   (< 1: wamctl faster)")
+          f"bare floors pinocchio / MuJoCo: {r_b:.2f}x   (< 1: wamctl faster); machine load average "
+          f"{os.getloadavg()[0]:.2f} at the end")
 
     agree = model_agreement()
     print(f"\nmodel agreement, MJCF vs pinocchio, 200 random poses: mass matrix {agree['mass_matrix']:.1e} kg m^2 "
