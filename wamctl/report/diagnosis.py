@@ -115,9 +115,38 @@ def unexplained_table(result: dict) -> pd.DataFrame:
     for j, d in result.get("joints", {}).items():
         u = d.get("unexplained")
         if u:
-            rows.append({"joint": int(j), "correlates_with": ", ".join(u["correlates_with"]),
+            rows.append({"joint": int(j), "correlates_with": ", ".join(u["correlates_with"]) or
+                         f"none tested (not white: p {_p(u.get('whiteness_p'))})",
                          "torque_rms_Nm": u["torque_rms_Nm"]})
     return pd.DataFrame(rows)
+
+
+def not_named_lines(result: dict) -> list[str]:
+    """What the diagnosis saw and did not name: arm-level findings no joint kept (``not_named``) and the joints
+    whose residual is still structured (``unexplained``), one line each."""
+    lines = [f"not named: {u['name']} (joints {', '.join(str(j) for j in u['joints'])}): {u['why']}"
+             for u in result.get("not_named") or []]
+    for j, d in sorted(result.get("joints", {}).items(), key=lambda kv: int(kv[0])):
+        u = d.get("unexplained")
+        if u:
+            what = ("follows " + ", ".join(u["correlates_with"]) if u["correlates_with"] else
+                    f"is not white (Ljung-Box p {_p(u.get('whiteness_p'))}) and follows no signal tested")
+            lines.append(f"unexplained residual at joint {j}: {_g(u['torque_rms_Nm'])} N m RMS held out, {what}")
+    return lines
+
+
+def found_line(result: dict) -> str:
+    """The diagnosis in one line: the effects found, the ambiguous groups, and how many findings and structured
+    residuals are not named (each said by :func:`not_named_lines`)."""
+    if not result.get("conclusive"):
+        return f"nothing concluded: {result.get('reason')}"
+    found = ", ".join(result.get("effects_found") or []) or "none"
+    amb = "; ".join(" / ".join(g) for g in result.get("ambiguous") or [])
+    nn = [u["name"] for u in result.get("not_named") or []]
+    unx = [j for j, d in sorted(result.get("joints", {}).items(), key=lambda kv: int(kv[0])) if d.get("unexplained")]
+    return (f"effects found: {found}" + (f" (ambiguous: {amb})" if amb else "")
+            + (f"; seen, not named: {', '.join(nn)}" if nn else "")
+            + (f"; unexplained residual at joint{'s' if len(unx) > 1 else ''} {', '.join(unx)}" if unx else ""))
 
 
 def candidates_table(result: dict) -> pd.DataFrame:
@@ -276,6 +305,8 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
         if amb:
             doc.text("Ambiguous (neither candidate explains the held-out data clearly better than the other, so "
                      "neither is named): " + "; ".join(" / ".join(g) for g in amb) + ".")
+        for line in not_named_lines(result):       # seen and not named: said with why, never dropped
+            doc.text(line[0].upper() + line[1:] + ".")
     for w in result.get("warnings") or []:
         if w not in worse:          # already at the top
             doc.text(f"Warning: {w}.")

@@ -84,7 +84,7 @@ from wamctl.analysis.diagnosis.serialise import diagnosis_dict
 from wamctl.analysis.diagnosis.signals import Signals, gap_warnings, prepare_signals
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
 from wamctl.analysis.diagnosis.sweeps import map_evidence
-from wamctl.analysis.diagnosis.unexplained import unexplained
+from wamctl.analysis.diagnosis.unexplained import arm_unnamed, unexplained
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel
@@ -209,6 +209,8 @@ class ModelDiagnosis:
         self.joints_ = {}
         self.effects_found_ = []
         self.ambiguous_ = []
+        self.arm_unnamed_ = []
+        self.payload_dropped_ = None
         self.warnings_ = []
         self.gains_ = None
         self.position_skipped_ = None
@@ -265,6 +267,8 @@ class ModelDiagnosis:
         report_effects(self)
         for j, res in self.joints_.items():
             res.unexplained = unexplained(self, j)
+        # an arm-level finding no joint kept (payload or link errors) is said with why, never dropped silently
+        self.arm_unnamed_ = arm_unnamed(self)
         self.conclusive_ = True
         # the model written against the declared one on held-out torque, per joint: worse is said, never quiet
         self.against_declared_ = against_declared(self)
@@ -429,6 +433,7 @@ class ModelDiagnosis:
         payload-or-links decision is recorded at them, link errors within the declared accuracy are tested in its
         place when they explain the data as well."""
         log.info(why)
+        self.payload_dropped_ = why
         tests = [c for c in self.candidates if c not in self.declared_effects_ and c != "backlash"
                  and c not in ARM_ONLY]
         outcome = dec["outcome"] if dec is not None else None

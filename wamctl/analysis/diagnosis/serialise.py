@@ -64,6 +64,7 @@ def diagnosis_dict(diag, data_path: str = "") -> dict:
     out = {"format": FORMAT, "data": data_path, "declared_model": declared,
            "effects_found": list(diag.effects_found_), "joints": joints,
            "ambiguous": [list(g) for g in getattr(diag, "ambiguous_", [])],
+           "not_named": list(getattr(diag, "arm_unnamed_", None) or []),
            "conclusive": bool(diag.conclusive_), "reason": diag.reason_}
     if getattr(diag, "warnings_", None):
         out["warnings"] = list(diag.warnings_)
