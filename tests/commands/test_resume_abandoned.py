@@ -64,11 +64,12 @@ def test_tune_ift_resumes_an_abandoned_run(tmp_path):
     assert len(pd.read_csv(run / "iterations.csv")) == 4    # iterations 0-3 (J before, 3 tuning steps)
 
 
-def test_hmi_session_resumes_an_abandoned_block_keeping_its_trajectory(tmp_path):
+@pytest.mark.parametrize("command", ["hmi-session", "run"])
+def test_hmi_session_resumes_an_abandoned_block_keeping_its_trajectory(tmp_path, command):
     spec = dict(HMI, hmi=dict(HMI["hmi"], locations=["P1", "P2", "P3"]))
     _, run = killed_run(tmp_path, "hmi-session", spec, "trajectory/part-*.parquet")
     first = {int(f.stem.split("-")[1]): len(pd.read_parquet(f)) for f in (run / "trajectory").glob("part-*.parquet")}
-    r = run_cli("hmi-session", "--resume", run, "--quiet", "--json")
+    r = run_cli(command, "--resume", run, "--quiet", "--json")
     assert r.code == 0, r.err
     m, _ = open_run(run)
     assert m["status"] == "completed" and m["abandoned"]["rows"] == {"trajectory": sum(first.values())}

@@ -7,7 +7,7 @@ from typing import Annotated
 
 import typer
 
-from wamctl.commands.common import console, emit_json, show_written_document
+from wamctl.commands.common import YesOpt, console, emit_json, show_written_document
 
 
 def friction_id(
@@ -35,6 +35,7 @@ def friction_id(
                                           "against the limits; move nothing.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No progress bar and no tables.")] = False,
     json: Annotated[bool, typer.Option("--json", help="Print a JSON summary on stdout (for scripts).")] = False,
+    yes: YesOpt = False,
 ):
     """Identify joint friction (thesis ch. 4): constant-velocity sweeps in both directions, the friction-velocity
     map, fitted classic / symmetric / Stribeck models chosen by a held-out information criterion.
@@ -66,15 +67,15 @@ def friction_id(
         raise SpecError("--model goes with --data; a spec declares its arm in controller.declared_links")
     if loss is not None or criterion is not None:
         raise SpecError("--loss/--criterion go with --data; a spec sets them in its identification: section")
-    return _from_spec(spec, out, dry_run, quiet, json)
+    return _from_spec(spec, out, dry_run, quiet, json, yes)
 
 
-def _from_spec(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as_json: bool) -> None:
+def _from_spec(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool, as_json: bool, yes: bool) -> None:
     from wamctl.commands.common import run_and_report
     from wamctl.experiments.friction_sweep import MODEL_FILE
 
     run_and_report(spec_path, out, dry_run, quiet, as_json, expect_kind="friction_sweep",
-                   files=lambda run_path: {"friction_model": run_path / MODEL_FILE})
+                   files=lambda run_path: {"friction_model": run_path / MODEL_FILE}, yes=yes)
 
 
 def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options: dict,

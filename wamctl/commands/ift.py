@@ -7,7 +7,16 @@ from typing import Annotated
 
 import typer
 
-from wamctl.commands.common import JsonOpt, OutOpt, QuietOpt, SpecArg, progress_bar, run_and_report, show_outcome
+from wamctl.commands.common import (
+    JsonOpt,
+    OutOpt,
+    QuietOpt,
+    SpecArg,
+    YesOpt,
+    progress_bar,
+    run_and_report,
+    show_outcome,
+)
 
 
 def tune_ift(spec: SpecArg, out: OutOpt = None,
@@ -16,7 +25,7 @@ def tune_ift(spec: SpecArg, out: OutOpt = None,
                                   "(same spec; only ift.plant.runs may grow).", show_default=False)] = None,
              dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan and check the limits; move "
                                                    "nothing.")] = False,
-             quiet: QuietOpt = False, json: JsonOpt = False):
+             quiet: QuietOpt = False, json: JsonOpt = False, yes: YesOpt = False):
     """Tune each joint's PID gains [Kp, Kd, Ki] by iterative feedback tuning (IFT, thesis chapter 5).
 
     Per iteration and joint: the first experiment on the plant (the simulated arm, the CAN arm, or recorded
@@ -28,7 +37,7 @@ def tune_ift(spec: SpecArg, out: OutOpt = None,
     --resume RUN_DIR).
     """
     if resume is None:
-        run_and_report(spec, out, dry_run, quiet, json, expect_kind="ift")
+        run_and_report(spec, out, dry_run, quiet, json, expect_kind="ift", yes=yes)
         return
     from wamctl.errors import SpecError
     from wamctl.experiments import ift
@@ -41,7 +50,12 @@ def tune_ift(spec: SpecArg, out: OutOpt = None,
         raise SpecError("--dry-run and --resume exclude each other")
     from wamctl.runs.catalog import ready_to_resume
     ready_to_resume(resume)             # a live run refused; an abandoned one recorded first, its samples kept
-    with progress_bar(f"ift {s.name} (resumed)", enabled=not (quiet or json)) as progress:
+    from wamctl.backends.can.operator import use_operator
+    from wamctl.commands.terminal_operator import TerminalOperator
+
+    label = f"ift {s.name} (resumed)"
+    with progress_bar(label, enabled=not (quiet or json)) as progress, \
+            use_operator(TerminalOperator(yes=yes, progress=progress, label=label)):  # a CAN arm's questions
         outcome = ift.resume(resume, s, spec.resolve().parent, progress)
     show_outcome(outcome, quiet, json)
 

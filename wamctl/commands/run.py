@@ -2,14 +2,24 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Annotated
 
 import typer
 
 from wamctl.commands.common import JsonOpt, OutOpt, QuietOpt, SpecArg, YesOpt, console, emit_json, run_and_report
 
+RESUMABLE = ("ift", "hmi_block")
+"""The kinds whose runs continue where they stopped (``--resume``); a sweep resumes with ``wamctl sweep``."""
 
-def run(spec: SpecArg, out: OutOpt = None,
+
+def run(spec: Annotated[Path | None, typer.Argument(
+            help="Experiment spec (YAML); its `kind` selects the experiment. With --resume: optional for an "
+                 "hmi_block run (its own spec is used), required for an ift run.", show_default=False)] = None,
+        out: OutOpt = None,
+        resume: Annotated[Path | None, typer.Option(
+            "--resume", help="Continue an interrupted or abandoned run of a kind that can (ift, hmi_block) in "
+                             "its own directory.", show_default=False)] = None,
         dry_run: Annotated[bool, typer.Option("--dry-run", help="Print the plan and check every setpoint "
                                               "against the limits; move nothing.")] = False,
         quiet: QuietOpt = False, json: JsonOpt = False, yes: YesOpt = False):
@@ -18,9 +28,33 @@ def run(spec: SpecArg, out: OutOpt = None,
 
     The run directory (runs/<UTC time>-<name>/) holds the resolved spec, a manifest (seed, versions, git
     revision, backend, status), the data as Parquet and CSV, events, and the report. Exit code 0 when the run
-    completed, 1 when it failed (safety limit, device), 2 for a bad spec, 130 when interrupted.
+    completed, 1 when it failed (safety limit, device), 2 for a bad spec, 130 when interrupted. --resume RUN_DIR
+    continues an ift or hmi_block run (as tune-ift / hmi-session --resume do).
     """
-    run_and_report(spec, out, dry_run, quiet, json, yes=yes)
+    from wamctl.errors import SpecError
+
+    if resume is None:
+        if spec is None:
+            raise SpecError("give a spec (SPEC.yaml) or --resume RUN_DIR")
+        run_and_report(spec, out, dry_run, quiet, json, yes=yes)
+        return
+    from wamctl.runs.catalog import read_json
+
+    kind = read_json(resume / "manifest.json").get("kind")
+    if kind is None:
+        raise SpecError(f"{resume}: --resume needs a run directory (no readable manifest.json there)")
+    if kind not in RESUMABLE:
+        hint = "`wamctl sweep --resume SWEEP_DIR` for a sweep; " if kind == "sweep" else ""
+        raise SpecError(f"{resume}: a {kind} run cannot be resumed ({hint}resumable: {', '.join(RESUMABLE)}); "
+                        f"run its spec again")
+    if kind == "ift":
+        if spec is None:
+            raise SpecError(f"{resume}: an ift run resumes with its spec: wamctl run SPEC.yaml --resume {resume}")
+        from wamctl.commands.ift import tune_ift
+        tune_ift(spec, out, resume=resume, dry_run=dry_run, quiet=quiet, json=json, yes=yes)
+    else:
+        from wamctl.commands.hmi import hmi_session
+        hmi_session(spec, out, resume=resume, dry_run=dry_run, quiet=quiet, json=json, yes=yes)
 
 
 def validate(spec: SpecArg,
