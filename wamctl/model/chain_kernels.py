@@ -26,7 +26,12 @@ from numba import njit
 @njit(cache=True, inline="always")
 def _joint_transform(rot, trans, qi, E, p):
     """Rotation ``E`` (parent axes -> child axes) and translation ``p`` (child origin in the parent) of a joint."""
-    c, s = np.cos(qi), np.sin(qi)
+    _joint_transform_cs(rot, trans, np.cos(qi), np.sin(qi), E, p)
+
+
+@njit(cache=True, inline="always")
+def _joint_transform_cs(rot, trans, c, s, E, p):
+    """:func:`_joint_transform` from ``cos q``, ``sin q``."""
     for r in range(3):
         # child axes in the parent: rot @ Rz(q); E is its transpose
         a0 = rot[r, 0] * c + rot[r, 1] * s
@@ -69,7 +74,7 @@ def _force_to_parent_add(E, p, fin, fout):
 def rnea(rot, trans, inertia, armature, gravity, q, qd, qdd, tau, work):
     """Inverse dynamics ``tau = B(q) qdd + C(q, qd) qd + g(q)`` (armature included) into ``tau`` (n,).
 
-    ``work``: (n, 4, 6) scratch (velocity, acceleration, force, transform of each body)."""
+    ``work``: (n, 4, 6) scratch (velocity, acceleration, force, and cos/sin of q of each body)."""
     n = q.shape[0]
     E = np.empty((3, 3))
     p = np.empty(3)
@@ -79,7 +84,10 @@ def rnea(rot, trans, inertia, armature, gravity, q, qd, qdd, tau, work):
         ap[k] = -gravity[k]          # the base accelerates against gravity (Featherstone's trick)
     tmp = np.empty(6)
     for i in range(n):
-        _joint_transform(rot[i], trans[i], q[i], E, p)
+        c, s = np.cos(q[i]), np.sin(q[i])
+        work[i, 3, 0] = c          # kept for the backward pass
+        work[i, 3, 1] = s
+        _joint_transform_cs(rot[i], trans[i], c, s, E, p)
         v = work[i, 0]
         a = work[i, 1]
         f = work[i, 2]
@@ -109,9 +117,6 @@ def rnea(rot, trans, inertia, armature, gravity, q, qd, qdd, tau, work):
         f[3] += v[4] * tmp[5] - v[5] * tmp[4] + v[1] * tmp[2] - v[2] * tmp[1]
         f[4] += v[5] * tmp[3] - v[3] * tmp[5] + v[2] * tmp[0] - v[0] * tmp[2]
         f[5] += v[3] * tmp[4] - v[4] * tmp[3] + v[0] * tmp[1] - v[1] * tmp[0]
-        for r in range(3):
-            work[i, 3, r] = p[r]
-            work[i, 3, 3 + r] = 0.0
         for r in range(6):
             vp[r] = v[r]
             ap[r] = a[r]
@@ -119,7 +124,7 @@ def rnea(rot, trans, inertia, armature, gravity, q, qd, qdd, tau, work):
         f = work[i, 2]
         tau[i] = f[5] + armature[i] * qdd[i]
         if i > 0:
-            _joint_transform(rot[i], trans[i], q[i], E, p)
+            _joint_transform_cs(rot[i], trans[i], work[i, 3, 0], work[i, 3, 1], E, p)
             _force_to_parent_add(E, p, f, work[i - 1, 2])
 
 
@@ -138,6 +143,9 @@ def crba(rot, trans, inertia, armature, q, M, work):
                 work[i, r, c] = inertia[i, r, c]
     col = np.empty(6)
     F = np.empty(6)
+    unit = np.zeros(6)
+    xu = np.empty(6)
+    icx = np.empty(6)
     for i in range(n - 1, -1, -1):
         Ic = work[i]
         # column i: F = Ic S (S = e5), then carried to each ancestor
@@ -155,9 +163,6 @@ def crba(rot, trans, inertia, armature, q, M, work):
         if i > 0:
             # composite inertia of the parent: Ic_parent += X^T Ic X, column by column (X^T (Ic (X e_c)))
             E, p = Es[i], ps[i]
-            unit = np.zeros(6)
-            xu = np.empty(6)
-            icx = np.empty(6)
             for c in range(6):
                 for r in range(6):
                     unit[r] = 0.0
