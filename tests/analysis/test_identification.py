@@ -147,6 +147,16 @@ def test_model_file_runs_the_identified_arm_and_feeds_the_controller(arm, tmp_pa
               "identification_validation.png", "identification_residuals.png", "identification_moved.png"):
         assert (run_path / f).stat().st_size > 0, f
     model = run_path / "model.yaml"
+    # the same links as a URDF; the relative held-out torque error below the nominal's, inside its interval
+    from wamctl.model.urdf import read_urdf_links
+    urdf_links, yaml_links = read_urdf_links(run_path / "model.urdf"), link_parameters(result["links"])
+    for k in P.LINK_KEYS:
+        np.testing.assert_allclose(getattr(urdf_links, k), getattr(yaml_links, k), rtol=1e-12, atol=1e-15)
+    rel = result["relative_error"]["held_out"][0]
+    print("relative error held out", rel)
+    assert rel["identified_ci95"][0] <= rel["identified"] <= rel["identified_ci95"][1] < rel["nominal"]
+    assert check["relative_error_held_out"][0]["identified"] == rel["identified"]
+    assert len(result["prior_moves"]) == result["identifiability"]["n_base"]
     plant = PlantSpec.model_validate(load_model_file(model))
     assert plant.links is not None and plant.friction.joints
     mf = yaml.safe_load(model.read_text())

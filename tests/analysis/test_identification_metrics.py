@@ -82,3 +82,17 @@ def test_datasheet_passes_the_physical_checks_and_a_misplaced_com_or_mass_does_n
     assert out["total_mass"]["relative"] == pytest.approx(4.0 / ds.mass_kg.sum(), rel=1e-12)
     assert not out["total_mass"]["ok"]
     assert all(r["ok"] for i, r in enumerate(out["com_in_box"]) if i != 2)
+
+
+def test_a_payload_in_link_7_is_not_a_misplaced_com():
+    from wamctl.model.dynamics import Payload
+
+    ds = P.LinkParameters.datasheet()
+    m7, c7 = ds.mass_kg[6], ds.com_m[6]
+    # link 7 as the identification sees it with a 1 kg payload 0.2 m out on z7: its COM far outside the link's box
+    com = (m7 * c7 + 1.0 * np.array([0.0, 0.0, 0.2])) / (m7 + 1.0)
+    with_payload = ds.with_overrides({7: {"mass_kg": m7 + 1.0, "com_m": com.tolist()}})
+    assert not physical_checks(with_payload)["ok"]
+    out = physical_checks(with_payload, payload=Payload(1.0, (0.0, 0.0, 0.2)))
+    assert out["ok"] and out["com_in_box"][6]["ok"] is None
+    assert out["total_mass"]["relative"] == pytest.approx(0.0, abs=1e-12)

@@ -148,3 +148,42 @@ def test_a_urdf_is_a_declared_arm_and_a_plant(tmp_path):
     (tmp_path / "six.urdf").write_text(_barrett_style_urdf(n=6))
     with pytest.raises(SpecError, match="not a URDF of the 7-DOF WAM: .*6 revolute joints"):
         declared_links("six.urdf", tmp_path)
+
+
+def test_identify_and_diagnose_take_a_urdf_as_the_declared_arm(tmp_path):
+    from wamctl.experiments.diagnose import declared_model
+    from wamctl.experiments.identify import declared_arm
+
+    links = _links()
+    path = tmp_path / "arm.urdf"
+    path.write_text(wam_urdf(links))
+    dyn, friction, described = declared_arm(path, None)
+    q = np.linspace(-1.0, 1.0, 7)
+    np.testing.assert_allclose(dyn.gravity(q), WamDynamics(links=links).gravity(q), atol=1e-12)
+    assert "arm.urdf" in described
+    decl = declared_model(path)
+    np.testing.assert_allclose(decl.links.mass_kg, links.mass_kg, atol=1e-14)
+
+
+def test_a_spec_declaring_a_non_wam_urdf_is_refused_in_one_line(tmp_path):
+    import subprocess
+    import sys
+
+    import yaml
+
+    (tmp_path / "six.urdf").write_text(_barrett_style_urdf(n=6))
+    (tmp_path / "good.urdf").write_text(wam_urdf())          # the datasheet arm
+    from pathlib import Path
+
+    spec = yaml.safe_load((Path(__file__).resolve().parents[2] / "configs" / "rotation.yaml").read_text())
+    spec.update(plant="good.urdf", controller=dict(spec.get("controller") or {}, declared_links="six.urdf"))
+    (tmp_path / "spec.yaml").write_text(yaml.safe_dump(spec))
+    r = subprocess.run([sys.executable, "-m", "wamctl", "validate", str(tmp_path / "spec.yaml")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
+    assert r.stderr.strip().count("\n") == 0 and "6 revolute joints; the WAM has 7" in r.stderr
+    spec["controller"]["declared_links"] = "good.urdf"
+    (tmp_path / "spec.yaml").write_text(yaml.safe_dump(spec))
+    r = subprocess.run([sys.executable, "-m", "wamctl", "validate", str(tmp_path / "spec.yaml")],
+                       capture_output=True, text=True, timeout=120)
+    assert r.returncode == 0, r.stderr

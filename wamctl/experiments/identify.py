@@ -264,7 +264,7 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
                   validation={k: [_num(v) for v in a] for k, a in validation["rms"].items()},
                   validation_sources=validation["sources"], provenance=provenance,
                   relative_error=validation["relative_error"], prior_moves=prior_moves(est),
-                  physical_checks=physical_checks(est.links_, est.dynamics_.links),
+                  physical_checks=physical_checks(est.links_, est.dynamics_.links, payload=est.dynamics_.payload),
                   filter=[{"source": rr.source, "window_s": rr.window_s, "gauss_s": rr.gauss_s,
                            "rows": rr.n_rows} for rr in est.rows_])
     run.write_json("identification.json", result)

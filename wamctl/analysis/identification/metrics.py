@@ -151,22 +151,28 @@ def com_boxes() -> list[tuple[np.ndarray, np.ndarray]]:
 
 
 def physical_checks(links: P.LinkParameters, declared: P.LinkParameters | None = None,
-                    mass_tolerance: float = 0.10) -> dict:
+                    mass_tolerance: float = 0.10, payload=None) -> dict:
     """The COM-in-box and total-mass checks of ``links`` (see the module doc): ``{"com_in_box": [{link, com_m,
     box_low_m, box_high_m, outside_m, ok}], "total_mass": {identified_kg, declared_kg, relative, tolerance, ok},
-    "ok", "enforced": False, "note"}``."""
+    "ok", "enforced": False, "note"}``. With a ``payload`` (a :class:`~wamctl.model.dynamics.Payload`, part of
+    link 7 in the identification) link 7's COM is not checked (``ok`` None: the box is the link's, not the
+    payload's) and the declared total includes the payload's mass."""
     declared = declared if declared is not None else P.LinkParameters.datasheet()
+    payload_kg = float(payload.mass_kg) if payload is not None else 0.0
     rows = []
     for i, (lo, hi) in enumerate(com_boxes()):
         c = links.com_m[i]
         out = _outside_m(c, lo, hi)
+        skip = i == P.N_JOINTS - 1 and payload_kg > 0
         rows.append({"link": i + 1, "com_m": [float(x) for x in c], "box_low_m": [float(x) for x in lo],
-                     "box_high_m": [float(x) for x in hi], "outside_m": out, "ok": bool(out <= 1e-12)})
-    m, m0 = float(links.mass_kg.sum()), float(declared.mass_kg.sum())
+                     "box_high_m": [float(x) for x in hi], "outside_m": out,
+                     "ok": None if skip else bool(out <= 1e-12)})
+    m, m0 = float(links.mass_kg.sum()), float(declared.mass_kg.sum()) + payload_kg
     rel = (m - m0) / m0
     total = {"identified_kg": m, "declared_kg": m0, "relative": rel, "tolerance": mass_tolerance,
              "ok": bool(abs(rel) <= mass_tolerance)}
-    return {"com_in_box": rows, "total_mass": total, "ok": bool(total["ok"] and all(r["ok"] for r in rows)),
+    return {"com_in_box": rows, "total_mass": total,
+            "ok": bool(total["ok"] and all(r["ok"] is not False for r in rows)),
             "enforced": False,
             "note": ("checks of the physically consistent estimate, not constraints of it (it enforces positive "
                      "semidefinite pseudo-inertias only); link masses and COMs are mostly split by the declared "
