@@ -104,3 +104,26 @@ def test_fused_only_where_it_reproduces_the_python_path():
     assert fused_supported(be, JointController(P.KP, P.KD, np.zeros(7), DT))
     assert not fused_supported(other, plain)
     assert not fused_supported(be, JointController(P.KP, P.KD, np.zeros(7), DT, gravity=lambda q: np.zeros(7)))
+
+
+def test_an_interrupt_from_the_progress_callback_stops_both_paths_at_the_same_row():
+    """Ctrl-C reaches the compiled loop between its chunks, which end where the Python path reports progress:
+    stopped at the same tick, with the same rows and the same state."""
+    ref = _reference()
+    out = []
+    for fused in (False, True):
+        backend = SimBackend(Plant(PlantSpec.model_validate(EVERYTHING)), Q0, np.random.default_rng(1), 2)
+        ctl = JointController(P.KP, P.KD, np.zeros(7), DT, gravity=WamDynamics().gravity_view)
+        rec = LoopRecorder(len(ref), True)
+
+        def progress(k, n):
+            if k >= 300:
+                raise KeyboardInterrupt
+
+        with backend, pytest.raises(KeyboardInterrupt):
+            run_loop(backend, ctl, ref, rec, progress, fused=fused)
+        out.append((rec, backend))
+    (ra, ba), (rb, bb) = out
+    assert ra.n == rb.n == 301
+    np.testing.assert_allclose(rb.result(), ra.result(), rtol=0, atol=1e-9)
+    np.testing.assert_allclose(bb.q_true_rad, ba.q_true_rad, rtol=0, atol=1e-9)
