@@ -187,3 +187,62 @@ def test_a_spec_declaring_a_non_wam_urdf_is_refused_in_one_line(tmp_path):
     r = subprocess.run([sys.executable, "-m", "wamctl", "validate", str(tmp_path / "spec.yaml")],
                        capture_output=True, text=True, timeout=120)
     assert r.returncode == 0, r.stderr
+
+
+# jhu-lcsr/barrett_model, models/components.urdf.xacro (commit 00f07a7f, RE2's WAM description, macros wam_base to
+# wam_palm): joint name, origin xyz, origin roll (pitch = yaw = 0, axis 0 0 1 each), child link, its inertial mass
+# and origin. Only these numbers are taken; the XML is written below.
+BARRETT_MODEL = [
+    ("base_yaw_joint", (0, 0, 0.346), 0.0, "shoulder_yaw_link", 5.0, (-.00443422, -.00066489, -0.1289039)),
+    ("shoulder_pitch_joint", (0, 0, 0), -np.pi / 2, "shoulder_pitch_link", 3.87493756,
+     (-.00236981, -.01542114, .03105614)),
+    ("shoulder_yaw_joint", (0, 0, 0), np.pi / 2, "upper_arm_link", 1.80228141, (0.0068325858, 0.00003309, 0.3424923)),
+    ("elbow_pitch_joint", (0.045, 0, 0.55), -np.pi / 2, "forearm_link", 1.00016804,
+     (-0.04001488, -.12271662, -.00022942)),
+    ("wrist_yaw_joint", (-0.045, -0.3, 0), np.pi / 2, "wrist_yaw_link", 1.12376019,
+     (0.00008921, 0.00435824, -0.00511217)),
+    ("wrist_pitch_joint", (0, 0, 0), -np.pi / 2, "wrist_pitch_link", 0.51797364,
+     (-0.00012262, -0.02468336, -0.01703194)),
+    ("palm_yaw_joint", (0, 0, 0), np.pi / 2, "wrist_palm_link", 0.08286134, (0.0, 0.0, 0.0)),
+]
+# the same file's inertia of the upper arm (ixx, iyy, izz) and of the shoulder pitch link, in their link frames
+BARRETT_MODEL_DIAG = {"upper_arm_link": (.05911077, 0.05927043, 0.0032455),
+                      "shoulder_pitch_link": (0.02140958, 0.015589060, 0.01377875)}
+
+
+def _barrett_model_urdf(prefix="wam"):
+    out = ['<?xml version="1.0"?>', '<robot name="wam7">', '<link name="world"/>',
+           f'<joint name="{prefix}/wam_fixed_joint" type="fixed"><parent link="world"/>'
+           f'<child link="{prefix}/base_link"/><origin xyz="0 0 0" rpy="0 0 0"/></joint>',
+           f'<link name="{prefix}/base_link"><inertial><origin xyz="0 0 0"/><mass value="1"/>'
+           '<inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial></link>']
+    parent = f"{prefix}/base_link"
+    for joint, xyz, roll, link, mass, com in BARRETT_MODEL:
+        ixx, iyy, izz = BARRETT_MODEL_DIAG.get(link, (1e-4, 1e-4, 1e-4))
+        out += [f'<joint name="{prefix}/{joint}" type="revolute"><parent link="{parent}"/>'
+                f'<child link="{prefix}/{link}"/><origin xyz="{_fmt(xyz)}" rpy="{roll!r} 0 0"/><axis xyz="0 0 1"/>'
+                '<limit effort="5" lower="-2" upper="2" velocity="0.5"/><dynamics damping="5.5" friction="1"/></joint>',
+                f'<link name="{prefix}/{link}"><inertial><origin xyz="{_fmt(com)}"/><mass value="{mass!r}"/>'
+                f'<inertia ixx="{ixx!r}" ixy="0" ixz="0" iyy="{iyy!r}" iyz="0" izz="{izz!r}"/></inertial></link>']
+        parent = f"{prefix}/{link}"
+    return "\n".join(out + ["</robot>", ""])
+
+
+def test_the_barrett_model_description_reads_as_a_wam_and_its_upper_arm_is_the_datasheets():
+    """RE2's / jhu-lcsr's WAM description (named joints, a 0.346 m pedestal, the wrist frame 0.3 m along the
+    forearm axis instead of at the elbow) is the DH table's arm; its shoulder-pitch and upper-arm inertials, moved
+    into DH frames 2 and 3, are libbarrett's datasheet numbers (wam7w.conf) to 0.1 mm and 1e-8 kg m^2."""
+    links = read_urdf_links(_barrett_model_urdf())
+    ds = P.LinkParameters.datasheet()
+    np.testing.assert_allclose(links.mass_kg, [m for *_, m, _ in BARRETT_MODEL], atol=1e-12)
+    for i in (1, 2):                     # links 2 and 3
+        assert links.mass_kg[i] == pytest.approx(ds.mass_kg[i], abs=1e-4)
+        # to 0.1 mm: the description's upper-arm COM x is 0.09 mm off wam7w.conf's (-0.038167 vs -0.03826 m)
+        np.testing.assert_allclose(links.com_m[i], ds.com_m[i], atol=1e-4)
+        np.testing.assert_allclose(sorted(links.inertia_kg_m2[i][:3]), sorted(ds.inertia_kg_m2[i][:3]), atol=1e-8)
+    np.testing.assert_allclose(links.armature_kg_m2, ds.armature_kg_m2)     # no armature in the file: datasheet's
+    # a base that is not upright (the pedestal tilted by 0.01 rad) is no longer the WAM standing on its base
+    tilted = _barrett_model_urdf().replace('<child link="wam/base_link"/><origin xyz="0 0 0" rpy="0 0 0"/>',
+                                           '<child link="wam/base_link"/><origin xyz="0 0 0" rpy="0.01 0 0"/>')
+    with pytest.raises(UrdfError, match="joint 'wam/base_yaw_joint' .joint 1.: axis not vertical up"):
+        read_urdf_links(tilted)
