@@ -27,6 +27,7 @@ from pydantic import BaseModel, ConfigDict, Field, ValidationError, field_valida
 from wamctl.errors import DataFormatError
 from wamctl.io import ensure_dir, load_yaml
 from wamctl.model import params as P
+from wamctl.model.robots import ROBOTS
 from wamctl.runs.store import RunDir, open_run, read_table, write_csv
 
 log = logging.getLogger(__name__)
@@ -37,9 +38,9 @@ MAX_NAN_FRACTION = 0.01
 # consecutive NaN rows dropped as "isolated": dropping them leaves a hole of at most 4 samples, which the readers
 # take like jitter (docs/measured-run.md); a longer block is an error naming its first and last row
 MAX_NAN_BLOCK_ROWS = 4
-# the joints of each robot a measured run may name (libbarrett's wam7.conf / wam4.conf); the model, the
-# simulator and the analyses know only the wam7 so far (see load_run_data)
-ROBOT_JOINTS = {"wam7": P.N_JOINTS, "wam4": 4}
+# the joints of each robot a measured run may name (wamctl.model.robots: libbarrett's wam7w.conf / wam4.conf);
+# the analyses that take any registered robot are in _ANY_ROBOT, the others know only the wam7 so far
+ROBOT_JOINTS = {name: r.n_joints for name, r in ROBOTS.items()}
 # what tau is: the whole command incl. gravity compensation (libbarrett's jtSum; the meaning when absent), the
 # user's controller output with gravity compensation added downstream and not logged, or a torque sensor
 TORQUE_KINDS = ("total", "controller", "measured")
@@ -140,6 +141,11 @@ class RunData:
     @property
     def t_s(self) -> np.ndarray:
         return self.data["t_s"].to_numpy()
+
+    @property
+    def n_joints(self) -> int:
+        """The joints of the robot the run names (7 for a wam7, 4 for a wam4)."""
+        return ROBOT_JOINTS[self.meta.robot]
 
     def col(self, name: str) -> np.ndarray:
         """(n, 7) array of ``{name}_{j}_{unit}`` columns, e.g. ``col('q')``, ``col('q_ref')``, ``col('tau')``;
@@ -330,15 +336,16 @@ def meta_from_run(manifest: dict, spec: dict, data: pd.DataFrame) -> MeasuredMet
                         source_run_kind=kind)
 
 
-def unsupported(meta: MeasuredMeta, columns) -> str | None:
-    """Why the analyses cannot take a run yet (None: they can): they know the wam7 with all seven joints, a
-    reference, and tau the total command."""
-    if meta.robot != "wam7":
+def unsupported(meta: MeasuredMeta, columns, any_robot: bool = False) -> str | None:
+    """Why the analyses cannot take a run yet (None: they can): they know the wam7 (``any_robot``: every
+    registered robot) with all its joints, a reference, and tau the total command."""
+    if meta.robot != "wam7" and not any_robot:
         return f"robot {meta.robot}"
-    absent = [j for j in J if j not in meta.logged_joints]
+    n = ROBOT_JOINTS[meta.robot]
+    absent = [j for j in range(1, n + 1) if j not in meta.logged_joints]
     if absent:
-        return (f"joint(s) {', '.join(map(str, absent))} not logged (the analyses need all {P.N_JOINTS} joints of "
-                "the wam7)")
+        return (f"joint(s) {', '.join(map(str, absent))} not logged (the analyses need all {n} joints of "
+                f"the {meta.robot})")
     if meta.torque_kind != "total":
         what = {"controller": "the controller's output, gravity compensation added downstream and not logged",
                 "measured": "a torque sensor's reading"}[meta.torque_kind]
@@ -354,6 +361,8 @@ _CALLERS = {"wamctl.experiments.diagnose": "diagnose", "wamctl.experiments.ident
             "wamctl.experiments.friction_sweep": "friction-id", "wamctl.experiments.ift.experiments": "tune-ift",
             "wamctl.report.friction": "report", "wamctl.report.excitation": "report"}
 PARTIAL_READERS = ("wamctl.report.measured",)
+# the callers that take a run of any registered robot (wamctl.model.robots), not only the wam7
+_ANY_ROBOT = ("wamctl.experiments.friction_sweep",)
 
 
 def _caller_module() -> str:
@@ -381,8 +390,8 @@ def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
             meta = meta_from_run(manifest, spec, data)
         truth = spec.get("plant") if (manifest.get("backend") or {}).get("name") == "sim" else None
         rd = RunData(meta, data, path, truth)
-    why = unsupported(rd.meta, rd.data.columns)
     caller = _caller_module()
+    why = unsupported(rd.meta, rd.data.columns, any_robot=caller in _ANY_ROBOT)
     if why and not (partial_ok or caller in PARTIAL_READERS):
         raise DataFormatError(f"{path}: {why}: not supported by {_CALLERS.get(caller, 'this analysis')} yet")
     return rd

@@ -40,6 +40,7 @@ class FrictionIdentification:
     joints: dict[int, JointIdentification] = field(default_factory=dict)
     model: FrictionModel = field(default_factory=FrictionModel.zero)
     options: dict = field(default_factory=dict)
+    n_joints: int = P.N_JOINTS      # the robot's joints (4 on a wam4): the joints a model could be given for
 
     def table_4_1(self, model: str | None = None) -> pd.DataFrame:
         """Table 4.1 layout per joint (Fc+/Fc-, sigma2+/sigma2- with standard errors) of the chosen model, or
@@ -81,7 +82,7 @@ class FrictionIdentification:
         usable constant-velocity segments to fit."""
         in_map = {int(j) for j in self.map["joint"].unique()} if len(self.map) else set()
         out = {}
-        for j in range(1, P.N_JOINTS + 1):
+        for j in range(1, self.n_joints + 1):
             if j in self.joints:
                 continue
             if j not in in_map:
@@ -128,11 +129,14 @@ def json_records(df: pd.DataFrame) -> list[dict]:
 
 
 def identify_from_map(fmap: pd.DataFrame, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic",
-                      loss: str = "linear", weighting: str = "se") -> FrictionIdentification:
+                      loss: str = "linear", weighting: str = "se", n_joints: int = P.N_JOINTS
+                      ) -> FrictionIdentification:
     """Fit and select per joint on an existing map; the chosen models as one :class:`FrictionModel`
-    (joints without enough segments keep zero friction)."""
+    (joints without enough segments keep zero friction; on a robot of fewer joints than the wam7, the entries
+    beyond ``n_joints`` stay zero and are never written)."""
     result = FrictionIdentification(fmap, options={"models": list(models), "folds": folds,
-                                                   "criterion": criterion, "loss": loss, "weighting": weighting})
+                                                   "criterion": criterion, "loss": loss, "weighting": weighting},
+                                    n_joints=n_joints)
     arrays = {k: np.zeros(P.N_JOINTS) for k in ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad",
                                                  "viscous_neg_Nm_s_rad")}
     arrays.update({k: np.full(P.N_JOINTS, np.nan) for k in ("fs_pos_Nm", "fs_neg_Nm", "vs_rad_s")})
@@ -157,21 +161,24 @@ def identify(run, options: dict | None = None, map_options: MapOptions | None = 
     """Identify friction from a recorded sweep (:class:`~wamctl.runs.measured.RunData`): map, fits, selection.
 
     ``options``: ``loss``, ``criterion``, ``folds``, ``models`` (as the spec's ``identification`` section).
-    ``dynamics``: the declared rigid body (a WamDynamics, e.g. an identified arm); default the datasheet's
-    with the payload the metadata declare.
+    ``dynamics``: the declared rigid body (a WamDynamics, e.g. an identified arm); default the datasheet arm
+    of the robot the run names (:mod:`wamctl.model.robots`) with the payload the metadata declare.
     """
     from wamctl.model.dynamics import Payload, WamDynamics
 
     o = {"loss": "linear", "criterion": "bic", "folds": 5, "models": list(MODEL_NAMES), "weighting": "se"}
     o.update(options or {})
     meta = run.meta
-    joints = list(meta.experiment.joints) or list(range(1, P.N_JOINTS + 1))
+    n = run.n_joints if hasattr(run, "n_joints") else P.N_JOINTS
+    joints = list(meta.experiment.joints) or list(range(1, n + 1))
     pl = meta.payload
     dyn = dynamics if dynamics is not None else \
-        WamDynamics(Payload(pl.mass_kg, tuple(pl.com_m)) if pl and pl.mass_kg > 0 else None)
-    q_ref = run.col("q_ref")
-    fmap = friction_map(run.t_s, run.col("q"), run.col("tau"), q_ref, joints, dyn, map_options)
+        WamDynamics(Payload(pl.mass_kg, tuple(pl.com_m)) if pl and pl.mass_kg > 0 else None, robot=meta.robot)
+    if getattr(dyn, "n_joints", n) != n:
+        raise DataFormatError(f"{run.source}: the model has {dyn.n_joints} joints, the run's {meta.robot} {n}")
+    q_ref = run.col("q_ref")[:, :n]
+    fmap = friction_map(run.t_s, run.col("q")[:, :n], run.col("tau")[:, :n], q_ref, joints, dyn, map_options)
     if not len(fmap) or not fmap["accepted"].any():
         raise DataFormatError(f"{run.source}: no constant-velocity stage found in the data of joints {joints}; "
                               "is this a friction sweep (moves at constant velocities)?")
-    return identify_from_map(fmap, o["models"], o["folds"], o["criterion"], o["loss"], o["weighting"])
+    return identify_from_map(fmap, o["models"], o["folds"], o["criterion"], o["loss"], o["weighting"], n)
