@@ -19,6 +19,10 @@ def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, 
                                                     "folder with the designed spec and its report (default: the "
                                                     "spec's out_dir, runs/).",
                                                     show_default=False)] = None,
+           payload_schedule: Annotated[bool, typer.Option(
+               "--payload-schedule", help="Also write the payload schedule: four specs of the one trajectory "
+                                          "to run loaded, bare, bare, loaded (ABBA) for `wamctl identify "
+                                          "--payload`; a spec with coefficients is not redesigned.")] = False,
            quiet: QuietOpt = False, json: JsonOpt = False):
     """Design an exciting trajectory for `wamctl identify` (finite Fourier series per joint).
 
@@ -31,6 +35,17 @@ def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, 
     from wamctl.experiments.excitation import excite as run_excite
     from wamctl.experiments.excitation import limits_summary
 
+    if payload_schedule:
+        from wamctl.experiments.identify import payload_schedule as write_schedule
+
+        folder, specs = write_schedule(spec, out)
+        if json:
+            emit_json({"out": str(folder), "schedule": [str(p) for p in specs]})
+            return
+        console.print("payload schedule (run in this order):\n" + "\n".join(f"  {p}" for p in specs)
+                      + f"\nthen: wamctl identify --payload --loaded RUN1 --loaded RUN4 --bare RUN2 --bare RUN3"
+                      f"\n({folder / 'schedule.md'})", highlight=False, soft_wrap=True)
+        return
     with progress_bar("excitation design", enabled=not (quiet or json)) as progress:
         path, design, use = run_excite(spec, out, progress)
     import json as json_module

@@ -342,3 +342,68 @@ def identify_payload_to_run_dir(loaded: list[Path], bare: list[Path], model: Pat
     run.finish("completed", None, not_identified=est.not_identified)
     doc = write_report(run.path, formats=formats)
     return run.path, result, doc
+
+
+PAYLOAD_ORDER = ("loaded", "bare", "bare", "loaded")    # ABBA: a friction drift linear in time cancels
+
+
+def payload_schedule(spec_path: Path, out: Path | None = None) -> tuple[Path, list[Path]]:
+    """``wamctl excite SPEC --payload-schedule``: the ABBA schedule (loaded, bare, bare, loaded) of one designed
+    trajectory: four specs to run in order, ``schedule/<i>-<role>.yaml``, and ``schedule.md`` with the commands.
+    A spec with ``excitation.coefficients`` is used as designed (a new folder ``<out>/<time>-<name>-payload-
+    schedule``); one without is designed first (:func:`wamctl.experiments.excitation.excite`, its folder).
+    The loaded specs keep ``plant.effects.payload`` (what the simulated arm carries; a real arm carries what is
+    mounted), the bare ones drop it; everything else (the controller's declared payload included) is the same in
+    all four, so that only the payload differs. Returns (the folder, the four specs)."""
+    import copy
+
+    import yaml
+
+    from wamctl.io import load_yaml
+    from wamctl.runs.store import new_stamped_dir
+    from wamctl.specs import load_spec
+    from wamctl.specs.excitation import ExcitationSpec
+
+    spec_path = Path(spec_path)
+    spec = load_spec(spec_path)
+    if not isinstance(spec, ExcitationSpec):
+        raise SpecError(f"{spec_path}: kind: {spec.kind!r}; --payload-schedule takes a spec of kind excitation")
+    sim = spec.backend.kind == "sim"
+    if sim and spec.plant.effects.payload is None:
+        raise SpecError(f"{spec_path}: plant.effects.payload: missing; on the simulated arm the loaded runs carry "
+                        "this payload (without it loaded and bare runs are the same arm)")
+    if spec.excitation.coefficients:
+        from wamctl.experiments.excitation import _files_absolute
+
+        folder = new_stamped_dir(out if out is not None else spec.out_dir, f"{spec.name}-payload-schedule")
+        designed = _files_absolute(load_yaml(spec_path), spec_path.parent)
+    else:
+        from wamctl.experiments.excitation import excite
+
+        folder, _, _ = excite(spec_path, out)
+        designed = load_yaml(folder / "excitation.yaml")
+    sched = folder / "schedule"
+    sched.mkdir(exist_ok=True)
+    paths = []
+    for i, role in enumerate(PAYLOAD_ORDER, 1):
+        s = copy.deepcopy(designed)
+        s["name"] = f"{spec.name}-{i}-{role}"
+        if role == "bare":
+            fx = dict((s.get("plant") or {}).get("effects") or {})
+            fx.pop("payload", None)
+            if isinstance(s.get("plant"), dict):
+                s["plant"] = dict(s["plant"], effects=fx)
+        p = sched / f"{i}-{role}.yaml"
+        p.write_text(f"# payload schedule {i}/4 ({role}): run in order 1-loaded, 2-bare, 3-bare, 4-loaded\n"
+                     + yaml.safe_dump(s, sort_keys=False))
+        paths.append(p)
+    lines = ["# Payload schedule (ABBA)", "",
+             "Run these four specs in this order, one after another, the payload mounted for the loaded runs and "
+             "removed for the bare ones (nothing else changed): a friction that drifts linearly in time (warming "
+             "up) then cancels in the loaded-minus-bare difference.", ""]
+    lines += [f"{i}. `wamctl run {p}` ({role})" for i, (p, role) in enumerate(zip(paths, PAYLOAD_ORDER), 1)]
+    lines += ["", "Then: `wamctl identify --payload --loaded RUN1 --loaded RUN4 --bare RUN2 --bare RUN3` "
+              "(docs/payload.md)." + ("" if sim else " On the real arm, mount and remove the payload between "
+                                      "runs without moving the arm's base.")]
+    (folder / "schedule.md").write_text("\n".join(lines) + "\n")
+    return folder, paths

@@ -15,6 +15,7 @@ from wamctl.errors import SpecError
 from wamctl.io import load_yaml, resolve_path
 from wamctl.model.urdf import is_urdf
 from wamctl.specs.common import Common, PlantSpec, check_files
+from wamctl.specs.payload_file import is_payload_file, payload_effect
 from wamctl.specs.registry import KINDS, SPEC_KINDS, resolve
 
 
@@ -66,6 +67,8 @@ def load_model_file(path: str | Path) -> dict:
     if is_urdf(path):
         return {"links": _urdf_links(path)}
     data = load_yaml(path)
+    if is_payload_file(data):       # the datasheet arm carrying an identified payload (docs/payload.md)
+        return {"effects": {"payload": payload_effect(path, data)}}
     if not isinstance(data, dict):
         raise SpecError(f"{path}: a model file is a mapping with friction/effects/sensors")
     data = {k: v for k, v in data.items() if k in PlantSpec.model_fields}
@@ -106,6 +109,22 @@ def load_spec(path: str | Path) -> Common:
     if isinstance(ctl, dict) and isinstance(ctl.get("declared_links"), str):
         links = load_model_links(resolve_path(ctl["declared_links"], path.parent))
         data = dict(data, controller=dict(ctl, declared_links=links))
+    data = _payload_files(data, path.parent)
     spec = parse_spec(data, str(path))
     check_files(spec, path.resolve().parent, str(path))
     return spec
+
+def _payload_files(data, base: Path):
+    """``plant.effects.payload: FILE`` and ``controller.declared_payload: FILE`` (payload files, relative to the
+    spec's folder) replaced by their ``{mass_kg, com_m}``."""
+    if not isinstance(data, dict):
+        return data
+    plant, ctl = data.get("plant"), data.get("controller")
+    fx = plant.get("effects") if isinstance(plant, dict) else None
+    if isinstance(fx, dict) and isinstance(fx.get("payload"), str):
+        fx = dict(fx, payload=payload_effect(resolve_path(fx["payload"], base)))
+        data = dict(data, plant=dict(plant, effects=fx))
+    if isinstance(ctl, dict) and isinstance(ctl.get("declared_payload"), str):
+        data = dict(data, controller=dict(ctl, declared_payload=payload_effect(
+            resolve_path(ctl["declared_payload"], base))))
+    return data

@@ -32,8 +32,8 @@ A few held poses: segments where the reference rests for at least ``MIN_HOLD_S``
 last half of each (the loop settled). At rest the torque is gravity (plus the joints' stick friction, which the
 controller's residual error leaves unknown: approaching each pose the same way in the loaded and bare runs makes
 it alike), so ``d`` is the gravity rows of ``Y7``: mass and first moment only (inertia needs motion: said). Its
-intervals are ordinary least squares' over the poses (one average per pose and joint, independent), widened by
-Student's t.
+intervals are weighted least squares' over the poses (one average per pose and joint, independent; each joint
+weighted by its residual RMS), widened by Student's t.
 
 The payload file (``wamctl-payload/1``, :func:`payload_file`; documented in docs/payload.md) is what
 ``plant.effects.payload`` and ``controller.declared_payload`` accept as a path, and ``diagnose --payload``.
@@ -360,7 +360,7 @@ def held_poses(data, min_hold_s: float = MIN_HOLD_S) -> list[tuple[np.ndarray, n
     out = []
     edges = np.flatnonzero(np.diff(np.r_[0, still.astype(int), 0]))
     for a, b in zip(edges[::2], edges[1::2]):
-        if t[b - 1] - t[a] >= min_hold_s:
+        if t[b - 1] - t[max(a - 1, 0)] >= min_hold_s:
             half = slice(a + (b - a) // 2, b)
             out.append((qr0[b - 1], np.nanmean(tau[half], axis=0)))
     return out
@@ -376,21 +376,31 @@ def identify_payload_static(loaded, bare, alpha: float = 0.05, labels=None,
         raise DataFormatError("identify --payload --static: give at least one --loaded and one --bare run")
     labels = labels or {"loaded": [f"loaded run {i + 1}" for i in range(len(loaded))],
                         "bare": [f"bare run {i + 1}" for i in range(len(bare))]}
-    check_same_trajectory(list(loaded) + list(bare), list(labels["loaded"]) + list(labels["bare"]))
     joints = sorted({j - 1 for d in list(loaded) + list(bare) for j in d.meta.logged_joints})
-    poses_l = [held_poses(d, min_hold_s) for d in loaded]
-    poses_b = [held_poses(d, min_hold_s) for d in bare]
-    n = min(len(x) for x in poses_l + poses_b)
-    if n == 0:
+    pairs = []          # (loaded poses, bare poses) of runs that follow one reference
+    for dl, nl in zip(loaded, labels["loaded"]):
+        match = []
+        for db, nb in zip(bare, labels["bare"]):
+            try:
+                check_same_trajectory([dl, db], [nl, nb])
+            except DataFormatError:
+                continue
+            match.append(db)
+        if not match:
+            raise DataFormatError(f"{nl}: no --bare run follows its reference; each loaded run of held poses needs a "
+                                  "bare run of the same poses")
+        pl = held_poses(dl, min_hold_s)
+        pb = [held_poses(db, min_hold_s) for db in match]
+        n = min(len(x) for x in [pl] + pb)
+        pairs += [(pl[i][0], pl[i][1], np.mean([x[i][1] for x in pb], axis=0)) for i in range(n)]
+    if not pairs:
         raise DataFormatError(f"identify --payload --static: no held pose (the reference at rest >= {min_hold_s:g} s) "
                               "in the runs")
+    n = len(pairs)
     dyn = WamDynamics()
     X, d, jrow = [], [], []
     z = np.zeros(N7)
-    for i in range(n):
-        q = poses_l[0][i][0]
-        tl = np.mean([x[i][1] for x in poses_l], axis=0)
-        tb = np.mean([x[i][1] for x in poses_b], axis=0)
+    for q, tl, tb in pairs:
         G = dyn.torque_regressor(q, z, z)[0][:, LINK7][:, :4]
         for j in joints:
             X.append(G[j])
@@ -404,10 +414,13 @@ def identify_payload_static(loaded, bare, alpha: float = 0.05, labels=None,
     if dof < 1:
         raise DataFormatError(f"identify --payload --static: {n} held pose(s) give {len(d)} rows for "
                               f"{Xd.shape[1]} parameters; hold more poses")
-    beta, *_ = np.linalg.lstsq(Xd, d, rcond=None)
+    sig0 = _weights(X, d, jrow, det[:4])       # per joint: the held torque's spread differs by an order
+    w = 1.0 / sig0[jrow]
+    Xw = Xd * w[:, None]
+    beta, *_ = np.linalg.lstsq(Xw, d * w, rcond=None)
     e = d - Xd @ beta
-    s2 = float(e @ e) / dof
-    cov_d = s2 * np.linalg.inv(Xd.T @ Xd)
+    s2 = float((e * w) @ (e * w)) / dof
+    cov_d = s2 * np.linalg.inv(Xw.T @ Xw)
     p = np.zeros(10)
     p[det] = beta
     cov = np.full((10, 10), np.nan)

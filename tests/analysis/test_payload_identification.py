@@ -1,0 +1,155 @@
+"""`wamctl identify --payload` on the simulated arm (issue 29 item 1).
+
+One designed trajectory (the shipped excitation, 4 periods of 8 s) is run loaded and bare; between runs the
+friction drifts (every joint's Table 4.1 friction scaled by 1.0, 0.9, 0.8, 0.7 at schedule positions 0-3: a
+warming-up arm). In the ABBA order (positions: loaded 0 and 3, bare 1 and 2) the drift cancels: mass within 3 %
+and centre of mass within 3 mm of the truth, and inside their 95 % intervals; in the order loaded-loaded-bare-bare
+(loaded 0 and 1, bare 2 and 3) the drift leaks into the estimate (more than three times the ABBA's error).
+The static variant: held poses (the excitation's holds at q0, three q0) for mass (5 %) and centre of mass (2.5 cm,
+within its intervals).
+"""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from wamctl.analysis.identification.payload import identify_payload, identify_payload_static
+from wamctl.experiments.runner import run_spec
+from wamctl.model.friction import FrictionModel
+from wamctl.runs.measured import load_run_data
+from wamctl.specs import load_spec, parse_spec
+
+ROOT = Path(__file__).resolve().parents[2]
+TRUTH = {"mass_kg": 1.2, "com_m": [0.01, -0.02, 0.06]}
+DRIFT = (1.0, 0.9, 0.8, 0.7)        # friction scale at schedule positions 0..3
+
+
+def _run(out: Path, loaded: bool, position: int, seed: int, **excitation) -> Path:
+    raw = yaml.safe_load((ROOT / "configs" / "excitation.yaml").read_text())
+    raw["excitation"].update(periods=4, **excitation)
+    raw["seed"] = seed
+    friction = FrictionModel.table_4_1().scaled(DRIFT[position])
+    raw.update(plant={"friction": {"joints": friction.to_dict()["joints"]},
+                      "effects": {"payload": TRUTH} if loaded else {},
+                      "sensors": {"position_noise_rad": 2e-5, "torque_noise_Nm": 0.02}}, backend={"kind": "sim"})
+    outcome = run_spec(parse_spec(raw), ROOT / "configs", out, make_report=False)
+    assert outcome.status == "completed", outcome.reason
+    return outcome.path
+
+
+@pytest.fixture(scope="module")
+def runs(tmp_path_factory):
+    out = tmp_path_factory.mktemp("payload")
+    return {key: _run(out, role == "L", pos, seed) for seed, (key, role, pos) in enumerate(
+        [("L0", "L", 0), ("B1", "B", 1), ("B2", "B", 2), ("L3", "L", 3), ("L1", "L", 1), ("B3", "B", 3)])}
+
+
+@pytest.fixture(scope="module")
+def estimates(runs):
+    d = {k: load_run_data(p) for k, p in runs.items()}
+    abba = identify_payload([d["L0"], d["L3"]], [d["B1"], d["B2"]])
+    llbb = identify_payload([d["L0"], d["L1"]], [d["B2"], d["B3"]])
+    return abba, llbb
+
+
+def _com_error_m(est) -> float:
+    return float(np.linalg.norm(np.array(est.com_m) - TRUTH["com_m"]))
+
+
+def test_abba_recovers_mass_and_com_within_their_intervals(estimates):
+    est, _ = estimates
+    m = TRUTH["mass_kg"]
+    assert abs(est.mass_kg - m) / m < 0.03
+    assert est.mass_ci_kg[0] <= m <= est.mass_ci_kg[1]
+    assert _com_error_m(est) < 0.003
+    for c, ci, truth in zip(est.com_m, est.com_ci_m, TRUTH["com_m"]):
+        assert ci[0] <= truth <= ci[1], (c, ci, truth)
+    # a point mass: no inertia about its COM; the intervals of what the trajectory excites hold zero or nearly
+    widths = [hi - lo for lo, hi in est.inertia_ci_kg_m2.values()]
+    assert all(w < 5e-3 for w in widths)
+    assert est.not_identified == []
+
+
+def test_without_abba_the_friction_drift_biases_the_payload(estimates):
+    abba, llbb = estimates
+    m = TRUTH["mass_kg"]
+    assert abs(llbb.mass_kg - m) > 3 * abs(abba.mass_kg - m)
+    assert _com_error_m(llbb) > 3 * _com_error_m(abba)
+    assert "NOT balanced" not in abba.order
+    assert "LLBB" not in llbb.order or "NOT balanced" in llbb.order
+
+
+def test_order_statement_from_start_times():
+    from wamctl.analysis.identification.payload import order_statement
+
+    abba = [("loaded", "t0"), ("bare", "t1"), ("bare", "t2"), ("loaded", "t3")]
+    assert "balanced" in order_statement(abba) and "NOT" not in order_statement(abba)
+    llbb = [("loaded", "t0"), ("loaded", "t1"), ("bare", "t2"), ("bare", "t3")]
+    assert "NOT balanced" in order_statement(llbb)
+
+
+def test_payload_file_feeds_plant_controller_and_model(runs, tmp_path):
+    from wamctl.experiments.identify import identify_payload_to_run_dir
+    from wamctl.specs.load import load_model_file
+
+    path, result, _ = identify_payload_to_run_dir([runs["L0"]], [runs["B1"]],
+                                                  out=tmp_path, formats=("md",))
+    pf = path / "payload.yaml"
+    f = yaml.safe_load(pf.read_text())
+    assert f["format"] == "wamctl-payload/1" and abs(f["mass_kg"] - result["mass_kg"]) < 1e-12
+    assert (path / "report.md").exists() and "mass" in (path / "report.md").read_text()
+    raw = yaml.safe_load((ROOT / "configs" / "excitation.yaml").read_text())
+    raw.update(plant={"effects": {"payload": str(pf)}}, controller={"declared_payload": "payload.yaml"})
+    spec_path = path / "spec_with_payload.yaml"
+    spec_path.write_text(yaml.safe_dump(raw))
+    spec = load_spec(spec_path)
+    assert spec.plant.effects.payload.mass_kg == pytest.approx(f["mass_kg"])
+    assert spec.controller.declared_payload.com_m == pytest.approx(f["com_m"])
+    assert load_model_file(pf)["effects"]["payload"]["mass_kg"] == pytest.approx(f["mass_kg"])
+
+
+def test_static_variant_from_held_poses(tmp_path):
+    poses = ([0.0, 0.0, 0.0, 2.0, 0.0, 0.5, 0.0], [0.5, 0.0, 0.6, 2.0, -0.7, -0.6, 0.9],
+             [-0.4, 0.0, -0.7, 2.0, 0.7, 0.8, -1.2])
+    loaded, bare = [], []
+    for i, q0 in enumerate(poses):
+        for role, lst in (("L", loaded), ("B", bare)):
+            raw = yaml.safe_load((ROOT / "configs" / "excitation.yaml").read_text())
+            raw["excitation"].update(periods=1, settle_s=3.0)
+            for c in raw["excitation"]["coefficients"].values():     # a small motion between the holds
+                c.update({k: [0.2 * v for v in c[k]] for k in ("a_rad_s", "b_rad_s")})
+            raw.update(q0_rad=q0, seed=i, plant={"effects": {"payload": TRUTH} if role == "L" else {}},
+                       backend={"kind": "sim"})
+            outcome = run_spec(parse_spec(raw), ROOT / "configs", tmp_path, make_report=False)
+            assert outcome.status == "completed", outcome.reason
+            lst.append(load_run_data(outcome.path))
+    est = identify_payload_static(loaded, bare)
+    m = TRUTH["mass_kg"]
+    assert abs(est.mass_kg - m) / m < 0.05 and est.mass_ci_kg[0] <= m <= est.mass_ci_kg[1]
+    # held torque carries each joint's stick friction and steady-state error: coarser than the dynamic variant
+    # (measured: mass 1.22 kg, COM 17 mm off), but inside its intervals
+    assert _com_error_m(est) < 0.025
+    for ci, truth in zip(est.com_ci_m, TRUTH["com_m"]):
+        assert ci[0] <= truth <= ci[1]
+    assert set(est.not_identified) == {"I_xx", "I_yy", "I_zz", "I_xy", "I_xz", "I_yz"}
+
+
+def test_runs_of_different_trajectories_are_one_line_and_exit_code_2(runs, tmp_path):
+    raw = yaml.safe_load((ROOT / "configs" / "excitation_validation.yaml").read_text())
+    raw["excitation"]["periods"] = 1
+    raw.update(backend={"kind": "sim"})
+    other = run_spec(parse_spec(raw), ROOT / "configs", tmp_path, make_report=False).path
+    env = dict(os.environ, PYTHONPATH=str(ROOT))
+    r = subprocess.run([sys.executable, "-m", "wamctl", "identify", "--payload", "--loaded", str(runs["L0"]),
+                        "--bare", str(other), "--out", str(tmp_path)], capture_output=True, text=True, timeout=300,
+                       env=env, cwd=ROOT)
+    assert r.returncode == 2, r.stderr
+    assert "Traceback" not in r.stderr and "different trajectories" in r.stderr
+    assert len([ln for ln in r.stderr.splitlines() if ln.strip()]) == 1
