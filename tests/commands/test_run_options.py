@@ -79,3 +79,17 @@ def test_run_resume_refuses_a_kind_that_cannot_in_one_line(tmp_path):
     assert r.code == 2 and "no readable manifest.json" in r.err, r.err
     r = run_cli("run")
     assert r.code == 2 and "give a spec" in r.err, r.err
+
+
+def test_a_sweep_on_the_can_arm_is_refused_before_anything_runs(tmp_path):
+    """Why `sweep` has no --yes: its points would run in parallel on Dask workers with no terminal (it was
+    accepted: `sweep --dry-run` said '2 valid points')."""
+    spec = dict(ROTATION, backend={"kind": "can", "interface": "virtual", "channel": "wamctl-no-sweep"},
+                rotation=dict(ROTATION["rotation"], joints=[7]), vary={"grid": {"seed": [0, 1]}, "reports": False})
+    p = tmp_path / "s.yaml"
+    p.write_text(yaml.safe_dump(spec))
+    for args in (("sweep", p, "--dry-run"), ("sweep", p, "--out", tmp_path / "out"), ("validate", p)):
+        r = run_cli(*args)
+        assert r.code == 2 and len(r.err.strip().splitlines()) == 1 and "Traceback" not in r.err, (args, r.err)
+        assert "backend: kind can in 2 of 2 points" in r.err, r.err
+    assert not (tmp_path / "out").exists()

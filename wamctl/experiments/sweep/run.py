@@ -48,10 +48,22 @@ class SweepResult:
         return self.counts.get("completed", 0) == sum(self.counts.values())
 
 
+def refuse_the_arm(sweep: Sweep) -> None:
+    """A sweep drives the simulated arm only: its points run in parallel on Dask workers, with no terminal to
+    answer a CAN session's questions (zeroing, Shift-Activate), and one arm takes one run at a time."""
+    on_arm = [p.point_id for p in sweep.points if isinstance(p.spec.get("backend"), dict)
+              and p.spec["backend"].get("kind") == "can"]
+    if on_arm:
+        raise SpecError(f"{sweep.source}: backend: kind can in {len(on_arm)} of {len(sweep.points)} points: a sweep "
+                        f"runs its points in parallel on Dask workers, with nobody to answer the arm's questions; "
+                        f"run each point on the arm with `wamctl run SPEC`, one at a time")
+
+
 def check_plans(sweep: Sweep) -> list[str]:
     """Plan every point and check its setpoints against the limits (what ``wamctl validate`` does for one
     spec); nothing moves. Returns the checks of the first point; raises :class:`SpecError` naming every
-    point whose plan is refused (at most 20)."""
+    point whose plan is refused (at most 20), or for a sweep on the CAN arm (:func:`refuse_the_arm`)."""
+    refuse_the_arm(sweep)
     problems, first = [], None
     for p in sweep.points:
         try:
@@ -87,6 +99,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, resume_dir: st
     SweepInterrupted on Ctrl-C / SIGTERM (the index is written first); BackendError if the cluster cannot
     be reached.
     """
+    refuse_the_arm(sweep)
     sweep_dir, index = _open_index(sweep, out_dir, resume_dir)
     todo, skipped = _points_to_run(sweep, index, resume_dir is not None)
     index.write()
