@@ -114,6 +114,7 @@ def load_spec(path: str | Path) -> Common:
     check_files(spec, path.resolve().parent, str(path))
     return spec
 
+
 def _payload_files(data, base: Path):
     """``plant.effects.payload: FILE`` and ``controller.declared_payload: FILE`` (payload files, relative to the
     spec's folder) replaced by their ``{mass_kg, com_m}``."""
