@@ -54,8 +54,9 @@ def runs(tmp_path_factory):
 @pytest.fixture(scope="module")
 def estimates(runs):
     d = {k: load_run_data(p) for k, p in runs.items()}
-    abba = identify_payload([d["L0"], d["L3"]], [d["B1"], d["B2"]])
-    llbb = identify_payload([d["L0"], d["L1"]], [d["B2"], d["B3"]])
+    cache: dict = {}
+    abba = identify_payload([d["L0"], d["L3"]], [d["B1"], d["B2"]], rows_cache=cache)
+    llbb = identify_payload([d["L0"], d["L1"]], [d["B2"], d["B3"]], rows_cache=cache)
     return abba, llbb
 
 
@@ -153,3 +154,23 @@ def test_runs_of_different_trajectories_are_one_line_and_exit_code_2(runs, tmp_p
     assert r.returncode == 2, r.stderr
     assert "Traceback" not in r.stderr and "different trajectories" in r.stderr
     assert len([ln for ln in r.stderr.splitlines() if ln.strip()]) == 1
+
+
+def test_payload_schedule_is_abba_of_one_trajectory(tmp_path):
+    from wamctl.errors import SpecError
+    from wamctl.experiments.identify import payload_schedule
+
+    raw = yaml.safe_load((ROOT / "configs" / "excitation.yaml").read_text())
+    raw.update(plant={"effects": {"payload": TRUTH}})
+    spec = tmp_path / "pl.yaml"
+    spec.write_text(yaml.safe_dump(raw))
+    folder, paths = payload_schedule(spec, tmp_path)
+    assert [p.name for p in paths] == ["1-loaded.yaml", "2-bare.yaml", "3-bare.yaml", "4-loaded.yaml"]
+    specs = [load_spec(p) for p in paths]
+    assert [s.plant.effects.payload is not None for s in specs] == [True, False, False, True]
+    assert all(s.excitation.coefficients == specs[0].excitation.coefficients for s in specs)
+    assert specs[0].excitation.coefficients is not None and (folder / "schedule.md").exists()
+    raw.update(plant={})
+    spec.write_text(yaml.safe_dump(raw))
+    with pytest.raises(SpecError, match="plant.effects.payload"):
+        payload_schedule(spec, tmp_path)

@@ -304,11 +304,12 @@ def difference_rows(loaded: list[RunRows], bare: list[RunRows], pi_declared: np.
 
 
 def identify_payload(loaded, bare, dynamics=None, friction=None, alpha: float = 0.05, labels=None,
-                     starts=None) -> PayloadEstimate:
+                     starts=None, rows_cache: dict | None = None) -> PayloadEstimate:
     """The payload from runs of one trajectory, loaded and bare (:class:`wamctl.runs.measured.RunData`); see the
     module doc. ``dynamics``/``friction``: the declared arm without payload (datasheet, Table 4.1 by default).
     ``labels``: {"loaded": [...], "bare": [...]} names for messages; ``starts``: [(role, start time)] for the
-    order statement. Raises DataFormatError for runs of different trajectories or too few rows."""
+    order statement; ``rows_cache``: {run source: RunRows}, filled and reused (one run in several
+    comparisons). Raises DataFormatError for runs of different trajectories or too few rows."""
     from wamctl.model.dynamics import WamDynamics
     from wamctl.model.friction import FrictionModel
 
@@ -320,8 +321,16 @@ def identify_payload(loaded, bare, dynamics=None, friction=None, alpha: float = 
     dyn = dynamics if dynamics is not None else WamDynamics()
     fr = friction if friction is not None else FrictionModel.table_4_1()
     pi = standard_vector(dyn, fr)
-    lrows = [run_rows(d, dyn) for d in loaded]
-    brows = [run_rows(d, dyn) for d in bare]
+    cache = rows_cache if rows_cache is not None else {}
+
+    def rows_of(d):
+        key = str(d.source)
+        if key not in cache:
+            cache[key] = run_rows(d, dyn)
+        return cache[key]
+
+    lrows = [rows_of(d) for d in loaded]
+    brows = [rows_of(d) for d in bare]
     X, d, jrow, k = difference_rows(lrows, brows, pi)
     if len(d) < MIN_ROWS:
         raise DataFormatError(f"only {len(d)} rows where every run's joints slide; the payload needs at least "
