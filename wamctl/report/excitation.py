@@ -103,8 +103,8 @@ def world_section(doc: Document, clearance, spec, scaled_back: float = 1.0) -> N
              + f"; clearance {clearance.clearance_m:g} m. Sampled every {1e3 * clearance.dt_s:.1f} ms over the whole "
              f"period; between samples no distance can shrink by more than {1e3 * clearance.sampling_bound_m:.1f} mm "
              "(joint speeds x lever arms), so each distance is given as at least the smallest sampled minus that."
-             + (f" SLSQP's design crossed the clearance between its grid points: scaled back toward q0 to "
-                f"{scaled_back:.3f} of its amplitude." if scaled_back < 1.0 else ""))
+             + (f" SLSQP's design crossed a limit or the clearance between its grid points: scaled back toward "
+                f"q0 to {scaled_back:.4f} of its amplitude." if scaled_back < 1.0 else ""))
     doc.table("world", world_table(clearance), "smallest distance (surface to surface; box: inside the box) of "
               "each kind over one period, the links it is between and its time in the period")
     doc.data["world"] = clearance.to_dict()

@@ -18,8 +18,8 @@ body + friction) against the torque limits with a margin, and the wrist's Cartes
 module faults at 1 m/s). Criteria: ``d_optimal`` (maximise ``log det(Yb^T Yb)``: independent of the
 parameters' units, smooth) or ``condition`` (minimise the condition number of the column-equilibrated base
 regressor). scipy's SLSQP from several random feasible starts; the best design is then checked at the control
-rate and shrunk if a limit is crossed between grid points. The base columns used are those the moving joints
-can determine (:func:`target_columns`).
+rate and scaled back toward q0 if a limit is crossed between grid points. The base columns used are those the
+moving joints can determine (:func:`target_columns`).
 
 The world around the arm (:class:`World`, optional): self-collision between the arm's capsules, a table plane
 and a workspace box (:mod:`wamctl.model.collision`), each kept ``clearance_m`` away on the grid as constraints of
@@ -448,6 +448,15 @@ def design_excitation(q0_rad, joints: list[int], period_s: float, harmonics: int
             x = scale * x
             f = crit.objective(x)
             log.info("excitation: scaled back to %.3f to keep the world's clearance between grid points", scale)
+    if not sampled_limit_use(crit.trajectory(x), limits, dynamics, friction).respected:
+        # a limit crossed between grid points (at the control rate): scaled back toward q0 the same way
+        c = _largest_scale(lambda v: sampled_limit_use(crit.trajectory(v * x), limits, dynamics,
+                                                       friction).respected, steps=12)
+        x, scale = c * x, scale * c
+        f = crit.objective(x)
+        if crit.world is not None:
+            clear = world_clearance(crit.trajectory(x), crit.world, dynamics, limits)
+        log.info("excitation: scaled back to %.3f to keep every limit between grid points", scale)
     return ExcitationDesign(crit.trajectory(x), criterion, f, crit.condition_number(x), int(len(crit.cols)), tried,
                             clear, scale)
 
