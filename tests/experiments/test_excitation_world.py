@@ -22,7 +22,7 @@ from wamctl.experiments.excitation import design, designed_spec, excite, world_o
 from wamctl.experiments.runner import plan_only
 from wamctl.model import collision as C
 from wamctl.model.dynamics import WamDynamics
-from wamctl.specs import parse_spec
+from wamctl.specs import load_spec, parse_spec
 
 LIMITS = {"joint_margin_rad": 0.2, "max_speed_rad_s": 0.8, "max_acceleration_rad_s2": 3.0, "torque_margin": 0.1,
           "max_cartesian_speed_m_s": 0.6}
@@ -72,6 +72,11 @@ def test_table_crossed_unconstrained_kept_clear_constrained_within_20_percent(un
     md = (out / "report.md").read_text()
     assert "The world around the arm" in md and "table plane at z = -0.1 m" in md
     assert table["between"] in md and "link 3 (upper arm) / links 5-7 (wrist and hand)" in md
+    # the designed spec plans: every limit and the world kept at the control rate (its speed crossed by ~0.09 %
+    # between grid points before the design was scaled back for it, to 0.999)
+    _, checks = plan_only(load_spec(out / "excitation.yaml"), out)
+    assert any(c.startswith("excitation clear of the world") and "table: links 5-7 (wrist and hand)" in c
+               for c in checks)
 
 
 def test_coefficients_that_cross_the_table_are_refused_with_the_link_and_distance(unconstrained):
