@@ -47,14 +47,20 @@ def diagnose(data: DataArg,
         print_document_tables(short)
     else:
         print_warnings(doc)
-    from wamctl.report.diagnosis import found_line, not_diagnosed, not_named_lines, position_span
+    from wamctl.report.diagnosis import (
+        found_line,
+        next_experiment_line,
+        not_diagnosed,
+        not_named_lines,
+        position_span,
+    )
 
     span = position_span(result)
     # which part of the run the position check covered; every joint not diagnosed, with why (also --quiet)
     for line in ([span] if span and not quiet else []) + not_diagnosed(result):
         console.print(line, highlight=False)
     if result.get("conclusive"):        # findings seen and not named, structured residuals: said, with why
-        for line in not_named_lines(result):
+        for line in not_named_lines(result) + [x for x in [next_experiment_line(result)] if x]:
             console.print(line, highlight=False)
     console.print(found_line(result), highlight=False)
     console.print(f"run directory: {path}", highlight=False, soft_wrap=True)     # alone and whole: to be copied

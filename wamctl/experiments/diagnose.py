@@ -104,12 +104,82 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
                 cols[f"q_before_{j + 1}_rad"] = pc["q_before"][:, j]
                 cols[f"q_after_{j + 1}_rad"] = pc["q_after"][:, j]
             pd.DataFrame(cols).to_parquet(run.path / "positions.parquet", index=False)
+    if diag.conclusive_:
+        nxt = next_experiment(diag, data, Path(data_path), run.path)
+        if nxt is not None:
+            result["next_experiment"] = nxt
+            run.write_json("diagnosis.json", result)
     run.finish("completed", None if diag.conclusive_ else diag.reason_,
                effects_found=result["effects_found"])
     doc = write_report(run.path, formats=formats)
     if progress:
         progress(100, 100, "diagnose: done")
     return run.path, result, doc
+
+
+def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -> dict | None:
+    """When the run cannot tell a wrist payload from the arm's link errors (the payload-or-links decision
+    ambiguous, or link errors within the declared accuracy explaining a payload's torque as well, or a payload or
+    link errors seen and not named), the excitation that separates them best
+    (:func:`wamctl.analysis.diagnosis.discriminate.design_next_run`: T-optimal among Fourier candidates within
+    excite's default limits) written as ``next_experiment.yaml`` (an excitation spec for the run's backend, plant and
+    controller when the run directory names them); returns ``{"spec", "separation_noise_floors",
+    "original_separation_noise_floors", "joints", "why", "noise_floor_Nm"}`` or None when nothing is to separate
+    or no payload was fitted to design against."""
+    import yaml
+
+    from wamctl.analysis.diagnosis.discriminate import design_next_run, fitted_hypotheses, trajectory_rows
+    from wamctl.analysis.diagnosis.links import WIDE_PRIOR
+    from wamctl.analysis.diagnosis.rigid import plausible_link_map
+    from wamctl.analysis.identification.excitation import ExcitationLimits
+    from wamctl.experiments.excitation import designed_spec
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.friction import FrictionModel
+    from wamctl.specs.excitation import ExcitationLimitsSpec
+
+    dec = diag.payload_vs_links_
+    unnamed = {u["name"] for u in diag.arm_unnamed_}
+    cannot_tell = dec is not None and dec["outcome"] in ("ambiguous", "link_parameters")
+    if not (cannot_tell or unnamed & {"payload", "link_parameters"}):
+        return None
+    cone = diag.payload_cone_fit_
+    if not cone or cone["mass_kg"] <= 0:
+        return None
+    sig = diag.signals_
+    idx = np.unique(np.concatenate([diag.jd_[j].idx for j in diag.joints_]))
+    idx = idx[:: max(1, int(round(1.0 / (sig.dt_s * 12.5))))]
+    dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
+    rows_run = trajectory_rows(dyn, sig.at("q", idx), sig.at("qd", idx), sig.at("qdd", idx))
+    hyp = fitted_hypotheses(rows_run, cone["mass_kg"], cone["com_m"],
+                            plausible_link_map(diag.declared_.links, diag.payload_declared_), WIDE_PRIOR)
+    noise = float(np.nanmedian([r.torque_rms_after_Nm for r in diag.joints_.values()]))
+    lim = ExcitationLimitsSpec()
+    limits = ExcitationLimits(*lim.arrays(), 1 - lim.torque_margin, lim.max_cartesian_speed_m_s)
+    q0 = np.array([0.0 if v is None else float(v) for v in data.meta.q0])
+    ran = sorted(diag.joints_)
+    sets = [ran, sorted(set(ran) | {4, 5, 6}), [1, 3, 4, 5], list(range(7))]
+    friction = diag.declared_.friction or FrictionModel.table_4_1()
+    nr = design_next_run(dyn, friction, q0, hyp, noise, rows_run, limits, sets, seed=seed)
+    raw = {"kind": "excitation", "name": f"next-{data_path.name}", "seed": seed, "q0_rad": [float(x) for x in q0]}
+    src = data_path / "spec.yaml"
+    if src.is_file():       # our own run: the same arm, backend and (simulated) plant
+        orig = yaml.safe_load(src.read_text()) or {}
+        raw.update({k: orig[k] for k in ("backend", "plant", "controller") if k in orig})
+    raw["excitation"] = {"joints": [j + 1 for j in nr.trajectory.moving], "period_s": float(nr.trajectory.period_s),
+                         "harmonics": int(nr.trajectory.harmonics), "periods": 3, "settle_s": 1.0}
+    spec = designed_spec(raw, nr.trajectory)
+    sep, orig_sep = float(nr.separation["separation"]), float(nr.original["separation"])
+    why = (f"the run cannot tell a {cone['mass_kg']:.2g} kg wrist payload from link errors within {WIDE_PRIOR:g} "
+           f"times the declared accuracy (separation {orig_sep:.2g} noise floors of {noise:.3g} N m); moving joints "
+           f"{', '.join(str(j + 1) for j in nr.trajectory.moving)} their predicted torques differ by {sep:.2g} "
+           "noise floors (RMS per sample, after each refits its own parameters)"
+           + ("" if sep > 2 else ": still below 2, a longer run or a heavier test mass is needed to tell them"))
+    (out_dir / "next_experiment.yaml").write_text(
+        f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
+    return {"spec": "next_experiment.yaml", "separation_noise_floors": sep,
+            "original_separation_noise_floors": orig_sep, "joints": [j + 1 for j in nr.trajectory.moving],
+            "noise_floor_Nm": noise, "why": why, "candidates": [{"joints": js, "separation_noise_floors": float(v)}
+                                                                for js, v in nr.scored]}
 
 
 def simulate_positions(plant: dict, meta, t_s: np.ndarray, q_ref: np.ndarray, q0: np.ndarray,

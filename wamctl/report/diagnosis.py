@@ -135,6 +135,16 @@ def not_named_lines(result: dict) -> list[str]:
     return lines
 
 
+def next_experiment_line(result: dict) -> str | None:
+    """The run designed to tell what this one could not (``next_experiment``), in one line, or None."""
+    n = result.get("next_experiment")
+    if not n:
+        return None
+    return (f"next experiment: {n['spec']} (excitation of joints {', '.join(map(str, n['joints']))}, predicted "
+            f"separation {n['separation_noise_floors']:.2g} noise floors, this run's "
+            f"{n['original_separation_noise_floors']:.2g}): {n['why']}")
+
+
 def found_line(result: dict) -> str:
     """The diagnosis in one line: the effects found, the ambiguous groups, and how many findings and structured
     residuals are not named (each said by :func:`not_named_lines`)."""
@@ -307,6 +317,9 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
                      "neither is named): " + "; ".join(" / ".join(g) for g in amb) + ".")
         for line in not_named_lines(result):       # seen and not named: said with why, never dropped
             doc.text(line[0].upper() + line[1:] + ".")
+        nxt = next_experiment_line(result)
+        if nxt:
+            doc.text(nxt[0].upper() + nxt[1:] + ".")
     for w in result.get("warnings") or []:
         if w not in worse:          # already at the top
             doc.text(f"Warning: {w}.")

@@ -211,6 +211,7 @@ class ModelDiagnosis:
         self.ambiguous_ = []
         self.arm_unnamed_ = []
         self.payload_dropped_ = None
+        self.payload_cone_fit_ = None
         self.warnings_ = []
         self.gains_ = None
         self.position_skipped_ = None
@@ -406,6 +407,7 @@ class ModelDiagnosis:
         dec = payload_or_links(self.design_, self.joints_, self.jd_, self.threshold_,
                                plausible_link_map(self.declared_.links, self.payload_declared_), PAYLOAD_COM_BOX_M)
         self.payload_vs_links_ = payload_links_summary(dec)
+        self.payload_cone_fit_ = None if dec is None else dec["cone_fit"]     # H_P of the next run's design
         why = payload_links_reason(dec)
         ci, ni = {}, []
         if why is None:

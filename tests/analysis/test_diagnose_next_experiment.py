@@ -1,0 +1,51 @@
+"""Issue 28 item 2: diagnose writes the run that can tell a payload from link errors (next_experiment.yaml).
+
+A simulated sweep of the elbow (joint 4, the run's own spec.yaml naming the sim backend and plant) with a
+1 kg payload. Whatever the run's decision, the design is asked for as it would be for an ambiguous one (the
+decision set to ``ambiguous`` on the fitted diagnosis): next_experiment.yaml is a valid excitation spec for the
+same backend and plant, passes excite's plan and limit checks, moves joints other than the elbow, and its
+predicted separation is larger than the run's; the summary lines carry it.
+"""
+
+from __future__ import annotations
+
+import logging
+
+import numpy as np
+import yaml
+
+from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
+from wamctl.experiments.diagnose import next_experiment
+from wamctl.report.diagnosis import next_experiment_line
+from wamctl.runs.measured import load_run_data
+
+
+def test_next_experiment_is_a_runnable_spec_that_separates_more(tmp_path):
+    from diagnosis_gen import generate_run
+
+    from wamctl.experiments.excitation import plan
+    from wamctl.specs import load_spec
+
+    r = generate_run(tmp_path, "payload", seed=5, joint=4, duration_s=12.0)
+    (r.path / "spec.yaml").write_text(yaml.safe_dump(
+        {"kind": "free", "backend": {"kind": "sim"},
+         "plant": yaml.safe_load((r.path / "truth.yaml").read_text())["plant"]}))
+    data = load_run_data(r.path)
+    logging.disable(logging.WARNING)
+    try:
+        diag = ModelDiagnosis(candidates=("payload", "link_parameters")).fit(data)
+    finally:
+        logging.disable(logging.NOTSET)
+    assert diag.payload_vs_links_ is not None and diag.payload_cone_fit_ is not None
+    diag.payload_vs_links_ = dict(diag.payload_vs_links_, outcome="ambiguous")
+    out = next_experiment(diag, data, r.path, tmp_path)
+    assert out is not None
+    spec = load_spec(tmp_path / "next_experiment.yaml")
+    assert spec.kind == "excitation" and spec.backend.kind == "sim"
+    assert spec.plant.effects.payload is not None
+    plan(spec, tmp_path).check_limits()            # excite's own checks: raises when a limit is crossed
+    assert set(out["joints"]) - {4}
+    assert out["separation_noise_floors"] > out["original_separation_noise_floors"]
+    assert np.isfinite(out["noise_floor_Nm"]) and out["noise_floor_Nm"] > 0
+    line = next_experiment_line({"next_experiment": out})
+    assert line.startswith("next experiment: next_experiment.yaml (excitation of joints")
