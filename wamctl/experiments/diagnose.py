@@ -159,7 +159,10 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
     ran = sorted(diag.joints_)
     sets = [ran, sorted(set(ran) | {4, 5, 6}), [1, 3, 4, 5], list(range(7))]
     friction = diag.declared_.friction or FrictionModel.table_4_1()
-    nr = design_next_run(dyn, friction, q0, hyp, noise, rows_run, limits, sets, seed=seed)
+    try:
+        nr = design_next_run(dyn, friction, q0, hyp, noise, rows_run, limits, sets, seed=seed)
+    except ValueError as exc:       # no candidate within the limits at this q0: said, no spec written
+        return {"spec": None, "why": f"no run designed to tell a payload from link errors: {exc} at the run's q0"}
     raw = {"kind": "excitation", "name": f"next-{data_path.name}", "seed": seed, "q0_rad": [float(x) for x in q0]}
     src = data_path / "spec.yaml"
     if src.is_file():       # our own run: the same arm, backend and (simulated) plant

@@ -140,6 +140,8 @@ def next_experiment_line(result: dict) -> str | None:
     n = result.get("next_experiment")
     if not n:
         return None
+    if not n.get("spec"):
+        return f"next experiment: {n['why']}"
     return (f"next experiment: {n['spec']} (excitation of joints {', '.join(map(str, n['joints']))}, predicted "
             f"separation {n['separation_noise_floors']:.2g} noise floors, this run's "
             f"{n['original_separation_noise_floors']:.2g}): {n['why']}")
