@@ -87,3 +87,26 @@ def test_tables_with_flags_and_repeated_keys_side_by_side():
     b = a.assign(friction_Nm=[4.0, -4.0, 0.25])
     s = side_by_side([a, b], ["A", "B"])
     assert s["friction_Nm.ΔB"].round(12).tolist() == [-0.5, 0.4, 0.05] and "accepted.A" not in s
+
+
+@pytest.mark.parametrize("kind", ["ift", "hmi_block"])
+def test_ift_j_and_hmi_paths_are_overlaid(tmp_path, kind):
+    """Two real runs of one kind: J per iteration (IFT) or every trial's hand path (HMI) of both
+    runs drawn in one figure, each run its own line."""
+    from cli_runs import HMI, IFT
+    command, spec, png = (("tune-ift", IFT, "compare_ift_J.png") if kind == "ift"
+                          else ("hmi-session", HMI, "compare_hmi_paths.png"))
+    runs = []
+    for i in (1, 2):         # the runs differ: one more IFT iteration, another virtual subject's seed
+        changed = (dict(spec, ift=dict(spec["ift"], max_iterations=i)) if kind == "ift"
+                   else dict(spec, hmi=dict(spec["hmi"], subject=dict(spec["hmi"]["subject"], seed=10 + i))))
+        p = tmp_path / f"s{i}.yaml"
+        p.write_text(yaml.safe_dump(changed))
+        r = run_cli(command, p, "--out", tmp_path / "runs", "--quiet", "--json")
+        assert r.code == 0, r.err
+        runs.append(Path(json.loads(r.out)["run_dir"]))
+    doc = compare(runs, tmp_path / "cmp")
+    figure = tmp_path / "cmp" / png
+    assert figure.stat().st_size > 10_000
+    assert any(k == "fig" and b[0] == figure for k, b in doc.blocks)     # in the report
+    assert (doc.tables()["thesis_table_5_1"] if kind == "ift" else doc.tables()["trials"]).shape[0] >= 1

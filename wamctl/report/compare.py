@@ -1,6 +1,7 @@
 """``wamctl compare``: runs of one kind side by side (issue 30): the spec differences, each report table with the
-runs' values and the difference to the first run, figures overlaid (rotation error traces, friction maps), and
-where the runs have repeated measures (an HMI block's trials) a test of the difference with its 95 % interval."""
+runs' values and the difference to the first run, figures overlaid (rotation error traces, friction maps, J per
+iteration, HMI hand paths), and where the runs have repeated measures (an HMI block's trials) a test of the
+difference with its 95 % interval."""
 
 from __future__ import annotations
 
@@ -105,6 +106,51 @@ def _friction_overlay(runs: list[Path], labels: list[str], out_dir: Path) -> Pat
     return save(fig, out_dir / "compare_friction_maps.png")
 
 
+def _ift_overlay(runs: list[Path], labels: list[str], out_dir: Path) -> Path | None:
+    """J per iteration of each tuned joint, one line per run (the plant's J, log scale)."""
+    its = []
+    for r in runs:
+        p = r / "iterations.csv"
+        if not p.is_file():
+            return None
+        its.append(pd.read_csv(p))
+    joints = sorted(set.intersection(*[set(t["joint"].dropna().astype(int)) for t in its]))
+    if not joints:
+        return None
+    fig, axes = joint_grid(len(joints), "J per iteration, runs overlaid")
+    for ax, j in zip(axes, joints):
+        for lab, t in zip(labels, its):
+            tj = t[(t["joint"] == j) & t["J"].notna()].sort_values("iteration")
+            ax.plot(tj["iteration"], tj["J"], "o-", ms=3, lw=0.8, label=lab)
+        ax.set_yscale("log")
+        ax.set_title(f"joint {j}")
+        ax.set_xlabel("iteration")
+        ax.set_ylabel("J (rad²)")
+        ax.legend(fontsize=7)
+    return save(fig, out_dir / "compare_ift_J.png")
+
+
+def _hmi_overlay(runs: list[Path], labels: list[str], out_dir: Path) -> Path | None:
+    """The hand's path of every trial seen from above, one colour per run."""
+    import matplotlib.pyplot as plt
+    paths = []
+    for r in runs:
+        p = r / "trajectory.parquet"
+        if not p.is_file():
+            return None
+        paths.append(pd.read_parquet(p, columns=["trial", "hand_x_m", "hand_y_m"]))
+    fig, ax = plt.subplots(figsize=(7.0, 6.0))
+    for i, (lab, d) in enumerate(zip(labels, paths)):
+        for k, (_, g) in enumerate(d.groupby("trial")):
+            ax.plot(g["hand_y_m"], g["hand_x_m"], lw=0.9, alpha=0.8, color=f"C{i}", label=lab if k == 0 else None)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("y (m)")
+    ax.set_ylabel("x (m)")
+    ax.set_title("Hand paths of every trial, runs overlaid (seen from above)")
+    ax.legend(fontsize=8)
+    return save(fig, out_dir / "compare_hmi_paths.png")
+
+
 def compare(run_dirs: list[Path], out_dir: Path) -> Document:
     """The comparison document of ``run_dirs`` (figures written into ``out_dir``). WamctlError (one line, exit
     2) for fewer than two runs or runs of different kinds."""
@@ -157,7 +203,9 @@ def compare(run_dirs: list[Path], out_dir: Path) -> Document:
                       "mean of the later run minus the first run's, with its 95 % interval")
     doc.data["tests"] = tests
     for fig in (_rotation_overlay(runs, labels, out_dir) if kinds[0] == "rotation" else None,
-                _friction_overlay(runs, labels, out_dir) if kinds[0] == "friction_sweep" else None):
+                _friction_overlay(runs, labels, out_dir) if kinds[0] == "friction_sweep" else None,
+                _ift_overlay(runs, labels, out_dir) if kinds[0] == "ift" else None,
+                _hmi_overlay(runs, labels, out_dir) if kinds[0] == "hmi_block" else None):
         if fig is not None:
             doc.figure(fig, fig.stem.replace("_", " "))
     return doc
