@@ -55,7 +55,8 @@ def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, 
         emit_json({"out": str(path), "spec": str(path / "excitation.yaml"), "condition_number":
                    design.condition_number, "criterion": design.criterion, "limits_used": {
                        k: (v.tolist() if hasattr(v, "tolist") else v) for k, v in use.used.items()},
-                   "instruments_outlook": outlook})
+                   "instruments_outlook": outlook,
+                   "world": json_module.loads((path / "design.json").read_text())["world"]})
         return
     if not quiet:
         from wamctl.report.document import Document
@@ -65,6 +66,8 @@ def excite(spec: Annotated[Path, typer.Argument(help="An excitation spec (YAML, 
         print_document_tables(Document("Excitation design").table("limits used (%)", shares.rename(
             columns=lambda c: c.removesuffix("_used_pct")), digits=1))
     console.print(outlook["statement"], highlight=False)
+    if design.clearance is not None:
+        console.print("world: " + design.clearance.statement(), highlight=False)
     console.print(f"condition number {design.condition_number:.4g} ({design.criterion}, {design.n_target} base "
                   f"parameters); limits used: {limits_summary(use)}\ndesigned spec: {path / 'excitation.yaml'} "
                   f"(run it with `wamctl run`)  report: {path / 'report.md'}", highlight=False)
@@ -110,6 +113,11 @@ def identify(data: Annotated[list[Path] | None, typer.Argument(help="Measured ru
     moves, or be above it by less than the held-out data can tell (Diebold-Mariano, one-sided, 5 %; said with the
     ratio and p). If it is significantly worse (or cannot be checked), the model is written as model_rejected.yaml,
     not model.yaml (unless --force), and the command exits with code 3. Exit code 2 for unusable data.
+
+    With --payload: a payload at the wrist from one trajectory run loaded (--loaded) and bare (--bare), best in
+    the ABBA order of `wamctl excite SPEC --payload-schedule`: mass, centre of mass and the inertia the trajectory
+    excites (the rest named not identified), 95 % HAC intervals, payload.yaml for plant.effects.payload,
+    controller.declared_payload and --model (docs/payload.md); --static from held poses (mass, centre of mass).
     """
     from wamctl.commands.common import print_document_tables, progress_bar
     from wamctl.experiments.identify import identify_to_run_dir
