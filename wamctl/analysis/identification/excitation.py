@@ -191,8 +191,8 @@ class WorldClearance:
         w = self.worst
         if w is None:
             return "no world (self-collision, table, box) checked"
-        return (f"smallest distance {w.distance_m - self.sampling_bound_m:.3f} m ({w.kind}: {w.between}) at "
-                f"least, against a clearance of {self.clearance_m:g} m")
+        return (f"smallest distance at least {w.distance_m - self.sampling_bound_m:.3f} m ({w.kind}: {w.between}; "
+                f"{w.distance_m:.3f} m sampled), clearance {self.clearance_m:g} m")
 
     def to_dict(self) -> dict:
         return {"clearance_m": self.clearance_m, "sampling_dt_s": self.dt_s,
