@@ -90,7 +90,8 @@ def refit_residual(rows: Rows, delta_true: np.ndarray, A: np.ndarray, lo: np.nda
     scale = np.sqrt((X ** 2).sum(axis=0))
     live = scale > 1e-9 * scale.max()            # columns the trajectory does not excite change nothing
     Xs = X[:, live] / scale[live]
-    res = lsq_linear(Xs, y, bounds=(lo_all[live] * scale[live], hi_all[live] * scale[live]), method="bvls",
+    Q, R = np.linalg.qr(Xs)         # the same minimiser on p rows instead of m (the residual off Q is fixed)
+    res = lsq_linear(R, Q.T @ y, bounds=(lo_all[live] * scale[live], hi_all[live] * scale[live]), method="bvls",
                      tol=1e-12)
     x = np.zeros(X.shape[1])
     x[live] = res.x / scale[live]
