@@ -21,6 +21,13 @@ def sweep(
     scheduler: Annotated[str | None, typer.Option(
         "--scheduler", help="Address of a running Dask scheduler (tcp://host:8786); default: a local cluster. "
                             "The sweep directory must be on a file system the workers share.")] = None,
+    tls_ca: Annotated[Path | None, typer.Option(
+        "--tls-ca", help="With a tls:// scheduler: the CA certificate (PEM) that signed the scheduler's; without "
+                         "the three --tls-* options Dask's own TLS configuration is used.")] = None,
+    tls_cert: Annotated[Path | None, typer.Option(
+        "--tls-cert", help="With a tls:// scheduler: this client's certificate (PEM).")] = None,
+    tls_key: Annotated[Path | None, typer.Option(
+        "--tls-key", help="With a tls:// scheduler: this client's private key (PEM).")] = None,
     workers: Annotated[int | None, typer.Option(
         "--workers", min=1, help="Worker processes of the local cluster (default: one per core).")] = None,
     resume: Annotated[Path | None, typer.Option(
@@ -38,7 +45,7 @@ def sweep(
     --resume DIR then runs only the points not completed. Exit code 0 when every point completed, 1 when some
     failed, 2 for a bad spec, 130 when interrupted.
     """
-    from wamctl.experiments.sweep.cluster import import_distributed
+    from wamctl.experiments.sweep.cluster import import_distributed, tls_security
     from wamctl.experiments.sweep.index import sweep_to_run
     from wamctl.experiments.sweep.run import run_sweep
 
@@ -47,6 +54,7 @@ def sweep(
         from wamctl.experiments.sweep.run import check_plans
         _dry_run(sw, check_plans(sw), json)
         return
+    security = tls_security(scheduler, tls_ca, tls_cert, tls_key)
     if not logging.getLogger().isEnabledFor(logging.INFO):  # without --verbose: only dask's errors
         import_distributed()  # it configures its loggers on import
         logging.getLogger("distributed").setLevel(logging.ERROR)
@@ -59,7 +67,7 @@ def sweep(
             err_console.print(f"[red]failed[/] {row['point']}: {row.get('error')}", highlight=False)
 
     with progress_bar(f"sweep {sw.name}", enabled=show) as progress:
-        result = run_sweep(sw, out, resume_dir=resume, scheduler=scheduler, n_workers=workers,
+        result = run_sweep(sw, out, resume_dir=resume, scheduler=scheduler, n_workers=workers, security=security,
                            progress=progress, on_point=on_point)
     _show_result(sw, result, quiet, json)
     if not result.ok:

@@ -6,8 +6,9 @@ from __future__ import annotations
 import logging
 import os
 from contextlib import contextmanager
+from pathlib import Path
 
-from wamctl.errors import BackendError
+from wamctl.errors import BackendError, SpecError
 
 log = logging.getLogger(__name__)
 
@@ -100,9 +101,33 @@ def _ignore_sigint_plugin():
     return IgnoreSigint()
 
 
-def connect(scheduler: str | None, n_workers: int | None):
-    """A client of the scheduler at ``scheduler``, or of a new local cluster of ``n_workers`` processes.
-    Returns ``(client, cluster)``, ``cluster`` None for a scheduler by address.
+def tls_security(scheduler: str | None, ca_file: Path | None = None, cert_file: Path | None = None,
+                 key_file: Path | None = None):
+    """Dask's TLS settings (``distributed.security.Security``, encryption required) for a ``tls://`` scheduler:
+    the CA that signed the scheduler's certificate and this client's certificate and key, or, when none is
+    given, Dask's own configuration (``distributed.comm.tls.*`` in ~/.config/dask or DASK_ env variables).
+    None for any other scheduler. SpecError naming the option for a file missing or given without tls://."""
+    given = {"--tls-ca": ca_file, "--tls-cert": cert_file, "--tls-key": key_file}
+    if not (scheduler or "").startswith("tls://"):
+        if any(given.values()):
+            raise SpecError(f"{', '.join(k for k, v in given.items() if v)}: TLS needs a tls:// scheduler address "
+                            f"(--scheduler tls://host:8786), not {scheduler or 'the local cluster'}")
+        return None
+    for opt, f in given.items():
+        if f is not None and not Path(f).is_file():
+            raise SpecError(f"{opt}: {f}: no such file")
+    from distributed.security import Security
+    if not any(given.values()):
+        return Security(require_encryption=True)     # Dask's configuration
+    return Security(tls_ca_file=str(ca_file) if ca_file else None,
+                    tls_client_cert=str(cert_file) if cert_file else None,
+                    tls_client_key=str(key_file) if key_file else None, require_encryption=True)
+
+
+def connect(scheduler: str | None, n_workers: int | None, security=None):
+    """A client of the scheduler at ``scheduler`` (with ``security``, :func:`tls_security`, for tls://), or of a
+    new local cluster of ``n_workers`` processes. Returns ``(client, cluster)``, ``cluster`` None for a
+    scheduler by address.
 
     Raises
     ------
@@ -111,11 +136,14 @@ def connect(scheduler: str | None, n_workers: int | None):
     distributed = import_distributed()
     try:
         if scheduler:
-            return distributed.Client(scheduler, timeout="20s"), None
+            return distributed.Client(scheduler, timeout="20s", security=security), None
         cluster, client = start_local_cluster(n_workers)
         return client, cluster
     except (OSError, TimeoutError) as exc:
         raise BackendError(f"cannot reach the Dask scheduler {scheduler or '(local)'}: {exc}") from None
+    except TypeError as exc:           # distributed's word for a tls:// address without TLS settings
+        raise BackendError(f"cannot reach the Dask scheduler {scheduler}: {str(exc).splitlines()[0]}; give "
+                           f"--tls-ca, --tls-cert and --tls-key (docs/sweeps.md)") from None
 
 
 def close_quietly(client, cluster) -> None:

@@ -78,7 +78,7 @@ def check_plans(sweep: Sweep) -> list[str]:
 
 
 def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, resume_dir: str | Path | None = None,
-              client=None, scheduler: str | None = None, n_workers: int | None = None,
+              client=None, scheduler: str | None = None, n_workers: int | None = None, security=None,
               progress: Callable[[int, int, str | None], None] | None = None,
               on_point: Callable[[dict], None] | None = None) -> SweepResult:
     """Run every point of ``sweep`` that is not completed yet, on Dask, into a sweep directory.
@@ -91,6 +91,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, resume_dir: st
     resume_dir : an existing sweep directory: its completed points are skipped.
     client : a ``distributed.Client`` to use (not closed here); else ``scheduler`` (an address) or a new
         ``LocalCluster`` of ``n_workers`` processes (default one per core), closed at the end.
+    security : Dask's TLS settings for a ``tls://`` scheduler (:func:`.cluster.tls_security`).
     progress : ``progress(done, total, label)`` after every point.
     on_point : called with each point's index row as it finishes.
 
@@ -110,7 +111,7 @@ def run_sweep(sweep: Sweep, out_dir: str | Path | None = None, *, resume_dir: st
     # it either (closing the cluster has its own time limits).
     with signals_as_event() as stop:
         try:
-            session.connect(client, scheduler, n_workers)
+            session.connect(client, scheduler, n_workers, security)
             if not stop.is_set():
                 session.run(progress, on_point, stop)
             if stop.is_set():
@@ -211,12 +212,12 @@ class _Session:
         self.futures: dict = {}
         self.counts: dict[str, int] = {}
 
-    def connect(self, client, scheduler: str | None, n_workers: int | None) -> None:
+    def connect(self, client, scheduler: str | None, n_workers: int | None, security=None) -> None:
         """Use ``client``, or (when there is something to run) connect to ``scheduler`` or start a local
         cluster, closed by :meth:`finish`."""
         self.client = client
         if self.todo and client is None:
-            self.client, self.cluster = connect(scheduler, n_workers)
+            self.client, self.cluster = connect(scheduler, n_workers, security)
             self.own_client = self.client
         workers = self.client.scheduler_info()["workers"] if self.client is not None else {}
         self.record.update(scheduler=scheduler or ("local" if self.cluster is not None else "given client"),
