@@ -4,7 +4,9 @@ A simulated sweep of the elbow (joint 4, the run's own spec.yaml naming the sim 
 1 kg payload. Whatever the run's decision, the design is asked for as it would be for an ambiguous one (the
 decision set to ``ambiguous`` on the fitted diagnosis): next_experiment.yaml is a valid excitation spec for the
 same backend and plant, passes excite's plan and limit checks, moves joints other than the elbow, and its
-predicted separation is larger than the run's; the summary lines carry it.
+predicted separation is larger than the run's; the summary lines carry it. Then the loop is closed: the
+designed spec is run on the simulated arm and diagnosed, and the payload is named first, its mass within 5 %.
+(Measured when written: 0.528 kg for 0.529 kg; the design's separation 1.8 noise floors, the run's 1.1.)
 """
 
 from __future__ import annotations
@@ -49,3 +51,22 @@ def test_next_experiment_is_a_runnable_spec_that_separates_more(tmp_path):
     assert np.isfinite(out["noise_floor_Nm"]) and out["noise_floor_Nm"] > 0
     line = next_experiment_line({"next_experiment": out})
     assert line.startswith("next experiment: next_experiment.yaml (excitation of joints")
+
+    # closing the loop: the designed spec run on the simulated arm (the same plant), then diagnosed
+    from typer.testing import CliRunner
+
+    from wamctl.cli import _register, app
+
+    _register()
+    res = CliRunner().invoke(app, ["run", str(tmp_path / "next_experiment.yaml"), "--out", str(tmp_path / "runs")])
+    assert res.exit_code == 0, res.output
+    run = next(p for p in (tmp_path / "runs").iterdir() if p.is_dir())
+    logging.disable(logging.WARNING)
+    try:
+        again = ModelDiagnosis(candidates=("payload", "link_parameters")).fit(load_run_data(run)).to_dict()
+    finally:
+        logging.disable(logging.NOTSET)
+    assert again["effects_found"][:1] == ["payload"], (again["effects_found"], again.get("payload_or_links"))
+    truth = yaml.safe_load((r.path / "truth.yaml").read_text())["plant"]["effects"]["payload"]
+    got = next(e for e in again["joints"]["4"]["effects"] if e["name"] == "payload")["params"]
+    assert abs(got["mass_kg"] - truth["mass_kg"]) <= 0.05 * truth["mass_kg"]       # 5 %, set before the run
