@@ -136,9 +136,11 @@ def test_the_analyses_refuse_a_wam4_in_one_line_and_the_report_reads_it(tmp_path
     for cmd in ("diagnose", "identify"):
         line = one_error_line(run_cli(cmd, run, "--out", tmp_path / cmd))
         assert line.endswith(f"robot wam4: not supported by {cmd} yet"), line
-    # friction-id takes a wam4 (tests/runs/test_wam4_friction_id.py), not the controller's torque without gravity
+    # friction-id takes a wam4 (tests/runs/test_wam4_friction_id.py) and, of the controller's torque, the joints
+    # without gravity: here joint 1 (a sine, no constant-velocity stage); joints 2-4 refused with the reason
     line = one_error_line(run_cli("friction-id", "--data", run, "--out", tmp_path / "fid"))
-    assert "torque controller" in line and line.endswith("not supported by friction-id yet"), line
+    assert "no joint could be identified (joint 1: too few usable constant-velocity segments" in line, line
+    assert "joint 2: torque controller: gravity compensation not logged" in line, line
     r = run_cli("report", run, "--out", tmp_path / "rep", "--format", "json")
     assert r.code == 0, r.err
     table = json.loads((tmp_path / "rep" / "report.json").read_text())["tables"]["tracking"]

@@ -106,3 +106,26 @@ def test_the_wam7_datasheet_would_not_explain_the_wam4(wam4_sweep_run):
     g4 = dyn4.gravity_many(q_ref[::500])
     g7 = WamDynamics().gravity_many(q7[::500])[:, :4]
     assert np.abs(g4 - g7)[:, 1].max() > 1.0
+
+
+def test_controller_torque_uses_only_the_joints_without_gravity(tmp_path):
+    """``--torque controller`` (gravity compensation added downstream, not logged): joint 1's axis is vertical,
+    so its logged torque is its whole torque and it is identified; joints 2-4 are refused with the reason and
+    listed as not identified in friction_model.yaml."""
+    t, q_ref, q, tau = sweep(seed=1)
+    tau_ctrl = tau - WamDynamics(robot="wam4").gravity_many(q_ref)
+    src = tmp_path / "wam4_ctrl.csv"
+    src.write_text("".join(",".join(f"{v:g}" for v in (t[k], *q_ref[k], *q[k], *tau_ctrl[k])) + "\n"
+                           for k in range(len(t))))
+    r = run_cli("import", src, "--format", "libbarrett-csv", "--layout", "t,q_ref[4],q[4],tau[4]", "--robot",
+                "wam4", "--rate-hz", 500, "--torque", "controller", "--out", tmp_path / "runs", "--json")
+    assert r.code == 0, r.err
+    run = json.loads(r.out)["run_dir"]
+    r = run_cli("friction-id", "--data", run, "--out", tmp_path / "fid")
+    assert r.code == 0, r.err
+    model = yaml.safe_load(next((tmp_path / "fid").glob("*/friction_model.yaml")).read_text())
+    assert sorted(int(j) for j in model["joints"]) == [1]
+    assert model["joints"][1]["fc_pos_Nm"] == pytest.approx(FC_NM[0], abs=0.03)
+    assert model["joints"][1]["viscous_neg_Nm_s_rad"] == pytest.approx(VISCOUS_NM_S_RAD[0], abs=0.05)
+    assert sorted(int(j) for j in model["not_identified"]) == [2, 3, 4]
+    assert "gravity compensation not logged" in model["not_identified"][2]

@@ -85,7 +85,7 @@ def _from_data(data: Path, out: Path | None, quiet: bool, as_json: bool, options
 
     target, ident, doc = analyse_recorded(data, out, options=options, model=model)
     swept = {int(j) for j in ident.map["joint"].unique()} if len(ident.map) else set()
-    missing = {j: why for j, why in ident.not_identified().items() if j in swept}
+    missing = {j: why for j, why in ident.not_identified().items() if j in swept or j in ident.refused}
     if not ident.joints:
         from wamctl.errors import DataFormatError
         if not (quiet or as_json):

@@ -336,9 +336,10 @@ def meta_from_run(manifest: dict, spec: dict, data: pd.DataFrame) -> MeasuredMet
                         source_run_kind=kind)
 
 
-def unsupported(meta: MeasuredMeta, columns, any_robot: bool = False) -> str | None:
+def unsupported(meta: MeasuredMeta, columns, any_robot: bool = False, controller_ok: bool = False) -> str | None:
     """Why the analyses cannot take a run yet (None: they can): they know the wam7 (``any_robot``: every
-    registered robot) with all its joints, a reference, and tau the total command."""
+    registered robot) with all its joints, a reference, and tau the total command (``controller_ok``: also the
+    controller's output, the caller using only the joints whose gravity torque is zero over the run)."""
     if meta.robot != "wam7" and not any_robot:
         return f"robot {meta.robot}"
     n = ROBOT_JOINTS[meta.robot]
@@ -346,7 +347,7 @@ def unsupported(meta: MeasuredMeta, columns, any_robot: bool = False) -> str | N
     if absent:
         return (f"joint(s) {', '.join(map(str, absent))} not logged (the analyses need all {n} joints of "
                 f"the {meta.robot})")
-    if meta.torque_kind != "total":
+    if meta.torque_kind != "total" and not (controller_ok and meta.torque_kind == "controller"):
         what = {"controller": "the controller's output, gravity compensation added downstream and not logged",
                 "measured": "a torque sensor's reading"}[meta.torque_kind]
         return f"torque {meta.torque_kind} ({what})"
@@ -361,7 +362,8 @@ _CALLERS = {"wamctl.experiments.diagnose": "diagnose", "wamctl.experiments.ident
             "wamctl.experiments.friction_sweep": "friction-id", "wamctl.experiments.ift.experiments": "tune-ift",
             "wamctl.report.friction": "report", "wamctl.report.excitation": "report"}
 PARTIAL_READERS = ("wamctl.report.measured",)
-# the callers that take a run of any registered robot (wamctl.model.robots), not only the wam7
+# the callers that take a run of any registered robot (wamctl.model.robots), not only the wam7, and a torque that
+# is the controller's output (on the joints whose gravity torque is zero over the run)
 _ANY_ROBOT = ("wamctl.experiments.friction_sweep",)
 
 
@@ -391,7 +393,7 @@ def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
         truth = spec.get("plant") if (manifest.get("backend") or {}).get("name") == "sim" else None
         rd = RunData(meta, data, path, truth)
     caller = _caller_module()
-    why = unsupported(rd.meta, rd.data.columns, any_robot=caller in _ANY_ROBOT)
+    why = unsupported(rd.meta, rd.data.columns, any_robot=caller in _ANY_ROBOT, controller_ok=caller in _ANY_ROBOT)
     if why and not (partial_ok or caller in PARTIAL_READERS):
         raise DataFormatError(f"{path}: {why}: not supported by {_CALLERS.get(caller, 'this analysis')} yet")
     return rd

@@ -18,6 +18,9 @@ from wamctl.model import params as P
 from wamctl.model.friction import FrictionModel
 
 log = logging.getLogger(__name__)
+# a joint's gravity torque this small over a whole run is zero (a vertical axis: 1e-15 N m), so a log of the
+# controller's output without the gravity compensation added downstream still holds that joint's whole torque
+GRAVITY_ZERO_NM = 1e-6
 
 
 @dataclass
@@ -41,6 +44,7 @@ class FrictionIdentification:
     model: FrictionModel = field(default_factory=FrictionModel.zero)
     options: dict = field(default_factory=dict)
     n_joints: int = P.N_JOINTS      # the robot's joints (4 on a wam4): the joints a model could be given for
+    refused: dict[int, str] = field(default_factory=dict)    # joints swept but not used, and why
 
     def table_4_1(self, model: str | None = None) -> pd.DataFrame:
         """Table 4.1 layout per joint (Fc+/Fc-, sigma2+/sigma2- with standard errors) of the chosen model, or
@@ -84,6 +88,9 @@ class FrictionIdentification:
         out = {}
         for j in range(1, self.n_joints + 1):
             if j in self.joints:
+                continue
+            if j in self.refused:
+                out[j] = self.refused[j]
                 continue
             if j not in in_map:
                 out[j] = "not swept"
@@ -177,8 +184,27 @@ def identify(run, options: dict | None = None, map_options: MapOptions | None = 
     if getattr(dyn, "n_joints", n) != n:
         raise DataFormatError(f"{run.source}: the model has {dyn.n_joints} joints, the run's {meta.robot} {n}")
     q_ref = run.col("q_ref")[:, :n]
-    fmap = friction_map(run.t_s, run.col("q")[:, :n], run.col("tau")[:, :n], q_ref, joints, dyn, map_options)
+    q, tau = run.col("q")[:, :n], run.col("tau")[:, :n]
+    refused: dict[int, str] = {}
+    if getattr(meta, "torque_kind", "total") == "controller":
+        # gravity compensation was added downstream and not logged: only a joint whose gravity torque is zero
+        # over the whole run (a vertical axis) has its whole torque in the log
+        g = np.abs(dyn.gravity_many(q)).max(axis=0)
+        for j in joints:
+            if g[j - 1] > GRAVITY_ZERO_NM:
+                refused[j] = (f"torque controller: gravity compensation not logged and joint {j}'s gravity torque "
+                              f"reaches {g[j - 1]:.2f} N m over the run")
+        joints = [j for j in joints if j not in refused]
+        if not joints:
+            raise DataFormatError(f"{run.source}: no joint left to identify ("
+                                  + "; ".join(f"joint {j}: {why}" for j, why in refused.items()) + ")")
+        for j, why in refused.items():
+            log.warning("joint %d not identified: %s", j, why)
+        tau = tau + dyn.gravity_many(q)     # zero on the joints kept; the others are not read
+    fmap = friction_map(run.t_s, q, tau, q_ref, joints, dyn, map_options)
     if not len(fmap) or not fmap["accepted"].any():
         raise DataFormatError(f"{run.source}: no constant-velocity stage found in the data of joints {joints}; "
                               "is this a friction sweep (moves at constant velocities)?")
-    return identify_from_map(fmap, o["models"], o["folds"], o["criterion"], o["loss"], o["weighting"], n)
+    result = identify_from_map(fmap, o["models"], o["folds"], o["criterion"], o["loss"], o["weighting"], n)
+    result.refused = refused
+    return result
