@@ -116,7 +116,7 @@ def unexplained_table(result: dict) -> pd.DataFrame:
         u = d.get("unexplained")
         if u:
             rows.append({"joint": int(j), "correlates_with": ", ".join(u["correlates_with"]) or
-                         f"none tested (not white: p {_p(u.get('whiteness_p'))})",
+                         f"no group tested (not white: p {_p(u.get('whiteness_p'))})",
                          "torque_rms_Nm": u["torque_rms_Nm"]})
     return pd.DataFrame(rows)
 
