@@ -26,6 +26,11 @@ def test_every_registered_kind_resolves(kind):
         assert callable(mod.plan) and callable(mod.execute)
 
 
+# command-layer code a test may reach on purpose: the terminal's own questions (a test checks that a command's
+# --yes reaches its operator); it is no library code, and nothing else of the command modules is
+COMMAND_LAYER_UNDER_TEST = {"wamctl.commands.terminal_operator"}
+
+
 def test_tests_do_not_import_library_code_from_the_command_modules():
     offenders = []
     for path in TESTS.rglob("*.py"):
@@ -36,5 +41,6 @@ def test_tests_do_not_import_library_code_from_the_command_modules():
             elif isinstance(node, ast.Import):
                 names = [a.name for a in node.names]
             offenders += [f"{path.relative_to(TESTS)}:{node.lineno} {n}" for n in names
-                          if n == "wamctl.commands" or n.startswith("wamctl.commands.")]
+                          if (n == "wamctl.commands" or n.startswith("wamctl.commands."))
+                          and n not in COMMAND_LAYER_UNDER_TEST]
     assert not offenders, offenders

@@ -39,7 +39,7 @@ def test_every_run_command_has_the_shared_options(name):
 @pytest.fixture()
 def operators(monkeypatch):
     """The ``yes`` of every terminal operator a command makes."""
-    from wamctl.commands import terminal_operator
+    import wamctl.commands.terminal_operator as terminal_operator
     seen = []
     init = terminal_operator.TerminalOperator.__init__
 
