@@ -31,10 +31,9 @@ browser:
 	      sudo -n env DEBIAN_FRONTEND=noninteractive apt-get install -y -q chromium >/dev/null 2>&1; } || \
 	    echo "chromium could not be installed here: the browser test will be skipped"; }
 
-## test: set up, check the code (ruff, the import layers) and run the whole test suite, on every core (pytest-xdist;
-## loadgroup: tests sharing an expensive fixture stay in one worker, see tests/conftest.py)
+## test: set up, check the code (ruff, the import layers) and run the whole test suite, on every core (pytest-xdist)
 test: lint browser
-	$(BIN)/python -m pytest -q -n auto --dist loadgroup
+	$(BIN)/python -m pytest -q -n auto
 
 ## lint: ruff and the layer contract of docs/architecture.md (import-linter)
 lint: $(STAMP)

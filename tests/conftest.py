@@ -1,9 +1,8 @@
-"""Shared fixtures: small specs built in code, a temporary runs directory; how the suite shares two cores
-(pytest-xdist, `make test`: each worker its own numba cache, tests sharing an expensive fixture kept together)."""
+"""Shared fixtures: small specs built in code, a temporary runs directory; how the suite shares the cores
+(pytest-xdist, `make test`: each worker its own numba cache)."""
 
 from __future__ import annotations
 
-import inspect
 import os
 from pathlib import Path
 
@@ -31,42 +30,6 @@ settings.register_profile("default", derandomize=True, database=None, print_blob
 settings.register_profile("explore", derandomize=False, max_examples=1000, print_blob=True)
 
 Q0 = np.array([0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0])
-
-TESTS = Path(__file__).resolve().parent
-
-
-def _shared_scope(item: pytest.Item) -> str | None:
-    """The xdist group of a test that shares an expensive fixture: ``small_runs`` (one small run of every kind,
-    used by several files) or the test's module, when the test uses a module-, package- or session-scoped fixture
-    written in tests/ (a simulated run that several tests read). None for a test that shares nothing."""
-    if "small_runs" in item.fixturenames:
-        return "small_runs"
-    info = getattr(item, "_fixtureinfo", None)
-    for name in item.fixturenames:
-        defs = info.name2fixturedefs.get(name) if info is not None else None
-        if not defs or defs[-1].scope not in ("module", "package", "session"):
-            continue
-        try:
-            where = Path(inspect.getfile(defs[-1].func)).resolve()
-        except (TypeError, OSError):
-            continue
-        if TESTS in where.parents:
-            return item.nodeid.split("::", 1)[0]
-    return None
-
-
-@pytest.hookimpl(tryfirst=True)
-def pytest_collection_modifyitems(config, items):
-    """Under `pytest -n N --dist loadgroup` (`make test`): the tests that share an expensive fixture run in one
-    worker, so that it is built once, not once per worker; every other test goes to whichever worker is free.
-    The groups are handed out first, largest first (xdist's order), and the single tests fill the end."""
-    if not config.pluginmanager.hasplugin("xdist"):   # the mark is xdist's; without --dist loadgroup it does nothing
-        return
-    for item in items:
-        group = _shared_scope(item)
-        if group is not None and not any(True for _ in item.iter_markers("xdist_group")):
-            item.add_marker(pytest.mark.xdist_group(group))
-
 
 @pytest.fixture
 def runs_dir(tmp_path):

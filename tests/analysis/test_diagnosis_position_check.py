@@ -101,12 +101,14 @@ def test_windows_restarted_from_the_measured_state_agree_with_one_simulation(lat
 
 
 def _cli(args):
-    from typer.testing import CliRunner
+    """``wamctl diagnose ARGS`` through the command line's entry on a 200-column terminal (main() reads the width
+    afresh: typer's CliRunner on the app kept the console of whatever command ran before in this process, 80
+    columns under pytest-xdist, and wrapped the warnings)."""
+    from cli_runs import run_cli
 
-    from wamctl.cli import _register, app
-
-    _register()
-    return CliRunner().invoke(app, ["diagnose", *args], env={"COLUMNS": "200"})
+    r = run_cli("diagnose", *args, columns=200)
+    assert r.exc is None, r.tb
+    return SimpleNamespace(exit_code=r.code, output=r.out + r.err)
 
 
 def test_terminal_names_every_joint_not_diagnosed_and_the_span_checked(late, tmp_path):
