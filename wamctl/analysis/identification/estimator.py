@@ -84,6 +84,18 @@ def prior_scale(pi0: np.ndarray) -> np.ndarray:
     return np.maximum(0.3 * np.abs(pi0), floors)
 
 
+def ols_residual_rms_per_joint(X: np.ndarray, y: np.ndarray, jrow: np.ndarray, floor: float) -> np.ndarray:
+    """(7,) residual RMS per joint of the ordinary least squares of ``y`` on ``X`` (rows of joint ``jrow``), at
+    least ``floor``; NaN for a joint without rows. The weights of a weighted fit (the arm's and the payload's)."""
+    e = y - X @ np.linalg.lstsq(X, y, rcond=None)[0]
+    sig = np.full(N7, np.nan)
+    for j in range(N7):
+        ej = e[jrow == j]
+        if len(ej):
+            sig[j] = max(float(np.sqrt(np.mean(ej ** 2))), floor)
+    return sig
+
+
 def hac_lags(n: int, reach_rows: float) -> int:
     """Newey-West lags for ``n`` filtered rows: ``HAC_REACHES`` filter reaches (``reach_rows`` rows each), at
     least Newey and West's rule, at most n - 1."""
@@ -171,14 +183,7 @@ class InertialIdentification:
     @staticmethod
     def _noise(Xb, y, jrow) -> np.ndarray:
         """Per-joint residual RMS of the ordinary least squares (the WLS weights)."""
-        beta = np.linalg.lstsq(Xb, y, rcond=None)[0]
-        e = y - Xb @ beta
-        sig = np.full(N7, np.nan)
-        for j in range(N7):
-            ej = e[jrow == j]
-            if len(ej):
-                sig[j] = max(float(np.sqrt(np.mean(ej ** 2))), 1e-6)
-        return sig
+        return ols_residual_rms_per_joint(Xb, y, jrow, floor=1e-6)
 
     def _wls(self, Xw, yw, groups, Zw=None) -> None:
         """WLS on the determined columns plus an independent subset of the undetermined ones; HAC covariance."""

@@ -51,7 +51,7 @@ from statsmodels.stats.sandwich_covariance import S_hac_simple
 
 from wamctl.analysis.identification.base import standard_vector
 from wamctl.analysis.identification.data import RunRows, run_rows
-from wamctl.analysis.identification.estimator import hac_lags
+from wamctl.analysis.identification.estimator import hac_lags, ols_residual_rms_per_joint
 from wamctl.errors import DataFormatError
 from wamctl.model import params as P
 
@@ -276,14 +276,7 @@ def _determined(X: np.ndarray) -> np.ndarray:
 
 
 def _weights(X, d, jrow, determined):
-    beta = np.linalg.lstsq(X[:, determined], d, rcond=None)[0]
-    e = d - X[:, determined] @ beta
-    sig = np.full(N7, np.nan)
-    for j in range(N7):
-        ej = e[jrow == j]
-        if len(ej):
-            sig[j] = max(float(np.sqrt(np.mean(ej ** 2))), 1e-9)
-    return sig
+    return ols_residual_rms_per_joint(X[:, determined], d, jrow, floor=1e-9)
 
 
 # ------------------------------------------------------------------------------------------- dynamic
