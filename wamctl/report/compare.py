@@ -67,67 +67,67 @@ def welch(a: np.ndarray, b: np.ndarray) -> dict:
             "t": float(r.statistic), "p": float(r.pvalue)}
 
 
+def _run_tables(runs: list[Path], name: str) -> list[pd.DataFrame] | None:
+    """Each run's ``name`` (CSV), or None when a run has none."""
+    paths = [r / name for r in runs]
+    return [pd.read_csv(p) for p in paths] if all(p.is_file() for p in paths) else None
+
+
+def _joint_overlay(tables: list[pd.DataFrame], labels: list[str], joints: list[int], title: str, curve, xlabel: str,
+                   ylabel: str, path: Path, style: dict, scale=None) -> Path | None:
+    """One panel per joint, one line per run: ``curve(table, j) -> (x, y)``; ``scale(ax)`` sets the axes' scales."""
+    if not joints:
+        return None
+    fig, axes = joint_grid(len(joints), title)
+    for ax, j in zip(axes, joints):
+        for lab, t in zip(labels, tables):
+            ax.plot(*curve(t, j), **style, label=lab)
+        if scale is not None:
+            scale(ax)
+        ax.set_title(f"joint {j}")
+        ax.set_xlabel(xlabel)
+        ax.set_ylabel(ylabel)
+        ax.legend(fontsize=7)
+    return save(fig, path)
+
+
+_POINTS = {"marker": "o", "ms": 3, "lw": 0.8}
+
+
 def _rotation_overlay(runs: list[Path], labels: list[str], out_dir: Path) -> Path | None:
     datas = [read_table(r) for r in runs]
     joints = [j for j in range(1, 8) if all(f"q_{j}_rad" in d and np.ptp(d[f"q_ref_{j}_rad"]) > 0 for d in datas)]
-    if not joints:
-        return None
-    fig, axes = joint_grid(len(joints), "Tracking error q_ref - q, runs overlaid")
-    for ax, j in zip(axes, joints):
-        for lab, d in zip(labels, datas):
-            ax.plot(d["t_s"], 1e3 * (d[f"q_ref_{j}_rad"] - d[f"q_{j}_rad"]), lw=0.8, label=lab)
-        ax.set_title(f"joint {j}")
-        ax.set_xlabel("t (s)")
-        ax.set_ylabel("error (mrad)")
-        ax.legend(fontsize=7)
-    return save(fig, out_dir / "compare_rotation_errors.png")
+    return _joint_overlay(datas, labels, joints, "Tracking error q_ref - q, runs overlaid",
+                          lambda d, j: (d["t_s"], 1e3 * (d[f"q_ref_{j}_rad"] - d[f"q_{j}_rad"])), "t (s)",
+                          "error (mrad)", out_dir / "compare_rotation_errors.png", {"lw": 0.8})
 
 
 def _friction_overlay(runs: list[Path], labels: list[str], out_dir: Path) -> Path | None:
-    maps = []
-    for r in runs:
-        p = r / "friction_map.csv"
-        if not p.is_file():
-            return None
-        maps.append(pd.read_csv(p))
-    joints = sorted(set.intersection(*[set(m["joint"]) for m in maps]))
-    if not joints:
+    maps = _run_tables(runs, "friction_map.csv")
+    if maps is None:
         return None
-    fig, axes = joint_grid(len(joints), "Friction-velocity maps, runs overlaid")
-    for ax, j in zip(axes, joints):
-        for lab, m in zip(labels, maps):
-            mj = m[(m["joint"] == j) & m["accepted"].astype(bool)].sort_values("velocity_rad_s")
-            ax.plot(mj["velocity_rad_s"], mj["friction_Nm"], "o-", ms=3, lw=0.8, label=lab)
-        ax.set_xscale("symlog", linthresh=1e-2)
-        ax.set_title(f"joint {j}")
-        ax.set_xlabel("velocity (rad/s)")
-        ax.set_ylabel("friction (N m)")
-        ax.legend(fontsize=7)
-    return save(fig, out_dir / "compare_friction_maps.png")
+
+    def curve(m, j):
+        mj = m[(m["joint"] == j) & m["accepted"].astype(bool)].sort_values("velocity_rad_s")
+        return mj["velocity_rad_s"], mj["friction_Nm"]
+    return _joint_overlay(maps, labels, sorted(set.intersection(*[set(m["joint"]) for m in maps])),
+                          "Friction-velocity maps, runs overlaid", curve, "velocity (rad/s)", "friction (N m)",
+                          out_dir / "compare_friction_maps.png", _POINTS,
+                          lambda ax: ax.set_xscale("symlog", linthresh=1e-2))
 
 
 def _ift_overlay(runs: list[Path], labels: list[str], out_dir: Path) -> Path | None:
     """J per iteration of each tuned joint, one line per run (the plant's J, log scale)."""
-    its = []
-    for r in runs:
-        p = r / "iterations.csv"
-        if not p.is_file():
-            return None
-        its.append(pd.read_csv(p))
-    joints = sorted(set.intersection(*[set(t["joint"].dropna().astype(int)) for t in its]))
-    if not joints:
+    its = _run_tables(runs, "iterations.csv")
+    if its is None:
         return None
-    fig, axes = joint_grid(len(joints), "J per iteration, runs overlaid")
-    for ax, j in zip(axes, joints):
-        for lab, t in zip(labels, its):
-            tj = t[(t["joint"] == j) & t["J"].notna()].sort_values("iteration")
-            ax.plot(tj["iteration"], tj["J"], "o-", ms=3, lw=0.8, label=lab)
-        ax.set_yscale("log")
-        ax.set_title(f"joint {j}")
-        ax.set_xlabel("iteration")
-        ax.set_ylabel("J (rad²)")
-        ax.legend(fontsize=7)
-    return save(fig, out_dir / "compare_ift_J.png")
+
+    def curve(t, j):
+        tj = t[(t["joint"] == j) & t["J"].notna()].sort_values("iteration")
+        return tj["iteration"], tj["J"]
+    return _joint_overlay(its, labels, sorted(set.intersection(*[set(t["joint"].dropna().astype(int)) for t in its])),
+                          "J per iteration, runs overlaid", curve, "iteration", "J (rad²)",
+                          out_dir / "compare_ift_J.png", _POINTS, lambda ax: ax.set_yscale("log"))
 
 
 def _hmi_overlay(runs: list[Path], labels: list[str], out_dir: Path) -> Path | None:
@@ -149,6 +149,11 @@ def _hmi_overlay(runs: list[Path], labels: list[str], out_dir: Path) -> Path | N
     ax.set_title("Hand paths of every trial, runs overlaid (seen from above)")
     ax.legend(fontsize=8)
     return save(fig, out_dir / "compare_hmi_paths.png")
+
+
+# the figure each kind's runs are overlaid in
+_OVERLAYS = {"rotation": _rotation_overlay, "friction_sweep": _friction_overlay, "ift": _ift_overlay,
+             "hmi_block": _hmi_overlay}
 
 
 def compare(run_dirs: list[Path], out_dir: Path) -> Document:
@@ -202,10 +207,8 @@ def compare(run_dirs: list[Path], out_dir: Path) -> Document:
             doc.table("time difference (Welch t-test)", pd.DataFrame(tests).T,
                       "mean of the later run minus the first run's, with its 95 % interval")
     doc.data["tests"] = tests
-    for fig in (_rotation_overlay(runs, labels, out_dir) if kinds[0] == "rotation" else None,
-                _friction_overlay(runs, labels, out_dir) if kinds[0] == "friction_sweep" else None,
-                _ift_overlay(runs, labels, out_dir) if kinds[0] == "ift" else None,
-                _hmi_overlay(runs, labels, out_dir) if kinds[0] == "hmi_block" else None):
-        if fig is not None:
-            doc.figure(fig, fig.stem.replace("_", " "))
+    overlay = _OVERLAYS.get(kinds[0])
+    fig = overlay(runs, labels, out_dir) if overlay is not None else None
+    if fig is not None:
+        doc.figure(fig, fig.stem.replace("_", " "))
     return doc
