@@ -36,6 +36,23 @@ class SafetyLimits:
 
 
 @njit(cache=True)
+def record_row(rows, i, t, q_ref, q, tau, q_true, qd_true):
+    """Write one control tick into row i of the loop's table (columns: ``t_s``, the reference, the measured
+    position, the applied torque, and the truth only when the table has those columns): the one layout the
+    engine's Python loop and the compiled simulator loop both write."""
+    n = q.shape[0]
+    rows[i, 0] = t
+    for j in range(n):
+        rows[i, 1 + j] = q_ref[j]
+        rows[i, 1 + n + j] = q[j]
+        rows[i, 1 + 2 * n + j] = tau[j]
+    if rows.shape[1] > 1 + 3 * n:
+        for j in range(n):
+            rows[i, 1 + 3 * n + j] = q_true[j]
+            rows[i, 1 + 4 * n + j] = qd_true[j]
+
+
+@njit(cache=True)
 def _saturate(tau, tau_max, out):
     """Clip to +-tau_max into ``out``; return the 1-based joint with a non-finite torque, or 0."""
     for j in range(tau.shape[0]):

@@ -26,7 +26,7 @@ from collections import deque
 import numpy as np
 from numba import njit
 
-from wamctl.backends.base import ArmBackend, _check_state, _saturate
+from wamctl.backends.base import ArmBackend, _check_state, _saturate, record_row
 from wamctl.backends.sim import ROW_SCALE, SimBackend, _physics_step
 from wamctl.control.controllers import JointController, _pid_kernel
 from wamctl.model.chain_kernels import cholesky_inverse, crba, rnea
@@ -140,16 +140,7 @@ def _fused_ticks(k0, k1, row0, rows, t_ref, q_ref, ff, has_ff,
             for j in range(n):
                 tau[j] += 0.0 + sig_tau * z[r, j]
         # ---------------------------------------------------------------- the row (truth before the step)
-        i = row0 + r
-        rows[i, 0] = t_ref[k]
-        for j in range(n):
-            rows[i, 1 + j] = q_ref[k, j]
-            rows[i, 1 + n + j] = q_meas[j]
-            rows[i, 1 + 2 * n + j] = tau_applied[j]
-        if rows.shape[1] > 1 + 3 * n:
-            for j in range(n):
-                rows[i, 1 + 3 * n + j] = q[j]
-                rows[i, 1 + 4 * n + j] = qd[j]
+        record_row(rows, row0 + r, t_ref[k], q_ref[k], q_meas, tau_applied, q, qd)
         # ---------------------------------------------------------------- physics (SimBackend._advance_physics)
         crba(p_rot, p_trans, p_inertia, p_arm, q, M, wc)
         cholesky_inverse(M, L, minv)

@@ -13,9 +13,8 @@ from __future__ import annotations
 import logging
 
 import numpy as np
-from numba import njit
 
-from wamctl.backends.base import ArmBackend
+from wamctl.backends.base import ArmBackend, record_row
 from wamctl.backends.sim_fused import FusedLoop, fused_supported
 from wamctl.control.controllers import JointController
 from wamctl.control.trajectory import Reference
@@ -58,21 +57,6 @@ class LoopRecorder:
         return self.rows[: self.n]
 
 
-@njit(cache=True)
-def _record(rows, i, t, q_ref, q, tau, q_true, qd_true):
-    """Write one tick into row i (the truth columns only when the table has them)."""
-    n = q.shape[0]
-    rows[i, 0] = t
-    for j in range(n):
-        rows[i, 1 + j] = q_ref[j]
-        rows[i, 1 + n + j] = q[j]
-        rows[i, 1 + 2 * n + j] = tau[j]
-    if rows.shape[1] > 1 + 3 * n:
-        for j in range(n):
-            rows[i, 1 + 3 * n + j] = q_true[j]
-            rows[i, 1 + 4 * n + j] = qd_true[j]
-
-
 def run_loop(backend: ArmBackend, controller: JointController, reference: Reference,
              recorder: LoopRecorder, progress=None, chunk_ticks: int = 2500, *, fused: bool = False) -> None:
     """Execute ``reference`` tick by tick. Raises whatever the backend raises (safety faults, Ctrl-C);
@@ -97,7 +81,7 @@ def run_loop(backend: ArmBackend, controller: JointController, reference: Refere
     for k in range(n):
         q = backend.read_positions()
         tau = backend.command_torques(controller.update(q_ref[k], q))
-        _record(rows, recorder.n, t_s[k], q_ref[k], q, tau, truth[0], truth[1])
+        record_row(rows, recorder.n, t_s[k], q_ref[k], q, tau, truth[0], truth[1])
         recorder.n += 1
         backend.wait_next_cycle()
         if recorder.writer is not None and recorder.n - recorder._flushed >= chunk_ticks:
