@@ -103,6 +103,17 @@ def hac_lags(n: int, reach_rows: float) -> int:
     return min(n - 1, max(rule, int(np.ceil(HAC_REACHES * reach_rows))))
 
 
+def hac_score_covariance(scores: np.ndarray, sample: np.ndarray, reach_rows: float) -> tuple[np.ndarray, int]:
+    """Newey-West long-run covariance of least-squares scores (rows of ``scores``, each of the sample index
+    ``sample``: the joints of one instant summed first) and its lag count (:func:`hac_lags`). The sandwich's
+    middle for the arm's fit (per run) and the payload's."""
+    per_sample = np.zeros((sample.max() + 1, scores.shape[1]))
+    np.add.at(per_sample, sample, scores)
+    per_sample = per_sample[np.unique(sample)]
+    lags = hac_lags(len(per_sample), reach_rows)
+    return S_hac_simple(per_sample, lags), lags
+
+
 class InertialIdentification:
     """Base parameters of the WAM from measured runs (see the module doc).
 
@@ -212,14 +223,9 @@ class InertialIdentification:
         lags = []
         for r_i in np.unique(groups[:, 0]):
             sel = groups[:, 0] == r_i
-            k = groups[sel, 1]
-            per_sample = np.zeros((k.max() + 1, len(cols)))
-            np.add.at(per_sample, k, scores[sel])
-            per_sample = per_sample[np.unique(k)]
-            n = len(per_sample)
-            nlags = hac_lags(n, reach_rows)
+            S_run, nlags = hac_score_covariance(scores[sel], groups[sel, 1], reach_rows)
             lags.append(nlags)
-            S += S_hac_simple(per_sample, nlags)
+            S += S_run
         ev, V = np.linalg.eigh(0.5 * (S + S.T))
         ev = np.maximum(ev, max(ev.max(), 1e-300) * 1e-12)
         # precision of gamma = R^T S^-1 R = W^T W; the data term ||W gamma - c||^2 with c = W gamma_hat

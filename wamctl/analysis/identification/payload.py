@@ -47,11 +47,10 @@ from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
-from statsmodels.stats.sandwich_covariance import S_hac_simple
 
 from wamctl.analysis.identification.base import standard_vector
 from wamctl.analysis.identification.data import RunRows, run_rows
-from wamctl.analysis.identification.estimator import hac_lags, ols_residual_rms_per_joint
+from wamctl.analysis.identification.estimator import hac_score_covariance, ols_residual_rms_per_joint
 from wamctl.errors import DataFormatError
 from wamctl.model import params as P
 
@@ -335,12 +334,7 @@ def identify_payload(loaded, bare, dynamics=None, friction=None, alpha: float = 
     Q, Rq = np.linalg.qr(Xw)
     beta = np.linalg.solve(Rq, Q.T @ dw)
     e = dw - Xw @ beta
-    per_sample = np.zeros((k.max() + 1, int(det.sum())))
-    np.add.at(per_sample, k, Q * e[:, None])
-    per_sample = per_sample[np.unique(k)]
-    reach = max(r.reach_s / r.dt_s for r in lrows + brows)
-    lags = hac_lags(len(per_sample), reach)
-    S = S_hac_simple(per_sample, lags)
+    S, lags = hac_score_covariance(Q * e[:, None], k, max(r.reach_s / r.dt_s for r in lrows + brows))
     Ri = np.linalg.inv(Rq)
     cov_d = Ri @ S @ Ri.T
     p = np.zeros(10)
