@@ -516,6 +516,41 @@ def test_resume_continues_from_the_last_completed_iteration(tmp_path, monkeypatc
     assert isinstance(res.exception, SpecError) and "seed" in str(res.exception)
 
 
+class Killed(BaseException):
+    """The process dying (SIGKILL, a power cut) between two writes: nothing after it runs."""
+
+
+@pytest.mark.parametrize("table", ["iterations.parquet", "iterations.csv"])
+def test_a_death_while_an_iteration_is_saved_loses_none_of_its_rows(tmp_path, monkeypatch, uninterrupted, table):
+    """SIGKILL cannot be held back like Ctrl-C: wherever it falls among the writes that save iteration 1, the
+    resumed run has every iteration's rows and the tuning of an uninterrupted run (CI saw iteration 1's row lost
+    when the state file was written before the table)."""
+    from wamctl.experiments.ift import state as state_module
+    from wamctl.experiments.ift import tuner as tuner_module
+    from wamctl.runs import store
+
+    def dying(path, write):
+        if Path(path).name == table and json.loads((Path(path).parent / "manifest.json").read_text()).get(
+                "ift", {}).get("last_completed_iteration") == 0:
+            raise Killed
+        real(path, write)
+    real = store.atomic_write
+    monkeypatch.setattr(store, "atomic_write", dying)
+    for module in (tuner_module, state_module):
+        monkeypatch.setattr(module, "atomic_write", dying, raising=False)   # (the old tuner wrote its CSV directly)
+    with pytest.raises(Killed):
+        run_spec(parse_spec(RESUME_SPEC), None, tmp_path / "runs", make_report=False)
+    monkeypatch.undo()
+    path = only_run(tmp_path / "runs")
+    assert E.resume(path, parse_spec(RESUME_SPEC)).status == "completed"
+    it = read_iterations(path)
+    assert sorted(it["iteration"].unique()) == [0, 1, 2, 3]
+    assert not it.duplicated(["iteration", "joint", "status", "gamma", "kp"]).any()
+    st = json.loads((path / STATE_FILE).read_text())
+    for j in ("5", "7"):
+        np.testing.assert_allclose(st["joints"][j]["rho"], uninterrupted["joints"][j]["rho"], rtol=1e-12)
+
+
 # ------------------------------------------------------------------------------------------------ variants
 def test_direct_second_experiment_underestimates_the_gradient_under_friction(tmp_path):
     """The thesis' literal second experiment (the model at rest driven by r - y1) mostly sticks in Coulomb

@@ -24,7 +24,7 @@ from wamctl.experiments.ift.state import (
     write_parquet,
 )
 from wamctl.report.ift import ITERATIONS_TABLE
-from wamctl.runs.store import RunDir, atomic_write_text, signals_deferred, utc_now
+from wamctl.runs.store import RunDir, atomic_write, atomic_write_text, signals_deferred, utc_now
 from wamctl.specs.ift import IftSpec, gain_bounds
 
 
@@ -47,12 +47,15 @@ class IftTuner(IftExperiments):
                 "joints": {str(j): st.to_dict() for j, st in self.joints.items()}}
 
     def save_state(self) -> None:
-        with signals_deferred():   # the state, its tables and the manifest agree whenever Ctrl-C comes (issue 32)
-            atomic_write_text(self.run.path / STATE_FILE, json.dumps(self.state_dict(), indent=2))
+        # The state, its tables and the manifest agree whenever Ctrl-C comes (issue 32). SIGKILL cannot be held
+        # back: the tables are written first and the state file last, so that a death between two writes leaves a
+        # state that names only iterations whose rows are on disk (load_state drops rows of later ones).
+        with signals_deferred():
             df = iterations_frame(self.rows)
             write_parquet(self.run.path / f"{ITERATIONS_TABLE}.parquet", df)
-            df.to_csv(self.run.path / f"{ITERATIONS_TABLE}.csv", index=False)
+            atomic_write(self.run.path / f"{ITERATIONS_TABLE}.csv", lambda tmp: df.to_csv(tmp, index=False))
             self.run.flush_events()
+            atomic_write_text(self.run.path / STATE_FILE, json.dumps(self.state_dict(), indent=2))
             self.run.update_manifest(ift={"last_completed_iteration": self.iteration, "phase": self.phase,
                                           "plant_experiments": self.plant_experiments,
                                           "model_experiments": self.model_experiments})
