@@ -325,6 +325,43 @@ def test_resume_continues_at_the_next_trial(tmp_path):
     assert pd.read_csv(run / "trials.csv")["trial"].tolist() == [1, 2, 3]
 
 
+class Killed(BaseException):
+    """The process dying (SIGKILL, a power cut): after it, nothing more reaches the disk."""
+
+
+def test_a_death_while_a_trial_is_saved_leaves_no_trial_without_its_events(tmp_path, monkeypatch):
+    """SIGKILL cannot be held back like Ctrl-C: it falls while trial 2 is saved (its trajectory part written, its
+    rows not all). The resumed block has every trial once, each with its events (trials.csv, which resume counts
+    as done, was written before the events: trial 2 came back done without one)."""
+    from wamctl.experiments.hmi_block import tables
+    from wamctl.experiments.runner import run_spec
+    from wamctl.runs import store
+    spec = parse_spec(yaml.safe_load(block_spec(tmp_path, "killed", locations=["P4", "P1", "P8"]).read_text()))
+    real, dead = store.atomic_write, []
+
+    def dying(path, write):
+        path = Path(path)
+        if dead or (path.name == "hmi_events.csv" and (path.parent / "trajectory" / "part-00002.parquet").is_file()):
+            dead.append(path.name)
+            raise Killed
+        real(path, write)
+    monkeypatch.setattr(store, "atomic_write", dying)
+    monkeypatch.setattr(tables, "atomic_write", dying)
+    with pytest.raises(Killed):
+        run_spec(spec, None, tmp_path / "runs", make_report=False)
+    monkeypatch.undo()
+    [run] = list((tmp_path / "runs").iterdir())
+    assert pd.read_csv(run / "trials.csv")["trial"].tolist() in ([1], [1, 2])
+    assert hmi_block.resume(run).status == "completed"
+    trials = pd.read_csv(run / "trials.csv")
+    assert trials["trial"].tolist() == [1, 2, 3]
+    events = pd.read_csv(run / "hmi_events.csv")
+    for n in (1, 2, 3):
+        kinds = events.loc[events["trial"] == n, "kind"].tolist()
+        assert kinds.count("trial_start") == 1 and "grasp" in kinds, (n, kinds)
+    assert set(read_table(run, "trajectory")["trial"]) == {1.0, 2.0, 3.0}
+
+
 def _scripted_stream() -> list[GazeSample]:
     """Centre while the arm goes to the start, look left (+x), back to the centre, a grasp blink, centre."""
     samples, t = [], 0.0

@@ -53,10 +53,13 @@ def write_tables(run_path: Path, trial_rows: list[dict], event_rows: list[dict])
     """``trials.csv/.parquet`` (in trial order) and ``hmi_events.csv``."""
     trials = pd.DataFrame(trial_rows, columns=TRIAL_TABLE_COLUMNS).sort_values("trial")
     events = pd.DataFrame(event_rows, columns=EVENT_COLUMNS)
-    with signals_deferred():    # the three files agree whenever Ctrl-C comes (issue 32)
-        atomic_write(run_path / f"{TRIALS_TABLE}.csv", lambda p: trials.to_csv(p, index=False))
-        atomic_write(run_path / f"{TRIALS_TABLE}.parquet", lambda p: trials.to_parquet(p, index=False))
+    # The three files agree whenever Ctrl-C comes (issue 32). SIGKILL cannot be held back: trials.csv, which
+    # read_done takes as the trials done, is written last, so that a death between two writes leaves no trial
+    # counted done without its events.
+    with signals_deferred():
         atomic_write(run_path / EVENTS_FILE, lambda p: events.to_csv(p, index=False))
+        atomic_write(run_path / f"{TRIALS_TABLE}.parquet", lambda p: trials.to_parquet(p, index=False))
+        atomic_write(run_path / f"{TRIALS_TABLE}.csv", lambda p: trials.to_csv(p, index=False))
 
 
 def write_trajectory_part(run_path: Path, number: int, rows: list[list[float]]) -> None:
@@ -74,6 +77,6 @@ def consolidate_trajectory(run_path: Path) -> None:
     if not parts:
         return
     df = pd.concat([pd.read_parquet(p) for p in parts], ignore_index=True)
-    with signals_deferred():    # never a half-written file (issue 32)
-        df.to_parquet(run_path / f"{TRAJECTORY_TABLE}.parquet", index=False)
-        df.to_csv(run_path / f"{TRAJECTORY_TABLE}.csv", index=False)
+    with signals_deferred():    # never a half-written file (issue 32), nor after a SIGKILL
+        atomic_write(run_path / f"{TRAJECTORY_TABLE}.parquet", lambda p: df.to_parquet(p, index=False))
+        atomic_write(run_path / f"{TRAJECTORY_TABLE}.csv", lambda p: df.to_csv(p, index=False))
