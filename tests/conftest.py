@@ -12,9 +12,17 @@ from pathlib import Path
 # index and the data file separately, so two workers compiling two signatures of one kernel after a source edit
 # can both pick `.1.nbc` and leave an index entry that points at the other signature's machine code. Set before
 # anything imports numba (it reads NUMBA_CACHE_DIR once, on import); a cache the user chose is left alone.
+# The cache is also keyed by the compiled sources' content: numba checks only the timestamp of a kernel's own
+# file, so a kernel that calls one from another file (sim_fused -> chain_kernels) would otherwise keep the old
+# callee's machine code after an edit of the callee.
 _WORKER = os.environ.get("PYTEST_XDIST_WORKER")
 if _WORKER and "NUMBA_CACHE_DIR" not in os.environ:
-    os.environ["NUMBA_CACHE_DIR"] = str(Path(__file__).resolve().parents[1] / ".pytest_cache" / "numba" / _WORKER)
+    import hashlib
+
+    _SRC = Path(__file__).resolve().parents[1] / "wamctl"
+    _DIGEST = hashlib.sha256(b"".join(p.read_bytes() for p in sorted(_SRC.rglob("*.py"))
+                                      if b"@njit" in p.read_bytes())).hexdigest()[:12]
+    os.environ["NUMBA_CACHE_DIR"] = str(_SRC.parent / ".pytest_cache" / "numba" / _DIGEST / _WORKER)
 
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402

@@ -132,52 +132,103 @@ def rnea(rot, trans, inertia, armature, gravity, q, qd, qdd, tau, work):
 def crba(rot, trans, inertia, armature, q, M, work):
     """Joint-space mass matrix ``B(q)`` with armature, both triangles, into ``M`` (n, n).
 
-    ``work``: (n, 6, 6) scratch (composite inertias); the column of forces is kept on the stack."""
+    ``work``: (n, 6, 6) scratch. Row block of body i: its composite inertia about joint i's origin as mass
+    ``work[i, 0, 0]``, first moment ``h = m c`` in ``work[i, 0, 1:4]`` and rotational inertia about the origin in
+    ``work[i, 3:6, 3:6]``; joint i's ``E`` in ``work[i, 1:4, 0:3]`` and ``p`` in ``work[i, 4, 0:3]``. Carrying a
+    composite inertia to the parent is done in that form (``R I R^T`` and the parallel-axis terms), not through
+    the 6x6 transform; nothing is allocated."""
     n = q.shape[0]
-    Es = np.empty((n, 3, 3))
-    ps = np.empty((n, 3))
     for i in range(n):
-        _joint_transform(rot[i], trans[i], q[i], Es[i], ps[i])
-        for r in range(6):
-            for c in range(6):
-                work[i, r, c] = inertia[i, r, c]
-    col = np.empty(6)
-    F = np.empty(6)
-    unit = np.zeros(6)
-    xu = np.empty(6)
-    icx = np.empty(6)
+        W = work[i]
+        c, s = np.cos(q[i]), np.sin(q[i])
+        for r in range(3):
+            W[1, r] = rot[i, r, 0] * c + rot[i, r, 1] * s     # E = (rot Rz(q))^T, as _joint_transform_cs
+            W[2, r] = -rot[i, r, 0] * s + rot[i, r, 1] * c
+            W[3, r] = rot[i, r, 2]
+            W[4, r] = trans[i, r]
+        Ii = inertia[i]
+        W[0, 0] = Ii[0, 0]
+        W[0, 1] = Ii[5, 1]           # [h]x sits in the lower left block: h = (I[5,1], I[3,2], I[4,0])
+        W[0, 2] = Ii[3, 2]
+        W[0, 3] = Ii[4, 0]
+        for r in range(3, 6):
+            for cc in range(3, 6):
+                W[r, cc] = Ii[r, cc]
     for i in range(n - 1, -1, -1):
-        Ic = work[i]
-        # column i: F = Ic S (S = e5), then carried to each ancestor
-        for r in range(6):
-            F[r] = Ic[r, 5]
-        M[i, i] = F[5] + armature[i]
+        W = work[i]
+        # column i: F = Ic S (S = angular z): (-h1, h0, 0, I[:, 2]), carried to each ancestor
+        f0, f1, f2 = -W[0, 2], W[0, 1], 0.0
+        n0, n1, n2 = W[3, 5], W[4, 5], W[5, 5]
+        M[i, i] = n2 + armature[i]
         for j in range(i - 1, -1, -1):
-            for r in range(6):
-                col[r] = 0.0
-            _force_to_parent_add(Es[j + 1], ps[j + 1], F, col)
-            for r in range(6):
-                F[r] = col[r]
-            M[i, j] = F[5]
-            M[j, i] = F[5]
+            X = work[j + 1]          # E rows 1..3, p row 4 of joint j + 1
+            g0 = X[1, 0] * f0 + X[2, 0] * f1 + X[3, 0] * f2
+            g1 = X[1, 1] * f0 + X[2, 1] * f1 + X[3, 1] * f2
+            g2 = X[1, 2] * f0 + X[2, 2] * f1 + X[3, 2] * f2
+            m0 = X[1, 0] * n0 + X[2, 0] * n1 + X[3, 0] * n2
+            m1 = X[1, 1] * n0 + X[2, 1] * n1 + X[3, 1] * n2
+            m2 = X[1, 2] * n0 + X[2, 2] * n1 + X[3, 2] * n2
+            px, py, pz = X[4, 0], X[4, 1], X[4, 2]
+            f0, f1, f2 = g0, g1, g2
+            n0 = m0 + py * g2 - pz * g1
+            n1 = m1 + pz * g0 - px * g2
+            n2 = m2 + px * g1 - py * g0
+            M[i, j] = n2
+            M[j, i] = n2
         if i > 0:
-            # composite inertia of the parent: Ic_parent += X^T Ic X, column by column (X^T (Ic (X e_c)))
-            E, p = Es[i], ps[i]
-            for c in range(6):
-                for r in range(6):
-                    unit[r] = 0.0
-                unit[c] = 1.0
-                _motion_to_child(E, p, unit, xu)
-                for r in range(6):
-                    acc = 0.0
-                    for s in range(6):
-                        acc += Ic[r, s] * xu[s]
-                    icx[r] = acc
-                for r in range(6):
-                    col[r] = 0.0
-                _force_to_parent_add(E, p, icx, col)
-                for r in range(6):
-                    work[i - 1, r, c] += col[r]
+            _composite_to_parent_add(W, work[i - 1])
+
+
+@njit(cache=True, inline="always")
+def _composite_to_parent_add(W, P):
+    """Add body block ``W``'s composite inertia (about its joint's origin, its axes) to the parent's block ``P``
+    (about the parent joint's origin, the parent's axes): with ``R = E^T`` and ``p`` the joint's placement,
+    ``h' = R h``, ``I' = R I R^T``, then about the parent's origin ``h_P = h' + m p`` and
+    ``I_P = I' - (p h'^T + h' p^T) + 2 (h'.p) 1 - m (p p^T - |p|^2 1)``."""
+    m = W[0, 0]
+    px, py, pz = W[4, 0], W[4, 1], W[4, 2]
+    # h' = E^T h (E is work rows 1..3)
+    hx = W[1, 0] * W[0, 1] + W[2, 0] * W[0, 2] + W[3, 0] * W[0, 3]
+    hy = W[1, 1] * W[0, 1] + W[2, 1] * W[0, 2] + W[3, 1] * W[0, 3]
+    hz = W[1, 2] * W[0, 1] + W[2, 2] * W[0, 2] + W[3, 2] * W[0, 3]
+    # T = I E (3x3), then I' = E^T T
+    t00 = W[3, 3] * W[1, 0] + W[3, 4] * W[2, 0] + W[3, 5] * W[3, 0]
+    t01 = W[3, 3] * W[1, 1] + W[3, 4] * W[2, 1] + W[3, 5] * W[3, 1]
+    t02 = W[3, 3] * W[1, 2] + W[3, 4] * W[2, 2] + W[3, 5] * W[3, 2]
+    t10 = W[4, 3] * W[1, 0] + W[4, 4] * W[2, 0] + W[4, 5] * W[3, 0]
+    t11 = W[4, 3] * W[1, 1] + W[4, 4] * W[2, 1] + W[4, 5] * W[3, 1]
+    t12 = W[4, 3] * W[1, 2] + W[4, 4] * W[2, 2] + W[4, 5] * W[3, 2]
+    t20 = W[5, 3] * W[1, 0] + W[5, 4] * W[2, 0] + W[5, 5] * W[3, 0]
+    t21 = W[5, 3] * W[1, 1] + W[5, 4] * W[2, 1] + W[5, 5] * W[3, 1]
+    t22 = W[5, 3] * W[1, 2] + W[5, 4] * W[2, 2] + W[5, 5] * W[3, 2]
+    i00 = W[1, 0] * t00 + W[2, 0] * t10 + W[3, 0] * t20
+    i01 = W[1, 0] * t01 + W[2, 0] * t11 + W[3, 0] * t21
+    i02 = W[1, 0] * t02 + W[2, 0] * t12 + W[3, 0] * t22
+    i11 = W[1, 1] * t01 + W[2, 1] * t11 + W[3, 1] * t21
+    i12 = W[1, 1] * t02 + W[2, 1] * t12 + W[3, 1] * t22
+    i22 = W[1, 2] * t02 + W[2, 2] * t12 + W[3, 2] * t22
+    hp = hx * px + hy * py + hz * pz
+    pp = px * px + py * py + pz * pz
+    d = 2.0 * hp + m * pp
+    i00 += d - 2.0 * px * hx - m * px * px
+    i11 += d - 2.0 * py * hy - m * py * py
+    i22 += d - 2.0 * pz * hz - m * pz * pz
+    i01 += -(px * hy + hx * py) - m * px * py
+    i02 += -(px * hz + hx * pz) - m * px * pz
+    i12 += -(py * hz + hy * pz) - m * py * pz
+    P[0, 0] += m
+    P[0, 1] += hx + m * px
+    P[0, 2] += hy + m * py
+    P[0, 3] += hz + m * pz
+    P[3, 3] += i00
+    P[4, 4] += i11
+    P[5, 5] += i22
+    P[3, 4] += i01
+    P[4, 3] += i01
+    P[3, 5] += i02
+    P[5, 3] += i02
+    P[4, 5] += i12
+    P[5, 4] += i12
 
 
 @njit(cache=True)
