@@ -24,108 +24,94 @@ from numba import njit
 
 
 @njit(cache=True, inline="always")
-def _joint_transform(rot, trans, qi, E, p):
-    """Rotation ``E`` (parent axes -> child axes) and translation ``p`` (child origin in the parent) of a joint."""
-    _joint_transform_cs(rot, trans, np.cos(qi), np.sin(qi), E, p)
-
-
-@njit(cache=True, inline="always")
-def _joint_transform_cs(rot, trans, c, s, E, p):
-    """:func:`_joint_transform` from ``cos q``, ``sin q``."""
-    for r in range(3):
-        # child axes in the parent: rot @ Rz(q); E is its transpose
-        a0 = rot[r, 0] * c + rot[r, 1] * s
-        a1 = -rot[r, 0] * s + rot[r, 1] * c
-        E[0, r] = a0
-        E[1, r] = a1
-        E[2, r] = rot[r, 2]
-        p[r] = trans[r]
-
-
-@njit(cache=True)
-def _motion_to_child(E, p, vin, vout):
-    """``vout = X vin``: a motion vector [linear; angular] from the parent's frame to the child's."""
-    wl0 = vin[0] + vin[4] * p[2] - vin[5] * p[1]        # v + w x p  (equals v - p x w)
-    wl1 = vin[1] + vin[5] * p[0] - vin[3] * p[2]
-    wl2 = vin[2] + vin[3] * p[1] - vin[4] * p[0]
-    for r in range(3):
-        vout[r] = E[r, 0] * wl0 + E[r, 1] * wl1 + E[r, 2] * wl2
-        vout[3 + r] = E[r, 0] * vin[3] + E[r, 1] * vin[4] + E[r, 2] * vin[5]
-
-
-@njit(cache=True)
-def _force_to_parent_add(E, p, fin, fout):
-    """``fout += X^T fin``: a force vector [force; moment] from the child's frame to the parent's, accumulated."""
-    f0 = E[0, 0] * fin[0] + E[1, 0] * fin[1] + E[2, 0] * fin[2]
-    f1 = E[0, 1] * fin[0] + E[1, 1] * fin[1] + E[2, 1] * fin[2]
-    f2 = E[0, 2] * fin[0] + E[1, 2] * fin[1] + E[2, 2] * fin[2]
-    n0 = E[0, 0] * fin[3] + E[1, 0] * fin[4] + E[2, 0] * fin[5]
-    n1 = E[0, 1] * fin[3] + E[1, 1] * fin[4] + E[2, 1] * fin[5]
-    n2 = E[0, 2] * fin[3] + E[1, 2] * fin[4] + E[2, 2] * fin[5]
-    fout[0] += f0
-    fout[1] += f1
-    fout[2] += f2
-    fout[3] += n0 + p[1] * f2 - p[2] * f1
-    fout[4] += n1 + p[2] * f0 - p[0] * f2
-    fout[5] += n2 + p[0] * f1 - p[1] * f0
+def _rotation_cs(R, c, s):
+    """The 9 entries of ``E``, row by row: the rotation from the parent's axes to the child's of a joint whose fixed
+    placement has rotation ``R``, turned by ``q`` about its z (``cos q``, ``sin q``): ``E = (R Rz(q))^T``."""
+    return (R[0, 0] * c + R[0, 1] * s, R[1, 0] * c + R[1, 1] * s, R[2, 0] * c + R[2, 1] * s,
+            -R[0, 0] * s + R[0, 1] * c, -R[1, 0] * s + R[1, 1] * c, -R[2, 0] * s + R[2, 1] * c,
+            R[0, 2], R[1, 2], R[2, 2])
 
 
 @njit(cache=True)
 def rnea(rot, trans, inertia, armature, gravity, q, qd, qdd, tau, work):
     """Inverse dynamics ``tau = B(q) qdd + C(q, qd) qd + g(q)`` (armature included) into ``tau`` (n,).
 
-    ``work``: (n, 4, 6) scratch (velocity, acceleration, force, and cos/sin of q of each body)."""
+    ``work``: (n, 4, 6) scratch (velocity, acceleration, force, and cos/sin of q of each body); nothing else is
+    allocated (the closed loop calls this three times a tick)."""
     n = q.shape[0]
-    E = np.empty((3, 3))
-    p = np.empty(3)
-    vp = np.zeros(6)
-    ap = np.zeros(6)
-    for k in range(3):
-        ap[k] = -gravity[k]          # the base accelerates against gravity (Featherstone's trick)
-    tmp = np.empty(6)
     for i in range(n):
         c, s = np.cos(q[i]), np.sin(q[i])
         work[i, 3, 0] = c          # kept for the backward pass
         work[i, 3, 1] = s
-        _joint_transform_cs(rot[i], trans[i], c, s, E, p)
+        if i == 0:                 # the base is at rest and accelerates against gravity (Featherstone's trick)
+            u0 = u1 = u2 = w0 = w1 = w2 = 0.0
+            b0, b1, b2 = -gravity[0], -gravity[1], -gravity[2]
+            b3 = b4 = b5 = 0.0
+        else:
+            vp, ap = work[i - 1, 0], work[i - 1, 1]
+            u0, u1, u2, w0, w1, w2 = vp[0], vp[1], vp[2], vp[3], vp[4], vp[5]
+            b0, b1, b2, b3, b4, b5 = ap[0], ap[1], ap[2], ap[3], ap[4], ap[5]
+        e00, e01, e02, e10, e11, e12, e20, e21, e22 = _rotation_cs(rot[i], c, s)
+        px, py, pz = trans[i, 0], trans[i, 1], trans[i, 2]
         v = work[i, 0]
         a = work[i, 1]
         f = work[i, 2]
-        _motion_to_child(E, p, vp, v)
-        v[5] += qd[i]
-        _motion_to_child(E, p, ap, a)
+        # X (parent -> child) of the parent's motion: linear part v + w x p, then both parts in the child's axes
+        l0, l1, l2 = u0 + w1 * pz - w2 * py, u1 + w2 * px - w0 * pz, u2 + w0 * py - w1 * px
+        v[0] = e00 * l0 + e01 * l1 + e02 * l2
+        v[1] = e10 * l0 + e11 * l1 + e12 * l2
+        v[2] = e20 * l0 + e21 * l1 + e22 * l2
+        v[3] = e00 * w0 + e01 * w1 + e02 * w2
+        v[4] = e10 * w0 + e11 * w1 + e12 * w2
+        v[5] = e20 * w0 + e21 * w1 + e22 * w2 + qd[i]
+        l0, l1, l2 = b0 + b4 * pz - b5 * py, b1 + b5 * px - b3 * pz, b2 + b3 * py - b4 * px
+        a[0] = e00 * l0 + e01 * l1 + e02 * l2
+        a[1] = e10 * l0 + e11 * l1 + e12 * l2
+        a[2] = e20 * l0 + e21 * l1 + e22 * l2
+        a[3] = e00 * b3 + e01 * b4 + e02 * b5
+        a[4] = e10 * b3 + e11 * b4 + e12 * b5
+        a[5] = e20 * b3 + e21 * b4 + e22 * b5
         # a += v x_m (S qd): S = e_z angular; (w x 0) + (vl x ez qd) linear, w x ez qd angular
         a[0] += v[1] * qd[i]
         a[1] -= v[0] * qd[i]
         a[3] += v[4] * qd[i]
         a[4] -= v[3] * qd[i]
         a[5] += qdd[i]
-        # f = I a + v x_f (I v)
+        # f = I a + v x_f h, h = I v: [w x hl; w x ha + vl x hl]
         Ii = inertia[i]
         for r in range(6):
-            acc_a = 0.0
-            acc_v = 0.0
-            for c in range(6):
-                acc_a += Ii[r, c] * a[c]
-                acc_v += Ii[r, c] * v[c]
-            f[r] = acc_a
-            tmp[r] = acc_v
-        # v x_f h, h = I v: [w x hl; w x ha + vl x hl]
-        f[0] += v[4] * tmp[2] - v[5] * tmp[1]
-        f[1] += v[5] * tmp[0] - v[3] * tmp[2]
-        f[2] += v[3] * tmp[1] - v[4] * tmp[0]
-        f[3] += v[4] * tmp[5] - v[5] * tmp[4] + v[1] * tmp[2] - v[2] * tmp[1]
-        f[4] += v[5] * tmp[3] - v[3] * tmp[5] + v[2] * tmp[0] - v[0] * tmp[2]
-        f[5] += v[3] * tmp[4] - v[4] * tmp[3] + v[0] * tmp[1] - v[1] * tmp[0]
+            acc = 0.0
+            for cc in range(6):
+                acc += Ii[r, cc] * v[cc]
+            f[r] = acc
+        h0, h1, h2, h3, h4, h5 = f[0], f[1], f[2], f[3], f[4], f[5]
         for r in range(6):
-            vp[r] = v[r]
-            ap[r] = a[r]
+            acc = 0.0
+            for cc in range(6):
+                acc += Ii[r, cc] * a[cc]
+            f[r] = acc
+        f[0] += v[4] * h2 - v[5] * h1
+        f[1] += v[5] * h0 - v[3] * h2
+        f[2] += v[3] * h1 - v[4] * h0
+        f[3] += v[4] * h5 - v[5] * h4 + v[1] * h2 - v[2] * h1
+        f[4] += v[5] * h3 - v[3] * h5 + v[2] * h0 - v[0] * h2
+        f[5] += v[3] * h4 - v[4] * h3 + v[0] * h1 - v[1] * h0
     for i in range(n - 1, -1, -1):
         f = work[i, 2]
         tau[i] = f[5] + armature[i] * qdd[i]
-        if i > 0:
-            _joint_transform_cs(rot[i], trans[i], work[i, 3, 0], work[i, 3, 1], E, p)
-            _force_to_parent_add(E, p, f, work[i - 1, 2])
+        if i > 0:              # f_parent += X^T f: E^T of both parts, then the moment of the force about p
+            e00, e01, e02, e10, e11, e12, e20, e21, e22 = _rotation_cs(rot[i], work[i, 3, 0], work[i, 3, 1])
+            px, py, pz = trans[i, 0], trans[i, 1], trans[i, 2]
+            g0 = e00 * f[0] + e10 * f[1] + e20 * f[2]
+            g1 = e01 * f[0] + e11 * f[1] + e21 * f[2]
+            g2 = e02 * f[0] + e12 * f[1] + e22 * f[2]
+            fp = work[i - 1, 2]
+            fp[0] += g0
+            fp[1] += g1
+            fp[2] += g2
+            fp[3] += e00 * f[3] + e10 * f[4] + e20 * f[5] + py * g2 - pz * g1
+            fp[4] += e01 * f[3] + e11 * f[4] + e21 * f[5] + pz * g0 - px * g2
+            fp[5] += e02 * f[3] + e12 * f[4] + e22 * f[5] + px * g1 - py * g0
 
 
 @njit(cache=True)
@@ -141,10 +127,9 @@ def crba(rot, trans, inertia, armature, q, M, work):
     for i in range(n):
         W = work[i]
         c, s = np.cos(q[i]), np.sin(q[i])
+        (W[1, 0], W[1, 1], W[1, 2], W[2, 0], W[2, 1], W[2, 2],
+         W[3, 0], W[3, 1], W[3, 2]) = _rotation_cs(rot[i], c, s)
         for r in range(3):
-            W[1, r] = rot[i, r, 0] * c + rot[i, r, 1] * s     # E = (rot Rz(q))^T, as _joint_transform_cs
-            W[2, r] = -rot[i, r, 0] * s + rot[i, r, 1] * c
-            W[3, r] = rot[i, r, 2]
             W[4, r] = trans[i, r]
         Ii = inertia[i]
         W[0, 0] = Ii[0, 0]
