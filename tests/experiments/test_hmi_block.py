@@ -309,6 +309,7 @@ def test_resume_continues_at_the_next_trial(tmp_path):
     assert m["hmi"]["session_end"] == "go_home" and m["hmi"]["trials_done"] == 1
     kinds = pd.read_csv(run / "hmi_events.csv")["kind"].tolist()
     assert "go_home" in kinds and "home_reached" in kinds
+    assert len(list((run / "trajectory").glob("part-*.parquet"))) == 1   # trial 1's part, kept for a resume
     r = wamctl("hmi-session", "--resume", run, "--json", "--quiet")
     assert r.returncode == 0, r.stderr
     trials = pd.read_csv(run / "trials.csv")
@@ -320,9 +321,11 @@ def test_resume_continues_at_the_next_trial(tmp_path):
     assert m["status"] == "completed" and len(m["resumed"]) == 1 and m["hmi"]["trials_done"] == 3
     traj = read_table(run, "trajectory")
     assert set(traj["trial"]) == {1.0, 2.0, 3.0}
+    assert not (run / "trajectory").exists()      # complete: the parts removed, trajectory.parquet holds them
     # resuming a finished block runs nothing more
     assert hmi_block.resume(run).status == "completed"
     assert pd.read_csv(run / "trials.csv")["trial"].tolist() == [1, 2, 3]
+    pd.testing.assert_frame_equal(read_table(run, "trajectory"), traj)
 
 
 class Killed(BaseException):
@@ -360,6 +363,7 @@ def test_a_death_while_a_trial_is_saved_leaves_no_trial_without_its_events(tmp_p
         kinds = events.loc[events["trial"] == n, "kind"].tolist()
         assert kinds.count("trial_start") == 1 and "grasp" in kinds, (n, kinds)
     assert set(read_table(run, "trajectory")["trial"]) == {1.0, 2.0, 3.0}
+    assert not (run / "trajectory").exists()      # the block complete: its parts joined, then removed
 
 
 def _scripted_stream() -> list[GazeSample]:

@@ -42,7 +42,8 @@ A trial
    virtual subject, a :class:`~wamctl.hmi.policy.ReachPolicy` decides where it looks, closed-loop on the
    simulated hand seen through the scene camera.
 4. The trial's row is written (``trials.csv``/``.parquet``), with its events (``hmi_events.csv``) and its hand
-   trajectory (``trajectory/part-NNNNN.parquet``, one row per gaze sample).
+   trajectory (``trajectory/part-NNNNN.parquet``, one row per gaze sample). The parts are joined into
+   ``trajectory.parquet/.csv`` whenever the session ends, and removed once every trial is done.
 
 Three voluntary blinks in a row end the session: the arm goes home (LSPB to ``home_q_rad``, by default the start
 pose) and no further trial starts; a trial that had not been decided is not recorded. After the last trial the arm

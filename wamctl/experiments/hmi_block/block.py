@@ -189,7 +189,7 @@ class HmiBlock:
             self.feed.close()
             self._trial = None
             self.write_tables()
-            consolidate_trajectory(self.run.path)
+            consolidate_trajectory(self.run.path, complete=len(self.trial_rows) == len(self.plan.trials))
             self.run.update_manifest(hmi={**self.run.manifest().get("hmi", {}), "trials_done": len(self.trial_rows),
                                           "session_end": self.session_end or "interrupted"})
             if self.session_end not in ("", "completed"):

@@ -11,7 +11,7 @@ import pandas as pd
 from wamctl.errors import DataFormatError
 from wamctl.hmi.strategy import Hold, Motion
 from wamctl.model import params as P
-from wamctl.runs.store import atomic_write, signals_deferred
+from wamctl.runs.store import atomic_write, remove_chunks, signals_deferred
 
 MOTION_CODES: tuple[str, ...] = tuple(m.value for m in Motion)
 HOLD_CODES: tuple[str, ...] = tuple(h.value for h in Hold)
@@ -70,8 +70,9 @@ def write_trajectory_part(run_path: Path, number: int, rows: list[list[float]]) 
     atomic_write(d / f"part-{number:05d}.parquet", lambda p: df.to_parquet(p, index=False))
 
 
-def consolidate_trajectory(run_path: Path) -> None:
-    """Every trial's part into ``trajectory.parquet/.csv`` (the parts stay, for a resume)."""
+def consolidate_trajectory(run_path: Path, complete: bool) -> None:
+    """Every trial's part into ``trajectory.parquet/.csv``. The parts stay while trials remain (a resume adds
+    to them); once the block is ``complete`` they are removed, the consolidated table holding their rows."""
     d = run_path / TRAJECTORY_TABLE
     parts = sorted(d.glob("part-*.parquet")) if d.is_dir() else []
     if not parts:
@@ -80,3 +81,5 @@ def consolidate_trajectory(run_path: Path) -> None:
     with signals_deferred():    # never a half-written file (issue 32), nor after a SIGKILL
         atomic_write(run_path / f"{TRAJECTORY_TABLE}.parquet", lambda p: df.to_parquet(p, index=False))
         atomic_write(run_path / f"{TRAJECTORY_TABLE}.csv", lambda p: df.to_csv(p, index=False))
+    if complete:
+        remove_chunks(run_path, TRAJECTORY_TABLE, len(df))
