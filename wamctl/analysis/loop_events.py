@@ -131,8 +131,8 @@ def loop_events(t_s: np.ndarray, q_ref_rad: np.ndarray, q_rad: np.ndarray, tau_N
 
 def loop_events_of_table(data, tau_max_Nm: np.ndarray = P.TAU_MAX_NM) -> list[LoopEvent]:
     """:func:`loop_events` of a run table with the run columns (``t_s``, ``q_ref_{j}_rad``, ``q_{j}_rad``,
-    ``tau_{j}_Nm``)."""
-    J = range(1, P.N_JOINTS + 1)
+    ``tau_{j}_Nm``) of the arm whose torque limits are ``tau_max_Nm`` (one per joint)."""
+    J = range(1, len(tau_max_Nm) + 1)
     return loop_events(data["t_s"].to_numpy(), data[[f"q_ref_{j}_rad" for j in J]].to_numpy(),
                        data[[f"q_{j}_rad" for j in J]].to_numpy(), data[[f"tau_{j}_Nm" for j in J]].to_numpy(),
                        tau_max_Nm)

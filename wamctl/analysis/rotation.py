@@ -17,6 +17,7 @@ was not still moving at the last sample.
 
 from __future__ import annotations
 
+import re
 from dataclasses import dataclass
 
 import numpy as np
@@ -44,6 +45,12 @@ class JointRotation:
         return self.target_rad - self.start_rad
 
 
+def reference_joints(data: pd.DataFrame) -> list[int]:
+    """The joints whose reference the table holds (``q_ref_{j}_rad``), ascending: 1..7 on the wam7, 1..4 on the
+    wam4, the logged ones of a measured run."""
+    return sorted(int(m.group(1)) for m in (re.fullmatch(r"q_ref_(\d+)_rad", str(c)) for c in data.columns) if m)
+
+
 def find_rotations(data: pd.DataFrame, amplitude_rad: float | None = None,
                    hold_s: float = 0.0) -> list[JointRotation]:
     """The move of each joint whose reference changes; ``amplitude_rad`` and ``hold_s``: the planned move and
@@ -54,7 +61,7 @@ def find_rotations(data: pd.DataFrame, amplitude_rad: float | None = None,
     if len(t) == 0:          # a run interrupted before its first sample: no move to find
         return out
     dt = float(np.median(np.diff(t))) if len(t) > 1 else 0.0
-    for j in range(1, P.N_JOINTS + 1):
+    for j in reference_joints(data):
         ref = data[f"q_ref_{j}_rad"].to_numpy()
         dev = np.abs(ref - ref[0])
         if dev.max() < 1e-6:

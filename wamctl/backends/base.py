@@ -26,13 +26,26 @@ from wamctl.model import params as P
 
 @dataclass
 class SafetyLimits:
-    """Limits enforced by every backend. Arrays (7,); the velocity filter is libbarrett's (w = 180 rad/s)."""
+    """Limits enforced by every backend. Arrays (n,), one entry per joint of the arm (the wam7's by default;
+    :meth:`for_robot` another arm's); the velocity filter is libbarrett's (w = 180 rad/s)."""
 
     tau_max_Nm: np.ndarray = field(default_factory=lambda: P.TAU_MAX_NM.copy())
     q_min_rad: np.ndarray = field(default_factory=lambda: P.Q_MIN_RAD.copy())
     q_max_rad: np.ndarray = field(default_factory=lambda: P.Q_MAX_RAD.copy())
     qd_max_rad_s: np.ndarray = field(default_factory=lambda: P.QD_MAX_RAD_S.copy())
     velocity_filter_rad_s: float = 180.0
+
+    @classmethod
+    def for_robot(cls, robot=None) -> SafetyLimits:
+        """The limits of an arm of :mod:`wamctl.model.robots` (a Robot or its name; None: the wam7)."""
+        from wamctl.model.robots import get_robot
+
+        r = get_robot(robot)
+        return cls(np.array(r.tau_max_Nm), np.array(r.q_min_rad), np.array(r.q_max_rad), np.array(r.qd_max_rad_s))
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.tau_max_Nm)
 
 
 @njit(cache=True)
@@ -86,9 +99,14 @@ class ArmBackend(ABC):
         self.limits = limits or SafetyLimits()
         self._opened = False
         self._closed = False
-        self._tau_applied = np.zeros(P.N_JOINTS)
+        self._tau_applied = np.zeros(self.limits.n_joints)
         self._q_prev: np.ndarray | None = None
-        self._v_filt = np.zeros(P.N_JOINTS)
+        self._v_filt = np.zeros(self.limits.n_joints)
+
+    @property
+    def n_joints(self) -> int:
+        """The arm's joints (its limits' length): the width of every vector the loop reads and sends."""
+        return self.limits.n_joints
 
     # ---------------------------------------------------------------- lifecycle
     def __enter__(self) -> ArmBackend:
@@ -122,7 +140,7 @@ class ArmBackend(ABC):
 
     # ---------------------------------------------------------------- loop
     def read_positions(self) -> np.ndarray:
-        """Measured joint positions (7,), rad; raises SafetyLimitError on a position or velocity breach."""
+        """Measured joint positions (n_joints,), rad; raises SafetyLimitError on a position or velocity breach."""
         q = self._read_positions()
         if self._q_prev is None:
             self._q_prev = q.copy()
@@ -139,7 +157,7 @@ class ArmBackend(ABC):
         return q
 
     def command_torques(self, tau_Nm: np.ndarray) -> np.ndarray:
-        """Saturate at the torque limits and send; returns the applied torque (7,), N m."""
+        """Saturate at the torque limits and send; returns the applied torque (n_joints,), N m."""
         bad = _saturate(np.asarray(tau_Nm, float), self.limits.tau_max_Nm, self._tau_applied)
         if bad:
             self._tau_applied[:] = 0.0

@@ -23,7 +23,6 @@ import numpy as np
 from numba import njit
 
 from wamctl.backends.base import ArmBackend, SafetyLimits
-from wamctl.model import params as P
 from wamctl.model.dynamics import WamDynamics
 from wamctl.model.effects import ripple_torque_Nm
 from wamctl.model.friction import implicit_friction_1
@@ -82,8 +81,8 @@ class SimBackend(ArmBackend):
 
     Parameters
     ----------
-    plant : the arm's truth (friction, effects, sensors).
-    q0_rad : (7,) initial configuration (at rest).
+    plant : the arm's truth (its robot, friction, effects, sensors).
+    q0_rad : (n,) initial configuration (at rest), n the plant's robot's joints.
     rng : seeded generator for every random draw of the plant.
     substeps : physics steps per control period.
     """
@@ -93,27 +92,35 @@ class SimBackend(ArmBackend):
 
     def __init__(self, plant: Plant, q0_rad, rng: np.random.Generator, substeps: int = 2,
                  limits: SafetyLimits | None = None):
-        super().__init__(limits)
+        robot = getattr(plant, "robot", None)
+        super().__init__(limits if limits is not None else SafetyLimits.for_robot(robot))
+        n = self.n_joints
+        if robot is not None and robot.n_joints != n:
+            raise ValueError(f"limits for {n} joints, the plant's {robot.name} has {robot.n_joints}")
         self.plant = plant
         self.dynamics = WamDynamics(plant.payload, plant.links)
         self.substeps = int(substeps)
         self.h_s = self.control_period_s / self.substeps
         self.rng = rng
         self.q0 = np.asarray(q0_rad, float).copy()
-        self._pp = np.vstack([plant.friction.as_array(), np.ones(P.N_JOINTS), plant.ripple_wavenumber_rad,
+        if self.q0.shape != (n,):
+            raise ValueError(f"q0_rad: {self.q0.size} values, the arm has {n} joints")
+        self._pp = np.vstack([plant.friction.as_array(), np.ones(n), plant.ripple_wavenumber_rad,
                               plant.ripple_amplitudes_Nm, plant.ripple_phases_rad])
         self._t = 0.0
         self._q = self.q0.copy()
-        self._qd = np.zeros(P.N_JOINTS)
-        self._tau = np.zeros(P.N_JOINTS)
-        self._work = np.zeros((3, P.N_JOINTS))  # velocity without friction, friction torque, net torque
+        self._qd = np.zeros(n)
+        self._tau = np.zeros(n)
+        self._work = np.zeros((3, n))  # velocity without friction, friction torque, net torque
         self.sensors = SensorChain(plant, rng, self.q0, self.h_s)
         self._q_meas = self.sensors.measure(self._q)
 
     @classmethod
     def from_spec(cls, spec, base_dir: Path | None, q0_rad, rng: np.random.Generator) -> SimBackend:
-        """The simulated arm a spec describes: its ``plant`` at rest at ``q0_rad`` (``backend.physics_substeps``)."""
-        return cls(Plant(spec.plant, base_dir), q0_rad, rng, spec.backend.physics_substeps)
+        """The simulated arm a spec describes: its ``robot``'s ``plant`` at rest at ``q0_rad``
+        (``backend.physics_substeps``)."""
+        return cls(Plant(spec.plant, base_dir, getattr(spec, "robot", None)), q0_rad, rng,
+                   spec.backend.physics_substeps)
 
     # state of the truth, for tests and for logging simulated runs
     @property
@@ -130,7 +137,7 @@ class SimBackend(ArmBackend):
 
     @property
     def friction_torque_Nm(self) -> np.ndarray:
-        """Friction torque absorbed over the last physics step (7,)."""
+        """Friction torque absorbed over the last physics step (n_joints,)."""
         return self._work[1].copy()
 
     @property
@@ -138,7 +145,8 @@ class SimBackend(ArmBackend):
         return self._t
 
     def describe(self) -> dict:
-        return {"name": self.name, "physics_substeps": self.substeps, "physics_step_s": self.h_s,
+        return {"name": self.name, "robot": self.plant.robot.name, "physics_substeps": self.substeps,
+                "physics_step_s": self.h_s,
                 "integrator": "semi-implicit Euler + implicit stick/slip friction",
                 "effects": self.plant.spec.effects.names()}
 
@@ -154,7 +162,7 @@ class SimBackend(ArmBackend):
     def _send_torques(self, tau_Nm: np.ndarray) -> None:
         self._tau[:] = tau_Nm
         if self.plant.sensors.torque_noise_Nm > 0:
-            self._tau += self.rng.normal(0.0, self.plant.sensors.torque_noise_Nm, P.N_JOINTS)
+            self._tau += self.rng.normal(0.0, self.plant.sensors.torque_noise_Nm, self.n_joints)
 
     def _wait_next_cycle(self) -> None:
         self._advance_physics()

@@ -45,8 +45,12 @@ _BASE_METHODS = {name: getattr(ArmBackend, name) for name in ("read_positions", 
 def fused_supported(backend, controller) -> bool:
     """True when the compiled loop reproduces the Python path: a :class:`SimBackend` whose loop methods are its
     own (not a subclass overriding ``_advance_physics``, reads or sends, nor a hook in place of one), and a plain
-    :class:`JointController` whose gravity (if any) is a :class:`WamDynamics`' ``gravity``/``gravity_view``."""
+    :class:`JointController` whose gravity (if any) is a :class:`WamDynamics`' ``gravity``/``gravity_view``; and the
+    arm a wam7 (the compiled chain is the wam7's: another robot, e.g. the wam4, runs the Python loop)."""
     if not isinstance(backend, SimBackend) or type(controller) is not JointController:
+        return False
+    # the chain kernels (model/chain_kernels.py) are the wam7's
+    if getattr(getattr(backend.plant, "robot", None), "name", "wam7") != "wam7":
         return False
     cls = type(backend)
     if any(getattr(cls, name) is not f for name, f in _LOOP_METHODS.items()):

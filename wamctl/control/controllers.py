@@ -20,7 +20,6 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from wamctl.model import params as P
 from wamctl.model.friction import FrictionModel
 
 
@@ -48,7 +47,7 @@ def _pid_series_kernel(q_ref, q, kp, kd, ki, dt, out):
 
 
 def pid_torque_series_Nm(q_ref: np.ndarray, q: np.ndarray, kp, kd, ki, dt_s: float) -> np.ndarray:
-    """The PID torque (no gravity, no feed-forward) the controller commanded along a logged run, (n, 7).
+    """The PID torque (no gravity, no feed-forward) the controller commanded along a logged run, (k, n).
 
     What a log's torque minus this is the rest of the command (gravity, feed-forward): used to recover the
     feed-forward of a ``pd_g_ff`` run, and by anything that inverts the controller."""
@@ -65,23 +64,29 @@ class JointController:
 
     Parameters
     ----------
-    kp, kd, ki : (7,) gains (N m/rad, N m s/rad, N m/(rad s)).
+    kp, kd, ki : (n,) gains (N m/rad, N m s/rad, N m/(rad s)), one per joint of the arm (their length is the
+        controller's joint count: 7 on the wam7, 4 on the wam4; a Robot's ``kp``, ``kd``, ``ki`` by default).
     dt_s : control period.
-    gravity : callable q -> (7,) gravity torque, or None for no gravity compensation.
-    feedforward_Nm : (n, 7) precomputed feed-forward torque per tick, or None.
+    gravity : callable q -> (n,) gravity torque, or None for no gravity compensation.
+    feedforward_Nm : (k, n) precomputed feed-forward torque per tick, or None.
     """
 
     def __init__(self, kp, kd, ki, dt_s: float, gravity=None, feedforward_Nm: np.ndarray | None = None):
         self.kp = np.asarray(kp, float).copy()
         self.kd = np.asarray(kd, float).copy()
         self.ki = np.asarray(ki, float).copy()
+        n = self.n_joints = len(self.kp)
+        if self.kd.shape != (n,) or self.ki.shape != (n,):
+            raise ValueError(f"kp, kd, ki: {n}, {self.kd.size} and {self.ki.size} gains; one per joint each")
+        if feedforward_Nm is not None and np.shape(feedforward_Nm)[-1] != n:
+            raise ValueError(f"feedforward_Nm: {np.shape(feedforward_Nm)[-1]} columns for {n} joints")
         self.dt_s = float(dt_s)
         self.gravity = gravity
         self.feedforward_Nm = feedforward_Nm
-        self._e_prev = np.zeros(P.N_JOINTS)
-        self._i = np.zeros(P.N_JOINTS)
-        self._out = np.zeros(P.N_JOINTS)
-        self._zero = np.zeros(P.N_JOINTS)
+        self._e_prev = np.zeros(n)
+        self._i = np.zeros(n)
+        self._out = np.zeros(n)
+        self._zero = np.zeros(n)
         self._k = 0
 
     def reset(self) -> None:
@@ -94,7 +99,7 @@ class JointController:
         return self._i.copy()
 
     def update(self, q_ref: np.ndarray, q_meas: np.ndarray) -> np.ndarray:
-        """Torque command (7,) for this tick (not yet saturated)."""
+        """Torque command (n_joints,) for this tick (not yet saturated)."""
         extra = self._zero if self.gravity is None else self.gravity(q_meas)
         if self.feedforward_Nm is not None:
             extra = extra + self.feedforward_Nm[min(self._k, len(self.feedforward_Nm) - 1)]
@@ -110,13 +115,13 @@ def friction_feedforward_Nm(qd_ref: np.ndarray, qdd_ref: np.ndarray, friction: F
 
     Parameters
     ----------
-    qd_ref, qdd_ref : (n, 7) reference velocity and acceleration.
-    friction : declared (identified) friction model; supplies sigma2 and Fc per direction.
-    inertia_kg_m2 : (7,) the joint's "single mass" m; None leaves the inertial term out.
+    qd_ref, qdd_ref : (k, n) reference velocity and acceleration, n the arm's joints.
+    friction : declared (identified) friction model of the same n joints; supplies sigma2 and Fc per direction.
+    inertia_kg_m2 : (n,) the joint's "single mass" m; None leaves the inertial term out.
 
     Returns
     -------
-    (n, 7) feed-forward torque, N m.
+    (k, n) feed-forward torque, N m.
     """
     ff = friction.friction_torque(qd_ref)
     if inertia_kg_m2 is not None:

@@ -14,7 +14,8 @@ numbers are the thesis' exactly.
 and q(t) parabolic up to t_c, linear to t_f - t_c, parabolic to t_f (3.3). A move is specified by its
 amplitude and cruise velocity; ``t_f = t_c + |q_f - q_i| / v``.
 
-Arrays: time ``(n,)`` in s; positions, velocities, accelerations ``(n, 7)`` in rad, rad/s, rad/s^2.
+Arrays: time ``(n,)`` in s; positions, velocities, accelerations ``(n, joints)`` (the width of ``q0``) in rad,
+rad/s, rad/s^2.
 """
 
 from __future__ import annotations
@@ -28,8 +29,9 @@ from wamctl.errors import SpecError
 
 @dataclass
 class Reference:
-    """A sampled joint reference: ``t_s`` (n,), ``q_rad``, ``qd_rad_s``, ``qdd_rad_s2`` (n, 7), and the sample
-    indices where each segment (move or hold) starts, with its label, for reports and segment detection."""
+    """A sampled joint reference: ``t_s`` (n,), ``q_rad``, ``qd_rad_s``, ``qdd_rad_s2`` (n, joints: 7 on the wam7,
+    4 on the wam4), and the sample indices where each segment (move or hold) starts, with its label, for reports
+    and segment detection."""
 
     t_s: np.ndarray
     q_rad: np.ndarray
@@ -82,7 +84,8 @@ class ReferenceBuilder:
     def hold(self, duration_s: float, label: str = "hold") -> ReferenceBuilder:
         n = int(round(duration_s / self.dt_s))
         if n > 0:
-            self._parts.append((np.tile(self._q, (n, 1)), np.zeros((n, 7)), np.zeros((n, 7)), label))
+            zeros = np.zeros((n, self._q.size))
+            self._parts.append((np.tile(self._q, (n, 1)), zeros, zeros.copy(), label))
         return self
 
     def move(self, deltas_rad: dict[int, float], velocity_rad_s: float, tc_s: float = 1.0,
@@ -100,8 +103,8 @@ class ReferenceBuilder:
         n = int(round(t_f / self.dt_s))
         t = np.arange(1, n + 1) * self.dt_s
         q = np.tile(self._q, (n, 1))
-        qd = np.zeros((n, 7))
-        qdd = np.zeros((n, 7))
+        qd = np.zeros((n, self._q.size))
+        qdd = np.zeros((n, self._q.size))
         for j, d in deltas_rad.items():
             q[:, j], qd[:, j], qdd[:, j] = lspb(t, self._q[j], self._q[j] + d, t_f, tc_s)
         self._parts.append((q, qd, qdd, label))

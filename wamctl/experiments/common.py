@@ -25,6 +25,7 @@ from wamctl.io import resolve_path
 from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.plant import resolve_friction
+from wamctl.model.robots import get_robot
 from wamctl.runs.store import RunDir
 from wamctl.specs import Common, check_positions
 from wamctl.specs.common import link_parameters
@@ -43,6 +44,8 @@ class Plan:
     torque_check: Callable[[], str] | None = None
     """Checks the torque the reference needs against the limits (:func:`check_planned_torque`): returns the
     check made, raises SpecError naming the move that would saturate. Called by :meth:`check_limits`."""
+    robot: str | None = None
+    """The arm (a spec's ``robot``; None: the wam7): its limits check the reference."""
 
     @property
     def duration_s(self) -> float:
@@ -50,28 +53,29 @@ class Plan:
 
     def check_limits(self) -> list[str]:
         """Every setpoint against the position and torque limits; returns the checks made, raises SpecError."""
+        r = get_robot(self.robot)
         try:
-            check_positions(self.reference.q_rad, "reference")
+            check_positions(self.reference.q_rad, "reference", r)
         except ValueError as exc:
             raise SpecError(str(exc)) from None
         done = [f"{len(self.reference)} position setpoints within the joint limits"]
         speed = np.abs(self.reference.qd_rad_s).max(axis=0)
-        over = speed > P.QD_MAX_RAD_S
+        over = speed > r.qd_max_rad_s
         if over.any():
             j = int(np.argmax(over))
             raise SpecError(f"reference: joint {j + 1} velocity {speed[j]:.3f} rad/s above the limit "
-                            f"{P.QD_MAX_RAD_S[j]} rad/s")
+                            f"{r.qd_max_rad_s[j]} rad/s")
         if speed.max() > 0:
-            done.append(f"reference speeds within {P.QD_MAX_RAD_S[0]} rad/s (max {speed.max():.3f} rad/s)")
+            done.append(f"reference speeds within {r.qd_max_rad_s[0]} rad/s (max {speed.max():.3f} rad/s)")
         else:   # poses only (e.g. an HMI block): the motion between them is made while running
-            done.append(f"poses only, no planned motion: speeds are limited while running ({P.QD_MAX_RAD_S[0]} "
+            done.append(f"poses only, no planned motion: speeds are limited while running ({r.qd_max_rad_s[0]} "
                         "rad/s fault limit)")
         if self.feedforward_Nm is not None:
             ff = np.abs(self.feedforward_Nm).max(axis=0)
-            if (ff > P.TAU_MAX_NM).any():
-                j = int(np.argmax(ff > P.TAU_MAX_NM))
+            if (ff > r.tau_max_Nm).any():
+                j = int(np.argmax(ff > r.tau_max_Nm))
                 raise SpecError(f"controller.friction_ff: joint {j + 1} feed-forward {ff[j]:.2f} N m exceeds the "
-                                f"torque limit {P.TAU_MAX_NM[j]} N m")
+                                f"torque limit {r.tau_max_Nm[j]} N m")
             done.append("feed-forward torques within the torque limits")
         if self.torque_check is not None:
             done.append(self.torque_check())
@@ -83,16 +87,17 @@ def declared_dynamics(spec: Common, base_dir: Path | None = None) -> WamDynamics
     default; a model file's ``links:``, e.g. an identified arm) and a declared payload, if any."""
     p = spec.controller.declared_payload
     return WamDynamics(Payload(p.mass_kg, tuple(p.com_m)) if p else None,
-                       declared_links(spec.controller.declared_links, base_dir))
+                       declared_links(spec.controller.declared_links, base_dir, getattr(spec, "robot", None)))
 
 
-def declared_links(value, base_dir: Path | None = None) -> P.LinkParameters:
-    """:class:`LinkParameters` of a ``declared_links`` value: None (the datasheet), a links mapping, or a model
-    file with a ``links:`` section (relative to ``base_dir`` or the working directory)."""
+def declared_links(value, base_dir: Path | None = None, robot=None) -> P.LinkParameters:
+    """:class:`LinkParameters` of a ``declared_links`` value: None (the datasheet of ``robot``, default the
+    wam7), a links mapping, or a model file with a ``links:`` section (relative to ``base_dir`` or the working
+    directory)."""
     if isinstance(value, str):
         value = load_model_links(resolve_path(value, base_dir))
     try:
-        return link_parameters(value)
+        return link_parameters(value, robot)
     except ValueError as exc:
         raise SpecError(f"controller.declared_links: {exc}") from None
 
@@ -102,7 +107,12 @@ def feedforward_for(spec: Common, reference: Reference, base_dir: Path | None) -
     c = spec.controller
     if c.kind != "pd_g_ff":
         return None
-    return declared_feedforward_Nm(spec, reference, resolve_friction(c.friction_ff, base_dir), c.ff_inertia)
+    return declared_feedforward_Nm(spec, reference, resolve_friction(c.friction_ff, base_dir, _n_joints(spec)),
+                                   c.ff_inertia)
+
+
+def _n_joints(spec: Common) -> int:
+    return get_robot(getattr(spec, "robot", None)).n_joints
 
 
 def declared_feedforward_Nm(spec: Common, reference: Reference, friction, with_inertia: bool) -> np.ndarray:
@@ -117,7 +127,7 @@ def planning_dynamics(spec: Common, base_dir: Path | None = None) -> WamDynamics
     (the plant's, else the declared one: the friction sweep's gravity check makes the same choice)."""
     p = spec.plant.effects.payload or spec.controller.declared_payload
     return WamDynamics(Payload(p.mass_kg, tuple(p.com_m)) if p else None,
-                       declared_links(spec.controller.declared_links, base_dir))
+                       declared_links(spec.controller.declared_links, base_dir, getattr(spec, "robot", None)))
 
 
 def _declared_friction(spec: Common, base_dir: Path | None):
@@ -126,9 +136,9 @@ def _declared_friction(spec: Common, base_dir: Path | None):
     from wamctl.errors import WamctlError
     from wamctl.model.friction import FrictionModel
     try:
-        return resolve_friction(spec.plant.friction, base_dir)
+        return resolve_friction(spec.plant.friction, base_dir, _n_joints(spec))
     except WamctlError:
-        return FrictionModel.zero()
+        return FrictionModel.zero(_n_joints(spec))
 
 
 def planned_torque_Nm(spec: Common, reference: Reference, base_dir: Path | None = None,
@@ -153,12 +163,13 @@ def check_planned_torque(spec: Common, reference: Reference, base_dir: Path | No
     (gravity, friction, the rest) and the limit. Returns the check made."""
     friction = _declared_friction(spec, base_dir)
     need = planned_torque_Nm(spec, reference, base_dir, friction)
-    ratio = np.abs(need) / P.TAU_MAX_NM
+    tau_max = get_robot(getattr(spec, "robot", None)).tau_max_Nm
+    ratio = np.abs(need) / tau_max
     over = ratio > 1.0
     if not over.any():
         k, j = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
         return (f"torque needed at most {ratio[k, j]:.0%} of a limit (joint {j + 1}: {need[k, j]:+.1f} of "
-                f"{P.TAU_MAX_NM[j]:g} N m at {reference.t_s[k]:.2f} s)")
+                f"{tau_max[j]:g} N m at {reference.t_s[k]:.2f} s)")
     bounds = [i for i, _ in reference.segments] + [len(reference)]
     moving = np.abs(reference.qd_rad_s).max(axis=1) > 0
     bad, move_no = [], 0
@@ -179,7 +190,7 @@ def check_planned_torque(spec: Common, reference: Reference, base_dir: Path | No
     raise SpecError(f"{field_name}: {where} ({label}, {reference.t_s[i0]:.2f}-{reference.t_s[i1 - 1]:.2f} s) "
                     f"would saturate joint {j + 1}: it needs {need[k, j]:+.2f} N m at {reference.t_s[k]:.2f} s "
                     f"(gravity {gravity:+.2f}, friction {coulomb:+.2f}, acceleration {rest:+.2f}) against its"
-                    f" {P.TAU_MAX_NM[j]:g} N m torque limit{more}; change q0_rad, the direction or "
+                    f" {tau_max[j]:g} N m torque limit{more}; change q0_rad, the direction or "
                     "size of the move")
 
 
@@ -200,8 +211,8 @@ def closed_loop_stage(backend: ArmBackend, controller: JointController, referenc
     writer = None
     if run is not None:
         from wamctl.experiments.engine import data_columns
-        writer = run.table(table, data_columns(truth))
-    rec = LoopRecorder(len(reference), truth, writer, t_offset_s)
+        writer = run.table(table, data_columns(truth, backend.n_joints))
+    rec = LoopRecorder(len(reference), truth, writer, t_offset_s, n_joints=backend.n_joints)
     try:
         run_loop(backend, controller, reference, rec, progress)
     finally:

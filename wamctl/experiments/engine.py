@@ -5,7 +5,8 @@ Reference` and a controller, and the engine executes them (bluesky's plan / engi
 
 Recorded columns (one row per control tick, wide and unit-named): ``t_s``, ``q_ref_{j}_rad``, ``q_{j}_rad``
 (measured), ``tau_{j}_Nm`` (applied, after saturation), and on the simulator also the truth
-``q_true_{j}_rad`` and ``qd_true_{j}_rad_s``; joints j = 1..7.
+``q_true_{j}_rad`` and ``qd_true_{j}_rad_s``; joints j = 1..n, n the arm's (7 on the wam7, 4 on the wam4: the
+backend's ``n_joints``).
 """
 
 from __future__ import annotations
@@ -25,7 +26,9 @@ log = logging.getLogger(__name__)
 J = range(1, P.N_JOINTS + 1)
 
 
-def data_columns(with_truth: bool) -> list[str]:
+def data_columns(with_truth: bool, n_joints: int = P.N_JOINTS) -> list[str]:
+    """The loop table's columns for an arm of ``n_joints`` (default the wam7's seven)."""
+    J = range(1, n_joints + 1)
     cols = ["t_s"] + [f"q_ref_{j}_rad" for j in J] + [f"q_{j}_rad" for j in J] + [f"tau_{j}_Nm" for j in J]
     if with_truth:
         cols += [f"q_true_{j}_rad" for j in J] + [f"qd_true_{j}_rad_s" for j in J]
@@ -36,8 +39,8 @@ class LoopRecorder:
     """Rows of a loop in memory, mirrored to a chunked table on disk every ``chunk_rows`` ticks."""
 
     def __init__(self, n_rows: int, with_truth: bool, writer: TableWriter | None = None,
-                 t_offset_s: float = 0.0):
-        self.columns = data_columns(with_truth)
+                 t_offset_s: float = 0.0, n_joints: int = P.N_JOINTS):
+        self.columns = data_columns(with_truth, n_joints)
         self.rows = np.full((n_rows, len(self.columns)), np.nan)
         self.writer = writer
         self.n = 0
@@ -73,7 +76,11 @@ def run_loop(backend: ArmBackend, controller: JointController, reference: Refere
         _run_fused(backend, controller, reference, recorder, progress, chunk_ticks)
         return
     rows = recorder.rows
-    truth = backend.truth() if hasattr(backend, "truth") else (np.zeros(P.N_JOINTS), np.zeros(P.N_JOINTS))
+    n_j = getattr(backend, "n_joints", P.N_JOINTS)
+    truth = backend.truth() if hasattr(backend, "truth") else (np.zeros(n_j), np.zeros(n_j))
+    if rows.shape[1] not in (1 + 3 * n_j, 1 + 5 * n_j):
+        raise ValueError(f"the recorder's table has {rows.shape[1]} columns, the arm's {n_j} joints need "
+                         f"{1 + 3 * n_j}: build it with LoopRecorder(..., n_joints={n_j})")
     q_ref = reference.q_rad
     t_s = reference.t_s + recorder.t_offset_s
     n = len(reference)

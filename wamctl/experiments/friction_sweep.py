@@ -71,7 +71,8 @@ def plan(spec: FrictionSweepSpec, base_dir: Path | None = None) -> Plan:
     arm_s = len(ref) / P.CONTROL_RATE_HZ
     summary = [f"friction sweep: joints {s.joints}, {len(moves)} moves "
                f"({len(moves) // max(1, len(s.joints))} per joint: each speed out and back)",
-               f"controller {spec.controller.kind}, backend {spec.backend.kind}, "
+               ("" if spec.robot == "wam7" else f"robot {spec.robot}, ")
+               + f"controller {spec.controller.kind}, backend {spec.backend.kind}, "
                f"plant effects: {', '.join(spec.plant.effects.names()) or 'none'}",
                f"blend {s.tc_s} s, settle {s.settle_s} s, travel <= {s.travel_rad} rad, cruise <= {s.cruise_s} s",
                f"{len(ref)} ticks at {P.CONTROL_RATE_HZ:.0f} Hz = {arm_s:.1f} s of arm time"]
@@ -91,7 +92,7 @@ def plan(spec: FrictionSweepSpec, base_dir: Path | None = None) -> Plan:
             checks.append("validation: " + check_planned_torque(v, _rotation_plan(v).reference, base_dir,
                                                                 "validation"))
         return "; ".join(checks)
-    return Plan(ref, summary, feedforward_for(spec, ref, base_dir), torque_check=torque_check)
+    return Plan(ref, summary, feedforward_for(spec, ref, base_dir), torque_check=torque_check, robot=spec.robot)
 
 
 # ------------------------------------------------------------------------------------------------ execute
@@ -150,7 +151,7 @@ def write_identification(path: Path, result) -> None:
 def validation_specs(spec: FrictionSweepSpec, run_path: Path | None) -> dict[str, RotationSpec]:
     """The two rotation specs of the validation: pd_g, and pd_g_ff fed by the run's ``friction_model.yaml``."""
     v = spec.validation
-    common = spec.model_dump(include={"name", "seed", "backend", "plant", "q0_rad", "out_dir"})
+    common = spec.model_dump(include={"name", "robot", "seed", "backend", "plant", "q0_rad", "out_dir"})
     ctl = spec.controller.model_dump()
     rot = {"joints": v.joints, "mode": "one_at_a_time", "amplitude_rad": v.amplitude_rad,
            "velocity_rad_s": v.velocity_rad_s, "tc_s": v.tc_s, "settle_s": v.settle_s, "hold_s": v.hold_s}

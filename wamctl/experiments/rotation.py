@@ -35,12 +35,13 @@ def plan(spec: RotationSpec, base_dir: Path | None = None) -> Plan:
     ref = b.build()
     summary = [f"rotation test, {r.mode.replace('_', ' ')}: joints {r.joints}, {r.amplitude_rad} rad at "
                f"{r.velocity_rad_s} rad/s (LSPB, t_c = {r.tc_s} s)",
-               f"controller {spec.controller.kind}, backend {spec.backend.kind}, "
+               ("" if spec.robot == "wam7" else f"robot {spec.robot}, ")
+               + f"controller {spec.controller.kind}, backend {spec.backend.kind}, "
                f"plant effects: {', '.join(spec.plant.effects.names()) or 'none'}",
                f"{len(ref)} ticks at {P.CONTROL_RATE_HZ:.0f} Hz = {len(ref) / P.CONTROL_RATE_HZ:.1f} s of arm time"]
     summary += [f"  {ref.t_s[i]:7.2f} s  {label}" for i, label in ref.segments]
     return Plan(ref, summary, feedforward_for(spec, ref, base_dir),
-                torque_check=lambda: check_planned_torque(spec, ref, base_dir, "rotation"))
+                torque_check=lambda: check_planned_torque(spec, ref, base_dir, "rotation"), robot=spec.robot)
 
 
 def execute(spec: RotationSpec, plan: Plan, run: RunDir, progress=None, base_dir: Path | None = None) -> None:

@@ -25,7 +25,7 @@ coefficient. See :func:`implicit_friction_step`.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
@@ -41,38 +41,68 @@ FRICTION_FILE_FORMAT = "wamctl-friction/1"
 
 @dataclass
 class FrictionModel:
-    """Per-joint friction parameters, arrays of shape (7,). Levels are magnitudes (N m, N m s/rad).
+    """Per-joint friction parameters, arrays of shape (n,), one entry per joint of the arm (7 on the wam7, 4 on
+    the wam4: the length of ``fc_pos_Nm``). Levels are magnitudes (N m, N m s/rad).
 
-    ``fs_*`` (breakaway levels) and ``vs_rad_s`` are NaN/zero where the joint has no Stribeck term.
+    ``fs_*`` (breakaway levels) and ``vs_rad_s`` are NaN/zero where the joint has no Stribeck term (None: no
+    Stribeck term on any joint, ``stribeck_delta`` None: 2 on every joint).
     """
 
     fc_pos_Nm: np.ndarray
     fc_neg_Nm: np.ndarray
     viscous_pos_Nm_s_rad: np.ndarray
     viscous_neg_Nm_s_rad: np.ndarray
-    fs_pos_Nm: np.ndarray = field(default_factory=lambda: np.full(P.N_JOINTS, np.nan))
-    fs_neg_Nm: np.ndarray = field(default_factory=lambda: np.full(P.N_JOINTS, np.nan))
-    vs_rad_s: np.ndarray = field(default_factory=lambda: np.full(P.N_JOINTS, np.nan))
-    stribeck_delta: np.ndarray = field(default_factory=lambda: np.full(P.N_JOINTS, 2.0))
+    fs_pos_Nm: np.ndarray | None = None
+    fs_neg_Nm: np.ndarray | None = None
+    vs_rad_s: np.ndarray | None = None
+    stribeck_delta: np.ndarray | None = None
 
     def __post_init__(self):
+        n = np.asarray(self.fc_pos_Nm, dtype=float).size
         for name in self.__dataclass_fields__:
-            arr = np.asarray(getattr(self, name), dtype=float).reshape(-1).copy()
-            if arr.shape != (P.N_JOINTS,):
-                raise ValueError(f"{name} must have {P.N_JOINTS} values, got {arr.shape[0]}")
+            value = getattr(self, name)
+            if value is None:
+                value = np.full(n, 2.0 if name == "stribeck_delta" else np.nan)
+            arr = np.asarray(value, dtype=float).reshape(-1).copy()
+            if arr.shape != (n,):
+                raise ValueError(f"{name} must have {n} values (one per joint, as fc_pos_Nm), got {arr.shape[0]}")
             setattr(self, name, arr)
 
     # --- constructors -------------------------------------------------------------------------
     @classmethod
-    def zero(cls) -> FrictionModel:
-        z = np.zeros(P.N_JOINTS)
+    def zero(cls, n_joints: int = P.N_JOINTS) -> FrictionModel:
+        z = np.zeros(n_joints)
         return cls(z, z, z, z)
 
     @classmethod
-    def table_4_1(cls) -> FrictionModel:
-        """Thesis Table 4.1, with the absolute value of the viscous figures (some are printed negative)."""
-        return cls(P.TABLE_4_1_FC_POS_NM, P.TABLE_4_1_FC_NEG_NM,
-                   np.abs(P.TABLE_4_1_VISCOUS_POS), np.abs(P.TABLE_4_1_VISCOUS_NEG))
+    def table_4_1(cls, n_joints: int = P.N_JOINTS) -> FrictionModel:
+        """Thesis Table 4.1, with the absolute value of the viscous figures (some are printed negative).
+
+        ``n_joints`` < 7: the table's first joints (the wam4's joints 1-4 are the wam7's shoulder and elbow,
+        same pucks and transmission: :mod:`wamctl.model.robots`)."""
+        if not 1 <= n_joints <= P.N_JOINTS:
+            raise ValueError(f"Table 4.1 gives friction for joints 1..{P.N_JOINTS}, not {n_joints}")
+        return cls(P.TABLE_4_1_FC_POS_NM[:n_joints], P.TABLE_4_1_FC_NEG_NM[:n_joints],
+                   np.abs(P.TABLE_4_1_VISCOUS_POS[:n_joints]), np.abs(P.TABLE_4_1_VISCOUS_NEG[:n_joints]))
+
+    @property
+    def n_joints(self) -> int:
+        return len(self.fc_pos_Nm)
+
+    def for_joints(self, n_joints: int, source: str = "friction model") -> FrictionModel:
+        """This model on an arm of ``n_joints``: the first ``n_joints`` entries. Raises ValueError naming the
+        first joint beyond ``n_joints`` that has friction (a model of another arm), or when the model has fewer
+        joints than asked."""
+        if n_joints == self.n_joints:
+            return self
+        if n_joints > self.n_joints:
+            raise ValueError(f"{source}: friction for {self.n_joints} joints, the arm has {n_joints}")
+        extra = np.vstack([self.fc_pos_Nm, self.fc_neg_Nm, self.viscous_pos_Nm_s_rad, self.viscous_neg_Nm_s_rad,
+                           np.nan_to_num(self.fs_pos_Nm), np.nan_to_num(self.fs_neg_Nm)])[:, n_joints:]
+        if (extra != 0).any():
+            j = n_joints + 1 + int(np.argmax((extra != 0).any(axis=0)))
+            raise ValueError(f"{source}: joints.{j}: friction given for joint {j}, the arm has joints 1..{n_joints}")
+        return FrictionModel(**{k: getattr(self, k)[:n_joints] for k in self.__dataclass_fields__})
 
     # --- derived ------------------------------------------------------------------------------
     @property
@@ -82,7 +112,7 @@ class FrictionModel:
 
     def scaled(self, factor: np.ndarray | float) -> FrictionModel:
         """Every level and coefficient multiplied by ``factor`` (scalar or (7,)), e.g. friction drift."""
-        f = np.broadcast_to(np.asarray(factor, float), (P.N_JOINTS,))
+        f = np.broadcast_to(np.asarray(factor, float), (self.n_joints,))
         return replace(self, fc_pos_Nm=self.fc_pos_Nm * f, fc_neg_Nm=self.fc_neg_Nm * f,
                        viscous_pos_Nm_s_rad=self.viscous_pos_Nm_s_rad * f,
                        viscous_neg_Nm_s_rad=self.viscous_neg_Nm_s_rad * f,
@@ -91,17 +121,18 @@ class FrictionModel:
     def with_stribeck(self, fs_pos_Nm, fs_neg_Nm, vs_rad_s, delta=2.0) -> FrictionModel:
         return replace(self, fs_pos_Nm=np.asarray(fs_pos_Nm, float), fs_neg_Nm=np.asarray(fs_neg_Nm, float),
                        vs_rad_s=np.asarray(vs_rad_s, float),
-                       stribeck_delta=np.broadcast_to(np.asarray(delta, float), (P.N_JOINTS,)).copy())
+                       stribeck_delta=np.broadcast_to(np.asarray(delta, float), (self.n_joints,)).copy())
 
     def as_array(self) -> np.ndarray:
-        """(8, 7) packed parameters for the numba kernels (rows in dataclass field order)."""
+        """(8, n) packed parameters for the numba kernels (rows in dataclass field order)."""
         return np.stack([self.fc_pos_Nm, self.fc_neg_Nm, self.viscous_pos_Nm_s_rad, self.viscous_neg_Nm_s_rad,
                          self.fs_pos_Nm, self.fs_neg_Nm, self.vs_rad_s, self.stribeck_delta])
 
     def friction_torque(self, qd: np.ndarray) -> np.ndarray:
-        """Sliding friction torque F(qd) (absorbed, sign of qd); 0 at qd == 0. Shape of ``qd`` ((7,) or (n, 7))."""
+        """Sliding friction torque F(qd) (absorbed, sign of qd); 0 at qd == 0. Shape of ``qd`` ((n_joints,) or
+        (k, n_joints))."""
         qd = np.asarray(qd, float)
-        flat = np.ascontiguousarray(qd.reshape(-1, P.N_JOINTS))
+        flat = np.ascontiguousarray(qd.reshape(-1, self.n_joints))
         out = np.empty_like(flat)
         _friction_torque_kernel(flat, self.as_array(), out)
         return out.reshape(qd.shape)
@@ -109,7 +140,7 @@ class FrictionModel:
     # --- file ---------------------------------------------------------------------------------
     def to_dict(self) -> dict:
         joints = {}
-        for j in range(P.N_JOINTS):
+        for j in range(self.n_joints):
             d = {"fc_pos_Nm": float(self.fc_pos_Nm[j]), "fc_neg_Nm": float(self.fc_neg_Nm[j]),
                  "viscous_pos_Nm_s_rad": float(self.viscous_pos_Nm_s_rad[j]),
                  "viscous_neg_Nm_s_rad": float(self.viscous_neg_Nm_s_rad[j])}
@@ -120,21 +151,22 @@ class FrictionModel:
         return {"format": FRICTION_FILE_FORMAT, "joints": joints}
 
     @classmethod
-    def from_dict(cls, data: dict, source: str = "friction model") -> FrictionModel:
-        """Read the ``joints`` mapping (1-based joint numbers); joints not listed have zero friction."""
+    def from_dict(cls, data: dict, source: str = "friction model", n_joints: int = P.N_JOINTS) -> FrictionModel:
+        """Read the ``joints`` mapping (1-based joint numbers 1..``n_joints``, the arm's); joints not listed have
+        zero friction."""
         if not isinstance(data, dict) or not isinstance(data.get("joints"), dict):
             raise DataFormatError(f"{source}: expected a mapping with a 'joints' key")
-        out = {k: np.zeros(P.N_JOINTS) for k in ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad",
-                                                  "viscous_neg_Nm_s_rad")}
-        out.update({k: np.full(P.N_JOINTS, np.nan) for k in ("fs_pos_Nm", "fs_neg_Nm", "vs_rad_s")})
-        out["stribeck_delta"] = np.full(P.N_JOINTS, 2.0)
+        n = int(n_joints)
+        out = {k: np.zeros(n) for k in ("fc_pos_Nm", "fc_neg_Nm", "viscous_pos_Nm_s_rad", "viscous_neg_Nm_s_rad")}
+        out.update({k: np.full(n, np.nan) for k in ("fs_pos_Nm", "fs_neg_Nm", "vs_rad_s")})
+        out["stribeck_delta"] = np.full(n, 2.0)
         for key, vals in data["joints"].items():
             try:
                 j = int(key)
             except (TypeError, ValueError):
-                raise DataFormatError(f"{source}: joints.{key}: joint numbers are 1..7") from None
-            if not 1 <= j <= P.N_JOINTS:
-                raise DataFormatError(f"{source}: joints.{key}: joint numbers are 1..7")
+                raise DataFormatError(f"{source}: joints.{key}: joint numbers are 1..{n}") from None
+            if not 1 <= j <= n:
+                raise DataFormatError(f"{source}: joints.{key}: joint numbers are 1..{n}")
             if not isinstance(vals, dict):
                 raise DataFormatError(f"{source}: joints.{key}: expected a mapping of parameters")
             for name, v in vals.items():
@@ -157,12 +189,12 @@ class FrictionModel:
         Path(path).write_text(yaml.safe_dump(d, sort_keys=False))
 
     @classmethod
-    def load(cls, path: Path) -> FrictionModel:
+    def load(cls, path: Path, n_joints: int = P.N_JOINTS) -> FrictionModel:
         data = load_yaml(path, DataFormatError, "friction model file not found")
         # a model file written by `diagnose` nests the friction under `friction`
         if isinstance(data, dict) and "friction" in data and "joints" not in data:
             data = data["friction"]
-        return cls.from_dict(data, str(path))
+        return cls.from_dict(data, str(path), n_joints)
 
 
 def classic_friction_columns(qd: np.ndarray) -> np.ndarray:
@@ -227,7 +259,7 @@ def implicit_friction_1(vf, v_now, inv_m, dt_s, j, prm, scale):
     v_now : velocity at the start of the step (sets the Stribeck level), rad/s.
     inv_m : (B^-1)_jj, the inverse effective inertia, 1/(kg m^2).
     dt_s : step, s.
-    prm : (8, 7) ``FrictionModel.as_array()``; scale : multiplier on every parameter (friction drift).
+    prm : (8, n) ``FrictionModel.as_array()``; scale : multiplier on every parameter (friction drift).
 
     Returns
     -------
@@ -247,6 +279,6 @@ def implicit_friction_1(vf, v_now, inv_m, dt_s, j, prm, scale):
 
 @njit(cache=True)
 def implicit_friction_step(qd_free, qd_now, inv_mass_diag, dt_s, prm, scale, out):
-    """:func:`implicit_friction_1` for every joint, each on its own (no coupling), written to ``out`` (7,)."""
+    """:func:`implicit_friction_1` for every joint, each on its own (no coupling), written to ``out`` (n,)."""
     for j in range(qd_free.shape[0]):
         out[j] = implicit_friction_1(qd_free[j], qd_now[j], inv_mass_diag[j], dt_s, j, prm, scale[j])

@@ -38,24 +38,26 @@ from wamctl.model import params as P
 from wamctl.model.dynamics import Payload
 from wamctl.model.effects import friction_drift_scale, ripple_series, ripple_torque_Nm
 from wamctl.model.friction import FrictionModel
-from wamctl.model.transmission import J2MP, M2JP, counts_per_rad, joint_rad_per_count, quantise_joint_rad
+from wamctl.model.robots import get_robot
+from wamctl.model.transmission import counts_per_rad, joint_rad_per_count, quantise_joint_rad, transmission_inverse
 
 
-def resolve_friction(value, base_dir: Path | None = None) -> FrictionModel:
+def resolve_friction(value, base_dir: Path | None = None, n_joints: int = P.N_JOINTS) -> FrictionModel:
     """A friction model from a spec value: ``table_4_1``, ``none``, a file path, or an inline ``joints:`` table
-    (a mapping, or the spec's validated model of one)."""
+    (a mapping, or the spec's validated model of one), for an arm of ``n_joints`` (the spec's robot; Table 4.1:
+    its first joints, :meth:`FrictionModel.table_4_1`)."""
     if value is None or value == "none":
-        return FrictionModel.zero()
+        return FrictionModel.zero(n_joints)
     if value == "table_4_1":
-        return FrictionModel.table_4_1()
+        return FrictionModel.table_4_1(n_joints)
     if hasattr(value, "model_dump"):
         value = value.model_dump()
     if isinstance(value, dict):
-        return FrictionModel.from_dict(value, "plant.friction")
+        return FrictionModel.from_dict(value, "plant.friction", n_joints)
     path = resolve_path(value, base_dir)
     if not path.is_file():
         raise SpecError(_not_found(str(value)))
-    return FrictionModel.load(path)
+    return FrictionModel.load(path, n_joints)
 
 
 FRICTION_NAMES = ("table_4_1", "none")    # the friction a spec can name instead of giving a file
@@ -73,8 +75,11 @@ def _not_found(value: str) -> str:
             + (f"; did you mean {close[0]}?" if close else ""))
 
 
-def joint_mask(joints) -> np.ndarray:
-    m = np.zeros(P.N_JOINTS, bool)
+def joint_mask(joints, n_joints: int = P.N_JOINTS) -> np.ndarray:
+    m = np.zeros(n_joints, bool)
+    bad = [j for j in joints if not 1 <= j <= n_joints]
+    if bad:
+        raise SpecError(f"joint numbers are 1..{n_joints}, got {bad}")
     m[[j - 1 for j in joints]] = True
     return m
 
@@ -82,13 +87,17 @@ def joint_mask(joints) -> np.ndarray:
 class Plant:
     """Runtime description of the simulated arm (no state)."""
 
-    def __init__(self, spec, base_dir: Path | None = None):
-        """``spec``: a plant description (:class:`wamctl.specs.PlantSpec`: friction, effects, sensors)."""
+    def __init__(self, spec, base_dir: Path | None = None, robot=None):
+        """``spec``: a plant description (:class:`wamctl.specs.PlantSpec`: friction, effects, sensors);
+        ``robot``: the arm (:mod:`wamctl.model.robots`, a spec's ``robot``; default the wam7): its joint count,
+        datasheet links, transmission and encoders."""
         self.spec = spec
+        self.robot = get_robot(robot)
+        n = self.n_joints = self.robot.n_joints
         fx = spec.effects
-        friction = resolve_friction(spec.friction, base_dir)
+        friction = resolve_friction(spec.friction, base_dir, n)
         if fx.stribeck is not None:
-            m = joint_mask(fx.stribeck.joints)
+            m = joint_mask(fx.stribeck.joints, n)
             r = fx.stribeck.breakaway_ratio
             friction = friction.with_stribeck(
                 np.where(m, friction.fc_pos_Nm * r, np.nan), np.where(m, friction.fc_neg_Nm * r, np.nan),
@@ -96,39 +105,39 @@ class Plant:
         self.friction = friction
         self.payload = Payload(fx.payload.mass_kg, tuple(fx.payload.com_m)) if fx.payload else None
         # the rigid body: the datasheet's links unless the plant gives its own (`links:`, e.g. an identified arm)
-        self.links = P.LinkParameters.datasheet().with_overrides(getattr(spec, "links", None))
-        # the position ripple: (H, 7) amplitudes and phases of harmonics 1 .. H, (7,) wavenumbers 2 pi / period
-        self.ripple_amplitudes_Nm = np.zeros((1, P.N_JOINTS))
-        self.ripple_phases_rad = np.zeros((1, P.N_JOINTS))
-        self.ripple_wavenumber_rad = np.zeros(P.N_JOINTS)
+        self.links = P.LinkParameters.datasheet(self.robot.name).with_overrides(getattr(spec, "links", None))
+        # the position ripple: (H, n) amplitudes and phases of harmonics 1 .. H, (n,) wavenumbers 2 pi / period
+        self.ripple_amplitudes_Nm = np.zeros((1, n))
+        self.ripple_phases_rad = np.zeros((1, n))
+        self.ripple_wavenumber_rad = np.zeros(n)
         if fx.position_ripple is not None:
             r = fx.position_ripple
-            m = joint_mask(r.joints)
+            m = joint_mask(r.joints, n)
             amps, phases = ripple_series(r.amplitude_Nm, r.phase_rad, r.harmonics)
             self.ripple_amplitudes_Nm = np.where(m, amps[:, None], 0.0)
             self.ripple_phases_rad = np.where(m, phases[:, None], 0.0)
             self.ripple_wavenumber_rad[m] = 2 * np.pi / r.period_rad
         self.has_ripple = bool(self.ripple_amplitudes_Nm.any())
-        self.drift_fraction = np.zeros(P.N_JOINTS)
+        self.drift_fraction = np.zeros(n)
         self.drift_time_constant_s = 1.0
         if fx.friction_drift is not None:
-            self.drift_fraction[joint_mask(fx.friction_drift.joints)] = fx.friction_drift.fraction
+            self.drift_fraction[joint_mask(fx.friction_drift.joints, n)] = fx.friction_drift.fraction
             self.drift_time_constant_s = fx.friction_drift.time_constant_s
         self.has_drift = bool(self.drift_fraction.any())
         self.delay_s = fx.delay.delay_s if fx.delay else 0.0
-        self.backlash_width_rad = np.zeros(P.N_JOINTS)
+        self.backlash_width_rad = np.zeros(n)
         if fx.backlash is not None:
-            self.backlash_width_rad[joint_mask(fx.backlash.joints)] = fx.backlash.width_rad
+            self.backlash_width_rad[joint_mask(fx.backlash.joints, n)] = fx.backlash.width_rad
         self.sensors = spec.sensors
 
     def ripple_torque_Nm(self, q: np.ndarray) -> np.ndarray:
-        """Position ripple torque applied to the joints (7,) or (n, 7)."""
+        """Position ripple torque applied to the joints (n_joints,) or (k, n_joints)."""
         q = np.asarray(q, float)
         return np.stack([ripple_torque_Nm(q[..., j], self.ripple_amplitudes_Nm[:, j], self.ripple_wavenumber_rad[j],
-                                          self.ripple_phases_rad[:, j]) for j in range(P.N_JOINTS)], axis=-1)
+                                          self.ripple_phases_rad[:, j]) for j in range(self.n_joints)], axis=-1)
 
     def friction_scale(self, t_s: float) -> np.ndarray:
-        """(7,) friction multiplier at time t (1 without drift)."""
+        """(n_joints,) friction multiplier at time t (1 without drift)."""
         return friction_drift_scale(t_s, self.drift_fraction, self.drift_time_constant_s)
 
 
@@ -141,8 +150,11 @@ class SensorChain:
         cts = plant.sensors.encoder_counts_per_rev
         self._cts = cts
         # per motor, as the transmission's kernel takes them; None: ideal sensor, no quantisation
-        self._counts_per_rad = np.full(P.N_JOINTS, counts_per_rad(cts)) if cts > 0 else None
-        self._j2mp, self._m2jp = np.array(J2MP), np.array(M2JP)  # writable: numba dispatches them faster
+        n = plant.n_joints
+        self._n = n
+        self._counts_per_rad = np.full(n, counts_per_rad(cts)) if cts > 0 else None
+        j2mp = plant.robot.j2mp                  # the arm's transmission (the wam7's: transmission.J2MP)
+        self._j2mp, self._m2jp = np.array(j2mp), np.array(transmission_inverse(j2mp))  # writable: numba is faster
         self._play = np.asarray(q0, float).copy()
         self._half_band = plant.backlash_width_rad / 2
         self._has_backlash = bool(self._half_band.any())
@@ -170,11 +182,11 @@ class SensorChain:
         if self._counts_per_rad is not None:
             q = quantise_joint_rad(q, self._j2mp, self._m2jp, self._counts_per_rad)
         if self.plant.sensors.position_noise_rad > 0:
-            q = q + self.rng.normal(0.0, self.plant.sensors.position_noise_rad, P.N_JOINTS)
+            q = q + self.rng.normal(0.0, self.plant.sensors.position_noise_rad, self._n)
         return q
 
     def quantisation_step_rad(self) -> np.ndarray:
-        """(7,) joint-angle size of one encoder count (the largest over the coupled joints)."""
+        """(n_joints,) joint-angle size of one encoder count (the largest over the coupled joints)."""
         if self._counts_per_rad is None:
-            return np.zeros(P.N_JOINTS)
-        return joint_rad_per_count(self._cts)
+            return np.zeros(self._n)
+        return joint_rad_per_count(self._cts, self._j2mp)

@@ -42,6 +42,7 @@ __all__ = [
     "motor_rad_to_joint_rad",
     "motor_torque_to_joint_Nm",
     "quantise_joint_rad",
+    "transmission_inverse",
 ]
 
 # A read-only view of the model's J2MP, so that no caller can alter the model's copy through this module.
@@ -210,20 +211,34 @@ def counts_per_rad(cts: ArrayLike) -> np.ndarray:
     return np.asarray(cts, dtype=float) / (2.0 * math.pi)
 
 
-def joint_rad_per_count(cts: ArrayLike) -> np.ndarray:
+def joint_rad_per_count(cts: ArrayLike, j2mp: np.ndarray | None = None) -> np.ndarray:
     """Joint-angle size of one encoder count: per joint, the largest over the motors it is coupled to.
 
     Parameters
     ----------
     cts : float or array_like
         Counts per motor revolution, per motor.
+    j2mp : numpy.ndarray, shape (n, n), optional
+        The arm's transmission (a :class:`wamctl.model.robots.Robot`'s ``j2mp``); default the wam7's :data:`J2MP`.
 
     Returns
     -------
-    numpy.ndarray, shape (7,)
+    numpy.ndarray, shape (n,)
         rad.
     """
-    return np.abs(M2JP).max(axis=1) / counts_per_rad(cts)
+    m2jp = M2JP if j2mp is None else transmission_inverse(j2mp)
+    return np.abs(m2jp).max(axis=1) / counts_per_rad(cts)
+
+
+def transmission_inverse(j2mp: np.ndarray) -> np.ndarray:
+    """``j2mp^-1`` of any arm's square transmission (:data:`M2JP` itself for the wam7's :data:`J2MP`): joint
+    angle = inverse @ motor angle."""
+    j2mp = np.asarray(j2mp, dtype=float)
+    if j2mp.shape == (_N, _N) and np.array_equal(j2mp, J2MP):
+        return M2JP
+    if j2mp.ndim != 2 or j2mp.shape[0] != j2mp.shape[1]:
+        raise ValueError(f"j2mp must be square, got {j2mp.shape}")
+    return np.linalg.inv(j2mp)
 
 
 def joint_rad_to_motor_rad(q_rad: ArrayLike, j2mp: np.ndarray = J2MP) -> np.ndarray:

@@ -30,14 +30,16 @@ CURVE_STYLE = {"classic": ("C0", "-"), "classic_symmetric": ("C2", ":"), "stribe
 
 
 # ------------------------------------------------------------------------------------------------ truth
-def true_friction(truth: dict | None, base_dir: Path | None = None) -> FrictionModel | None:
-    """The simulated plant's friction (with its Stribeck effect) from the run's plant spec, or None."""
+def true_friction(truth: dict | None, base_dir: Path | None = None, robot: str | None = None
+                  ) -> FrictionModel | None:
+    """The simulated plant's friction (with its Stribeck effect) from the run's plant spec of ``robot`` (the
+    run's arm; default the wam7), or None."""
     if not truth:
         return None
     try:
         from wamctl.model.plant import Plant
         from wamctl.specs import PlantSpec
-        return Plant(PlantSpec.model_validate(truth), base_dir).friction
+        return Plant(PlantSpec.model_validate(truth), base_dir, robot).friction
     except Exception as exc:  # a plant spec we cannot rebuild (file moved): no truth column
         log.warning("true friction not available: %s", exc)
         return None
@@ -93,7 +95,7 @@ def map_figure(ident: FrictionIdentification, truth: FrictionModel | None, path:
                     ax.plot(vv[side], est.predict(vv[side]), ls, color=c, lw=lw,
                             label=(name + (" (chosen)" if name == ji.chosen else "")) if side[-1] else None)
         if truth is not None:
-            qd = np.zeros((len(vv), P.N_JOINTS))
+            qd = np.zeros((len(vv), truth.n_joints))
             qd[:, j - 1] = vv
             ft = truth.friction_torque(qd)[:, j - 1]
             for side in (vv < 0, vv > 0):
@@ -221,7 +223,7 @@ def friction_document(rd, ident: FrictionIdentification, out_dir: Path, title: s
                  "as frictionless): " + "; ".join(f"joint {j} ({why})" for j, why in missing.items()) + ".")
     doc.data["friction_model"] = ident.model_file()[0]
     doc.data["chosen_model"] = {str(j): ji.chosen for j, ji in ident.joints.items()}
-    truth = true_friction(rd.truth)
+    truth = true_friction(rd.truth, robot=rd.meta.robot)
     if truth is not None:
         rec = recovered_table(ident, truth)
         doc.heading("Identified vs true parameters (simulated plant)")

@@ -24,6 +24,9 @@ def thesis_column(data: pd.DataFrame, spec: dict) -> tuple[np.ndarray | None, st
     """The thesis RPE figures comparable with this run, ``(figures, caption)``: ``figures`` None when the
     thesis ran no such test, and the caption says what differs."""
     ctl = spec.get("controller") or {}
+    robot = spec.get("robot") or "wam7"
+    if robot != "wam7":
+        return None, f"No thesis column: {THESIS_TEST} on the 7-DOF WAM; this run's arm is the {robot}."
     kind = ctl.get("kind", "pd_g")
     mode = (spec.get("rotation") or {}).get("mode", "one_at_a_time")
     key = {("pd_g", "one_at_a_time"): "pd_g", ("pd_g", "all_together"): "pd_g_all",
@@ -103,7 +106,8 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     doc = Document(f"Rotation test: {manifest.get('name', run_path.name)}")
     for e in events:          # the warnings block, first: what went wrong in the loop
         doc.warning(e.line)
-    doc.text(f"Run {run_path.name}: status {manifest.get('status')}, controller {ctl}, backend "
+    robot = "" if (spec.get("robot") or "wam7") == "wam7" else f"robot {spec['robot']}, "
+    doc.text(f"Run {run_path.name}: status {manifest.get('status')}, {robot}controller {ctl}, backend "
              f"{(manifest.get('backend') or {}).get('name', manifest.get('source', '?'))}, "
              f"{len(data)} samples.")
     if manifest.get("status") != "completed" and manifest.get("reason"):

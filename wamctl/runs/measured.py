@@ -321,14 +321,15 @@ def read_measured(path: str | Path) -> RunData:
 def meta_from_run(manifest: dict, spec: dict, data: pd.DataFrame) -> MeasuredMeta:
     """Describe one of our run directories in measured-run terms."""
     c = spec.get("controller") or {}
-    kp = c.get("kp") or P.KP.tolist()
-    kd = c.get("kd") or P.KD.tolist()
-    ki = (c.get("ki") or P.KI.tolist()) if c.get("kind") == "pid" else [0.0] * P.N_JOINTS
+    robot = ROBOTS[spec.get("robot") or "wam7"]      # the spec's arm (its default gains, its joints)
+    kp = c.get("kp") or robot.kp.tolist()
+    kd = c.get("kd") or robot.kd.tolist()
+    ki = (c.get("ki") or robot.ki.tolist()) if c.get("kind") == "pid" else [0.0] * robot.n_joints
     kind = manifest.get("kind")
     exp_kind = {"rotation": "rotation", "friction_sweep": "sweep"}.get(kind, "free")
-    moved = [j for j in J if np.ptp(data[f"q_ref_{j}_rad"].to_numpy()) > 1e-9]
+    moved = [j for j in range(1, robot.n_joints + 1) if np.ptp(data[f"q_ref_{j}_rad"].to_numpy()) > 1e-9]
     payload = c.get("declared_payload")
-    return MeasuredMeta(format=FORMAT, robot="wam7", sample_rate_hz=P.CONTROL_RATE_HZ,
+    return MeasuredMeta(format=FORMAT, robot=robot.name, sample_rate_hz=P.CONTROL_RATE_HZ,
                         gravity_compensation=bool(c.get("gravity_compensation", True)),
                         controller={"kind": c.get("kind", "pd_g"), "kp": kp, "kd": kd, "ki": ki},
                         experiment={"kind": exp_kind, "joints": moved}, q0=spec.get("q0_rad"),
@@ -364,7 +365,7 @@ _CALLERS = {"wamctl.experiments.diagnose": "diagnose", "wamctl.experiments.ident
 PARTIAL_READERS = ("wamctl.report.measured",)
 # the callers that take a run of any registered robot (wamctl.model.robots), not only the wam7, and a torque that
 # is the controller's output (on the joints whose gravity torque is zero over the run)
-_ANY_ROBOT = ("wamctl.experiments.friction_sweep",)
+_ANY_ROBOT = ("wamctl.experiments.friction_sweep", "wamctl.report.friction")
 
 
 def _caller_module() -> str:

@@ -1,24 +1,94 @@
-"""The parts of a spec every kind shares: ``backend``, ``plant`` (the simulated arm's truth: friction, effects,
-sensors), ``controller``, ``seed``, ``q0_rad``, ``out_dir``. Joints are 1-based in specs (as on the
+"""The parts of a spec every kind shares: ``robot``, ``backend``, ``plant`` (the simulated arm's truth: friction,
+effects, sensors), ``controller``, ``seed``, ``q0_rad``, ``out_dir``. Joints are 1-based in specs (as on the
 arm's labels) and 0-based in arrays. Every model forbids unknown keys, so a typo is an error naming the field.
+
+``robot`` (default ``wam7``) names the arm (:mod:`wamctl.model.robots`): its joint count sets the length of every
+joint vector (``q0_rad``, the gains) and the joint numbers a spec may name (1..4 on the ``wam4``: a larger one is
+refused naming the field), its limits check the positions, its gains are the controller's defaults. The defaults
+that list joints (``q0_rad``, ``rotation.joints``, ``sweep.joints``) are the robot's.
 """
 
 from __future__ import annotations
 
+import types
+import typing
 from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
-from pydantic import BaseModel, ConfigDict, Field, field_validator, model_validator
+from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationInfo, field_validator, model_validator
 
 from wamctl.model import params as P
+from wamctl.model.robots import DEFAULT_ROBOT, ROBOTS, get_robot
 
-Joint = Annotated[int, Field(ge=1, le=P.N_JOINTS, description="joint number 1..7")]
-Vec7 = Annotated[list[float], Field(min_length=P.N_JOINTS, max_length=P.N_JOINTS)]
+MAX_JOINTS = max(r.n_joints for r in ROBOTS.values())
+# markers the robot check (Common._robot_fits) finds in the annotations: a joint number, a joint vector
+_JOINT, _JOINT_VECTOR = "wamctl:joint", "wamctl:joint-vector"
+Joint = Annotated[int, Field(ge=1, le=MAX_JOINTS, description="joint number 1..7 (1..4 on the wam4)"), _JOINT]
+# one value per joint of the spec's robot (7 on the wam7, 4 on the wam4; checked against the robot)
+Vec7 = Annotated[list[float], Field(min_length=1, max_length=MAX_JOINTS), _JOINT_VECTOR]
+RobotName = Literal[tuple(ROBOTS)]
+# q0_rad when the spec gives none: the elbow bent to 1.57 rad, the rest at zero (the wam7's historic default)
+DEFAULT_Q0_RAD = {name: [1.57 if j == 3 else 0.0 for j in range(r.n_joints)] for name, r in ROBOTS.items()}
 
 
 class Strict(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=False)
+
+
+def _marked(annotation, marker: str) -> bool:
+    return typing.get_origin(annotation) is Annotated and marker in typing.get_args(annotation)[1:]
+
+
+def _runtime_type(annotation):
+    """The class a value of ``annotation`` is an instance of (``list`` for ``list[float]``), or None."""
+    while typing.get_origin(annotation) is Annotated:
+        annotation = typing.get_args(annotation)[0]
+    base = typing.get_origin(annotation) or annotation
+    return base if isinstance(base, type) else None
+
+
+def _robot_problem(value, annotation, path: str, n: int, robot: str) -> str | None:
+    """The first joint number above ``n`` or joint vector not of length ``n`` in ``value`` (typed
+    ``annotation``), as ``path: why``; None if everything fits the robot."""
+    if value is None:
+        return None
+    if isinstance(value, BaseModel):
+        for name, info in type(value).model_fields.items():
+            ann = Annotated[(info.annotation, *info.metadata)] if info.metadata else info.annotation
+            why = _robot_problem(getattr(value, name), ann, f"{path}.{name}" if path else name, n, robot)
+            if why:
+                return why
+        return None
+    if _marked(annotation, _JOINT):
+        if isinstance(value, int) and not 1 <= value <= n:
+            return f"{path}: joint {value} is not a joint of the {robot} (joints 1..{n})"
+        return None
+    if _marked(annotation, _JOINT_VECTOR):
+        if isinstance(value, list | tuple) and len(value) != n:
+            return (f"{path}: List should have {'at least' if len(value) < n else 'at most'} {n} items (one per "
+                    f"joint of the {robot}), not {len(value)}")
+        return None
+    origin, args = typing.get_origin(annotation), typing.get_args(annotation)
+    if origin is Annotated:
+        return _robot_problem(value, args[0], path, n, robot)
+    if origin in (typing.Union, types.UnionType):
+        for arg in args:
+            base = _runtime_type(arg)
+            if isinstance(base, type) and isinstance(value, base):
+                return _robot_problem(value, arg, path, n, robot)
+        return None
+    if origin in (list, tuple) and args and isinstance(value, list | tuple):
+        for v in value:
+            why = _robot_problem(v, args[0], path, n, robot)
+            if why:
+                return why
+    if origin is dict and len(args) == 2 and isinstance(value, dict):
+        for k, v in value.items():
+            why = _robot_problem(k, args[0], path, n, robot) or _robot_problem(v, args[1], f"{path}.{k}", n, robot)
+            if why:
+                return why
+    return None
 
 
 # ----------------------------------------------------------------------------------------------- backend
@@ -174,14 +244,16 @@ class LinkEntry(Strict):
 Links = dict[Joint, LinkEntry]
 
 
-def link_parameters(links: dict | None) -> P.LinkParameters:
-    """The datasheet's link parameters with a ``links:`` mapping ({joint: LinkEntry or dict}) in place.
+def link_parameters(links: dict | None, robot=None) -> P.LinkParameters:
+    """The datasheet's link parameters of ``robot`` (default the wam7) with a ``links:`` mapping ({joint:
+    LinkEntry or dict}) in place.
 
     Raises ValueError naming ``links.<joint>`` when a link is not a physical body (see
     :meth:`wamctl.model.params.LinkParameters.inconsistent_links`)."""
+    name = get_robot(robot).name
     if not links:
-        return P.LinkParameters.datasheet()
-    out = P.LinkParameters.datasheet().with_overrides(links)
+        return P.LinkParameters.datasheet(name)
+    out = P.LinkParameters.datasheet(name).with_overrides(links)
     bad = [(j, why) for j, why in out.inconsistent_links().items() if int(j) in {int(k) for k in links}]
     if bad:
         j, why = bad[0]
@@ -199,11 +271,13 @@ class PlantSpec(Strict):
     links: Links | None = Field(None, description="per-link mass, COM, inertia, armature in place of the "
                                                   "datasheet's ({joint: {mass_kg, com_m, inertia_kg_m2, "
                                                   "armature_kg_m2}})")
+    _robot: str = PrivateAttr(DEFAULT_ROBOT)     # the spec's robot (set by Common): Plant's default arm
 
     @field_validator("links")
     @classmethod
     def _physical_links(cls, v):
-        link_parameters(v)
+        if v and max(int(j) for j in v) <= min(r.n_joints for r in ROBOTS.values()):
+            link_parameters(v)       # joints every robot has: checked here; the others once the robot is known
         return v
 
 
@@ -221,11 +295,12 @@ class ControllerSpec(Strict):
         None, description="the links the controller's model uses (gravity compensation, feed-forward inertia) "
                           "in place of the datasheet's: a links mapping, or a model file with a links: section "
                           "(e.g. the model.yaml of `wamctl identify`)")
+    _robot: str = PrivateAttr(DEFAULT_ROBOT)     # the spec's robot (set by Common): the default gains
 
     @field_validator("declared_links")
     @classmethod
     def _physical_declared_links(cls, v):
-        if isinstance(v, dict):
+        if isinstance(v, dict) and v and max(int(j) for j in v) <= min(r.n_joints for r in ROBOTS.values()):
             link_parameters(v)
         return v
 
@@ -237,42 +312,97 @@ class ControllerSpec(Strict):
             raise ValueError(f"ki is only used by kind pid, not {self.kind}")
         return self
 
-    def gains(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        kp = np.array(self.kp if self.kp is not None else P.KP, float)
-        kd = np.array(self.kd if self.kd is not None else P.KD, float)
+    def gains(self, robot=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """kp, kd, ki of the spec's robot (``robot``, default the one its spec names): the spec's values, else
+        the robot's libbarrett defaults (:mod:`wamctl.model.robots`); ki zero unless ``pid``."""
+        r = get_robot(robot if robot is not None else self._robot)
+        kp = np.array(self.kp if self.kp is not None else r.kp, float)
+        kd = np.array(self.kd if self.kd is not None else r.kd, float)
         if self.kind == "pid":
-            ki = np.array(self.ki if self.ki is not None else P.KI, float)
+            ki = np.array(self.ki if self.ki is not None else r.ki, float)
         else:
-            ki = np.zeros(P.N_JOINTS)
+            ki = np.zeros(r.n_joints)
         return kp, kd, ki
 
 
 class Common(Strict):
     name: str = Field("run", pattern=r"^[A-Za-z0-9_.-]+$")
     description: str = ""
+    robot: RobotName = Field(DEFAULT_ROBOT, description="the arm: wam7 (7-DOF, with the wrist) or wam4 "
+                                                        "(libbarrett's 4-DOF arm, no wrist)")
     seed: int = Field(0, ge=0, description="every random draw of the run comes from it (numpy needs >= 0)")
     backend: BackendSpec = SimBackendSpec()
     plant: PlantSpec = PlantSpec()
     controller: ControllerSpec = ControllerSpec()
-    q0_rad: Vec7 = Field(default_factory=lambda: [0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0])
+    q0_rad: Vec7 = Field(default_factory=lambda: list(DEFAULT_Q0_RAD[DEFAULT_ROBOT]))
     out_dir: str = "runs"
 
     @field_validator("q0_rad")
     @classmethod
-    def _q0_in_limits(cls, v):
-        check_positions(np.array(v), "")     # pydantic names the field
+    def _q0_in_limits(cls, v, info: ValidationInfo):
+        robot = info.data.get("robot", DEFAULT_ROBOT)      # validated before q0_rad (field order)
+        why = _robot_problem(v, Vec7, "", get_robot(robot).n_joints, robot)
+        if why:
+            raise ValueError(why.removeprefix(": "))
+        check_positions(np.array(v), "", robot)     # pydantic names the field
         return v
 
+    @model_validator(mode="before")
+    @classmethod
+    def _robot_defaults(cls, data):
+        """The defaults that list joints are the robot's: ``q0_rad`` here, a kind's joint lists in
+        :meth:`robot_defaults`."""
+        if isinstance(data, dict) and data.get("robot", DEFAULT_ROBOT) != DEFAULT_ROBOT \
+                and data.get("robot") in ROBOTS:
+            data = dict(data)
+            n = ROBOTS[data["robot"]].n_joints
+            data.setdefault("q0_rad", list(DEFAULT_Q0_RAD[data["robot"]]))
+            cls.robot_defaults(data, n)
+        return data
 
-def check_positions(q: np.ndarray, where: str) -> None:
-    """Raise ValueError naming the joint (after ``where``, if given) if any position in ``q`` ((7,) or (n, 7))
-    is outside the joint limits."""
+    @classmethod
+    def robot_defaults(cls, data: dict, n_joints: int) -> None:
+        """Fill in place the defaults of a kind that list joints, for an arm of ``n_joints`` (a robot other than
+        the wam7); a kind with such defaults overrides it."""
+
+    @model_validator(mode="after")
+    def _robot_fits(self):
+        """Every joint number and joint vector of the spec fits its robot (refused naming the field), the
+        positions are within its limits; the robot is handed to the plant and the controller."""
+        r = get_robot(self.robot)
+        why = _robot_problem(self, None, "", r.n_joints, r.name)
+        if why:
+            raise ValueError(why)
+        for key, links in (("plant.links", self.plant.links), ("controller.declared_links",
+                                                                self.controller.declared_links)):
+            if isinstance(links, dict) and links:
+                try:
+                    link_parameters(links, r)
+                except ValueError as exc:
+                    raise ValueError(f"{key}: {exc}") from None
+        self.plant._robot = r.name
+        self.controller._robot = r.name
+        return self
+
+    @property
+    def n_joints(self) -> int:
+        """The joints of the spec's robot."""
+        return get_robot(self.robot).n_joints
+
+
+def check_positions(q: np.ndarray, where: str, robot=None) -> None:
+    """Raise ValueError naming the joint (after ``where``, if given) if any position in ``q`` ((n,) or (k, n))
+    is outside the joint limits of ``robot`` (default the wam7)."""
+    r = get_robot(robot)
     q = np.atleast_2d(q)
-    bad = (q < P.Q_MIN_RAD) | (q > P.Q_MAX_RAD)
+    if q.shape[-1] != r.n_joints:
+        raise ValueError(f"{where + ': ' if where else ''}{q.shape[-1]} joint values, the {r.name} has "
+                         f"{r.n_joints} joints")
+    bad = (q < r.q_min_rad) | (q > r.q_max_rad)
     if bad.any():
         row, j = map(int, np.argwhere(bad)[0])
         raise ValueError(f"{where + ': ' if where else ''}joint {j + 1} would reach {q[row, j]:.4f} rad, outside "
-                         f"its limits [{P.Q_MIN_RAD[j]}, {P.Q_MAX_RAD[j]}] rad")
+                         f"its limits [{r.q_min_rad[j]}, {r.q_max_rad[j]}] rad")
 
 
 def check_files(spec: Common, base_dir: Path | None, source: str = "spec") -> None:

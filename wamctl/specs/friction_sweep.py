@@ -14,6 +14,7 @@ import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from wamctl.model import params as P
+from wamctl.model.robots import get_robot
 from wamctl.specs.common import Common, Joint, Strict, check_positions
 
 # Default speeds (rad/s), each run in both directions: from below 0.01 rad/s to 1 rad/s, roughly
@@ -26,35 +27,37 @@ Direction = Literal["auto", "positive", "negative"]
 
 
 @lru_cache(maxsize=256)
-def _travel_problem(q0: tuple, joint: int, travel_rad: float, payload) -> tuple[str, float]:
-    """Why moving ``joint`` by ``travel_rad`` from ``q0`` is not allowed ('' if it is), and the largest
-    gravity load along the way as a fraction of the torque limit."""
-    dyn = _dynamics(payload)
+def _travel_problem(q0: tuple, joint: int, travel_rad: float, payload, robot: str = "wam7") -> tuple[str, float]:
+    """Why moving ``joint`` of ``robot`` by ``travel_rad`` from ``q0`` is not allowed ('' if it is), and the
+    largest gravity load along the way as a fraction of the torque limit."""
+    dyn = _dynamics(payload, robot)
+    tau_max = get_robot(robot).tau_max_Nm
     q = np.tile(np.asarray(q0, float), (9, 1))
     q[:, joint - 1] += np.linspace(0.0, travel_rad, 9)
     try:
-        check_positions(q, f"joint {joint} moved by {travel_rad:+.3g} rad from q0_rad")
+        check_positions(q, f"joint {joint} moved by {travel_rad:+.3g} rad from q0_rad", robot)
     except ValueError as exc:
         return str(exc), np.inf
-    ratio = np.array([np.abs(dyn.gravity(x)) / P.TAU_MAX_NM for x in q])
+    ratio = np.array([np.abs(dyn.gravity(x)) / tau_max for x in q])
     worst = float(ratio.max())
     if worst > GRAVITY_BUDGET:
         i, k = np.unravel_index(int(np.argmax(ratio)), ratio.shape)
-        return (f"moved by {travel_rad:+.3g} rad, joint {k + 1} would need {ratio[i, k] * P.TAU_MAX_NM[k]:.1f} N m "
-                f"against gravity, over {GRAVITY_BUDGET:.0%} of its {P.TAU_MAX_NM[k]:g} N m limit"), worst
+        return (f"moved by {travel_rad:+.3g} rad, joint {k + 1} would need {ratio[i, k] * tau_max[k]:.1f} N m "
+                f"against gravity, over {GRAVITY_BUDGET:.0%} of its {tau_max[k]:g} N m limit"), worst
     return "", worst
 
 
 @lru_cache(maxsize=4)
-def _dynamics(payload):
+def _dynamics(payload, robot: str = "wam7"):
     from wamctl.model.dynamics import Payload, WamDynamics
-    return WamDynamics(Payload(payload[0], payload[1]) if payload else None)
+    return WamDynamics(Payload(payload[0], payload[1]) if payload else None, robot=robot)
 
 
 class FrictionSweepSection(Strict):
     """What the sweep does: joints, speeds (magnitudes; each run both ways), travel and timing."""
 
-    joints: list[Joint] = Field(default_factory=lambda: list(range(1, P.N_JOINTS + 1)))
+    joints: list[Joint] = Field(default_factory=lambda: list(range(1, P.N_JOINTS + 1)),
+                                description="default: every joint of the robot")
     velocities_rad_s: list[float] | dict[Joint, list[float]] = Field(
         default_factory=lambda: list(DEFAULT_VELOCITIES_RAD_S),
         description="speed magnitudes, shared or per joint ({joint: [...]}); each is run in both directions")
@@ -135,7 +138,8 @@ class FrictionSweepSection(Strict):
 class ValidationSection(Strict):
     """Rotation test (thesis 4.4) after the identification, under pd_g and under pd_g_ff with the new model."""
 
-    joints: list[Joint] = Field(default_factory=lambda: list(range(1, P.N_JOINTS + 1)))
+    joints: list[Joint] = Field(default_factory=lambda: list(range(1, P.N_JOINTS + 1)),
+                                description="default: every joint of the robot")
     amplitude_rad: float = P.ROTATION_AMPLITUDE_RAD
     velocity_rad_s: float = Field(P.ROTATION_VELOCITY_RAD_S, gt=0.0, le=2.0)
     tc_s: float = Field(P.LSPB_TC_S, gt=0.0)
@@ -170,6 +174,14 @@ class FrictionSweepSpec(Common):
     identification: IdentificationSection = IdentificationSection()
     validation: ValidationSection | None = None
 
+    @classmethod
+    def robot_defaults(cls, data: dict, n_joints: int) -> None:
+        every = list(range(1, n_joints + 1))
+        for key in ("sweep", "validation"):
+            section = data.get(key)
+            if (section is None and key == "sweep") or (isinstance(section, dict) and "joints" not in section):
+                data[key] = dict(section or {}, joints=every)
+
     @model_validator(mode="after")
     def _check_sweep(self):
         s = self.sweep
@@ -185,11 +197,14 @@ class FrictionSweepSpec(Common):
                 raise ValueError(f"sweep.velocities_rad_s: no speeds for joint(s) {missing}")
         if 2 * s.tc_s > 60:
             raise ValueError("sweep.tc_s: too long")
+        qd_max = get_robot(self.robot).qd_max_rad_s
         for j in s.joints:
+            if j > len(qd_max):
+                continue           # Common names the joint the robot lacks
             for v in s.speeds(j):
-                if v > P.QD_MAX_RAD_S[j - 1]:
+                if v > qd_max[j - 1]:
                     raise ValueError(f"sweep.velocities_rad_s: joint {j} speed {v} rad/s above the limit "
-                                     f"{P.QD_MAX_RAD_S[j - 1]} rad/s")
+                                     f"{qd_max[j - 1]} rad/s")
                 cruise = s.move_travel(j, v, kp) / v
                 if cruise < s.min_cruise_s:
                     raise ValueError(f"sweep.travel_rad: joint {j} at {v} rad/s travels {s.move_travel(j, v, kp):.3g} "
@@ -200,7 +215,7 @@ class FrictionSweepSpec(Common):
             for j in self.validation.joints:
                 q = q0.copy()
                 q[j - 1] += self.validation.amplitude_rad
-                check_positions(q, "validation.amplitude_rad")
+                check_positions(q, "validation.amplitude_rad", self.robot)
         return self
 
     def _payload(self):
@@ -219,7 +234,8 @@ class FrictionSweepSpec(Common):
         options = {"positive": [1.0], "negative": [-1.0], "auto": [1.0, -1.0]}[setting]
         problems, best = [], None
         for sign in options:
-            why, load = _travel_problem(tuple(self.q0_rad), joint, sign * s.travel(joint), self._payload())
+            why, load = _travel_problem(tuple(self.q0_rad), joint, sign * s.travel(joint), self._payload(),
+                                        self.robot)
             if why:
                 problems.append(why)
             elif best is None or load < best[1] - 1e-9:
