@@ -118,3 +118,30 @@ def test_the_compiled_loop_says_no_for_the_wam4_and_the_python_loop_runs():
     assert out[True].equals(out[False])
     err = (out[False]["q_ref_2_rad"] - out[False]["q_2_rad"]).to_numpy()
     assert np.abs(err).max() < 0.01 and np.abs(err[-1]) <= 3.5643 / 2500 + 2 * np.pi / 4096 / 16
+
+
+def test_a_kind_that_does_not_take_the_wam4_yet_says_so(tmp_path):
+    res = run_cli("validate", write_yaml(tmp_path / "ift.yaml", {"kind": "ift", "robot": "wam4"}))
+    assert res.code == 2 and res.exc is None
+    assert res.err.strip().endswith("robot: ift runs on the wam7 only so far, not the wam4"), res.err
+
+
+def test_the_wam4_plant_takes_the_first_four_joints_of_table_4_1_and_refuses_a_wam7_friction_file(tmp_path):
+    from wamctl.errors import WamctlError
+    from wamctl.model.friction import FrictionModel
+    from wamctl.model.plant import Plant
+
+    spec = parse_spec(wam4_rotation())
+    plant = Plant(spec.plant, None, spec.robot)
+    assert plant.n_joints == 4 and plant.links.n_joints == 4
+    assert plant.friction.fc_neg_Nm.tolist() == [4.3609, 3.5643, 2.3529, 0.7342]
+    assert plant.friction.viscous_pos_Nm_s_rad.tolist() == [1.3348, 3.5572, 0.3944, 2.7045]
+    # a friction model of the wam7 (joints 5-7 given) is not the wam4's: refused naming the joint
+    FrictionModel.table_4_1().save(tmp_path / "wam7.yaml")
+    bad = parse_spec(wam4_rotation(plant={"friction": str(tmp_path / "wam7.yaml")}))
+    with pytest.raises(WamctlError, match=r"joints\.5: joint numbers are 1\.\.4"):
+        Plant(bad.plant, None, bad.robot)
+    res = run_cli("validate", write_yaml(tmp_path / "bad.yaml", wam4_rotation(plant={"friction": str(tmp_path /
+                                                                                                   "wam7.yaml")})))
+    assert res.code == 2 and res.err.strip().endswith("plant.friction: " + str(tmp_path / "wam7.yaml")
+                                                      + ": joints.5: joint numbers are 1..4"), res.err

@@ -132,6 +132,9 @@ def thesis_test_differences(data: pd.DataFrame, controller: dict | None = None) 
     if not rots:
         return ["no finished move"]
     out = []
+    n_arm = len(reference_joints(data))
+    if n_arm != P.N_JOINTS:       # another arm (the wam4): its gains and dynamics are not the thesis' WAM's
+        out.append(f"{n_arm} joints recorded, not the thesis' 7-DOF WAM")
     amps = sorted({round(abs(r.amplitude_rad), 4) for r in rots
                    if not np.isclose(abs(r.amplitude_rad), P.ROTATION_AMPLITUDE_RAD, rtol=1e-3)})
     if amps:
@@ -142,6 +145,6 @@ def thesis_test_differences(data: pd.DataFrame, controller: dict | None = None) 
         out.append(f"speed {', '.join(f'{v:g}' for v in speeds)} rad/s")
     for name, default in (("kp", P.KP), ("kd", P.KD)):
         gains = (controller or {}).get(name)
-        if gains is not None and not np.allclose(gains, default):
+        if gains is not None and n_arm == P.N_JOINTS and not np.allclose(gains, default):
             out.append(f"its own {name}")
     return out

@@ -13,7 +13,7 @@ from __future__ import annotations
 import types
 import typing
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
 from pydantic import BaseModel, ConfigDict, Field, PrivateAttr, ValidationInfo, field_validator, model_validator
@@ -365,10 +365,18 @@ class Common(Strict):
         """Fill in place the defaults of a kind that list joints, for an arm of ``n_joints`` (a robot other than
         the wam7); a kind with such defaults overrides it."""
 
+    # the robots a kind runs on: the wam7 unless the kind's spec says more (its experiment, analysis and report
+    # take the robot's joint count); another robot is refused naming the field
+    SUPPORTED_ROBOTS: ClassVar[tuple[str, ...]] = (DEFAULT_ROBOT,)
+
     @model_validator(mode="after")
     def _robot_fits(self):
-        """Every joint number and joint vector of the spec fits its robot (refused naming the field), the
-        positions are within its limits; the robot is handed to the plant and the controller."""
+        """The kind runs on the spec's robot; every joint number and joint vector of the spec fits it (refused
+        naming the field); the robot is handed to the plant and the controller."""
+        if self.robot not in self.SUPPORTED_ROBOTS:
+            kind = getattr(self, "kind", type(self).__name__)
+            raise ValueError(f"robot: {kind} runs on the {', '.join(self.SUPPORTED_ROBOTS)} only so far, not the "
+                             f"{self.robot}")
         r = get_robot(self.robot)
         why = _robot_problem(self, None, "", r.n_joints, r.name)
         if why:
@@ -416,6 +424,6 @@ def check_files(spec: Common, base_dir: Path | None, source: str = "spec") -> No
                                                                   spec.controller.friction_ff)):
         if isinstance(value, str) and value not in ("table_4_1", "none"):
             try:
-                resolve_friction(value, base_dir)
+                resolve_friction(value, base_dir, get_robot(getattr(spec, "robot", None)).n_joints)
             except WamctlError as exc:
                 raise SpecError(f"{source}: {name}: {exc}") from None

@@ -8,13 +8,13 @@ each joint enough of its torque limit (:data:`GRAVITY_BUDGET`).
 from __future__ import annotations
 
 from functools import lru_cache
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, field_validator, model_validator
 
 from wamctl.model import params as P
-from wamctl.model.robots import get_robot
+from wamctl.model.robots import ROBOTS, get_robot
 from wamctl.specs.common import Common, Joint, Strict, check_positions
 
 # Default speeds (rad/s), each run in both directions: from below 0.01 rad/s to 1 rad/s, roughly
@@ -169,6 +169,7 @@ class IdentificationSection(Strict):
 
 
 class FrictionSweepSpec(Common):
+    SUPPORTED_ROBOTS: ClassVar[tuple[str, ...]] = tuple(ROBOTS)
     kind: Literal["friction_sweep"]
     sweep: FrictionSweepSection = FrictionSweepSection()
     identification: IdentificationSection = IdentificationSection()

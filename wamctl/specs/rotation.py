@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Literal
+from typing import ClassVar, Literal
 
 import numpy as np
 from pydantic import Field, model_validator
 
 from wamctl.model import params as P
+from wamctl.model.robots import ROBOTS
 from wamctl.specs.common import Common, Joint, Strict, check_positions
 
 
@@ -25,6 +26,7 @@ class RotationTask(Strict):
 
 
 class RotationSpec(Common):
+    SUPPORTED_ROBOTS: ClassVar[tuple[str, ...]] = tuple(ROBOTS)
     kind: Literal["rotation"]
     rotation: RotationTask = RotationTask()
 
