@@ -124,3 +124,29 @@ def test_a_loop_that_cannot_hold_is_reported_not_redrawn(tmp_path):
     r = generate(case, tmp_path / "run")
     assert r.status != "ok" and r.truth["trip"] is not None and r.rows > 0
     assert r.truth["effects"][0]["params"]["delay_ms"] == 16.0
+
+
+@pytest.mark.parametrize("share_of_accuracy, identifiable", [(0.5, False), (4.0, True)])
+def test_identifiable_means_beyond_what_the_declared_link_accuracy_can_produce(share_of_accuracy, identifiable):
+    """The truth's `identifiable`: what is left of an effect's torque after the best fit the declared model's own
+    freedom allows (links within the declared accuracy, friction free). A change of link 4's mass by half its
+    declared accuracy is fitted away (nothing left); by four times it, more than twice the floor is left."""
+    from gen_independent.truth import ACCURACY_SHARE, _beyond_declared_model
+
+    t = np.linspace(0.0, 8.0, 400)
+    q = np.zeros((len(t), A.N))
+    q[:, 1] = 0.6 * np.sin(2 * np.pi * 0.25 * t)
+    q[:, 3] = 1.2 + 0.8 * np.sin(2 * np.pi * 0.4 * t + 0.3)
+    v, a = np.gradient(q, t, axis=0), np.gradient(np.gradient(q, t, axis=0), t, axis=0)
+    mass = A.LINK_MASS.copy()
+    mass[3] *= 1 + share_of_accuracy * ACCURACY_SHARE
+    heavier = A.build_model(mass=mass)
+    d1, d0 = heavier.createData(), MODEL.createData()
+    effect = np.array([pin.rnea(heavier, d1, q[i], v[i], a[i]) - pin.rnea(MODEL, d0, q[i], v[i], a[i])
+                       for i in range(len(t))])
+    floor = np.full(A.N, 0.05)
+    left = _beyond_declared_model(effect, MODEL, q, v, a, [1, 3], floor)
+    if identifiable:
+        assert max(left.values()) > 2.0, left
+    else:
+        assert max(left.values()) < 0.05, left

@@ -43,7 +43,12 @@ warm-up, a dead band on one joint's encoder, a mass at some distance from the fl
 forms a diagnosis would fit (one sinusoid in q, a whole-sample shift of the logged positions).  Sizes are drawn per
 case from ``size``
 (small / medium / large); the truth (concrete parameters, the effect's torque signature and its SNR against
-``NOISE_FLOOR``, observability) goes to truth.yaml.
+``NOISE_FLOOR``, observability, identifiability) goes to truth.yaml. ``observable``: the effect's torque (or
+position lag, or lost motion crossing the dead band) is at least twice the noise floor. ``identifiable``: also
+from that run, at least twice the floor of the effect's torque is left after the best fit the declared model's own
+freedom allows (each link's mass, centre of mass and inertia within the declared accuracy, the armatures within
+10 %, friction free; ``truth._beyond_declared_model``): a payload moved by one joint is often observable and not
+identifiable.
 
 =================  ===================================================  ========================  ======================
 effect             formula here (truth)                                 differs from a naive copy    range s / m / l

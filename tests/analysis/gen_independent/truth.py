@@ -4,6 +4,7 @@ signature and observability, stick-slip, saturation, what made the run hard. Nev
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
@@ -81,6 +82,78 @@ def _truth_states(sim, sel, jb):
     return pd.DataFrame(out)
 
 
+# The diagnosis' declared accuracy of the arm (its documented assumptions, diagnosis.json `assumptions`): each
+# link's mass and inertia entries within 10 % (inertia: of its largest diagonal entry), its centre of mass within
+# 10 % of its distance from the frame's origin plus 5 mm, each joint's armature within 10 %.
+ACCURACY_SHARE = 0.10
+ACCURACY_COM_M = 0.005
+
+
+def _on_joint(x, j):
+    """(len(x), N): ``x`` on joint ``j`` (0-based), zero on the others."""
+    out = np.zeros((len(x), N))
+    out[:, j] = x
+    return out
+
+
+@lru_cache(maxsize=1)
+def _accuracy_generators():
+    """(70, 70): column k is the change of pinocchio's dynamic parameters (per joint: m, m c, inertia about the
+    joint's origin in its axes) when physical quantity k of one link (its mass, a coordinate of its centre of mass,
+    an entry of its inertia about the centre) moves to the bound of the declared accuracy above. To first order
+    the declared arms are ``p0 + G u`` with ``|u_k| <= 1``."""
+    def params(mass, com, inertia):
+        m = build_model(mass, com, inertia, ARMATURE, None)
+        return np.concatenate([m.inertias[i + 1].toDynamicParameters() for i in range(N)])
+    from .arm import LINK_COM, LINK_INERTIA, LINK_MASS
+    p0 = params(LINK_MASS, LINK_COM, LINK_INERTIA)
+    cols = []
+    for i in range(N):
+        steps = [("m", (i,), ACCURACY_SHARE * LINK_MASS[i])]
+        steps += [("c", (i, k), ACCURACY_SHARE * np.linalg.norm(LINK_COM[i]) + ACCURACY_COM_M) for k in range(3)]
+        steps += [("I", (i, k), ACCURACY_SHARE * LINK_INERTIA[i, :3].max()) for k in range(6)]
+        for what, where, bound in steps:
+            arrays = {"m": LINK_MASS.copy(), "c": LINK_COM.copy(), "I": LINK_INERTIA.copy()}
+            arrays[what][where] += bound
+            cols.append(params(arrays["m"], arrays["c"], arrays["I"]) - p0)
+    return np.column_stack(cols)
+
+
+def _beyond_declared_model(effect_Nm, model_nom, q, v, a, moving, floor):
+    """Per moving joint (1-based), the RMS of an effect's torque left after the best fit that the declared model's
+    own freedom allows, over the noise floor: the links within their declared accuracy (``|u| <= 1`` in
+    :func:`_accuracy_generators`) and the armatures within 10 %, with each moving joint's Coulomb and viscous
+    friction (per direction) free (the diagnosis refits them on every run). Fitted jointly over the moving joints
+    on the samples where each slides (|qd| > 0.005 rad/s: friction is not a function of the state while a joint
+    sticks) and the effect's torque is defined (not NaN), rows weighted by 1 / floor."""
+    from scipy.optimize import lsq_linear
+
+    data = model_nom.createData()
+    YG = np.array([pin.computeJointTorqueRegressor(model_nom, data, q[i], v[i], a[i]) for i in range(len(q))]) \
+        @ _accuracy_generators()
+    rows, target, owner = [], [], []
+    nm = len(moving)
+    for r, j in enumerate(moving):
+        slide = (np.abs(v[:, j]) > 0.005) & np.isfinite(effect_Nm[:, j])
+        fric = np.zeros((len(q), 4 * nm))
+        pos, neg = v[:, j] > 0, v[:, j] < 0
+        fric[:, 4 * r] = pos
+        fric[:, 4 * r + 1] = -neg.astype(float)
+        fric[:, 4 * r + 2] = v[:, j] * pos
+        fric[:, 4 * r + 3] = v[:, j] * neg
+        arm = np.zeros((len(q), N))
+        arm[:, j] = a[:, j] * ACCURACY_SHARE * ARMATURE[j]
+        rows.append((np.hstack([YG[:, j, :], arm, fric]) / floor[j])[slide])
+        target.append((effect_Nm[:, j] / floor[j])[slide])
+        owner.append(np.full(slide.sum(), j))
+    A, b, owner = np.vstack(rows), np.concatenate(target), np.concatenate(owner)
+    n_bounded = YG.shape[2] + N
+    lo = np.concatenate([-np.ones(n_bounded), np.full(4 * nm, -np.inf)])
+    fit = lsq_linear(A, b, bounds=(lo, -lo), method="bvls")
+    left = b - A @ fit.x
+    return {j + 1: float(np.sqrt(np.mean(left[owner == j] ** 2))) if (owner == j).any() else 0.0 for j in moving}
+
+
 def _truth(case, eff_list, link_rec, fric, ex_info, kind, moving, sim, model_true, model_nom, mass, com, inertia,
            armature, payload, noise, rate, jitter_mode, T_run, rip, dri, fr, bkl):
     h = H_PHYS
@@ -97,6 +170,8 @@ def _truth(case, eff_list, link_rec, fric, ex_info, kind, moving, sim, model_tru
     def rms_on(x, mask):
         return float(np.sqrt(np.mean(x[mask] ** 2))) if mask.any() else 0.0
 
+    idx = np.arange(0, K, 5)           # the samples the rigid-body fits use (as the payload's signature)
+    series = {}                         # id(effect) -> (K or len(idx), N) torque of the effect, N m
     for e in eff_list:
         s = {}
         if e["name"] in ("stribeck", "friction_drift", "position_ripple") and e["joint"]:
@@ -107,6 +182,7 @@ def _truth(case, eff_list, link_rec, fric, ex_info, kind, moving, sim, model_tru
                 S = np.exp(-(x ** delta)) if code == 1 else 1.0 / (1.0 + x * x)
                 exc = np.where(vl[:, j] > 0, (fr[j, 4] - fr[j, 0]) * S, -(fr[j, 5] - fr[j, 1]) * S)
                 s[j + 1] = rms_on(exc, np.abs(vl[:, j]) > 0.005)
+                series[id(e)] = _on_joint(np.where(np.abs(vl[:, j]) > 0.005, exc, np.nan)[idx], j)
             elif e["name"] == "friction_drift":
                 g = np.array([1.0 + dri[1] * (min(tt / dri[4], 1.0) if dri[2] == 0 else math.tanh(tt / dri[3]))
                               for tt in t])
@@ -114,10 +190,12 @@ def _truth(case, eff_list, link_rec, fric, ex_info, kind, moving, sim, model_tru
                 m = slipping[:, j]
                 gbar = g[m].mean() if m.any() else 1.0
                 s[j + 1] = rms_on((g - gbar) * base, m)  # what a constant friction fit cannot absorb
+                series[id(e)] = _on_joint(np.where(m, g * base, np.nan)[idx], j)
             else:
                 r = np.array([math.fsum([rip[3 + kk] * math.sin(2 * math.pi * (kk + 1) * qq / rip[2] + rip[6 + kk])
                                          for kk in range(3)]) for qq in ql[:, j]]) * rip[1]
                 s[j + 1] = rms_on(r, slipping[:, j])
+                series[id(e)] = _on_joint(np.where(slipping[:, j], r, np.nan)[idx], j)
         elif e["name"] == "payload":
             m_nopl = build_model(mass, com, inertia, armature, None)
             d1, d2 = model_true.createData(), m_nopl.createData()
@@ -126,6 +204,7 @@ def _truth(case, eff_list, link_rec, fric, ex_info, kind, moving, sim, model_tru
             for j in moving:
                 s[j + 1] = float(np.sqrt(np.mean((diff[:, j] - diff[:, j].mean()) ** 2)))
             s["static_gravity_change_Nm"] = np.abs(diff).max(axis=0).tolist()
+            series[id(e)] = diff
         elif e["name"] == "delay":
             d = e["params"]["delay_ms"] * 1e-3
             lag = d * vl
@@ -156,6 +235,14 @@ def _truth(case, eff_list, link_rec, fric, ex_info, kind, moving, sim, model_tru
             e["observable"] = bool(max(snrs.values(), default=0.0) >= 2.0)
         else:  # backlash: seen only if the load actually crosses the dead band (gravity may press one flank)
             e["observable"] = bool(s.get("contact_side_switches", 0) >= 2)
+        if id(e) in series:
+            left = _beyond_declared_model(series[id(e)], model_nom, ql[idx], vl[idx], al[idx], moving, floor)
+            joints = [e["joint"]] if e["joint"] else [j + 1 for j in moving]
+            e["snr_beyond_declared_accuracy"] = {jj: left[jj] for jj in joints if jj in left}
+            e["identifiable"] = bool(e["observable"] and max(e["snr_beyond_declared_accuracy"].values(),
+                                                             default=0.0) >= 2.0)
+        else:  # a position lag or lost motion: no change of the links' masses or of friction produces one
+            e["identifiable"] = e["observable"]
 
     # link perturbation signature (gravity/inertia torque change along the run)
     link_sig = None
