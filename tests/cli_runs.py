@@ -2,7 +2,8 @@
 kind made through it once per test session, with what each command printed at 80 columns.
 
 Used by the terminal test (tests/commands/test_terminal.py), the browser test (tests/report/test_browser.py)
-and the fuzz test (tests/commands/test_fuzz.py). Every run is small (a few seconds of arm time); the specs are
+and the fuzz test (tests/commands/test_fuzz.py). The runs are made once per session, for every pytest-xdist worker
+(tests/once.py). Every run is small (a few seconds of arm time); the specs are
 written here, in code.
 """
 
@@ -19,6 +20,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from once import make_once
 
 ROOT = Path(__file__).resolve().parents[1]
 Q0 = [0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0]
@@ -180,4 +182,6 @@ def _sweep(spec: Path, out: Path) -> Path:
 
 @pytest.fixture(scope="session")
 def small_runs(tmp_path_factory) -> SmallRuns:
-    return make_small_runs(tmp_path_factory.mktemp("small_runs"))
+    """Made once per session for every xdist worker (tests/once.py; the two workers had each made them): its run
+    directories and reports are read, never changed, by the tests."""
+    return make_once(tmp_path_factory, "small_runs", make_small_runs)

@@ -28,6 +28,7 @@ import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from cli_runs import small_runs  # noqa: F401, E402 - the session fixture of small runs of every kind (cli_runs.py)
 from hypothesis import settings  # noqa: E402
+from sim_arm import udp  # noqa: F401, E402 - a CAN bus of the test's own for wamctl sim-arm (sim_arm.py)
 
 from wamctl.model import params as P  # noqa: E402
 

@@ -15,6 +15,7 @@ import pandas as pd
 import pytest
 import yaml
 from diagnosis_gen import EFFECTS, generate_run, make_reference, simulate, write_measured
+from once import make_once
 
 from wamctl.analysis.diagnosis.backlash import breakaway_ratio, hidden_travel
 from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
@@ -30,18 +31,28 @@ SEEDS = {"stribeck": 11, "position_ripple": 12, "payload": 13, "delay": 14, "fri
 CLEAN_SEEDS = (21, 22)
 
 
+class Generated:
+    """{name: (GeneratedRun, ModelDiagnosis)} for one run per effect and the clean runs ("clean21"), each generated
+    and diagnosed once per session when a test first asks for it, whichever xdist worker that is (tests/once.py):
+    the tests of one run need not wait for the other seven, nor two workers make the same one."""
+
+    def __init__(self, tmp_path_factory):
+        self.tmp_path_factory = tmp_path_factory
+
+    def __getitem__(self, name: str):
+        effect, seed = (None, int(name[5:])) if name.startswith("clean") else (name, SEEDS[name])
+        if effect is None and seed not in CLEAN_SEEDS:
+            raise KeyError(name)
+
+        def make(root: Path):
+            g = generate_run(root, effect, seed)
+            return g, ModelDiagnosis(simulator=simulate_positions).fit(load_run_data(g.path))
+        return make_once(self.tmp_path_factory, f"diagnose_{name}", make)
+
+
 @pytest.fixture(scope="module")
 def generated(tmp_path_factory):
-    """{name: (GeneratedRun, ModelDiagnosis)} for one run per effect and the clean runs (diagnosed once)."""
-    root = tmp_path_factory.mktemp("diag")
-    out = {}
-    for effect, seed in SEEDS.items():
-        g = generate_run(root, effect, seed)
-        out[effect] = (g, ModelDiagnosis(simulator=simulate_positions).fit(load_run_data(g.path)))
-    for seed in CLEAN_SEEDS:
-        g = generate_run(root, None, seed)
-        out[f"clean{seed}"] = (g, ModelDiagnosis(simulator=simulate_positions).fit(load_run_data(g.path)))
-    return out
+    return Generated(tmp_path_factory)
 
 
 def _ratio(diag, joint, key):

@@ -5,17 +5,11 @@ Shift-Activate and the rotation test, must match the direct simulation as the in
 wire (recorded by a third bus in this process) shows libbarrett's pacing, no MODE=TORQUE from wamctl and zero
 torque until every puck reports TORQUE. A gimbals arm is refused on the command line in one line.
 
-Each test uses its own multicast group and port, so that runs of other test sessions on this machine do not mix.
+Each test uses its own multicast group and port, so that runs of other test sessions on this machine do not mix
+(tests/sim_arm.py, the setup tests/commands/test_hmi_yes.py shares).
 """
 
 from __future__ import annotations
-
-import json
-import os
-import random
-import signal
-import subprocess
-import sys
 
 import can
 import numpy as np
@@ -23,6 +17,7 @@ import pytest
 import yaml
 from can_wire import all_pucks_torque_index, host_mode_writes, host_sets, torque_frames, wake_pacing
 from conftest import Q0, rotation_spec
+from sim_arm import SimArm, can_backend
 from typer.testing import CliRunner
 
 from wamctl.analysis.rotation import rotation_metrics
@@ -39,51 +34,10 @@ SHORT_ROTATION = {"joints": [2, 4], "mode": "all_together", "amplitude_rad": 0.2
                   "tc_s": 0.3, "settle_s": 0.2, "hold_s": 0.5}
 
 
-@pytest.fixture
-def udp():
-    """A multicast group and port of this test's own; skipped (with the reason) where multicast is unavailable."""
-    group = f"239.{random.randint(1, 254)}.{random.randint(1, 254)}.{random.randint(1, 254)}"
-    port = random.randint(42000, 60000)
-    try:
-        can.Bus(interface="udp_multicast", channel=group, port=port).shutdown()
-    except Exception as exc:  # noqa: BLE001 - any failure to join a multicast group
-        pytest.skip(f"udp_multicast unavailable here: {exc}")
-    return group, port
-
-
-class SimArm:
-    """``wamctl sim-arm`` in a subprocess: started, waited for ("serving"), stopped with SIGTERM (SIGINT is ignored
-    by processes started from a background job)."""
-
-    def __init__(self, group: str, port: int, *args: str) -> None:
-        cmd = [sys.executable, "-m", "wamctl.cli", "sim-arm", "--interface", "udp_multicast", "--channel", group,
-               "--bus-option", f"port={port}", "--json", *args]
-        self.proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                                     env={**os.environ, "COLUMNS": "300"})
-        self.seen: dict | None = None
-        # ready when it logs that it serves (event-driven: the first line on stderr, no sleep)
-        line = self.proc.stderr.readline()
-        if "serving" not in line:
-            self.proc.kill()
-            raise RuntimeError(f"sim-arm did not start: {line}{self.proc.stderr.read()}")
-
-    def stop(self) -> dict:
-        self.proc.send_signal(signal.SIGTERM)
-        out, err = self.proc.communicate(timeout=60)
-        assert self.proc.returncode == 0, err
-        self.seen = json.loads(out)
-        return self.seen
-
-
-def backend(group: str, port: int, **kw) -> dict:
-    return {"kind": "can", "interface": "udp_multicast", "channel": group, "bus_options": {"port": port},
-            "watchdog_cycles": 25, "reply_timeout_s": 0.05, "idle_wait_s": 5.0, **kw}
-
-
 def test_first_session_of_the_day_over_udp_matches_the_direct_simulation(runs_dir, udp, tmp_path):
     group, port = udp
     can_spec = rotation_spec(name="xproc", rotation=SHORT_ROTATION,
-                             backend=backend(group, port, zeroing_confirmed=True))
+                             backend=can_backend(group, port, zeroing_confirmed=True))
     spec_file = tmp_path / "xproc.yaml"
     spec_file.write_text(yaml.safe_dump(can_spec))
     # the monitor reads in a thread of its own (python-can's Notifier): a socket left unread overflows
@@ -134,7 +88,7 @@ def test_gimbals_arm_is_refused_in_one_line(runs_dir, udp, tmp_path):
     group, port = udp
     spec_file = tmp_path / "gimbals.yaml"
     spec_file.write_text(yaml.safe_dump({**rotation_spec(name="gimbals", rotation=SHORT_ROTATION,
-                                                         backend=backend(group, port)), "out_dir": str(runs_dir)}))
+                                                         backend=can_backend(group, port)), "out_dir": str(runs_dir)}))
     arm = SimArm(group, port, "--gimbals", "--zeroed", "--awake")
     try:
         from wamctl.cli import _register, app

@@ -1,4 +1,7 @@
-"""The lab's daily loop through the real command line: specs, run directories, reports, bad input, Ctrl-C."""
+"""The lab's daily loop through the real command line: specs, run directories, reports, bad input, Ctrl-C.
+
+The commands run in this process (``wamctl.cli.main``, as tests/cli_runs.py runs them), but for the two whose
+subject is the process: an error on a stderr that is not a terminal, and a run killed by a signal."""
 
 from __future__ import annotations
 
@@ -12,15 +15,26 @@ from pathlib import Path
 import pandas as pd
 import pytest
 import yaml
+from cli_runs import run_cli
 from conftest import rotation_spec
 
 ROOT = Path(__file__).resolve().parents[2]
 CONFIGS = sorted((ROOT / "configs").glob("*.yaml"))
 
 
-def wamctl(*args, cwd=None, timeout=300):
+def wamctl(*args) -> subprocess.CompletedProcess:
+    """``wamctl ARGS`` in this process at 80 columns (tests/cli_runs.py: ``main()``, its exit code, stdout and
+    stderr; an exception escaping ``main()`` comes back as the traceback a user would see on stderr). Each of the
+    50-odd commands of this file had started a Python of its own (about 2.5 s of imports each, a minute of CPU
+    in all); the real process is kept where it is the subject: stderr that is not a terminal, and the killed run."""
+    r = run_cli(*args, columns=80)
+    return subprocess.CompletedProcess(["wamctl", *map(str, args)], r.code, r.out, r.err + r.tb)
+
+
+def wamctl_process(*args, timeout=300) -> subprocess.CompletedProcess:
+    """``python -m wamctl ARGS`` in a process of its own."""
     return subprocess.run([sys.executable, "-m", "wamctl", *map(str, args)], capture_output=True, text=True,
-                          cwd=cwd, timeout=timeout)
+                          timeout=timeout)
 
 
 def write(path: Path, obj) -> Path:
@@ -74,7 +88,7 @@ def test_validate_says_what_unset_gains_stand_for(tmp_path):
 def test_an_error_is_the_first_line_when_stderr_is_not_a_terminal(cmd, tmp_path):
     """A log file (stderr not a terminal) gets no progress bar, and so not the blank line it left on stopping
     before the error."""
-    r = wamctl(*cmd, tmp_path / "nowhere")
+    r = wamctl_process(*cmd, tmp_path / "nowhere")
     assert r.returncode == 2 and r.stderr.startswith("error: "), repr(r.stderr)
 
 
