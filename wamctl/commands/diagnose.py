@@ -10,8 +10,9 @@ import typer
 
 from wamctl.commands.common import console, emit_json
 
-DataArg = Annotated[Path, typer.Argument(help="A measured-run directory (meta.yaml + data) or a run directory.",
-                                         show_default=False)]
+DataArg = Annotated[list[Path], typer.Argument(
+    help="A measured-run directory (meta.yaml + data) or a run directory; several runs of one arm are diagnosed "
+         "together (pooled).", show_default=False)]
 
 
 def diagnose(data: DataArg,
@@ -29,10 +30,19 @@ def diagnose(data: DataArg,
     on held-out time blocks; kept effects are added and refitted, and both models are re-simulated in closed
     loop with the run's reference and controller. Writes a run directory with diagnosis.json, the augmented
     model (model.yaml, usable as `plant: model.yaml`) and a report. Exit code 2 for unusable data.
+
+    Several runs of one arm (e.g. a run that could not tell and its next_experiment.yaml run) are pooled: each is
+    diagnosed alone, then the payload, the link errors and each joint's effects are decided on all of them (shared
+    coefficients, each run's own friction, gains and start state); the report says which run decided what. Runs
+    of different arms are refused.
     """
     from wamctl.commands.common import print_document_tables, progress_bar
     from wamctl.experiments.diagnose import diagnose_to_run_dir
 
+    if len(data) > 1:
+        _pooled(data, model, out, quiet, json)
+        return
+    data = data[0]
     with progress_bar("diagnose", enabled=not (quiet or json)) as progress:
         path, result, doc = diagnose_to_run_dir(data, model, out, progress=progress)
     if json:
@@ -64,6 +74,30 @@ def diagnose(data: DataArg,
             console.print(line, highlight=False)
     console.print(found_line(result), highlight=False)
     console.print(f"run directory: {path}", highlight=False, soft_wrap=True)     # alone and whole: to be copied
+
+
+def _pooled(data: list[Path], model: Path | None, out: Path, quiet: bool, json: bool) -> None:
+    """``wamctl diagnose RUN1 RUN2 ...``: the runs pooled."""
+    from wamctl.commands.common import print_document_tables, print_warnings, progress_bar
+    from wamctl.experiments.diagnose import diagnose_runs_to_run_dir
+    from wamctl.report.diagnosis import found_line
+    from wamctl.report.diagnosis_pooled import decided_lines
+
+    with progress_bar("diagnose", enabled=not (quiet or json)) as progress:
+        path, result, doc = diagnose_runs_to_run_dir(data, model, out, progress=progress)
+    if json:
+        emit_json(dict(result, run_dir=str(path)))
+        return
+    if not quiet:
+        from wamctl.report.document import Document
+        print_document_tables(Document(doc.title, [b for b in doc.blocks if b[0] == "warn" or b[0] == "table"
+                                                   and b[1][0] in ("summary", "payload")]))
+    else:
+        print_warnings(doc)
+    for line in decided_lines(result):
+        console.print(line, highlight=False)
+    console.print(found_line(result), highlight=False)
+    console.print(f"run directory: {path}", highlight=False, soft_wrap=True)
 
 
 def register(app: typer.Typer) -> None:

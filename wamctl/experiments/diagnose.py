@@ -230,3 +230,61 @@ def simulate_positions(plant: dict, meta, t_s: np.ndarray, q_ref: np.ndarray, q0
     rows = rec.result()
     out[: len(rows)] = rows[:, 8:15]
     return out
+
+
+def diagnose_runs_to_run_dir(data_paths: list[Path], model: Path | None = None, out: Path = Path("runs"),
+                             name: str | None = None, formats=("md", "html", "json"), progress=None,
+                             simulate: bool = True):
+    """Diagnose several runs of one arm together (:class:`wamctl.analysis.diagnosis.pooled.PooledDiagnosis`) and
+    write a run directory under ``out`` (kind ``diagnosis``): ``diagnosis.json`` (``pooled: true``: the runs, each
+    run's own result in brief, every decision per run and pooled, which run decided it, each run's friction), each
+    run's own diagnosis as ``alone-<k>.json`` (k = 1, 2, ... in the order given) and the report. Runs of different
+    arms (robot, an ``arm`` named in meta.yaml, the declared payload, a simulated plant's links or friction) or a
+    run given twice are refused in one line before anything is fitted. ``simulate`` False skips each run's
+    closed-loop position check. Returns (run path, diagnosis dict, report Document)."""
+    from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
+    from wamctl.analysis.diagnosis.pooled import PooledDiagnosis, PoolingError, different_arm
+    from wamctl.report import write_report
+    from wamctl.runs.measured import load_run_data
+    from wamctl.runs.store import RunDir
+
+    paths = [Path(p) for p in data_paths]
+    resolved = [p.resolve() for p in paths]
+    twice = sorted({str(p) for p in paths if resolved.count(p.resolve()) > 1})
+    if twice:
+        raise PoolingError(f"run given more than once: {', '.join(twice)} (pooling needs distinct runs)")
+    labels = [p.name for p in paths]
+    if len(set(labels)) < len(labels):       # two runs of one name in different places: their place names them
+        labels = [str(p) for p in paths]
+    datas = [load_run_data(p) for p in paths]
+    why = different_arm([d.meta for d in datas], [d.truth for d in datas], labels)
+    if why:
+        raise PoolingError(why)
+    decl = declared_model(model)
+    diags = []
+    for k, data in enumerate(datas):
+        def fitting(fraction, label, k=k):
+            if progress:
+                progress(round(80 * (k + fraction) / len(datas)), 100, f"diagnose {labels[k]}: {label}")
+        diags.append(ModelDiagnosis(declared=decl, simulator=simulate_positions if simulate else None)
+                     .fit(data, fitting))
+    if progress:
+        progress(80, 100, "diagnose: the runs pooled")
+    pooled = PooledDiagnosis(diags, labels, datas).fit()
+    name = name or "diagnose-" + "+".join(p.name for p in paths)
+    spec = {"kind": "diagnosis", "name": name, "data": [str(p) for p in resolved],
+            "model": str(Path(model).resolve()) if model else None,
+            "options": {"alpha": diags[0].alpha, "n_blocks": diags[0].n_blocks, "n_folds": diags[0].n_folds,
+                        "candidates": list(diags[0].candidates), "pooled": True}}
+    run = RunDir.create(out, name, spec, None, "diagnosis",
+                        {"backend": {"name": "analysis"}, "source": [str(p) for p in resolved]})
+    result = pooled.to_dict([str(p) for p in paths])
+    for k, (d, p) in enumerate(zip(diags, paths)):
+        run.write_json(f"alone-{k + 1}.json", d.to_dict(str(p)))
+        result["runs"][k]["diagnosis_file"] = f"alone-{k + 1}.json"
+    run.write_json("diagnosis.json", result)
+    run.finish("completed", None if pooled.conclusive_ else pooled.reason_, effects_found=result["effects_found"])
+    doc = write_report(run.path, formats=formats)
+    if progress:
+        progress(100, 100, "diagnose: done")
+    return run.path, result, doc

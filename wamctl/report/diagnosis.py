@@ -288,6 +288,11 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     out_dir.mkdir(parents=True, exist_ok=True)
     result = json.loads((run_path / "diagnosis.json").read_text())
     doc = Document(f"Model diagnosis: {manifest.get('name', run_path.name)}")
+    if result.get("pooled"):          # several runs of one arm (wamctl diagnose RUN1 RUN2 ...)
+        from wamctl.report.diagnosis_pooled import report_pooled
+
+        doc.data["diagnosis"] = result
+        return report_pooled(result, manifest, doc)
     worse = [d["warning"] for d in (result.get("held_out_vs_declared") or {}).values() if d.get("warning")]
     for w in worse:     # first: a model written that predicts worse than the declared one is never quiet
         doc.warning(w)

@@ -1,0 +1,506 @@
+"""Several runs of one arm diagnosed together (no I/O): shared effects and link parameters, per-run friction.
+
+A run that cannot tell (a payload seen by one joint's sweep, an effect barely above the noise) and the run
+designed to decide (``next_experiment.yaml``) are pooled: every run is first diagnosed on its own
+(:class:`~wamctl.analysis.diagnosis.estimator.ModelDiagnosis`), then the decisions that concern the arm are made
+again on all runs stacked:
+
+* each (run, joint) keeps **its own** columns: the classic friction (Coulomb and viscous per direction, so a
+  friction that drifted between runs is fitted per run) and the joint-own effects that run kept; a run's gains
+  and start state are its own (its closed loop, its log);
+* **shared** by every run: the arm's payload (ten inertial parameters), the arm's link errors (the base
+  parameters of the rigid body, :mod:`wamctl.analysis.diagnosis.rigid`), and the coefficients of a joint-own
+  effect (Stribeck, ripple, drift, dead band) kept at that joint in some run, with the shape parameter the run
+  with the strongest evidence chose.
+
+Held-out figures: each run's own folds of time blocks, the shared part fitted without the fold in every run at
+once. Every decision is also made on each run alone (the same statistic, its rows only) and, from three runs
+on, without each run, so that the result says which run decided what and which run added nothing.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from types import SimpleNamespace
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.arm import (
+    COM_CI_MAX_WIDTH_M,
+    COM_SYSTEMATIC_M,
+    MASS_CI_MAX_SHARE,
+    MASS_SYSTEMATIC_SHARE,
+    N_PAYLOAD,
+    PAYLOAD_COM_BOX_M,
+)
+from wamctl.analysis.diagnosis.candidates import payload_from_pi
+from wamctl.analysis.diagnosis.crossval import unpredictable
+from wamctl.analysis.diagnosis.design import FRICTION_KEYS, columns, levels, ncols, target_and_design
+from wamctl.analysis.diagnosis.stats import MIN_EFFECT, lstsq, nested_test
+from wamctl.errors import DataFormatError
+
+JOINT_OWN = ("stribeck", "position_ripple", "friction_drift", "backlash")
+KEY = 10            # pooled key of (run r, 0-based joint j): KEY * r + j
+
+
+class PoolingError(DataFormatError):
+    """Runs that cannot be pooled (another arm, a run given twice); the message is one line."""
+
+
+# ------------------------------------------------------------------------------------------------ the arm
+def arm_identity(meta, truth: dict | None) -> dict:
+    """What makes a run's arm: the robot, the arm a log names (``arm`` in meta.yaml, e.g. a serial number), the
+    payload it declares it carries, and for a run of the simulated arm the plant's links and friction."""
+    extra = meta.model_extra or {}
+    p = meta.payload
+    out = {"robot": meta.robot, "arm": extra.get("arm"),
+           "declared payload": None if p is None or p.mass_kg <= 0 else (round(p.mass_kg, 6),
+                                                                          tuple(round(c, 6) for c in p.com_m))}
+    if truth:
+        out["simulated plant links"] = truth.get("links")
+        out["simulated plant friction"] = truth.get("friction")
+    return out
+
+
+def different_arm(metas: list, truths: list, labels: list[str]) -> str | None:
+    """Why the runs are not of one arm (one line), or None."""
+    ids = [arm_identity(m, t) for m, t in zip(metas, truths)]
+    for k in ids[0]:
+        vals = [i[k] for i in ids]
+        if k.startswith("simulated") and any(not t for t in truths):
+            continue
+        if k == "arm" and any(v is None for v in vals):
+            continue
+        if any(v != vals[0] for v in vals[1:]):
+            seen = ", ".join(f"{lab}: {v}" for lab, v in zip(labels, vals))
+            return f"runs of different arms cannot be pooled: {k} differs ({seen})"
+    return None
+
+
+# ------------------------------------------------------------------------------------------------ stacks
+@dataclass
+class _Member:
+    """One (run, joint) of the stack."""
+
+    key: int
+    r: int
+    j: int
+    des: object
+    jd: object
+    res: object
+
+
+def _members(diags: list) -> list[_Member]:
+    out = []
+    for r, d in enumerate(diags):
+        if not d.conclusive_:
+            continue
+        for j, res in sorted(d.joints_.items()):
+            out.append(_Member(KEY * r + j, r, j, d.design_, d.jd_[j], res))
+    return out
+
+
+def _own_terms(res, drop=("payload", "link_parameters")) -> list[dict]:
+    """A member's kept terms but ``drop`` (its friction stays its own: a drift between runs)."""
+    return [t for t in res.kept if t["name"] not in drop]
+
+
+def _stack_cv(ms: list[_Member], own: dict, shared: dict, w: dict, n_folds: int):
+    """Held-out residuals {key: (m,)} of every member's own columns plus ``shared`` columns ({key: (m, s)}, one
+    coefficient vector for all members; empty: none), fitted without each fold in every run at once; the
+    coefficients on all data (own blocks then shared) and the stacked system ``(X, y, w_rows, groups)``."""
+    keys = [m.key for m in ms]
+    p_own = {k: own[k][1].shape[1] for k in keys}
+    s = next(iter(shared.values())).shape[1] if shared else 0
+    n_own = sum(p_own.values())
+    X = np.zeros((sum(len(own[k][0]) for k in keys), n_own + s))
+    y, wr, groups, fold = [], [], [], []
+    r0, c0 = 0, 0
+    for m in ms:
+        yk, Xk = own[m.key]
+        n = len(yk)
+        X[r0:r0 + n, c0:c0 + p_own[m.key]] = Xk
+        if s:
+            X[r0:r0 + n, n_own:] = shared[m.key]
+        y.append(yk)
+        wr.append(np.full(n, w[m.key]))
+        groups.append(np.column_stack([np.full(n, m.key), m.jd.extra["block"]]))
+        fold.append(m.jd.fold)
+        r0 += n
+        c0 += p_own[m.key]
+    y, wr, groups, fold = np.concatenate(y), np.concatenate(wr), np.vstack(groups), np.concatenate(fold)
+    ok = np.isfinite(y) & np.isfinite(X).all(axis=1)
+    Xw, yw = X * wr[:, None], y * wr
+    e = np.full(len(y), np.nan)
+    for f in range(n_folds):
+        tr, te = ok & (fold != f), ok & (fold == f)
+        if te.any() and tr.sum() > X.shape[1]:
+            e[te] = y[te] - X[te] @ lstsq(Xw[tr], yw[tr])
+    out, r0 = {}, 0
+    for m in ms:        # samples a fit without the fold cannot predict (speeds never trained on) left out
+        n = len(own[m.key][0])
+        ek = e[r0:r0 + n]
+        for f in range(n_folds):
+            te = np.flatnonzero(m.jd.fold == f)
+            ek[unpredictable(m.jd, np.flatnonzero(m.jd.fold != f), te)] = np.nan
+        out[m.key] = ek
+        r0 += n
+    theta = lstsq(Xw[ok], yw[ok])
+    return out, theta, (X[ok], y[ok], wr[ok], groups[ok])
+
+
+def _test(ms, e0: dict, e1: dict, w: dict, p_extra: int, k1: int, min_effect: float = MIN_EFFECT) -> dict:
+    """Nested test of the weighted held-out residuals ``e1`` against ``e0`` over the members ``ms``."""
+    keys = [m.key for m in ms]
+    a = np.concatenate([e0[k] * w[k] for k in keys])
+    b = np.concatenate([e1[k] * w[k] for k in keys])
+    g = np.concatenate([m.jd.fold + 100 * m.key for m in ms])
+    t = nested_test(a, b, p_extra, k1, min_effect, g)
+    return {k: float(t[k]) for k in ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")}
+
+
+def _passes(t: dict | None, threshold: float) -> bool:
+    return t is not None and t["p_value"] < threshold and t["delta_bic"] < 0
+
+
+def _subsets(runs: list[int], labels: list[str]) -> dict:
+    """{name: runs} of the stacks every decision is made on: pooled, each run alone (``<label> alone``), and
+    without each run (``without <label>``, from three runs on)."""
+    out = {"pooled": runs}
+    for r in runs:
+        out[alone_key(labels[r])] = [r]
+    if len(runs) >= 3:
+        for r in runs:
+            out[without_key(labels[r])] = [x for x in runs if x != r]
+    return out
+
+
+def alone_key(label: str) -> str:
+    return f"{label} alone"
+
+
+def without_key(label: str) -> str:
+    return f"without {label}"
+
+
+# ------------------------------------------------------------------------------------------------ the estimator
+class PooledDiagnosis:
+    """Diagnose several runs of one arm together.
+
+    ``diagnoses`` are the runs' own :class:`~wamctl.analysis.diagnosis.estimator.ModelDiagnosis`, fitted, in
+    order; ``labels`` name the runs (their directories). Attributes after :meth:`fit`: ``effects_found_``
+    (strongest evidence first), ``ambiguous_``, ``findings_`` (each decision per stack), ``payload_``,
+    ``friction_``, ``runs_``, ``conclusive_``, ``reason_``."""
+
+    def __init__(self, diagnoses: list, labels: list[str], datas: list):
+        self.diags = diagnoses
+        self.labels = labels
+        self.datas = datas
+
+    def fit(self) -> PooledDiagnosis:
+        from wamctl.analysis.diagnosis.estimator import _single_threaded_blas
+
+        why = different_arm([d.meta for d in self.datas], [d.truth for d in self.datas], self.labels)
+        if why:
+            raise PoolingError(why)
+        with _single_threaded_blas():
+            return self._fit()
+
+    def _fit(self) -> PooledDiagnosis:
+        diags = self.diags
+        self.runs_ = [self._run_summary(r) for r in range(len(diags))]
+        self.effects_found_, self.ambiguous_, self.findings_ = [], [], []
+        self.payload_, self.friction_, self.payload_or_links_ = None, {}, None
+        ms = _members(diags)
+        runs = sorted({m.r for m in ms})
+        self.conclusive_ = bool(runs)
+        self.reason_ = None if runs else "no run could be diagnosed: " + "; ".join(
+            f"{lab}: {d.reason_}" for lab, d in zip(self.labels, diags))
+        if not runs:
+            return self
+        self.n_folds = diags[runs[0]].n_folds
+        self.threshold_ = min(diags[r].threshold_ for r in runs)
+        self.w_ = {}
+        for m in ms:
+            e = m.res.e_after
+            self.w_[m.key] = 1.0 / max(float(np.sqrt(np.nanmean(e ** 2))) if np.isfinite(e).any() else 1.0, 1e-9)
+        self._arm(ms, runs)
+        self._joint_effects(ms, runs)
+        self._friction(ms, runs)
+        found = [f for f in self.findings_ if f["pooled"]["named"]]
+        found.sort(key=lambda f: (-np.log10(max(f["pooled"]["p_value"], 1e-300))))
+        self.effects_found_ = list(dict.fromkeys(f["name"] for f in found))
+        return self
+
+    # -------------------------------------------------------------------------------- runs
+    def _run_summary(self, r: int) -> dict:
+        d, data = self.diags[r], self.datas[r]
+        meta = data.meta
+        gains = getattr(d, "gains_", None)
+        if gains and gains.get("kp") is not None:
+            kp, kd, src = gains["kp"], gains["kd"], gains.get("source") or "estimated from the log"
+        else:
+            kp, kd, src = meta.controller.kp, meta.controller.kd, "as the run's meta.yaml gives them"
+        return {"label": self.labels[r], "run": r, "robot": meta.robot,
+                "q0_rad": [None if v is None else float(v) for v in meta.q0],
+                "joints_diagnosed": [j + 1 for j in sorted(d.joints_)] if d.conclusive_ else [],
+                "samples": int(len(data.data)), "controller": {"kind": meta.controller.kind, "kp": kp, "kd": kd,
+                                                               "source": src},
+                "alone": {"conclusive": bool(d.conclusive_), "reason": d.reason_,
+                          "effects_found": list(d.effects_found_),
+                          "ambiguous": [list(g) for g in getattr(d, "ambiguous_", [])],
+                          "payload_or_links": (getattr(d, "payload_vs_links_", None) or {}).get("outcome")}}
+
+    # -------------------------------------------------------------------------------- the arm: payload or links
+    def _arm(self, ms: list[_Member], runs: list[int]) -> None:
+        from wamctl.analysis.diagnosis.links import WIDE_PRIOR, _excited_rank
+        from wamctl.analysis.diagnosis.rigid import (
+            arm_cv,
+            arm_system,
+            determined_parameters,
+            payload_cone,
+            payload_map,
+            plausible_link_map,
+        )
+
+        ms = [m for m in ms if "links_base" in m.jd.extra]
+        if not ms:
+            return
+        d0 = self.diags[runs[0]]
+        link_map = plausible_link_map(d0.declared_.links, d0.payload_declared_)
+        own = {m.key: target_and_design(m.des, m.jd, _own_terms(m.res), None) for m in ms}
+        jds = {m.key: m.jd for m in ms}
+        cone, rays = payload_cone(PAYLOAD_COM_BOX_M)
+        nl, nc = link_map.shape[1], cone.shape[1]
+        pos = (np.zeros(nc), np.full(nc, np.inf))
+        stacks = {}
+        for label, rs in _subsets(sorted({m.r for m in ms}), self.labels).items():
+            sub = [m for m in ms if m.r in rs]
+            sys_ = arm_system(SimpleNamespace(n_folds=self.n_folds), jds, {m.key: own[m.key] for m in sub},
+                              {m.key: 1.0 for m in sub})
+            e_own, _, _ = arm_cv(sys_, jds, None)
+            sys_.w = {m.key: 1.0 / max(float(np.sqrt(np.nanmean(e_own[m.key] ** 2))), 1e-9) for m in sub}
+            k_own = sum(own[m.key][1].shape[1] for m in sub)
+            p_pay = max(_excited_rank(jds, [m.key for m in sub], payload_map()[:, :4]), 1)
+            tests = {}
+            outcome = None
+            for name, scale in (("links", 1.0), ("wide_links", WIDE_PRIOR)):
+                lim = np.full(nl, scale)
+                e_l = arm_cv(sys_, jds, link_map, (-lim, lim))[0]
+                e_pl = arm_cv(sys_, jds, np.hstack([cone, link_map]), (np.r_[pos[0], -lim], np.r_[pos[1], lim]))[0]
+                t = _test(sub, e_l, e_pl, sys_.w, p_pay, k_own + p_pay)
+                t["passes"] = _passes(t, self.threshold_)
+                tests["beyond_" + name] = t
+                if not t["passes"]:
+                    break
+            outcome = ("payload" if tests.get("beyond_wide_links", {}).get("passes") else
+                       "ambiguous" if tests["beyond_links"]["passes"] else "link_parameters")
+            # is there anything rigid-body at all? link errors within the declared accuracy against the own models
+            e_l = arm_cv(sys_, jds, link_map, (-np.ones(nl), np.ones(nl)))[0]
+            rank = max(determined_parameters(sys_)[1], 1)
+            t_any = _test(sub, e_own, e_l, sys_.w, rank, k_own + rank)
+            t_any["passes"] = _passes(t_any, self.threshold_)
+            if outcome == "link_parameters" and not t_any["passes"]:
+                outcome = "none"
+            stacks[label] = {"runs": [self.labels[r] for r in rs], "outcome": outcome, "tests": tests,
+                             "rigid_body_beyond_own_models": t_any, "payload_combinations_seen": int(p_pay)}
+            if outcome == "payload" or label == "pooled" or len(rs) == 1:
+                stacks[label]["payload"] = self._payload_estimate(sub, own, sys_.w)
+        self.payload_or_links_ = stacks
+        pooled = stacks["pooled"]
+        outcome = pooled["outcome"]
+        if outcome == "payload":
+            self.payload_ = pooled["payload"]
+        if outcome == "ambiguous":
+            self.ambiguous_.append(["link_parameters", "payload"])
+        name = {"payload": "payload", "link_parameters": "link_parameters"}.get(outcome)
+        per = {}
+        for label, st in stacks.items():
+            tt = st["tests"].get("beyond_wide_links") or st["tests"]["beyond_links"]
+            if outcome == "link_parameters":
+                tt = st["rigid_body_beyond_own_models"]
+            per[label] = {"outcome": st["outcome"], "p_value": tt["p_value"], "delta_bic": tt["delta_bic"],
+                          "ssr_ratio": tt["ssr_ratio"],
+                          "named": st["outcome"] == outcome and outcome in ("payload", "link_parameters"),
+                          "not_identified": (st.get("payload") or {}).get("not_identified")}
+        finding = {"name": name or "payload_or_links", "joint": None, "what": "the arm: a wrist payload or its own "
+                   "link parameters (shared by every run)",
+                   "pooled": dict(per["pooled"], named=name is not None),
+                   "per_stack": {k: v for k, v in per.items() if k != "pooled"}}
+        finding["decided_by"], finding["added_nothing"] = self._who_decided(finding, runs, payload=True)
+        self.findings_.append(finding)
+
+    def _payload_estimate(self, sub: list[_Member], own: dict, w: dict) -> dict:
+        """The arm's payload fitted over the members ``sub`` (shared ten inertial parameters, each member's own
+        columns): mass and centre of mass with 95 % intervals (a bootstrap over every member's time blocks, widened
+        by the declared links' systematic share) and what these runs cannot determine."""
+        from wamctl.analysis.diagnosis.uncertainty import estimable, group_bootstrap, percentile_ci
+
+        shared = {m.key: m.jd.extra["payload"] for m in sub}
+        _, theta, (X, y, wr, groups) = _stack_cv(sub, own, shared, w, self.n_folds)
+        n_own = X.shape[1] - N_PAYLOAD
+        ok = estimable(X * wr[:, None], [n_own + k for k in range(4)])
+        est = payload_from_pi(theta[n_own:])
+        reps = group_bootstrap(X, y, groups, rng=np.random.default_rng(6000), w=wr)
+        ests = [payload_from_pi(pi) for pi in reps[:, n_own:]]
+        ng = len({tuple(g) for g in groups})
+
+        def widened(ci, center, half):
+            lo, hi = ci
+            return ci if lo is None else [min(lo, center - half), max(hi, center + half)]
+
+        ci = {"mass_kg": widened(percentile_ci([e["mass_kg"] for e in ests], center=est["mass_kg"], n_groups=ng),
+                                 est["mass_kg"], MASS_SYSTEMATIC_SHARE * abs(est["mass_kg"]))}
+        for i, ax in enumerate("xyz"):
+            ci[f"com_{ax}_m"] = widened(percentile_ci([e["com_m"][i] if e["mass_kg"] > 0 else None for e in ests],
+                                                      center=est["com_m"][i], n_groups=ng),
+                                        est["com_m"][i], COM_SYSTEMATIC_M)
+        m_lo, m_hi = ci["mass_kg"]
+        mass_ok = bool(ok[0] and m_lo is not None and m_lo > 0 and m_hi - m_lo <= MASS_CI_MAX_SHARE * est["mass_kg"])
+        ni = [] if mass_ok else ["mass_kg"]
+        for i, ax in enumerate("xyz"):
+            lo, hi = ci[f"com_{ax}_m"]
+            if not (mass_ok and ok[1 + i]) or lo is None or hi - lo > COM_CI_MAX_WIDTH_M:
+                ni.append(f"com_{ax}_m")
+        params = {"mass_kg": est["mass_kg"], "com_x_m": est["com_m"][0], "com_y_m": est["com_m"][1],
+                  "com_z_m": est["com_m"][2]}
+        for k in ni:                # what these runs cannot determine: no number, no interval
+            params[k] = None
+            ci[k] = [None, None]
+        return {"params": params, "params_ci": ci, "not_identified": ni}
+
+    # -------------------------------------------------------------------------------- joint-own effects
+    def _joint_effects(self, ms: list[_Member], runs: list[int]) -> None:
+        """Each joint-own effect kept at a joint in some run, tested on that joint in every run that diagnosed it:
+        shared coefficients, the shape the run with the strongest evidence chose."""
+        wanted = {}
+        for m in ms:
+            for t in m.res.kept:
+                if t["name"] in JOINT_OWN and ncols(t) > 0:
+                    p = float(t["evidence"].get("p_value", 1.0))
+                    if (m.j, t["name"]) not in wanted or p < wanted[(m.j, t["name"])][0]:
+                        wanted[(m.j, t["name"])] = (p, m.r, t)
+        for (j, name), (_, r_best, term) in sorted(wanted.items()):
+            sub_all = [m for m in ms if m.j == j]
+            h = term["h_all"]
+            own, shared = {}, {}
+            for m in sub_all:
+                terms = _own_terms(m.res, ("payload", "link_parameters", name))
+                own[m.key] = target_and_design(m.des, m.jd, terms, None)
+                shared[m.key] = columns(m.des, name, m.jd, h)
+            per = {}
+            for label, rs in _subsets(sorted({m.r for m in sub_all}), self.labels).items():
+                sub = [m for m in sub_all if m.r in rs]
+                e0, _, _ = _stack_cv(sub, own, {}, self.w_, self.n_folds)
+                e1, _, _ = _stack_cv(sub, own, {m.key: shared[m.key] for m in sub}, self.w_, self.n_folds)
+                p_extra = shared[sub[0].key].shape[1] + (0 if name == "backlash" else 1)
+                k1 = sum(own[m.key][1].shape[1] for m in sub) + p_extra
+                t = _test(sub, e0, e1, self.w_, p_extra, k1)
+                per[label] = dict(t, named=_passes(t, self.threshold_))
+            finding = {"name": name, "joint": j + 1, "what": f"joint {j + 1}: {name} (shape from "
+                       f"{self.labels[r_best]}, coefficients shared by every run)",
+                       "pooled": per["pooled"], "per_stack": {k: v for k, v in per.items() if k != "pooled"}}
+            finding["decided_by"], finding["added_nothing"] = self._who_decided(finding, runs)
+            self.findings_.append(finding)
+
+    def _who_decided(self, finding: dict, runs: list[int], payload: bool = False) -> tuple[list[str], list[str]]:
+        """The runs that decided a finding (alone named as pooled, or needed for it: without them the pooled
+        result is not reached), and those that added nothing (the result without them is the same)."""
+        pooled, per = finding["pooled"], finding["per_stack"]
+
+        def same(st):
+            if st is None:
+                return False
+            if st["named"] != pooled["named"] or st.get("outcome") != pooled.get("outcome"):
+                return False
+            return not payload or sorted(st.get("not_identified") or []) == sorted(pooled.get("not_identified")
+                                                                                  or [])
+
+        decided, nothing = [], []
+        for r in runs:
+            alone = per.get(alone_key(self.labels[r]))
+            if len(runs) == 1:
+                return [self.labels[r]], []
+            without = per.get(without_key(self.labels[r])) if len(runs) >= 3 else \
+                per.get(alone_key(self.labels[next(x for x in runs if x != r)]))
+            if alone is None:       # the run did not diagnose this joint
+                nothing.append(self.labels[r])
+            elif same(alone) and pooled["named"] or not same(without):
+                decided.append(self.labels[r])
+            elif same(without):
+                nothing.append(self.labels[r])
+        return decided, nothing
+
+    # -------------------------------------------------------------------------------- per-run friction
+    def _friction(self, ms: list[_Member], runs: list[int]) -> None:
+        """Each run's classic friction per joint, fitted in the pooled stack of that joint (its own levels, the
+        shared effects named there), with 95 % intervals; and the change from the first run (drift between runs)."""
+        from wamctl.analysis.diagnosis.uncertainty import group_bootstrap, percentile_ci
+
+        named = {(f["joint"], f["name"]) for f in self.findings_ if f["pooled"]["named"] and f["joint"]}
+        for j in sorted({m.j for m in ms}):
+            sub = [m for m in ms if m.j == j]
+            own, shared = {}, {}
+            for m in sub:
+                terms = _own_terms(m.res, ("payload", "link_parameters") + JOINT_OWN)
+                y, X = target_and_design(m.des, m.jd, terms, None)
+                cols = [X]
+                for (jj, name) in named:
+                    if jj == j + 1:
+                        t = next((t for mm in sub for t in mm.res.kept if t["name"] == name), None)
+                        if t is not None:
+                            cols.append(columns(m.des, name, m.jd, t["h_all"]))
+                own[m.key] = (y, np.hstack(cols))
+                if self.payload_ is not None:
+                    shared[m.key] = m.jd.extra.get("payload")
+            if any(v is None for v in shared.values()):
+                shared = {}
+            _, theta, (X, yy, wr, groups) = _stack_cv(sub, own, shared, self.w_, self.n_folds)
+            reps = group_bootstrap(X, yy, groups, rng=np.random.default_rng(7000 + j), w=wr)
+            ng = len({tuple(g) for g in groups})
+            out, c0, first = {}, 0, None
+            for m in sub:
+                fr = levels(m.des.friction_given, j, theta[c0:c0 + 4])
+                frs = np.array([levels(m.des.friction_given, j, rep[c0:c0 + 4]) for rep in reps])
+                row = {"levels": {k: float(v) for k, v in zip(FRICTION_KEYS, fr)},
+                       "levels_ci": {k: percentile_ci(frs[:, i], center=fr[i], n_groups=ng)
+                                     for i, k in enumerate(FRICTION_KEYS)}}
+                if first is None:
+                    first = (fr, frs)
+                else:
+                    dd, dds = fr - first[0], frs - first[1]
+                    row["change_from_first"] = {k: float(v) for k, v in zip(FRICTION_KEYS, dd)}
+                    row["change_from_first_ci"] = {k: percentile_ci(dds[:, i], center=dd[i], n_groups=ng)
+                                                   for i, k in enumerate(FRICTION_KEYS)}
+                out[self.labels[m.r]] = row
+                c0 += own[m.key][1].shape[1]
+            self.friction_[str(j + 1)] = out
+
+    # -------------------------------------------------------------------------------- result
+    def to_dict(self, data_paths: list[str]) -> dict:
+        """The pooled ``diagnosis.json`` mapping (format wamctl-diagnosis/1, ``pooled`` true)."""
+        from wamctl.analysis.diagnosis.serialise import FORMAT, _num
+
+        def clean(x):
+            if isinstance(x, dict):
+                return {k: clean(v) for k, v in x.items()}
+            if isinstance(x, (list, tuple)):
+                return [clean(v) for v in x]
+            if isinstance(x, (bool, np.bool_)):
+                return bool(x)
+            if isinstance(x, (float, np.floating, int, np.integer)) and not isinstance(x, bool):
+                return _num(x) if isinstance(x, (float, np.floating)) else int(x)
+            return x
+
+        out = {"format": FORMAT, "pooled": True, "data": list(data_paths), "runs": self.runs_,
+               "effects_found": list(self.effects_found_), "ambiguous": [list(g) for g in self.ambiguous_],
+               "conclusive": bool(self.conclusive_), "reason": self.reason_}
+        if self.conclusive_:
+            out.update(findings=self.findings_, payload_or_links=self.payload_or_links_, payload=self.payload_,
+                       friction_per_run=self.friction_, test_threshold_p=self.threshold_,
+                       method=("each run diagnosed alone; then every arm decision and every joint-own effect kept "
+                               "in some run made again on the runs stacked: per (run, joint) its own friction "
+                               "levels and effects, shared payload, link errors and effect coefficients; "
+                               "held-out residuals over each run's folds; the same test on each run alone"
+                               + (" and without each run" if len(self.runs_) >= 3 else "")))
+        return clean(out)

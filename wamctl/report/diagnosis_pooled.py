@@ -1,0 +1,137 @@
+"""Report of a pooled diagnosis (``wamctl diagnose RUN1 RUN2 ...``): the runs, what each decided alone, every
+decision made on the runs pooled with its statistic per run, which run decided what, the arm's payload, and each
+run's friction. Everything comes from diagnosis.json (``pooled: true``)."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from wamctl.report.document import Document
+
+
+def _p(x) -> str:
+    return "n/a" if x is None else f"{x:.2g}"
+
+
+def _ci(v, lo_hi, scale: float = 1.0, fmt: str = "{:.4g}") -> str:
+    if v is None:
+        return "not identified"
+    lo, hi = lo_hi or [None, None]
+    s = fmt.format(v * scale)
+    return s + ("" if lo is None else f" [{fmt.format(lo * scale)}, {fmt.format(hi * scale)}]")
+
+
+def runs_table(result: dict) -> pd.DataFrame:
+    """One row per run: its joints, gains, start state and what it decided alone."""
+    rows = []
+    for r in result.get("runs") or []:
+        a = r["alone"]
+        c = r["controller"]
+        rows.append({"run": r["label"], "joints": ", ".join(map(str, r["joints_diagnosed"])) or "-",
+                     "samples": r["samples"],
+                     "q0_rad": ", ".join("-" if v is None else f"{v:.3g}" for v in r["q0_rad"]),
+                     "gains": f"{c['kind']}, {c['source']}",
+                     "alone: effects found": ", ".join(a["effects_found"]) or ("none" if a["conclusive"] else
+                                                                             "nothing concluded"),
+                     "alone: ambiguous": "; ".join(" / ".join(g) for g in a["ambiguous"]) or "-",
+                     "alone: payload or links": a["payload_or_links"] or "-"})
+    return pd.DataFrame(rows)
+
+
+def findings_table(result: dict) -> pd.DataFrame:
+    """One row per decision and stack (pooled, each run alone, without each run): outcome, p-value, BIC change."""
+    rows = []
+    for f in result.get("findings") or []:
+        for stack, st in [("pooled", f["pooled"])] + list(f["per_stack"].items()):
+            rows.append({"finding": f["name"] + ("" if f["joint"] is None else f" (joint {f['joint']})"),
+                         "stack": stack, "outcome": st.get("outcome") or ("named" if st["named"] else "not named"),
+                         "p_value": _p(st["p_value"]), "delta_bic": st["delta_bic"],
+                         "held_out_ssr_ratio": st["ssr_ratio"],
+                         "not_identified": ", ".join(st.get("not_identified") or []) or "-"})
+    return pd.DataFrame(rows)
+
+
+def decided_lines(result: dict) -> list[str]:
+    """Which run decided each finding and which added nothing, one line each (also on the terminal)."""
+    lines = []
+    for f in result.get("findings") or []:
+        what = f["name"] + ("" if f["joint"] is None else f" at joint {f['joint']}")
+        pooled = f["pooled"]
+        verdict = pooled.get("outcome") if f["joint"] is None else ("named" if pooled["named"] else "not named")
+        alone = [r["label"] for r in result.get("runs") or []
+                 if (f["per_stack"].get(f"{r['label']} alone") or {}).get("named")]
+        line = (f"{what}: pooled {verdict} (p {_p(pooled['p_value'])}); named alone by "
+                f"{', '.join(alone) or 'no run'}; decided by {', '.join(f['decided_by']) or 'no single run'}")
+        if f["added_nothing"]:
+            line += f"; added nothing: {', '.join(f['added_nothing'])}"
+        lines.append(line)
+    return lines
+
+
+def payload_table(result: dict) -> pd.DataFrame:
+    """The arm's payload per stack: estimate and 95 % interval, or not identified."""
+    rows = []
+    for stack, st in (result.get("payload_or_links") or {}).items():
+        p = st.get("payload")
+        if not p:
+            continue
+        pr, ci = p["params"], p["params_ci"]
+        rows.append({"stack": stack, "outcome": st["outcome"], "mass_kg": _ci(pr["mass_kg"], ci["mass_kg"]),
+                     **{f"com_{a}_mm": _ci(pr[f"com_{a}_m"], ci[f"com_{a}_m"], 1e3, "{:.1f}") for a in "xyz"}})
+    return pd.DataFrame(rows)
+
+
+def friction_table(result: dict) -> pd.DataFrame:
+    """Each run's classic friction per joint (fitted in the pooled stack) and its change from the first run."""
+    rows = []
+    for j, runs in (result.get("friction_per_run") or {}).items():
+        for label, row in runs.items():
+            lv, ci = row["levels"], row["levels_ci"]
+            out = {"joint": int(j), "run": label,
+                   "fc_pos_Nm": _ci(lv["fc_pos_Nm"], ci["fc_pos_Nm"], fmt="{:.3g}"),
+                   "fc_neg_Nm": _ci(lv["fc_neg_Nm"], ci["fc_neg_Nm"], fmt="{:.3g}"),
+                   "viscous_pos_Nm_s_rad": _ci(lv["viscous_pos_Nm_s_rad"], ci["viscous_pos_Nm_s_rad"], fmt="{:.3g}"),
+                   "viscous_neg_Nm_s_rad": _ci(lv["viscous_neg_Nm_s_rad"], ci["viscous_neg_Nm_s_rad"], fmt="{:.3g}")}
+            ch = row.get("change_from_first")
+            out["fc_pos change_Nm"] = "-" if ch is None else _ci(ch["fc_pos_Nm"],
+                                                                 row["change_from_first_ci"]["fc_pos_Nm"], fmt="{:.3g}")
+            rows.append(out)
+    return pd.DataFrame(rows)
+
+
+def report_pooled(result: dict, manifest: dict, doc: Document) -> Document:
+    """The pooled diagnosis into ``doc``."""
+    runs = result.get("runs") or []
+    doc.text("Runs pooled: " + ", ".join(r["label"] for r in runs) + ". " + (result.get("method") or "") + ".")
+    if not result.get("conclusive"):
+        doc.heading("Nothing could be concluded")
+        doc.text(str(result.get("reason")))
+        doc.table("summary", runs_table(result), "each run on its own")
+        return doc
+    found = result.get("effects_found") or []
+    amb = result.get("ambiguous") or []
+    doc.heading("Effects found (runs pooled)")
+    doc.text((", ".join(found) + " (strongest evidence first)." if found else "None named.")
+             + (" Ambiguous: " + "; ".join(" / ".join(g) for g in amb) + "." if amb else ""))
+    for line in decided_lines(result):
+        doc.text(line[0].upper() + line[1:] + ".")
+    doc.table("summary", runs_table(result), "each run on its own: joints, controller gains (as its log or meta.yaml "
+              "give them), start state, and what its own diagnosis decided")
+    doc.heading("Every decision per stack")
+    thr = _p(result.get("test_threshold_p"))
+    doc.table("effects", findings_table(result), f"nested held-out tests (threshold p < {thr} and a BIC drop); "
+              "payload: does a wrist payload add to link errors within (twice) the declared "
+              "accuracy; a joint's effect: does it add to each run's own model with coefficients shared by the runs")
+    pt = payload_table(result)
+    if len(pt):
+        doc.heading("The arm's payload")
+        doc.table("payload", pt, "estimate [95 % interval] per stack; not identified: these runs' motion does not "
+                  "determine it (no number)")
+    ft = friction_table(result)
+    if len(ft):
+        doc.heading("Friction per run")
+        doc.table("friction", ft, "classic friction of each run fitted in the pooled stack (its own levels: a "
+                  "friction that drifted between runs), 95 % intervals; the change of the positive Coulomb level "
+                  "from the first run")
+    doc.text("Each run's own diagnosis is in alone-<k>.json; no model file is written for the pooled runs.")
+    return doc
