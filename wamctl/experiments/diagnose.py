@@ -243,10 +243,8 @@ def diagnose_runs_to_run_dir(data_paths: list[Path], model: Path | None = None, 
     run given twice are refused in one line before anything is fitted. ``simulate`` False skips each run's
     closed-loop position check. Returns (run path, diagnosis dict, report Document)."""
     from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
-    from wamctl.analysis.diagnosis.pooled import PooledDiagnosis, PoolingError, different_arm
-    from wamctl.report import write_report
+    from wamctl.analysis.diagnosis.pooled import PoolingError, different_arm
     from wamctl.runs.measured import load_run_data
-    from wamctl.runs.store import RunDir
 
     paths = [Path(p) for p in data_paths]
     resolved = [p.resolve() for p in paths]
@@ -270,6 +268,22 @@ def diagnose_runs_to_run_dir(data_paths: list[Path], model: Path | None = None, 
                      .fit(data, fitting))
     if progress:
         progress(80, 100, "diagnose: the runs pooled")
+    path, result, doc = write_pooled(paths, labels, datas, diags, model, out, name, formats)
+    if progress:
+        progress(100, 100, "diagnose: done")
+    return path, result, doc
+
+
+def write_pooled(paths: list[Path], labels: list[str], datas: list, diags: list, model: Path | None = None,
+                 out: Path = Path("runs"), name: str | None = None, formats=("md", "html", "json")):
+    """The runs ``paths`` (loaded as ``datas``, each diagnosed alone as ``diags``) pooled and written as a run
+    directory (see :func:`diagnose_runs_to_run_dir`); returns (run path, diagnosis dict, report Document)."""
+    from wamctl.analysis.diagnosis.pooled import PooledDiagnosis
+    from wamctl.report import write_report
+    from wamctl.runs.store import RunDir
+
+    paths = [Path(p) for p in paths]
+    resolved = [p.resolve() for p in paths]
     pooled = PooledDiagnosis(diags, labels, datas).fit()
     name = name or "diagnose-" + "+".join(p.name for p in paths)
     spec = {"kind": "diagnosis", "name": name, "data": [str(p) for p in resolved],
@@ -284,7 +298,4 @@ def diagnose_runs_to_run_dir(data_paths: list[Path], model: Path | None = None, 
         result["runs"][k]["diagnosis_file"] = f"alone-{k + 1}.json"
     run.write_json("diagnosis.json", result)
     run.finish("completed", None if pooled.conclusive_ else pooled.reason_, effects_found=result["effects_found"])
-    doc = write_report(run.path, formats=formats)
-    if progress:
-        progress(100, 100, "diagnose: done")
-    return run.path, result, doc
+    return run.path, result, write_report(run.path, formats=formats)
