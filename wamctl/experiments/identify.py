@@ -14,13 +14,25 @@ compare with ``wamctl diagnose``'s.
 
 The held-out check (:func:`held_out_check`): on every joint with held-out rows the identified model's torque RMS
 is compared with the nominal model's (the declared arm with friction fitted on the same rows). ``better``: at
-most the nominal's on every such joint; ``no_worse``: above it on some joint, but by less than the held-out data
-can tell (Diebold and Mariano's test of equal predictive accuracy, one-sided at 5 %, with a HAC variance: the
-filtered residuals are correlated in time), each such joint said with its ratio and p; ``worse``: above it, and
+most the nominal's on every such joint, and significantly below it on at least one (Diebold and Mariano's test
+of equal predictive accuracy, one-sided at 5 %, with a HAC variance: the filtered residuals are correlated in
+time); ``no_worse``: above it on some joint by less than the fit's uncertainty and the held-out data can tell
+(the same test with the identified model's posterior uncertainty in its null:
+:meth:`~wamctl.analysis.identification.estimator.InertialIdentification.held_out_comparison`), each such joint
+said with its ratio and p, or nowhere above it but nowhere significantly below it either (no improvement the
+data show: on a declared arm that is right, an identified model is its estimation noise away from it; until
+issue 27 such a run was ``worse`` by that noise alone, or ``better`` by chance); ``worse``: above it, and
 significantly, on at least one; ``not_checked``: a joint that was fitted has no held-out rows (or none has). A
 ``better`` or ``no_worse`` model is written as ``model.yaml``; otherwise as ``model_rejected.yaml``
 (``force=True``: as ``model.yaml`` all the same), and the verdict is in identification.json, the model file and
 the report's first lines.
+
+Arms: the runs name their robot (``robot:`` of a measured run, the spec's of ours: :mod:`wamctl.model.robots`);
+they must name one, and the declared arm (``--model``, else the datasheet and Table 4.1's first joints) is of it.
+A wam4's model is written as ``model.yaml`` (``robot: wam4``, links 1-4); its URDF is not written (wamctl's URDF
+writer knows the 7-DOF WAM only; identification.json says so). A ``torque: controller`` run uses only the joints
+whose gravity torque is constant over it (:mod:`wamctl.analysis.identification.data`), the others refused with
+the reason.
 """
 
 from __future__ import annotations
@@ -52,24 +64,30 @@ def held_out_check(validation: dict, fitted_joints: list[int], alpha: float = 0.
     checked = [j for j in range(len(nom)) if np.isfinite(nom[j]) and np.isfinite(idf[j]) and nom[j] > 0]
     ratio = {j + 1: float(idf[j] / nom[j]) for j in checked}
     p_worse = {j + 1: float(comp[j]["p_worse"]) if j in comp else float("nan") for j in checked}
+    p_fit = {j + 1: float(comp[j].get("p_worse_given_fit", comp[j]["p_worse"])) if j in comp else float("nan")
+             for j in checked}
     above = [j for j, r in ratio.items() if r > 1.0]
-    # a joint above the nominal is worse unless the test says the held-out data cannot tell (p >= alpha)
-    worse = [j for j in above if not (np.isfinite(p_worse[j]) and p_worse[j] >= alpha)]
+    # a joint above the nominal is worse unless the test (with the fit's uncertainty) says the data cannot tell
+    worse = [j for j in above if not (np.isfinite(p_fit[j]) and p_fit[j] >= alpha)]
     within = [j for j in above if j not in worse]
+    # better only where the held-out data show it: some joint significantly below the nominal
+    improved = [j for j, r in ratio.items() if r < 1.0 and np.isfinite(p_worse[j]) and 1.0 - p_worse[j] < alpha]
     unchecked = [j + 1 for j in fitted_joints if j not in checked]
     if worse:
         verdict = "worse"
     elif unchecked or not checked:
         verdict = "not_checked"
     else:
-        verdict = "no_worse" if within else "better"
+        verdict = "no_worse" if within or not improved else "better"
     moved = set(fitted_joints) | set(checked)
-    return {"verdict": verdict, "ratio": ratio, "p_worse": p_worse, "worse_joints": worse,
-            "within_noise_joints": within, "unchecked_joints": unchecked,
+    return {"verdict": verdict, "ratio": ratio, "p_worse": p_worse, "p_worse_given_fit": p_fit,
+            "worse_joints": worse, "within_noise_joints": within, "improved_joints": improved,
+            "unchecked_joints": unchecked,
             "not_moving_joints": [j + 1 for j in range(len(nom)) if j not in moved],
             "rule": "identified held-out torque RMS <= nominal's (declared arm, friction fitted on the same data) "
-                    f"on every joint that moves, or above it by less than the held-out data can tell (Diebold-"
-                    f"Mariano, one-sided, HAC variance, alpha {alpha})"}
+                    "on every joint that moves and significantly below it on one (better), or above it by less "
+                    "than the fit's uncertainty and the held-out data can tell (no_worse; Diebold-Mariano, "
+                    f"one-sided, HAC variance, the identified model's posterior in the null, alpha {alpha})"}
 
 
 def _ratio(r: float) -> str:
@@ -89,14 +107,20 @@ def check_statement(check: dict) -> str:
     if v == "better":
         s = (f"held-out check: the identified model is at least as good as the declared arm with friction fitted "
              f"on every joint that moves (identified / declared RMS: {ratios})")
+    elif v == "no_worse" and not check["within_noise_joints"]:
+        s = (f"held-out check: the identified model is no better and no worse than the declared arm with friction "
+             f"fitted within what the held-out data can tell: no joint significantly better (identified / "
+             f"declared RMS: {ratios})")
     elif v == "no_worse":
-        within = ", ".join(f"joint {j} {_ratio(check['ratio'][j])}x ({_p(check['p_worse'][j])})"
+        pf = check.get("p_worse_given_fit", check["p_worse"])
+        within = ", ".join(f"joint {j} {_ratio(check['ratio'][j])}x ({_p(pf[j])})"
                            for j in check["within_noise_joints"])
         s = (f"held-out check: the identified model is no worse than the declared arm with friction fitted within "
-             f"what the held-out data can tell; above it on {within}, not significantly (identified / declared "
-             f"RMS: {ratios})")
+             f"what the fit's uncertainty and the held-out data can tell; above it on {within}, not significantly "
+             f"(identified / declared RMS: {ratios})")
     elif v == "worse":
-        worse = ", ".join(f"{j} ({_p(check['p_worse'][j])})" for j in check["worse_joints"])
+        pf = check.get("p_worse_given_fit", check["p_worse"])
+        worse = ", ".join(f"{j} ({_p(pf[j])})" for j in check["worse_joints"])
         s = (f"held-out check FAILED: the identified model predicts held-out torque worse than the declared arm "
              f"with friction fitted on joint(s) {worse} (identified / declared RMS: {ratios})")
         if check["unchecked_joints"]:
@@ -112,33 +136,67 @@ def check_statement(check: dict) -> str:
     return s
 
 
-def declared_arm(model: Path | None, payload):
-    """(WamDynamics, FrictionModel, description) of the declared arm: a model file's ``links`` and
-    ``friction`` (or a friction file), else the datasheet and Table 4.1; plus the runs' declared payload."""
+def declared_arm(model: Path | None, payload, robot: str = "wam7"):
+    """(WamDynamics, FrictionModel, description) of the declared ``robot``: a model file's ``links`` and
+    ``friction`` (or a friction file), else the datasheet and Table 4.1 (its first joints on a smaller arm);
+    plus the runs' declared payload."""
     from pydantic import ValidationError
 
     from wamctl.io import load_yaml
     from wamctl.model.dynamics import WamDynamics
     from wamctl.model.friction import FRICTION_FILE_FORMAT, FrictionModel
     from wamctl.model.plant import resolve_friction
+    from wamctl.model.robots import get_robot
     from wamctl.model.urdf import is_urdf
     from wamctl.specs import PlantSpec, format_validation_error, load_model_file
     from wamctl.specs.common import link_parameters
 
+    n = get_robot(robot).n_joints
+    arm = "datasheet links" if robot == "wam7" else f"{robot} datasheet links"
     if model is None:
-        return WamDynamics(payload), FrictionModel.table_4_1(), "datasheet links, Table 4.1 friction"
+        return (WamDynamics(payload, robot=robot), FrictionModel.table_4_1(n),
+                f"{arm}, Table 4.1 friction" + ("" if robot == "wam7" else f" (joints 1-{n})"))
+    if is_urdf(model) and robot != "wam7":
+        raise SpecError(f"{model}: a URDF of the 7-DOF WAM; the runs are of a {robot} (give a model file)")
     raw = None if is_urdf(model) else load_yaml(model)     # a URDF: its links, Table 4.1 friction
-    if isinstance(raw, dict) and (raw.get("format") == FRICTION_FILE_FORMAT or "joints" in raw):
-        return WamDynamics(payload), FrictionModel.load(model), f"datasheet links, friction of {model}"
+    if isinstance(raw, dict) and raw.get("robot", robot) != robot:
+        raise SpecError(f"{model}: robot: {raw.get('robot')}; the runs are of a {robot}")
     try:
+        if isinstance(raw, dict) and (raw.get("format") == FRICTION_FILE_FORMAT or "joints" in raw):
+            return (WamDynamics(payload, robot=robot), FrictionModel.load(model, n),
+                    f"{arm}, friction of {model}")
         plant = PlantSpec.model_validate(load_model_file(model))
-        links = link_parameters(plant.links)
+        links = link_parameters(plant.links, robot)
+        friction = resolve_friction(plant.friction, Path(model).parent, n)
     except ValidationError as exc:
         raise SpecError(format_validation_error(exc, str(model))) from None
     except ValueError as exc:
         raise SpecError(f"{model}: {exc}") from None
-    return (WamDynamics(payload, links), resolve_friction(plant.friction, Path(model).parent),
-            f"links and friction of {model}")
+    return WamDynamics(payload, links), friction, f"links and friction of {model}"
+
+
+def _load(paths: list[Path]):
+    """The runs (:func:`wamctl.runs.measured.load_run_data`) of any registered robot and torque ``total`` or
+    ``controller``; the other runs refused in one line (:func:`wamctl.runs.measured.unsupported`); all of one
+    robot."""
+    from wamctl.runs.measured import load_run_data, unsupported
+
+    datas = []
+    for p in paths:
+        d = load_run_data(p, partial_ok=True)
+        why = unsupported(d.meta, d.data.columns, any_robot=True, controller_ok=True)
+        if why:
+            raise DataFormatError(f"{p}: {why}: not supported by identify yet")
+        datas.append(d)
+    return datas
+
+
+def _robot(datas) -> str:
+    robots = sorted({d.meta.robot for d in datas})
+    if len(robots) > 1:
+        raise DataFormatError(f"the runs name different robots ({', '.join(robots)}); identify runs of one arm "
+                              "together")
+    return robots[0] if robots else "wam7"
 
 
 def _payload(datas):
@@ -159,15 +217,15 @@ def identify(data_paths: list[Path], validate: list[Path] | None = None, model: 
     """Fit the identification; returns ``(estimator, validation dict, provenance dict)`` (no files written)."""
     from wamctl.analysis.identification.data import run_rows
     from wamctl.analysis.identification.estimator import InertialIdentification
-    from wamctl.runs.measured import load_run_data
 
     if not data_paths:
         raise SpecError("identify: give at least one measured run")
     validate = list(validate or [])
-    datas = [load_run_data(p) for p in data_paths]
-    vdatas = [load_run_data(p) for p in validate]
+    datas = _load(data_paths)
+    vdatas = _load(validate)
     payload = _payload(datas + vdatas)
-    dyn, friction, described = declared_arm(model, payload)
+    robot = _robot(datas + vdatas)
+    dyn, friction, described = declared_arm(model, payload, robot)
     step = 0
     total = 2 + len(datas) + max(len(vdatas), len(datas))
 
@@ -198,9 +256,10 @@ def identify(data_paths: list[Path], validate: list[Path] | None = None, model: 
     tick("identify: fitted")
     validation = validation_of(est, held)
     tick("identify: validated")
-    provenance = {"tool": "wamctl identify", "data": [str(Path(p).resolve()) for p in data_paths],
+    provenance = {"tool": "wamctl identify", "robot": robot, "data": [str(Path(p).resolve()) for p in data_paths],
                   "validation": ([str(Path(p).resolve()) for p in validate] if validate else
                                  f"last {HOLD_OUT_SHARE:.0%} of each run (fitted on the rest)"),
+                  "torque": sorted({d.meta.torque_kind for d in datas + vdatas}),
                   "declared": described, "payload_in_link7": (
                       {"mass_kg": payload.mass_kg, "com_m": list(payload.com_m)} if payload else None),
                   "method": "base parameters by IV on the reference, HAC intervals, consistent estimate by SDP"}
@@ -251,7 +310,8 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
                         {"backend": {"name": "analysis"}, "source": provenance["data"]})
     provenance.update(created_utc=utc_now(), wamctl_version=package_versions()["wamctl"],
                       git_revision=git_revision(), run_dir=str(run.path.resolve()))
-    held = {str(j + 1): {k: _num(validation["rms"][k][j]) for k in ("nominal", "identified")} for j in range(7)}
+    n = est.n_joints_
+    held = {str(j + 1): {k: _num(validation["rms"][k][j]) for k in ("nominal", "identified")} for j in range(n)}
     fitted = sorted({j for rr in est.rows_ for j in rr.joints})
     check = held_out_check(validation, fitted)
     model_name = "model.yaml" if check["verdict"] in WRITTEN_VERDICTS or force else REJECTED_MODEL
@@ -266,15 +326,26 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
                   relative_error=validation["relative_error"], prior_moves=prior_moves(est),
                   physical_checks=physical_checks(est.links_, est.dynamics_.links, payload=est.dynamics_.payload),
                   filter=[{"source": rr.source, "window_s": rr.window_s, "gauss_s": rr.gauss_s,
-                           "rows": rr.n_rows} for rr in est.rows_])
+                           "rows": rr.n_rows} for rr in est.rows_],
+                  joints_refused=_refused(est.rows_))
+    robot = provenance["robot"]
+    urdf_name = str(Path(model_name).with_suffix(".urdf"))
+    if robot != "wam7":     # wamctl.model.urdf writes the 7-DOF WAM only
+        result["urdf"] = {"written": False, "reason": f"no URDF of the {robot}: wamctl's URDF writer "
+                                                      "(wamctl.model.urdf) knows the 7-DOF WAM only; "
+                                                      f"{model_name} holds the identified links"}
+    else:
+        result["urdf"] = {"written": True, "file": urdf_name}
     run.write_json("identification.json", result)
     mf = model_file(est, provenance, held, check)
     (run.path / model_name).write_text(yaml.safe_dump(mf, sort_keys=False))
-    # the same links as a URDF (pinocchio, ROS and MuJoCo read it)
-    from wamctl.model.urdf import wam_urdf
-    (run.path / Path(model_name).with_suffix(".urdf")).write_text(wam_urdf(est.links_, comment=(
-        f"wamctl identify {provenance['run_dir']}: the identified links ({check['verdict']}); DH frames of "
-        "wamctl.model.params, armature on each joint's dynamics element")))
+    if result["urdf"]["written"]:       # the same links as a URDF (pinocchio, ROS and MuJoCo read it)
+        from wamctl.model.urdf import wam_urdf
+        (run.path / urdf_name).write_text(wam_urdf(est.links_, comment=(
+            f"wamctl identify {provenance['run_dir']}: the identified links ({check['verdict']}); DH frames of "
+            "wamctl.model.params, armature on each joint's dynamics element")))
+    else:
+        log.warning("identify: %s", result["urdf"]["reason"])
     est.table().to_csv(run.path / "parameters.csv", index=False)
     if validation["traces"]:
         pd.concat([pd.DataFrame(t) for t in validation["traces"]], ignore_index=True).to_parquet(
@@ -282,6 +353,15 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
     run.finish("completed", None, not_identified=est.identifiability_.undetermined)
     doc = write_report(run.path, formats=formats)
     return run.path, result, doc
+
+
+def _refused(rows) -> dict:
+    """{1-based joint: why} of the joints that moved but give no rows (e.g. gravity not logged), over the runs."""
+    out = {}
+    for rr in rows:
+        for j, why in rr.skipped.items():
+            out.setdefault(str(j + 1), why)
+    return out
 
 
 def _num(v):

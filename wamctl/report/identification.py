@@ -19,7 +19,7 @@ from wamctl.report.figures import joint_grid, save
 def validation_table(result: dict) -> pd.DataFrame:
     v = result["validation"]
     rows = []
-    for j in range(P.N_JOINTS):
+    for j in range(len(v["nominal"])):
         nom, idf, ins = v["nominal"][j], v["identified"][j], v["in_sample_identified"][j]
         rows.append({"joint": j + 1, "nominal_rms_Nm": nom, "identified_rms_Nm": idf,
                      "identified_over_nominal": (idf / nom) if nom and idf is not None else None,
@@ -36,9 +36,11 @@ def parameter_table(result: dict) -> pd.DataFrame:
 
 def links_table(model: dict, margins: list) -> pd.DataFrame:
     rows = []
-    for j in range(1, P.N_JOINTS + 1):
+    robot = model.get("robot", "wam7")
+    for j in range(1, len(model["links"]) + 1):
         e = model["links"][j] if j in model["links"] else model["links"][str(j)]
-        ev = np.linalg.eigvalsh(P.LinkParameters.datasheet().with_overrides({j: e}).inertia_matrix_kg_m2(j - 1))
+        ev = np.linalg.eigvalsh(P.LinkParameters.datasheet(robot).with_overrides({j: e})
+                                .inertia_matrix_kg_m2(j - 1))
         rows.append({"link": j, "mass_kg": e["mass_kg"], "com_x_m": e["com_m"][0], "com_y_m": e["com_m"][1],
                      "com_z_m": e["com_m"][2], "I1_kg_m2": ev[0], "I2_kg_m2": ev[1], "I3_kg_m2": ev[2],
                      "armature_kg_m2": e["armature_kg_m2"], "pseudo_inertia_margin": margins[j - 1],
@@ -64,13 +66,23 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     prov = result["provenance"]
     held = prov["validation"]
     held = held if isinstance(held, str) else ", ".join(Path(p).name for p in held)
-    doc.text(f"From {len(prov['data'])} run(s), {result['n_rows']} rows (sample, sliding joint); declared arm: "
+    urdf = result.get("urdf") or {"written": True}
+    robot = prov.get("robot", "wam7")
+    doc.text(f"Arm: {robot} ({result.get('n_joints', 7)} joints). "
+             f"From {len(prov['data'])} run(s), {result['n_rows']} rows (sample, sliding joint); declared arm: "
              f"{prov['declared']}; held out: {held}. "
              f"Instruments: {result['instruments']}. Model file: {model_name}"
-             + f", and the same links as a URDF, {Path(model_name).with_suffix('.urdf')}"
+             + (f", and the same links as a URDF, {Path(model_name).with_suffix('.urdf')}" if urdf["written"]
+                else f" (no URDF: {urdf['reason']})")
              + (" (usable as plant:, controller.declared_links:, diagnose --model)." if model_name == "model.yaml"
                 else " (not model.yaml: see the held-out check above)."))
     doc.data["instruments"] = result["instruments"]
+    doc.data["robot"] = robot
+    refused = result.get("joints_refused") or {}
+    if refused:
+        doc.text("Joints that moved but give no rows: " + "; ".join(f"joint {j}: {why}"
+                                                                     for j, why in refused.items()) + ".")
+        doc.data["joints_refused"] = refused
     acc = result.get("row_accounting") or []
     if acc:
         tot = {k: sum(a.get(k, 0) for a in acc)

@@ -10,6 +10,12 @@ and their meanings do not change)::
     base_parameters()                      BaseParameters: the combinations any data could determine (cached)
     identifiability(Yb, base)              Identifiability: rank, condition, what these data leave undetermined
 
+Any arm of :mod:`wamctl.model.robots` (issue 27): an arm of ``n`` joints has ``15 n`` standard parameters
+(``10 n`` inertial, ``n`` armature, ``4 n`` friction), in the order below with ``n`` for 7; the module's constants
+(``N7``, ``N_STANDARD``, ``STANDARD_NAMES``, ...) are the wam7's, :func:`standard_names`, :func:`layout` and
+``base_parameters(robot)`` any arm's. A function given standard parameters or a model infers the arm from their
+size (``15 n``) or the model's ``robot``.
+
 Standard parameters (column order of :func:`standard_regressor`)
 -----------------------------------------------------------------
 * ``0..69``: link ``i`` (1..7) at ``10 (i-1) + k``: ``m, mx, my, mz, Ixx, Ixy, Iyy, Ixz, Iyz, Izz``, pinocchio's
@@ -47,7 +53,7 @@ only acts on a joint that never moved). Those are named; an estimator must not p
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from functools import lru_cache
+from functools import cache
 
 import numpy as np
 import scipy.linalg
@@ -69,6 +75,37 @@ STANDARD_NAMES: tuple[str, ...] = (
 STANDARD_UNITS: tuple[str, ...] = (
     tuple(u for _ in range(N7) for u in ("kg", "kg m", "kg m", "kg m") + ("kg m^2",) * 6)
     + ("kg m^2",) * N7 + tuple(u for _ in range(N7) for u in ("N m", "N m", "N m s/rad", "N m s/rad")))
+
+
+
+def layout(n: int) -> tuple[int, slice, slice, int]:
+    """``(n_inertial, armature slice, friction slice, n_standard)`` of an arm of ``n`` joints."""
+    ni = 10 * n
+    return ni, slice(ni, ni + n), slice(ni + n, ni + 5 * n), 15 * n
+
+
+@cache
+def standard_names(n: int = N7) -> tuple[str, ...]:
+    """The ``15 n`` standard parameter names of an arm of ``n`` joints (:data:`STANDARD_NAMES` for seven)."""
+    return (tuple(f"{p}{i + 1}" for i in range(n) for p in LINK_PARAMETER_NAMES)
+            + tuple(f"Ia{j + 1}" for j in range(n))
+            + tuple(f"{p}{j + 1}" for j in range(n) for p in FRICTION_PARAMETER_NAMES))
+
+
+@cache
+def standard_units(n: int = N7) -> tuple[str, ...]:
+    """Units of :func:`standard_names`."""
+    return (tuple(u for _ in range(n) for u in ("kg", "kg m", "kg m", "kg m") + ("kg m^2",) * 6)
+            + ("kg m^2",) * n + tuple(u for _ in range(n) for u in ("N m", "N m", "N m s/rad", "N m s/rad")))
+
+
+def n_joints_of(pi_or_width) -> int:
+    """Joints of the arm whose standard parameters are ``pi`` (its last axis ``15 n``) or of a width ``15 n``."""
+    width = int(pi_or_width) if np.ndim(pi_or_width) == 0 else np.shape(pi_or_width)[-1]
+    if width % 15:
+        raise ValueError(f"{width} standard parameters: not 15 per joint")
+    return width // 15
+
 
 N_STATES = 120          # random states stacked for the numerical base (840 rows for 105 columns)
 SEED = 20240518
@@ -92,12 +129,14 @@ def standard_regressor(dyn, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> n
     """
     q, qd, qdd = (np.atleast_2d(np.asarray(x, float)) for x in (q, qd, qdd))
     n = len(q)
-    Y = np.zeros((n, N7, N_STANDARD))
-    Y[:, :, :N_INERTIAL] = dyn.torque_regressor(q, qd, qdd)
-    j = np.arange(N7)
-    Y[:, j, N_INERTIAL + j] = qdd
-    for jj in range(N7):
-        c0 = FRICTION_SLICE.start + 4 * jj
+    nj = int(getattr(dyn, "n_joints", N7))
+    ni, _, fs, ns = layout(nj)
+    Y = np.zeros((n, nj, ns))
+    Y[:, :, :ni] = dyn.torque_regressor(q, qd, qdd)
+    j = np.arange(nj)
+    Y[:, j, ni + j] = qdd
+    for jj in range(nj):
+        c0 = fs.start + 4 * jj
         Y[:, jj, c0:c0 + 4] = classic_friction_columns(qd[:, jj])
     return Y
 
@@ -105,7 +144,10 @@ def standard_regressor(dyn, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> n
 def standard_vector(dyn, friction: FrictionModel | None = None) -> np.ndarray:
     """(105,) standard parameters of a rigid body (a WamDynamics: its links, armature and payload) and a
     friction model (its classic part; zero friction if None)."""
-    f = friction if friction is not None else FrictionModel.zero()
+    nj = int(getattr(dyn, "n_joints", N7))
+    f = friction if friction is not None else FrictionModel.zero(nj)
+    if f.n_joints != nj:
+        raise ValueError(f"friction of {f.n_joints} joints for an arm of {nj}")
     fr = np.column_stack([f.fc_pos_Nm, f.fc_neg_Nm, f.viscous_pos_Nm_s_rad, f.viscous_neg_Nm_s_rad]).reshape(-1)
     return np.concatenate([dyn.standard_parameters(), dyn.armature_kg_m2, fr])
 
@@ -113,15 +155,21 @@ def standard_vector(dyn, friction: FrictionModel | None = None) -> np.ndarray:
 def split_standard(pi: np.ndarray) -> tuple[np.ndarray, np.ndarray, FrictionModel]:
     """``pi`` (105,) -> ((70,) inertial parameters, (7,) armature, the classic :class:`FrictionModel`)."""
     pi = np.asarray(pi, float)
-    fr = pi[FRICTION_SLICE].reshape(N7, 4)
-    return pi[:N_INERTIAL].copy(), pi[ARMATURE_SLICE].copy(), FrictionModel(fr[:, 0], fr[:, 1], fr[:, 2], fr[:, 3])
+    n = n_joints_of(pi)
+    ni, arm, fs, _ = layout(n)
+    fr = pi[fs].reshape(n, 4)
+    return pi[:ni].copy(), pi[arm].copy(), FrictionModel(fr[:, 0], fr[:, 1], fr[:, 2], fr[:, 3])
 
 
-def random_states(n: int, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``n`` random states: positions uniform within the joint limits, velocities N(0, 1) rad/s and
-    accelerations N(0, 4) rad/s^2 (never exactly zero, so every friction column is excited)."""
-    q = rng.uniform(P.Q_MIN_RAD, P.Q_MAX_RAD, size=(n, N7))
-    return q, rng.normal(0.0, 1.0, (n, N7)), rng.normal(0.0, 2.0, (n, N7))
+def random_states(n: int, rng: np.random.Generator, robot=None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``n`` random states of ``robot`` (default the wam7): positions uniform within the joint limits, velocities
+    N(0, 1) rad/s and accelerations N(0, 4) rad/s^2 (never exactly zero, so every friction column is excited)."""
+    from wamctl.model.robots import get_robot
+
+    r = get_robot(robot)
+    nj = r.n_joints
+    q = rng.uniform(r.q_min_rad, r.q_max_rad, size=(n, nj))
+    return q, rng.normal(0.0, 1.0, (n, nj)), rng.normal(0.0, 2.0, (n, nj))
 
 
 # ----------------------------------------------------------------------------------------------- base
@@ -135,12 +183,24 @@ class BaseParameters:
     dependent : (105 - nb,) the standard parameters regrouped into them.
     coupling : (nb, 105 - nb) ``C``: ``beta = pi[independent] + C @ pi[dependent]``.
     names : (nb,) the independent parameter's name, with ``'`` appended when others are regrouped into it.
+    n_joints : the arm's joints (``15 n_joints`` standard parameters; 7: the wam7).
+    robot : the arm's name.
     """
 
     independent: np.ndarray
     dependent: np.ndarray
     coupling: np.ndarray
     names: tuple[str, ...] = field(default=())
+    n_joints: int = N7
+    robot: str = "wam7"
+
+    @property
+    def n_standard(self) -> int:
+        return 15 * self.n_joints
+
+    @property
+    def standard_names(self) -> tuple[str, ...]:
+        return standard_names(self.n_joints)
 
     @property
     def n_base(self) -> int:
@@ -149,14 +209,15 @@ class BaseParameters:
     @property
     def matrix(self) -> np.ndarray:
         """(nb, 105) ``K`` with ``beta = K @ pi``."""
-        K = np.zeros((self.n_base, N_STANDARD))
+        K = np.zeros((self.n_base, self.n_standard))
         K[np.arange(self.n_base), self.independent] = 1.0
         K[:, self.dependent] = self.coupling
         return K
 
     @property
     def units(self) -> tuple[str, ...]:
-        return tuple(STANDARD_UNITS[i] for i in self.independent)
+        units = standard_units(self.n_joints)
+        return tuple(units[i] for i in self.independent)
 
     def of(self, pi: np.ndarray) -> np.ndarray:
         """Base parameters ``beta`` (nb,) or (m, nb) of standard parameters ``pi`` (105,) or (m, 105)."""
@@ -169,12 +230,13 @@ class BaseParameters:
 
     def expression(self, k: int, digits: int = 4) -> str:
         """Base parameter ``k`` as a combination of standard parameters, e.g. ``Izz1 + Ia1 + 0.3025 m3``."""
-        terms = [STANDARD_NAMES[self.independent[k]]]
+        names = self.standard_names
+        terms = [names[self.independent[k]]]
         for c, d in zip(self.coupling[k], self.dependent):
             if c != 0.0:
                 mag = abs(c)
                 coef = "" if np.isclose(mag, 1.0) else f"{mag:.{digits}g} "
-                terms.append(f"{'-' if c < 0 else '+'} {coef}{STANDARD_NAMES[d]}")
+                terms.append(f"{'-' if c < 0 else '+'} {coef}{names[d]}")
         return " ".join(terms)
 
     def index(self, name: str) -> int:
@@ -185,13 +247,14 @@ class BaseParameters:
         raise KeyError(name)
 
     def to_dict(self) -> dict:
-        return {"n_base": self.n_base, "n_standard": N_STANDARD,
+        return {"n_base": self.n_base, "n_standard": self.n_standard, "robot": self.robot,
                 "parameters": [{"name": self.names[k], "unit": self.units[k], "expression": self.expression(k)}
                                for k in range(self.n_base)]}
 
 
-def base_from_regressor(W: np.ndarray, rank_tol: float = RANK_TOL) -> BaseParameters:
-    """The numerical base of a stacked standard regressor ``W`` (m, 105) by QR with column pivoting."""
+def base_from_regressor(W: np.ndarray, rank_tol: float = RANK_TOL, robot: str | None = None) -> BaseParameters:
+    """The numerical base of a stacked standard regressor ``W`` (m, 15 n) by QR with column pivoting (``robot``:
+    the arm's name, default the wam7)."""
     _, R, piv = scipy.linalg.qr(W, mode="economic", pivoting=True)
     d = np.abs(np.diag(R))
     r = int(np.sum(d > rank_tol * d[0]))
@@ -202,18 +265,28 @@ def base_from_regressor(W: np.ndarray, rank_tol: float = RANK_TOL) -> BaseParame
     coupling = coupling[order]
     dep_order = np.argsort(piv[r:])
     dependent, coupling = piv[r:][dep_order], coupling[:, dep_order]
-    names = tuple(STANDARD_NAMES[i] + ("'" if coupling[k].any() else "") for k, i in enumerate(independent))
-    return BaseParameters(independent, dependent, coupling, names)
+    nj = n_joints_of(W)
+    all_names = standard_names(nj)
+    names = tuple(all_names[i] + ("'" if coupling[k].any() else "") for k, i in enumerate(independent))
+    return BaseParameters(independent, dependent, coupling, names, nj, robot or "wam7")
 
 
-@lru_cache(maxsize=1)
-def base_parameters() -> BaseParameters:
-    """The WAM's base parameters (structural, cached): see the module doc."""
+def base_parameters(robot=None) -> BaseParameters:
+    """An arm's base parameters (structural, cached per arm; ``robot`` a name or :class:`~wamctl.model.robots.
+    Robot`, default the wam7): see the module doc."""
+    from wamctl.model.robots import get_robot
+
+    return _base_parameters(get_robot(robot).name)
+
+
+@cache
+def _base_parameters(robot: str) -> BaseParameters:
     from wamctl.model.dynamics import WamDynamics
 
-    q, qd, qdd = random_states(N_STATES, np.random.default_rng(SEED))
-    W = standard_regressor(WamDynamics(), q, qd, qdd).reshape(-1, N_STANDARD)
-    return base_from_regressor(W)
+    dyn = WamDynamics(robot=robot)
+    q, qd, qdd = random_states(N_STATES, np.random.default_rng(SEED), robot)
+    W = standard_regressor(dyn, q, qd, qdd)
+    return base_from_regressor(W.reshape(-1, W.shape[-1]), robot=robot)
 
 
 # ----------------------------------------------------------------------------------------------- data

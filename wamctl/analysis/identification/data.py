@@ -24,6 +24,15 @@ ch. 3: below, Stribeck and stick-slip take over). A stuck joint's friction is st
 cannot be used; what only acts on joints that never slide is then undetermined (and said so:
 :func:`wamctl.analysis.identification.base.identifiability`).
 
+Arms and torques
+----------------
+Any arm of :mod:`wamctl.model.robots`: the rows have the joints of the model (``dynamics``), which must be the
+arm the run names (``robot:``). A run whose torque is the controller's output (``torque: controller``: gravity
+compensation added downstream and not logged) keeps only the joints whose gravity torque under the declared arm
+is constant over the run (:data:`GRAVITY_CONSTANT_NM`: zero on a vertical axis, or held constant because the
+joints beyond it keep still), the declared gravity added back to their torque; the others are left out with the
+reason (:attr:`RunRows.skipped`), and no joint left is an error naming each joint's reason.
+
 Instruments
 -----------
 ``Z``: the standard regressor of the reference ``q_ref`` through the same two filters. The reference is
@@ -53,10 +62,12 @@ from wamctl.analysis.diagnosis.signals import (
     smooth,
     window_samples,
 )
-from wamctl.analysis.identification.base import N_STANDARD, standard_regressor
+from wamctl.analysis.identification.base import standard_regressor
+from wamctl.errors import DataFormatError
 from wamctl.model import params as P
 
 N7 = P.N_JOINTS
+GRAVITY_CONSTANT_NM = 1e-6      # a joint's gravity torque varying less over a run counts as constant
 ROW_RATE_HZ = 100.0
 SIGNAL_SHARE = 0.99     # of the reference's acceleration energy that sets the signal band
 BAND_MARGIN = 3.0       # the second filter's cut-off at least this many times the signal band
@@ -74,9 +85,9 @@ class RunRows:
     ----------
     source : where the run came from.
     t_s : (m,) time of each kept sample, s.
-    q_rad, qd_rad_s : (m, 7) states (first filter).
-    tau_Nm : (m, 7) torque through both filters.
-    usable : (m, 7) bool, rows (sample, joint) where the joint slides over the second filter's reach.
+    q_rad, qd_rad_s : (m, n) states (first filter); n the arm's joints (7 on the wam7).
+    tau_Nm : (m, n) torque through both filters.
+    usable : (m, n) bool, rows (sample, joint) where the joint slides over the second filter's reach.
     Y : (m, 7, 105) standard regressor (:func:`~wamctl.analysis.identification.base.standard_regressor`)
         through the second filter.
     Z : (m, 7, 105) the reference's, likewise: instruments.
@@ -104,15 +115,21 @@ class RunRows:
     gauss_s: float | None
     tracking_share: np.ndarray | None = None
     accounting: dict | None = None
+    torque_kind: str = "total"
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.usable.shape[1])
 
     @property
     def reference_tracks(self) -> np.ndarray:
-        """(7,) bool per joint: its rows are instrumented by the reference (:func:`tracking_shares` at most
+        """(n,) bool per joint: its rows are instrumented by the reference (:func:`tracking_shares` at most
         ``TRACKING_SHARE``); joints without rows are False."""
+        n = self.n_joints
         if self.tracking_share is None:
-            return np.isin(np.arange(N7), self.joints)
+            return np.isin(np.arange(n), self.joints)
         with np.errstate(invalid="ignore"):
-            return np.asarray(self.tracking_share <= TRACKING_SHARE) & np.isin(np.arange(N7), self.joints)
+            return np.asarray(self.tracking_share <= TRACKING_SHARE) & np.isin(np.arange(n), self.joints)
 
     @property
     def n_rows(self) -> int:
@@ -179,9 +196,9 @@ def auto_filter(t_s: np.ndarray, q_ref_rad: np.ndarray, rate_hz: float = ROW_RAT
 
 
 def tracking_shares(q_rad: np.ndarray, q_ref_rad: np.ndarray, joints: list[int]) -> np.ndarray:
-    """(7,) per joint: the RMS of its tracking error ``q - q_ref`` over the RMS of its motion (about its mean);
+    """(n,) per joint: the RMS of its tracking error ``q - q_ref`` over the RMS of its motion (about its mean);
     NaN for joints not in ``joints`` or that do not move."""
-    out = np.full(N7, np.nan)
+    out = np.full(np.shape(q_rad)[1], np.nan)
     for j in joints:
         motion = float(np.std(q_rad[:, j]))
         if motion > 0:
@@ -213,10 +230,36 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
     ``dynamics`` (a WamDynamics) supplies the kinematics of the regressor. ``window_s``: ``"auto"``
     (:func:`auto_filter`), None (no second filter: residuals comparable with ``wamctl diagnose``'s), or seconds
     (with ``gauss_s``, default a quarter of it). Raises DataFormatError (from the diagnosis' signal
-    preparation) for data that cannot be differentiated."""
+    preparation) for data that cannot be differentiated, for a run of another arm than ``dynamics``', and for a
+    ``torque: controller`` run without a joint whose gravity torque is constant (see the module doc)."""
     meta = data.meta
-    sig = prepare_signals(data.t_s, data.col("q"), data.col("q_ref"), data.col("tau"),
-                          float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints])
+    nj = int(getattr(dynamics, "n_joints", N7))
+    robot = getattr(meta, "robot", "wam7")
+    dyn_robot = getattr(getattr(dynamics, "robot", None), "name", "wam7")
+    if robot != dyn_robot:
+        raise DataFormatError(f"{data.source}: the run is of a {robot}, the declared model of a {dyn_robot}")
+    q_raw, q_ref_raw, tau_raw = (data.col(c)[:, :nj] for c in ("q", "q_ref", "tau"))
+    torque_kind = getattr(meta, "torque_kind", "total")
+    gravity_refused: dict[int, str] = {}
+    if torque_kind == "controller":
+        tau_raw, gravity_refused = _add_constant_gravity(dynamics, q_raw, tau_raw)
+    # the diagnosis' signal preparation takes the wam7's seven columns: a smaller arm's are padded with joints at
+    # rest (zero travel: never diagnosed) and cut off again below
+    pad = N7 - nj
+    if pad > 0:
+        q_raw, q_ref_raw, tau_raw = (np.pad(a, ((0, 0), (0, pad))) for a in (q_raw, q_ref_raw, tau_raw))
+    sig = prepare_signals(data.t_s, q_raw, q_ref_raw, tau_raw, float(meta.sample_rate_hz),
+                          [j - 1 for j in meta.experiment.joints])
+    if pad > 0:
+        sig = _cut(sig, nj)
+    # refused: the joints that move (or were commanded to) whose gravity torque varies
+    gravity_refused = {j: why for j, why in gravity_refused.items() if j in sig.joints or j in sig.skipped}
+    if gravity_refused:
+        sig.joints = [j for j in sig.joints if j not in gravity_refused]
+        sig.skipped = {**sig.skipped, **gravity_refused}
+        if not sig.joints:
+            raise DataFormatError(f"{data.source}: no joint left to identify (" + "; ".join(
+                f"joint {j + 1}: {why}" for j, why in sorted(gravity_refused.items())) + ")")
     step = max(1, int(round(1.0 / (sig.dt_s * rate_hz))))
     keep = np.arange(0, sig.n, step)
     dt = sig.dt_s * step
@@ -224,7 +267,7 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
         auto = auto_filter(sig.t_s, sig.q_ref_rad, 1.0 / dt)
         window_s, gauss_s = auto if auto else (None, None)
     sliding = sig.moving & (np.abs(sig.qd_rad_s) >= MIN_SPEED_RAD_S)
-    sliding[:, [j for j in range(N7) if j not in sig.joints]] = False
+    sliding[:, [j for j in range(nj) if j not in sig.joints]] = False
     sliding = sliding[keep]
     # a joint that never slides, and never reaches MIN_SPEED_RAD_S or spans less than HELD_RANGE_RAD, is held:
     # its speed and acceleration are the sensors' noise (on a real log with
@@ -250,8 +293,8 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
         else:
             g2 = gauss_s / dt
             m = len(keep)
-            Y = smooth(Y.reshape(m, -1), w2, g2).reshape(m, N7, N_STANDARD)
-            Z = smooth(Z.reshape(m, -1), w2, g2).reshape(m, N7, N_STANDARD)
+            Y = smooth(Y.reshape(m, -1), w2, g2).reshape(m, nj, 15 * nj)
+            Z = smooth(Z.reshape(m, -1), w2, g2).reshape(m, nj, 15 * nj)
             tau = smooth(tau, w2, g2)
             reach2 = filter_reach(w2, g2)
     usable = ~_dilate(~sliding, reach2)
@@ -262,7 +305,35 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
                                 list(sig.joints), reach2 * dt)
     return RunRows(str(data.source), sig.t_s[keep], sig.q_rad[keep], sig.qd_rad_s[keep], tau, usable, Y, Z,
                    joints, dict(sig.skipped), dt, sig.reach * sig.dt_s + reach2 * dt, window_s, gauss_s,
-                   tracking_shares(sig.q_raw_rad, sig.q_ref_rad, joints), accounting)
+                   tracking_shares(sig.q_raw_rad, sig.q_ref_rad, joints), accounting, torque_kind)
+
+
+def _add_constant_gravity(dynamics, q_rad: np.ndarray, tau_Nm: np.ndarray) -> tuple[np.ndarray, dict]:
+    """A ``torque: controller`` run: the declared gravity added to the joints whose gravity torque is constant over
+    the run (``GRAVITY_CONSTANT_NM``), the others refused ``{0-based joint: why}``."""
+    g = dynamics.gravity_many(q_rad)
+    span = np.ptp(g, axis=0)
+    refused = {j: (f"torque controller: gravity compensation not logged and joint {j + 1}'s gravity torque varies "
+                   f"by {span[j]:.3g} N m over the run (at most {GRAVITY_CONSTANT_NM:g} N m is usable)")
+               for j in range(q_rad.shape[1]) if span[j] > GRAVITY_CONSTANT_NM}
+    tau = tau_Nm.copy()
+    for j in range(q_rad.shape[1]):
+        if j not in refused:
+            tau[:, j] = tau[:, j] + g[:, j]
+    return tau, refused
+
+
+def _cut(sig, n: int):
+    """The diagnosis' signals of a padded run cut back to its ``n`` joints (every per-joint array, cached ones
+    included)."""
+    for name, value in list(vars(sig).items()):
+        if isinstance(value, np.ndarray) and value.ndim >= 1 and value.shape[-1] == N7 and name != "t_s":
+            setattr(sig, name, value[..., :n])
+    sig._full = {k: v[..., :n] for k, v in sig._full.items()}
+    sig._memo.clear()
+    sig.joints = [j for j in sig.joints if j < n]
+    sig.skipped = {j: w for j, w in sig.skipped.items() if j < n}
+    return sig
 
 
 

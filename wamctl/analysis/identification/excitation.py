@@ -40,7 +40,6 @@ import numpy as np
 from scipy.optimize import minimize
 
 from wamctl.analysis.identification.base import (
-    N_STANDARD,
     BaseParameters,
     base_parameters,
     identifiability,
@@ -61,9 +60,9 @@ class FourierTrajectory:
 
     Attributes
     ----------
-    q0_rad : (7,) start and end of each period.
+    q0_rad : (n,) start and end of each period (n: the arm's joints, 7 on the wam7, 4 on the wam4).
     period_s : base period.
-    a, b : (7, L) coefficients, rad/s (rows of held joints are zero).
+    a, b : (n, L) coefficients, rad/s (rows of held joints are zero).
     """
 
     q0_rad: np.ndarray
@@ -78,14 +77,15 @@ class FourierTrajectory:
     @property
     def moving(self) -> list[int]:
         """0-based joints that move."""
-        return [j for j in range(N7) if np.any(self.a[j]) or np.any(self.b[j])]
+        return [j for j in range(len(self.a)) if np.any(self.a[j]) or np.any(self.b[j])]
 
     @classmethod
     def from_free(cls, q0_rad, period_s: float, joints: list[int], x: np.ndarray, harmonics: int):
         """The trajectory of free coefficients ``x`` ((len(joints), 2 (L-1)) flattened: ``a_2..a_L, b_2..b_L``
         per joint) for the 0-based ``joints``."""
         L = harmonics
-        a, b = np.zeros((N7, L)), np.zeros((N7, L))
+        n = len(np.atleast_1d(q0_rad))
+        a, b = np.zeros((n, L)), np.zeros((n, L))
         x = np.asarray(x, float).reshape(len(joints), 2 * (L - 1))
         ls = np.arange(2, L + 1)
         for row, j in zip(x, joints):
@@ -115,8 +115,10 @@ class FourierTrajectory:
 # ----------------------------------------------------------------------------------------------- limits
 @dataclass
 class ExcitationLimits:
-    """What the trajectory must respect everywhere (arrays (7,)). ``torque_fraction``: share of the torque
-    limits the declared model may need; ``cartesian_speed_m_s``: largest speed of the wrist (link-7 origin)."""
+    """What the trajectory must respect everywhere (arrays (n,), the arm's joints). ``torque_fraction``: share of
+    the torque limits the declared model may need (``torque_limit_Nm``, default the wam7's); ``cartesian_speed_m_s``:
+    largest speed of the flange (link-7 origin on the wam7, the tool plate on the wam4). :meth:`of_robot`: an arm's
+    limits."""
 
     q_min_rad: np.ndarray
     q_max_rad: np.ndarray
@@ -125,10 +127,22 @@ class ExcitationLimits:
     torque_fraction: float = 0.7
     cartesian_speed_m_s: float = 0.8
     world: World | None = None
+    torque_limit_Nm: np.ndarray | None = None
 
     @property
     def tau_max_Nm(self) -> np.ndarray:
-        return self.torque_fraction * P.TAU_MAX_NM
+        return self.torque_fraction * (P.TAU_MAX_NM if self.torque_limit_Nm is None else self.torque_limit_Nm)
+
+    @classmethod
+    def of_robot(cls, robot, qdd_max_rad_s2, **kw) -> ExcitationLimits:
+        """The limits of a registered arm (:mod:`wamctl.model.robots`): its joint range, speed and torque limits,
+        with the given accelerations (and ``torque_fraction``, ``cartesian_speed_m_s``, ``world``)."""
+        from wamctl.model.robots import get_robot
+
+        r = get_robot(robot)
+        return cls(r.q_min_rad.copy(), r.q_max_rad.copy(), r.qd_max_rad_s.copy(),
+                   np.broadcast_to(np.asarray(qdd_max_rad_s2, float), (r.n_joints,)).copy(),
+                   torque_limit_Nm=r.tau_max_Nm.copy(), **kw)
 
     KINDS = ("position", "speed", "acceleration", "torque", "cartesian_speed")
 
@@ -248,7 +262,7 @@ def limit_use(q, qd, qdd, tau_Nm, cart_speed_m_s, limits: ExcitationLimits) -> L
     out = LimitUse()
     dev = np.abs(q - mid)
     out.used["position"] = dev.max(axis=0) / half
-    out.peak["position"] = q[np.argmax(dev, axis=0), np.arange(N7)]
+    out.peak["position"] = q[np.argmax(dev, axis=0), np.arange(q.shape[1])]
     for kind, x, lim in (("speed", qd, limits.qd_max_rad_s), ("acceleration", qdd, limits.qdd_max_rad_s2),
                          ("torque", tau_Nm, limits.tau_max_Nm)):
         peak = np.abs(x).max(axis=0)
@@ -261,18 +275,21 @@ def limit_use(q, qd, qdd, tau_Nm, cart_speed_m_s, limits: ExcitationLimits) -> L
 # ----------------------------------------------------------------------------------------------- criterion
 def target_columns(joints: list[int], base: BaseParameters | None = None, seed: int = 0) -> np.ndarray:
     """(nb,) bool: the base parameters that data moving only the 0-based ``joints`` (each through rich
-    random motion, the others held, rows of the moving joints only) can determine."""
+    random motion, the others held, rows of the moving joints only) can determine (the arm of ``base``, default
+    the wam7)."""
     from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.robots import get_robot
 
     base = base if base is not None else base_parameters()
+    r = get_robot(base.robot)
     rng = np.random.default_rng(seed)
-    n = 150
-    q = np.tile(0.5 * (P.Q_MIN_RAD + P.Q_MAX_RAD), (n, 1))
-    qd, qdd = np.zeros((n, N7)), np.zeros((n, N7))
-    q[:, joints] = rng.uniform(P.Q_MIN_RAD[joints], P.Q_MAX_RAD[joints], (n, len(joints)))
+    n, nj = 150, r.n_joints
+    q = np.tile(0.5 * (r.q_min_rad + r.q_max_rad), (n, 1))
+    qd, qdd = np.zeros((n, nj)), np.zeros((n, nj))
+    q[:, joints] = rng.uniform(r.q_min_rad[joints], r.q_max_rad[joints], (n, len(joints)))
     qd[:, joints] = rng.normal(0, 1, (n, len(joints)))
     qdd[:, joints] = rng.normal(0, 2, (n, len(joints)))
-    Y = standard_regressor(WamDynamics(), q, qd, qdd)[:, joints, :].reshape(-1, N_STANDARD)
+    Y = standard_regressor(WamDynamics(robot=r), q, qd, qdd)[:, joints, :].reshape(-1, base.n_standard)
     return identifiability(base.regressor(Y), base).identified
 
 
@@ -287,7 +304,7 @@ class Criterion:
             raise ValueError(f"criterion: {kind!r}; choose {' or '.join(CRITERIA)}")
         self.q0, self.period_s, self.joints, self.L = np.asarray(q0_rad, float), period_s, joints, harmonics
         self.limits, self.dyn, self.kind = limits, dynamics, kind
-        self.base = base_parameters()
+        self.base = base_parameters(getattr(dynamics, "robot", None))
         self.cols = self.base.independent[target_columns(joints, self.base)]
         self.pi_nominal = standard_vector(dynamics, friction)
         self.t_grid = (np.arange(n_grid) + 0.5) * period_s / n_grid
@@ -526,7 +543,7 @@ def sampled_limit_use(traj: FourierTrajectory, limits: ExcitationLimits, dynamic
 
 def predicted_tracking_share(traj: FourierTrajectory, dynamics, friction, kp: np.ndarray, kd: np.ndarray,
                              n_samples: int = 2048) -> np.ndarray:
-    """(7,) per joint: the tracking error a PD + gravity controller (gains ``kp``, ``kd``) will leave over one
+    """(n,) per joint: the tracking error a PD + gravity controller (gains ``kp``, ``kd``) will leave over one
     period, as a share of the joint's motion (RMS of the error over the standard deviation of the position; NaN
     for joints that do not move), the figure :func:`wamctl.analysis.identification.data.tracking_shares` measures
     on the run. Linear, per joint: the torque the declared model needs beyond gravity (rigid body + friction)

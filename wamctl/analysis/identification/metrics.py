@@ -20,8 +20,9 @@ The box of link ``i`` (DH frame ``i``): the bounding box of the link's DH skelet
 and ``i`` and the point ``d_{i+1}`` along ``z_i`` (the body reaches to the next joint), padded on every side by
 the link's capsule radius of :mod:`wamctl.model.collision` plus how far the datasheet's own COM lies outside the
 skeleton's box (so the datasheet arm passes with the capsule radius to spare). It is a model of the outline, not
-the housing. Total mass: within ``mass_tolerance`` (10 % by default, a chosen figure: the datasheet gives no
-tolerance) of the declared arm's.
+the housing. On an arm whose last link ends at a tool plate (the wam4's forearm: libbarrett's toolplate, 0.36 m
+along z4) the skeleton reaches the plate. Total mass: within ``mass_tolerance`` (10 % by default, a chosen
+figure: the datasheet gives no tolerance) of the declared arm's.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import numpy as np
 
 from wamctl.model import params as P
 from wamctl.model.collision import RADIUS_M
+from wamctl.model.robots import get_robot
 
 PUBLISHED_HELD_OUT_PCT = (6.7, 8.5)      # real WAM, held-out relative torque error (issue 29)
 LINK_CAPSULE = ("shoulder", "shoulder", "upper arm", "forearm", "wrist and hand", "wrist and hand",
@@ -125,12 +127,14 @@ def prior_moves(est) -> list[dict]:
     return out
 
 
-def _skeleton_box(i: int) -> tuple[np.ndarray, np.ndarray]:
-    """(low (3,), high (3,)) of link ``i``'s (0-based) DH skeleton in DH frame ``i``."""
-    ca, sa = np.cos(P.DH_ALPHA_RAD[i]), np.sin(P.DH_ALPHA_RAD[i])
+def _skeleton_box(i: int, robot=None) -> tuple[np.ndarray, np.ndarray]:
+    """(low (3,), high (3,)) of link ``i``'s (0-based) DH skeleton in DH frame ``i`` (``robot``: default the
+    wam7)."""
+    r = get_robot(robot)
+    ca, sa = np.cos(r.dh_alpha_rad[i]), np.sin(r.dh_alpha_rad[i])
     rot = np.array([[1.0, 0.0, 0.0], [0.0, ca, -sa], [0.0, sa, ca]])
-    prev = -rot.T @ np.array([P.DH_A_M[i], 0.0, P.DH_D_M[i]])          # frame i-1's origin in frame i
-    nxt = np.array([0.0, 0.0, P.DH_D_M[i + 1] if i + 1 < P.N_JOINTS else 0.0])
+    prev = -rot.T @ np.array([r.dh_a_m[i], 0.0, r.dh_d_m[i]])          # frame i-1's origin in frame i
+    nxt = np.array([0.0, 0.0, r.dh_d_m[i + 1] if i + 1 < r.n_joints else r.flange_d_m])
     pts = np.vstack([np.zeros(3), prev, nxt])
     return pts.min(axis=0), pts.max(axis=0)
 
@@ -139,12 +143,13 @@ def _outside_m(c: np.ndarray, lo: np.ndarray, hi: np.ndarray) -> float:
     return float(np.linalg.norm(np.maximum(lo - c, 0) + np.maximum(c - hi, 0)))
 
 
-def com_boxes() -> list[tuple[np.ndarray, np.ndarray]]:
-    """Per link, (low, high) of its COM box in DH frame i (see the module doc)."""
-    ds = P.LinkParameters.datasheet()
+def com_boxes(robot=None) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per link, (low, high) of its COM box in DH frame i (see the module doc; ``robot`` default the wam7)."""
+    r = get_robot(robot)
+    ds = P.LinkParameters.datasheet(r.name)
     out = []
-    for i in range(P.N_JOINTS):
-        lo, hi = _skeleton_box(i)
+    for i in range(r.n_joints):
+        lo, hi = _skeleton_box(i, r)
         pad = RADIUS_M[LINK_CAPSULE[i]] + _outside_m(ds.com_m[i], lo, hi)
         out.append((lo - pad, hi + pad))
     return out
@@ -157,13 +162,14 @@ def physical_checks(links: P.LinkParameters, declared: P.LinkParameters | None =
     "ok", "enforced": False, "note"}``. With a ``payload`` (a :class:`~wamctl.model.dynamics.Payload`, part of
     link 7 in the identification) link 7's COM is not checked (``ok`` None: the box is the link's, not the
     payload's) and the declared total includes the payload's mass."""
-    declared = declared if declared is not None else P.LinkParameters.datasheet()
+    declared = declared if declared is not None else P.LinkParameters.datasheet(links.robot)
     payload_kg = float(payload.mass_kg) if payload is not None else 0.0
     rows = []
-    for i, (lo, hi) in enumerate(com_boxes()):
+    boxes = com_boxes(links.robot)
+    for i, (lo, hi) in enumerate(boxes):
         c = links.com_m[i]
         out = _outside_m(c, lo, hi)
-        skip = i == P.N_JOINTS - 1 and payload_kg > 0
+        skip = i == len(boxes) - 1 and payload_kg > 0
         rows.append({"link": i + 1, "com_m": [float(x) for x in c], "box_low_m": [float(x) for x in lo],
                      "box_high_m": [float(x) for x in hi], "outside_m": out,
                      "ok": None if skip else bool(out <= 1e-12)})

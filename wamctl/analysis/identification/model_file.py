@@ -3,7 +3,8 @@
 Layout (a plant description, :class:`wamctl.specs.PlantSpec`, plus what the identification adds)::
 
     format: wamctl-model/1
-    links:          {joint: {mass_kg, com_m, inertia_kg_m2, armature_kg_m2}}   all seven, DH frame i
+    robot:          the arm when it is not the wam7 (``wam4``: links and friction of joints 1-4)
+    links:          {joint: {mass_kg, com_m, inertia_kg_m2, armature_kg_m2}}   every joint of the arm, DH frame i
     friction:       {joints: {joint: {fc_pos_Nm, fc_neg_Nm, viscous_pos_Nm_s_rad, viscous_neg_Nm_s_rad}}}
     provenance:     tool, version, git revision, time, the runs and options it came from
     identification: base parameters (rank, condition number, not identified), held-out RMS, notes
@@ -22,7 +23,6 @@ from __future__ import annotations
 import numpy as np
 
 from wamctl.io import MODEL_FILE_FORMAT
-from wamctl.model import params as P
 
 
 def model_file(est, provenance: dict, held_out: dict | None = None, check: dict | None = None) -> dict:
@@ -33,7 +33,7 @@ def model_file(est, provenance: dict, held_out: dict | None = None, check: dict 
     fr = est.friction_
     joints = {j + 1: {"fc_pos_Nm": float(fr.fc_pos_Nm[j]), "fc_neg_Nm": float(fr.fc_neg_Nm[j]),
                       "viscous_pos_Nm_s_rad": float(fr.viscous_pos_Nm_s_rad[j]),
-                      "viscous_neg_Nm_s_rad": float(fr.viscous_neg_Nm_s_rad[j])} for j in range(P.N_JOINTS)}
+                      "viscous_neg_Nm_s_rad": float(fr.viscous_neg_Nm_s_rad[j])} for j in range(fr.n_joints)}
     ident = est.identifiability_
     summary = {
         "base_parameters": int(ident.n_base), "determined": int(ident.rank),
@@ -49,5 +49,7 @@ def model_file(est, provenance: dict, held_out: dict | None = None, check: dict 
     if check:
         summary["held_out_check"] = {"verdict": check["verdict"], "statement": check["statement"],
                                      "ratio": {int(k): float(v) for k, v in check["ratio"].items()}}
-    return {"format": MODEL_FILE_FORMAT, "links": links, "friction": {"joints": joints},
+    robot = getattr(est.links_, "robot", "wam7")
+    head = {"format": MODEL_FILE_FORMAT} if robot == "wam7" else {"format": MODEL_FILE_FORMAT, "robot": robot}
+    return {**head, "links": links, "friction": {"joints": joints},
             "provenance": provenance, "identification": summary}
