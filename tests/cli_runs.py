@@ -145,9 +145,7 @@ def make_small_runs(root: Path) -> SmallRuns:
     cli("bus-check", "bus-check", "--interface", "virtual", "--channel", "wamctl-terminal-test", "--simulate-pucks",
         "--window", "0.1")
     cli("sweep --dry-run", "sweep", write_yaml(root / "sweep.yaml", SWEEP), "--dry-run")
-    t0 = time.perf_counter()
-    s.runs["sweep"] = _sweep(root / "sweep.yaml", root / "sweeps")
-    s.seconds["sweep (library)"] = time.perf_counter() - t0
+    s.runs["sweep"] = _sweep(cli, root / "sweep.yaml", root / SWEEP_PARENT)
     for k in ("rotation", "friction_sweep", "ift", "hmi_block", "diagnosis"):
         s.reports[k] = s.runs[k] / "report.html"
     # the reports of repeated runs, an HMI block and the imported run into one folder, with the combined report
@@ -167,17 +165,19 @@ def make_small_runs(root: Path) -> SmallRuns:
     return s
 
 
-def _sweep(spec: Path, out: Path) -> Path:
-    """A two-point sweep on an in-process Dask client (one worker thread): its sweep directory."""
+# the sweep's parent folder: a path longer than 80 characters (tests/commands/test_reading_output.py)
+SWEEP_PARENT = "a-parent-folder-whose-name-is-long-enough-to-pass-80-columns-" + "x" * 20
+
+
+def _sweep(cli, spec: Path, out: Path) -> Path:
+    """``wamctl sweep`` of two points on an in-process Dask scheduler (one worker thread, no worker processes to
+    start): its sweep directory (what it printed: ``printed["sweep"]``)."""
     import distributed
 
-    from wamctl.experiments.sweep.run import run_sweep
-    from wamctl.specs.sweep import load_sweep
-
-    with distributed.Client(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0") as client:
-        res = run_sweep(load_sweep(spec), out, client=client)
-    assert res.ok, res.counts
-    return res.sweep_dir
+    with distributed.LocalCluster(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0") as c:
+        cli("sweep", "sweep", spec, "--scheduler", c.scheduler_address, "--out", out)
+    (sweep_dir,) = out.iterdir()
+    return sweep_dir
 
 
 @pytest.fixture(scope="session")

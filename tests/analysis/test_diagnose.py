@@ -14,6 +14,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from cli_runs import run_cli
 from diagnosis_gen import EFFECTS, generate_run, make_reference, simulate, write_measured
 from once import make_once
 
@@ -142,8 +143,32 @@ def test_diagnosis_json_has_the_documented_keys(generated):
 
 
 # ------------------------------------------------------------------------------------- CLI and model file
+@pytest.fixture(scope="module")
+def ripple_cli(generated, tmp_path_factory):
+    """``wamctl diagnose RUN --json`` on the position-ripple run, once for the two tests that read it (each had
+    diagnosed the run again): the command's result, its run directory, and every (done, total, label) that
+    ``diagnose_to_run_dir`` reported to its progress callback on the way."""
+    import wamctl.experiments.diagnose as pipeline
+
+    g, _ = generated["position_ripple"]
+    out, seen, real = tmp_path_factory.mktemp("ripple_cli"), [], pipeline.diagnose_to_run_dir
+
+    def recording(*args, progress=None, **kw):
+        def tee(done, total, label=None):
+            seen.append((done, total, label))
+            if progress is not None:
+                progress(done, total, label)
+        return real(*args, progress=tee, **kw)
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(pipeline, "diagnose_to_run_dir", recording)
+        res = run_cli("diagnose", g.path, "--out", out / "runs", "--json")
+    assert res.exc is None, res.tb
+    return res, out / "runs", seen
+
+
 @pytest.mark.slow
-def test_cli_writes_run_directory_and_model_file_closes_the_loop(generated, tmp_path):
+def test_cli_writes_run_directory_and_model_file_closes_the_loop(generated, ripple_cli, tmp_path):
     from typer.testing import CliRunner
 
     from wamctl.cli import _register, app
@@ -151,11 +176,11 @@ def test_cli_writes_run_directory_and_model_file_closes_the_loop(generated, tmp_
 
     _register()
     g, _ = generated["position_ripple"]
-    res = CliRunner().invoke(app, ["diagnose", str(g.path), "--out", str(tmp_path / "runs"), "--json"])
-    assert res.exit_code == 0, res.output
-    out = json.loads(res.output)
+    res, runs, _ = ripple_cli
+    assert res.code == 0, res.out + res.err
+    out = json.loads(res.out)
     assert out["effects_found"][0] == "position_ripple"
-    run = next((tmp_path / "runs").iterdir())
+    run = next(runs.iterdir())
     for f in ("diagnosis.json", "model.yaml", "report.md", "report.html", "diagnosis_residuals.png",
               "diagnosis_evidence.png", "diagnosis_positions.png", "residuals.parquet", "positions.parquet"):
         assert (run / f).is_file(), f
@@ -441,14 +466,10 @@ def test_reference_generator_reverses_every_joint():
     assert np.all(ref.q_rad >= P.Q_MIN_RAD) and np.all(ref.q_rad <= P.Q_MAX_RAD)
 
 
-def test_progress_moves_through_the_joints_and_ends_at_the_whole(generated, tmp_path):
-    """The progress bar advances joint by joint (it sat at 0 % through the whole fit, then jumped)."""
-    from wamctl.experiments.diagnose import diagnose_to_run_dir
-
-    g, _ = generated["position_ripple"]
-    seen = []
-    diagnose_to_run_dir(g.path, out=tmp_path, formats=("json",),
-                        progress=lambda d, n, label: seen.append((d, n, label)))
+def test_progress_moves_through_the_joints_and_ends_at_the_whole(ripple_cli):
+    """The progress bar advances joint by joint (it sat at 0 % through the whole fit, then jumped): what
+    `wamctl diagnose` on the position-ripple run reported to its progress callback."""
+    _, _, seen = ripple_cli
     done = [d for d, _, _ in seen]
     assert done == sorted(done) and done[0] == 0 and seen[-1][:2] == (100, 100)
     joints = [label for _, _, label in seen if "joint" in label and "torque residual" in label]

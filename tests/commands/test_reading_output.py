@@ -8,7 +8,7 @@ import re
 
 import pandas as pd
 import pytest
-from cli_runs import SWEEP, run_cli, write_yaml
+from cli_runs import run_cli, write_yaml
 
 from wamctl.report.document import Document, column_label
 
@@ -44,19 +44,11 @@ def test_a_count_row_under_means_prints_integers():
 
 
 @pytest.fixture(scope="module")
-def sweep_cli(tmp_path_factory):
-    """``wamctl sweep`` of two points on an in-process Dask scheduler (no worker processes to start), into a
-    folder whose path is longer than 80 characters."""
-    import distributed
-
-    root = tmp_path_factory.mktemp("sweep_cli")
-    out = root / ("a-parent-folder-whose-name-is-long-enough-to-pass-80-columns-" + "x" * 20)
-    with distributed.LocalCluster(processes=False, n_workers=1, threads_per_worker=1, dashboard_address=":0") as c:
-        r = run_cli("sweep", write_yaml(root / "sweep.yaml", SWEEP), "--scheduler", c.scheduler_address,
-                    "--out", out)
-    assert r.code == 0, (r.out[-2000:], r.err[-2000:], r.tb)
-    (sweep_dir,) = out.iterdir()
-    return r, sweep_dir
+def sweep_cli(small_runs):
+    """``wamctl sweep`` of two points on an in-process Dask scheduler, into a folder whose path is longer than 80
+    characters: what it printed and its sweep directory (one of the small runs, tests/cli_runs.py; this module
+    had made the same sweep again)."""
+    return small_runs.printed["sweep"], small_runs.runs["sweep"]
 
 
 def test_the_sweep_command_prints_its_result(sweep_cli):
