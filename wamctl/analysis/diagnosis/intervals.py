@@ -47,6 +47,9 @@ def joint_intervals(diag, j: int) -> dict:
         key = SHAPE_KEY.get(name)
         if isinstance(t.get("fixed_h"), tuple):           # a Stribeck shape measured at onsets or on the map
             ci.update(_stribeck_elsewhere_ci(diag, j, t, samples, base))
+            for key, sgn in (("pos", 1.0), ("neg", -1.0)):
+                if not (np.sign(jd.qd_rad_s) == sgn).any():   # no sliding sample that way: the fit's bound, 0
+                    ci[f"Fc_{key}_Nm"] = [None, None]
             if not t.get("seen", "").startswith("on the friction map"):
                 # its velocity was fitted to the sliding samples (with the ratios measured at the onsets)
                 rp, rn, vs, delta = t["fixed_h"]
@@ -188,15 +191,20 @@ def _stribeck_elsewhere_ci(diag, j: int, term: dict, samples: list[dict], base: 
     else:
         ons = term.get("onsets") or diag.onsets_.get(j) or {}
         ratios, vss = _onset_ratio_bootstrap(diag, ons, N_BOOT_ONSETS, rng)
-    if not ratios:
-        return {"Fs_pos_Nm": [None, None], "Fs_neg_Nm": [None, None]}
-    k = min(len(ratios), len(fc_pos))
-    rp = np.array([r[0] for r in ratios[:k]])
-    rn = np.array([r[1] for r in ratios[:k]])
-    out = {"Fs_pos_Nm": percentile_ci(rp * fc_pos[:k], center=base["Fs_pos_Nm"]),
-           "Fs_neg_Nm": percentile_ci(rn * fc_neg[:k], center=base["Fs_neg_Nm"])}
+    out = {"Fs_pos_Nm": [None, None], "Fs_neg_Nm": [None, None]}
+    if ratios:
+        k = min(len(ratios), len(fc_pos))
+        rp = np.array([r[0] for r in ratios[:k]])
+        rn = np.array([r[1] for r in ratios[:k]])
+        out = {"Fs_pos_Nm": percentile_ci(rp * fc_pos[:k], center=base["Fs_pos_Nm"]),
+               "Fs_neg_Nm": percentile_ci(rn * fc_neg[:k], center=base["Fs_neg_Nm"])}
     if vss:
         out["vs_rad_s"] = percentile_ci(vss, center=base["vs_rad_s"])
+    # levels measured in N m at the onsets (the estimate then): their onsets resampled
+    from wamctl.analysis.diagnosis.onsets import level_bootstrap
+
+    for key, boot in level_bootstrap(term.get("breakaway_levels_Nm") or {}, N_BOOT_ONSETS, rng).items():
+        out[f"Fs_{key}_Nm"] = percentile_ci(boot, center=base[f"Fs_{key}_Nm"])
     return out
 
 

@@ -39,6 +39,7 @@ from wamctl.analysis.diagnosis.joint import (
 )
 from wamctl.analysis.diagnosis.onsets import (
     direction_breakaway_ratio,
+    direction_levels_Nm,
     geometric_mean,
     joint_onsets,
     onset_model,
@@ -210,9 +211,18 @@ def _stribeck_levels_per_direction(res, ons: dict, backlash: bool) -> None:
     slips one way only has few sliding samples there, and a ratio shared by both directions would inherit
     their Coulomb fit."""
     t = next((t for t in res.kept if t["name"] == "stribeck"), None)
-    if t is None or isinstance(t.get("fixed_h"), tuple):
+    if t is None:
         return
     use = np.isfinite(ons["breakaway_ratio"]) & (~ons["reversal"] if backlash else True)
+    if isinstance(t.get("fixed_h"), tuple):
+        if "breakaways" in t.get("seen", ""):
+            # the levels the joint withstood, in N m: not a ratio times a Coulomb level the sliding samples of
+            # a direction may not determine (:func:`~wamctl.analysis.diagnosis.onsets.breakaway_reference_Nm`)
+            t["breakaway_levels_Nm"] = {key: direction_levels_Nm(ons, sgn, use)
+                                        for key, sgn in (("pos", 1.0), ("neg", -1.0))}
+            t["breakaway_Nm"] = {key: geometric_mean(v) for key, v in t["breakaway_levels_Nm"].items()
+                                 if len(v) >= 2}
+        return
     ons["use_breakaway"] = use
     rho = {key: direction_breakaway_ratio(ons, sgn) for key, sgn in (("pos", 1.0), ("neg", -1.0))}
     rho = {key: r for key, r in rho.items() if r is not None}

@@ -77,9 +77,10 @@ def stribeck_params(fr: np.ndarray, coef: np.ndarray, vs_rad_s: float, term: dic
     shape = term.get("fixed_h")
     if isinstance(shape, tuple):        # measured at the breakaways or on the friction map
         rp, rn, vs, delta = shape
-        return {"Fs_pos_Nm": float(rp * fr[0]), "Fs_neg_Nm": float(rn * fr[1]), "Fc_pos_Nm": float(fr[0]),
-                "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(vs), "stribeck_delta": float(delta),
-                "Fs_from": term.get("seen", "breakaways")}
+        lv = term.get("breakaway_Nm") or {}     # the levels in N m the onsets measured (onset_tests)
+        return {"Fs_pos_Nm": float(lv.get("pos", rp * fr[0])), "Fs_neg_Nm": float(lv.get("neg", rn * fr[1])),
+                "Fc_pos_Nm": float(fr[0]), "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(vs),
+                "stribeck_delta": float(delta), "Fs_from": term.get("seen", "breakaways")}
     out = {"Fs_pos_Nm": float(fr[0] + coef[0]), "Fs_neg_Nm": float(fr[1] + coef[1]),
            "Fc_pos_Nm": float(fr[0]), "Fc_neg_Nm": float(fr[1]), "vs_rad_s": float(vs_rad_s),
            "stribeck_delta": 2.0}
