@@ -11,6 +11,7 @@ over the bus therefore equals the simulator's reading of the same angles, bit fo
 Conventions: names carry units: ``q_rad`` (joint angle), ``m_rad`` (motor angle), ``counts`` (encoder
 counts), ``tau_Nm`` (joint torque), ``tau_m_Nm`` (motor torque). Vectorised functions accept one vector of
 shape ``(7,)`` or a batch ``(..., 7)``; ``cts`` may be a scalar or a ``(7,)`` array (one value per motor).
+Another arm's ``j2mp`` (the wam4's 4 x 4) sets the length: ``(..., n)`` for an ``n x n`` transmission.
 Counts are rounded to the nearest count (libbarrett floors; the difference is at most one count).
 
 Sources: libbarrett ``config/wam7w.conf`` (j2mp), ``low_level_wam-inl.h`` and ``motor_puck.cpp``
@@ -159,32 +160,34 @@ def _counts_to_rad_flat(counts, counts_per_rad):
 # --------------------------------------------------------------------------------------------------
 
 
-def _matrix7(j2mp: np.ndarray) -> np.ndarray:
+def _matrix(j2mp: np.ndarray) -> np.ndarray:
+    """An arm's square transmission (n x n: the wam7's 7 x 7, the wam4's 4 x 4)."""
     j2mp = np.asarray(j2mp, dtype=float)
-    if j2mp.shape != (_N, _N):
-        raise ValueError(f"j2mp must be 7x7, got {j2mp.shape}")
+    if j2mp.ndim != 2 or j2mp.shape[0] != j2mp.shape[1]:
+        raise ValueError(f"j2mp must be square, got {j2mp.shape}")
     return j2mp
 
 
 def _inverse(j2mp: np.ndarray) -> np.ndarray:
     if j2mp is J2MP or j2mp is P.J2MP:
         return M2JP
-    return np.linalg.inv(_matrix7(j2mp))
+    return np.linalg.inv(_matrix(j2mp))
 
 
-def as_joint_vectors(x: ArrayLike, name: str) -> np.ndarray:
-    """``x`` as a float array of shape ``(..., 7)`` (one vector or a batch); ``ValueError`` naming ``name``
-    otherwise."""
+def as_joint_vectors(x: ArrayLike, name: str, n: int = _N) -> np.ndarray:
+    """``x`` as a float array of shape ``(..., n)`` (one vector or a batch; n the arm's joints, 7 by default);
+    ``ValueError`` naming ``name`` otherwise."""
     a = np.asarray(x, dtype=float)
-    if a.shape[-1:] != (_N,):
-        raise ValueError(f"{name} must have shape (..., 7), got {a.shape}")
+    if a.shape[-1:] != (n,):
+        raise ValueError(f"{name} must have shape (..., {n}), got {a.shape}")
     return a
 
 
 def _rows(x: np.ndarray, cts: ArrayLike) -> tuple[np.ndarray, np.ndarray]:
-    """``x`` as contiguous rows of seven, and counts per radian broadcast to the same rows."""
-    rows = np.ascontiguousarray(x.reshape(-1, _N))
-    cpr = np.ascontiguousarray(np.broadcast_to(counts_per_rad(cts), x.shape).reshape(-1, _N))
+    """``x`` as contiguous rows of its joints, and counts per radian broadcast to the same rows."""
+    n = x.shape[-1]
+    rows = np.ascontiguousarray(x.reshape(-1, n))
+    cpr = np.ascontiguousarray(np.broadcast_to(counts_per_rad(cts), x.shape).reshape(-1, n))
     return rows, cpr
 
 
@@ -255,7 +258,8 @@ def joint_rad_to_motor_rad(q_rad: ArrayLike, j2mp: np.ndarray = J2MP) -> np.ndar
     numpy.ndarray, shape (..., 7)
         Motor angles (rad).
     """
-    return as_joint_vectors(q_rad, "q_rad") @ np.asarray(j2mp, dtype=float).T
+    m = _matrix(j2mp)
+    return as_joint_vectors(q_rad, "q_rad", m.shape[0]) @ m.T
 
 
 def motor_rad_to_joint_rad(m_rad: ArrayLike, j2mp: np.ndarray = J2MP) -> np.ndarray:
@@ -272,7 +276,7 @@ def motor_rad_to_joint_rad(m_rad: ArrayLike, j2mp: np.ndarray = J2MP) -> np.ndar
     numpy.ndarray, shape (..., 7)
         Joint angles (rad).
     """
-    return as_joint_vectors(m_rad, "m_rad") @ _inverse(j2mp).T
+    return as_joint_vectors(m_rad, "m_rad", np.shape(j2mp)[0]) @ _inverse(j2mp).T
 
 
 def motor_rad_to_counts(m_rad: ArrayLike, cts: ArrayLike = P.ENCODER_COUNTS_PER_REV) -> np.ndarray:
@@ -331,9 +335,10 @@ def joint_rad_to_counts(
     numpy.ndarray, shape (..., 7)
         ``int64`` counts.
     """
-    q = as_joint_vectors(q_rad, "q_rad")
+    m = _matrix(j2mp)
+    q = as_joint_vectors(q_rad, "q_rad", m.shape[0])
     rows, cpr = _rows(q, cts)
-    return _joint_rad_to_counts_rows(rows, _matrix7(j2mp), cpr).reshape(q.shape).astype(np.int64)
+    return _joint_rad_to_counts_rows(rows, m, cpr).reshape(q.shape).astype(np.int64)
 
 
 def counts_to_joint_rad(
@@ -354,7 +359,7 @@ def counts_to_joint_rad(
     numpy.ndarray, shape (..., 7)
         Joint angles (rad).
     """
-    c = as_joint_vectors(counts, "counts")
+    c = as_joint_vectors(counts, "counts", np.shape(j2mp)[0])
     rows, cpr = _rows(c, cts)
     return _counts_to_joint_rad_rows(rows, np.ascontiguousarray(_inverse(j2mp)), cpr).reshape(c.shape)
 
@@ -374,7 +379,7 @@ def joint_torque_to_motor_Nm(tau_Nm: ArrayLike, j2mp: np.ndarray = J2MP) -> np.n
         Motor torques (N m).
     """
     # row-vector form of j2mp^-T @ tau
-    return as_joint_vectors(tau_Nm, "tau_Nm") @ _inverse(j2mp)
+    return as_joint_vectors(tau_Nm, "tau_Nm", np.shape(j2mp)[0]) @ _inverse(j2mp)
 
 
 def motor_torque_to_joint_Nm(tau_m_Nm: ArrayLike, j2mp: np.ndarray = J2MP) -> np.ndarray:
@@ -391,7 +396,8 @@ def motor_torque_to_joint_Nm(tau_m_Nm: ArrayLike, j2mp: np.ndarray = J2MP) -> np
     numpy.ndarray, shape (..., 7)
         Joint torques (N m).
     """
-    return as_joint_vectors(tau_m_Nm, "tau_m_Nm") @ np.asarray(j2mp, dtype=float)
+    m = _matrix(j2mp)
+    return as_joint_vectors(tau_m_Nm, "tau_m_Nm", m.shape[0]) @ m
 
 
 def load_kernels() -> None:

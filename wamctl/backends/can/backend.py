@@ -10,10 +10,16 @@ Barrett's safety system expects it (libbarrett's order; see :mod:`.session` for 
   timeouts). wamctl never sets MODE=TORQUE: it waits until the safety module reports active and every puck
   reports TORQUE, then hands over to the run. A timeout ends the session with nothing applied.
 - ``_read_positions``: one get of P to the whole-WAM group (0x404), the replies decoded to motor counts (3 or
-  6 bytes), turned into joint angles through ``J2MP`` and each puck's CTS; replies of the safety monitor
-  (:mod:`.monitor`) read on the way.
-- ``_send_torques``: joint torques -> motor torques (``J2MP^-T``) -> puck units (IPNM) -> the two packed 14-bit
-  frames (0x401 pucks 1-4, 0x402 pucks 5-7, slots by PIDX).
+  6 bytes), turned into joint angles through the arm's ``J2MP`` and each puck's CTS; replies of the safety
+  monitor (:mod:`.monitor`) read on the way.
+- ``_send_torques``: joint torques -> motor torques (``J2MP^-T``) -> puck units (IPNM) -> the packed 14-bit
+  frames of the arm's torque groups (a wam7: 0x401 pucks 1-4, 0x402 pucks 5-7; a wam4: 0x401 only; slots by
+  PIDX).
+
+The arm is the spec's ``robot`` (:class:`~.protocol.configuration.BusArm`): ``wam7`` (pucks 1-7) by default,
+``wam4`` (pucks 1-4, pucks 5-7 absent: libbarrett's ``foundWam4``); its joint count sets every vector, its home
+pose the zeroing, its transmission the conversions. The safety module's limits and every watchdog are the same
+for both arms.
 - ``_wait_next_cycle``: every 25 cycles (50 ms) the safety module's PEN and MODE and the pucks' MODE are asked
   for; then the wait for the next release point ``t0 + k T`` (:mod:`.timing`).
 - ``_close``: zero torque (the base), MODE=IDLE to the WAM (read back), the heartbeat goes on while the
@@ -30,7 +36,7 @@ of the request and seven replies (75 us each, Barrett's CAN timing: 0.6 ms) plus
 scheduling jitter; ``watchdog_cycles`` 3 (6 ms without a complete set of replies).
 
 Simulated pucks (``simulate_pucks: true``, virtual bus only), injected faults: :mod:`.simulated_arm`.
-Conventions: pucks 1..7 on the bus, arrays 0..6; SI units in names; the host is node 0.
+Conventions: pucks 1..n on the bus, arrays 0..n-1; SI units in names; the host is node 0.
 """
 
 from __future__ import annotations
@@ -57,13 +63,11 @@ from wamctl.backends.can.protocol.addressing import (
     FEEDBACK_OTHER,
     FEEDBACK_POSITION,
     GROUP_WAM,
-    N_JOINTS,
     SAFETY_PUCK_ID,
     TO_MASK,
-    TORQUE_GROUPS,
-    WAM_PUCK_IDS,
     PuckFrameError,
 )
+from wamctl.backends.can.protocol.configuration import bus_arm
 from wamctl.backends.can.protocol.positions import make_position_request
 from wamctl.backends.can.protocol.properties import CTS_DEFAULT, Mode, Prop, make_set_property
 from wamctl.backends.can.protocol.safety import SafetyMode, SafetyProp, decode_pen
@@ -78,8 +82,7 @@ from wamctl.backends.can.simulated_arm import SimulatedArm, build_simulated_arm,
 from wamctl.backends.can.timing import LoopTiming, RealtimeSection, sleep_until
 from wamctl.backends.can.waits import SessionWaits
 from wamctl.errors import BackendError
-from wamctl.model import params as P
-from wamctl.model.transmission import J2MP, load_kernels
+from wamctl.model.transmission import load_kernels
 
 logger = logging.getLogger(__name__)
 
@@ -101,7 +104,10 @@ class CanBackend(SessionWaits, Link, ArmBackend):
         python-can interface and channel.
     bitrate : int
         Bit/s.
-    q0_rad : array_like, shape (7,), optional
+    robot : str or Robot, optional
+        The arm (:mod:`wamctl.model.robots`): ``wam7`` (default) or ``wam4``; the pucks, torque groups, home pose
+        and transmission the session expects (:func:`~.protocol.configuration.bus_arm`).
+    q0_rad : array_like, shape (n,), optional
         The run's start pose: the operator is asked to put the arm there (within the session's
         ``start_tolerance_rad``) before Shift-Activate. None: no start pose (tools, hardware checks).
     watchdog_cycles : int
@@ -109,6 +115,7 @@ class CanBackend(SessionWaits, Link, ArmBackend):
     reply_timeout_s : float
         Wait for the seven position replies of a cycle.
     limits : SafetyLimits, optional
+        Default: the robot's.
     session : SessionSettings, optional
         Timeouts, zeroing confirmation, the safety module's limits, the start tolerance.
     operator : Operator, optional
@@ -139,11 +146,20 @@ class CanBackend(SessionWaits, Link, ArmBackend):
                  session: SessionSettings | None = None, operator: Operator | None = None,
                  bus_options: dict | None = None, simulated_arm: SimulatedArm | None = None,
                  sim_cts: int = CTS_DEFAULT, simulated_fault=None, simulated_pendant: str = DEFAULT_PENDANT,
-                 seed: int | None = None, realtime: bool = True, cpu: int | None = None) -> None:
-        super().__init__(limits)
+                 seed: int | None = None, realtime: bool = True, cpu: int | None = None, robot=None) -> None:
+        try:
+            self.arm = bus_arm(robot)
+        except ValueError as exc:
+            raise BackendError(str(exc)) from None
+        n = self.arm.n_joints
+        super().__init__(limits if limits is not None else SafetyLimits.for_robot(self.arm.name))
+        if self.limits.n_joints != n:
+            raise BackendError(f"safety limits for {self.limits.n_joints} joints; the {self.arm.name} has {n}")
         self.interface, self.channel, self.bitrate = interface, channel, int(bitrate)
         self.bus_options = dict(bus_options or {})
         self.q0_rad = None if q0_rad is None else np.asarray(q0_rad, float).copy()
+        if self.q0_rad is not None and self.q0_rad.shape != (n,):
+            raise BackendError(f"q0_rad has {self.q0_rad.size} joints; the {self.arm.name} has {n}")
         self.watchdog_cycles = int(watchdog_cycles)
         self.reply_timeout_s = float(reply_timeout_s)
         self.settings = session or SessionSettings()
@@ -153,6 +169,10 @@ class CanBackend(SessionWaits, Link, ArmBackend):
         self.simulated_pendant = simulated_pendant
         if simulated_fault is not None and simulated_arm is None:
             raise BackendError("a simulated fault needs the simulated pucks")
+        if simulated_fault is not None and simulated_fault.kind == "silent_puck" \
+                and simulated_fault.puck not in self.arm.puck_ids:
+            raise BackendError(f"simulated_fault.puck: puck {simulated_fault.puck} is not one of the "
+                               f"{self.arm.name}'s ({self.arm.pucks_words()})")
         self._sim_cts = int(sim_cts)
         self._seed = seed
         self._realtime = RealtimeSection(fifo=realtime and simulated_arm is None, cpu=cpu)
@@ -161,15 +181,15 @@ class CanBackend(SessionWaits, Link, ArmBackend):
         self._bus: can.BusABC | None = None
         self.pucks: dict = {}
         self.start: StartState | None = None
-        self.monitor = SafetyMonitor()
+        self.monitor = SafetyMonitor(self.arm.puck_ids)
         self.phase = "closed"  # start -> waiting -> run -> closing
-        self._cts = np.full(P.N_JOINTS, float(CTS_DEFAULT))
-        self._ipnm = np.full(P.N_JOINTS, float(IPNM_DEFAULT))
-        self._slots: list[tuple[int, list[int], list[int]]] = []  # (group id, puck indices 0..6, PIDX)
+        self._cts = np.full(n, float(CTS_DEFAULT))
+        self._ipnm = np.full(n, float(IPNM_DEFAULT))
+        self._slots: list[tuple[int, list[int], list[int]]] = []  # (group id, puck indices 0..n-1, PIDX)
         self._request = make_position_request(GROUP_WAM)
-        self._counts = np.zeros(P.N_JOINTS)
-        self._q = np.zeros(P.N_JOINTS)
-        self._zero_tau = np.zeros(P.N_JOINTS)
+        self._counts = np.zeros(n)
+        self._q = np.zeros(n)
+        self._zero_tau = np.zeros(n)
         self._torque_msgs: list[can.Message] = []  # one per torque group, their data rewritten every cycle
         self._got = 0
         self._garbage_seen: str | None = None
@@ -204,8 +224,9 @@ class CanBackend(SessionWaits, Link, ArmBackend):
         """The backend a spec's ``backend: {kind: can, ...}`` describes (with simulated pucks if asked)."""
         b = spec.backend
         arm, cts = None, CTS_DEFAULT
+        robot = getattr(spec, "robot", None)
         if b.simulate_pucks:
-            arm, cts = build_simulated_arm(spec.plant, base_dir, q0_rad, rng, b.physics_substeps)
+            arm, cts = build_simulated_arm(spec.plant, base_dir, q0_rad, rng, b.physics_substeps, robot)
         settings = SessionSettings(
             activation_timeout_s=b.activation_timeout_s, idle_wait_s=b.idle_wait_s,
             zeroing_confirmed=b.zeroing_confirmed, velocity_limit_m_s=b.velocity_limit_m_s,
@@ -213,7 +234,7 @@ class CanBackend(SessionWaits, Link, ArmBackend):
         return cls(b.interface, b.channel, b.bitrate, q0_rad=q0_rad, watchdog_cycles=b.watchdog_cycles,
                    reply_timeout_s=b.reply_timeout_s, session=settings, bus_options=dict(b.bus_options),
                    simulated_arm=arm, sim_cts=cts, simulated_fault=b.simulated_fault,
-                   simulated_pendant=b.simulated_pendant, seed=spec.seed)
+                   simulated_pendant=b.simulated_pendant, seed=spec.seed, robot=robot)
 
     # ---------------------------------------------------------------- properties
     @property
@@ -238,7 +259,8 @@ class CanBackend(SessionWaits, Link, ArmBackend):
                                        else self.zero_torque_cycle - self.fault_onset_cycle),
              "idle_confirmed_pucks": list(self.idle_confirmed)}
         d: dict[str, Any] = {
-            "name": self.name, "interface": self.interface, "channel": self.channel, "bitrate": self.bitrate,
+            "name": self.name, "robot": self.arm.name, "interface": self.interface, "channel": self.channel,
+            "bitrate": self.bitrate,
             "simulated_pucks": self.simulated_arm is not None, "watchdog_cycles": self.watchdog_cycles,
             "reply_timeout_s": self.reply_timeout_s, "torque_mode_confirmed": self.torque_mode_confirmed,
             "phase": self.phase,
@@ -293,7 +315,7 @@ class CanBackend(SessionWaits, Link, ArmBackend):
                 from wamctl.backends.can.sim.simulator import PuckSimulator
                 self.simulator = PuckSimulator(self.simulated_arm, channel=self.channel, interface=self.interface,
                                                cts=self._sim_cts, seed=self._seed, pendant=self.simulated_pendant,
-                                               start_pose_rad=self.q0_rad)
+                                               start_pose_rad=self.q0_rad, robot=self.arm.name)
                 self.simulated_arm.attach(self.simulator)
                 self.simulator.start()
             filters = [{"can_id": FEEDBACK_POSITION, "can_mask": TO_MASK, "extended": False},
@@ -302,7 +324,7 @@ class CanBackend(SessionWaits, Link, ArmBackend):
                                  **self.bus_options)
             self.phase = "start"
             try:
-                self.start = start_session(self._bus, self._tx, self.operator, self.settings)
+                self.start = start_session(self._bus, self._tx, self.operator, self.settings, arm=self.arm)
                 self._configure()
                 self._realtime.enter()
                 self._rt_entered = True
@@ -322,18 +344,18 @@ class CanBackend(SessionWaits, Link, ArmBackend):
         self._bad_cycles, self._bad_run_start = 0, None
 
     def _configure(self) -> None:
-        found = self.start.pucks
+        found, arm = self.start.pucks, self.arm
         self.pucks = found
-        self._cts = np.array([found[i].cts for i in WAM_PUCK_IDS], float)
-        self._ipnm = np.array([found[i].ipnm for i in WAM_PUCK_IDS], float)
-        slots = torque_slot_of_puck({i: found[i].pidx for i in WAM_PUCK_IDS})
+        self._cts = np.array([found[i].cts for i in arm.puck_ids], float)
+        self._ipnm = np.array([found[i].ipnm for i in arm.puck_ids], float)
+        slots = torque_slot_of_puck({i: found[i].pidx for i in arm.puck_ids}, arm.torque_groups)
         self._slots = [(g, [p - 1 for p in members], [slots[p][1] for p in members])
-                       for g, members in TORQUE_GROUPS.items()]
+                       for g, members in arm.torque_groups.items()]
         self._torque_msgs = [can.Message(arbitration_id=g, data=bytearray(8), is_extended_id=False)
-                             for g in TORQUE_GROUPS]
+                             for g in arm.torque_groups]
 
     def _first_read(self) -> None:
-        """One position request answered by all seven pucks within 1 s before the 500 Hz polling starts
+        """One position request answered by all the arm's pucks within 1 s before the 500 Hz polling starts
         (libbarrett's first read, with its blocking receive's 1 s timeout)."""
         saved = self.reply_timeout_s
         self.reply_timeout_s = FIRST_READ_TIMEOUT_S
@@ -379,13 +401,13 @@ class CanBackend(SessionWaits, Link, ArmBackend):
             except can.CanError as exc:
                 logger.error("setting the pucks IDLE failed (attempt %d): %s", attempt + 1, exc)
         try:
-            modes = read_property(self._bus, WAM_PUCK_IDS, Prop.MODE, PROBE_TIMEOUT_S, retries=1, send=self._tx)
+            modes = read_property(self._bus, self.arm.puck_ids, Prop.MODE, PROBE_TIMEOUT_S, retries=1, send=self._tx)
         except can.CanError as exc:
             logger.error("reading MODE back failed: %s", exc)
             modes = {}
         self.idle_confirmed = sorted(i for i, m in modes.items() if m == Mode.IDLE)
-        if len(self.idle_confirmed) < N_JOINTS:
-            logger.error("pucks confirmed IDLE: %s of 1-7", self.idle_confirmed)
+        if len(self.idle_confirmed) < self.arm.n_joints:
+            logger.error("pucks confirmed IDLE: %s of %s", self.idle_confirmed, self.arm.pucks_words())
 
     # ---------------------------------------------------------------- transmit
     def _tx(self, msg: can.Message, count_errors: bool = True) -> None:
@@ -403,7 +425,7 @@ class CanBackend(SessionWaits, Link, ArmBackend):
         self._stats["frames_sent"] += 1
 
     def _tx_torque_units(self, tau_Nm: np.ndarray) -> None:
-        units = joint_torque_to_puck_units(tau_Nm, self._ipnm, J2MP)
+        units = joint_torque_to_puck_units(tau_Nm, self._ipnm, self.arm.j2mp)
         for msg, (_group, idx, pidx) in zip(self._torque_msgs, self._slots):
             msg.data[:] = pack_torques(units[idx], pidx)  # the interfaces copy or serialise what they send
             self._tx(msg)

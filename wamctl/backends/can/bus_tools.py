@@ -26,7 +26,7 @@ from wamctl.backends.can.protocol.addressing import (
     PuckFrameError,
     decode_bus_id,
 )
-from wamctl.backends.can.protocol.configuration import configuration_problems
+from wamctl.backends.can.protocol.configuration import WAM7_BUS, BusArm, configuration_problems
 from wamctl.backends.can.protocol.properties import (
     MIN_FIRMWARE_VERSION,
     ROLE_MASK,
@@ -239,15 +239,16 @@ def _enum_name(enum_cls, value: int | None) -> str | None:
         return str(value)
 
 
-def check_motor_pucks(found: dict[int, PuckInfo]) -> None:
-    """Refuse pucks 1-7 the backend cannot drive or the model does not describe.
+def check_motor_pucks(found: dict[int, PuckInfo], arm: BusArm = WAM7_BUS) -> None:
+    """Refuse the arm's pucks (default the wam7's, 1-7) the backend cannot drive or the model does not describe.
 
     Raises
     ------
     BackendError
         If a puck did not wake, has firmware older than :data:`~.properties.MIN_FIRMWARE_VERSION` (naming the
         ids it uses), is not a motor puck, did not report CTS, IPNM or PIDX, reports a CTS or IPNM that is not
-        positive, or the arm is not a wam7 with wrist in groups 1/2/4 (gimbals, pucks 5-7 in group 5, ...).
+        positive, or the arm is not the one expected in its groups (a wam7 with wrist in groups 1/2/4, not gimbals
+        or pucks 5-7 in group 5; a wam4 in groups 1/4).
     """
     for i, info in found.items():
         if info.stat != Status.READY:
@@ -261,7 +262,7 @@ def check_motor_pucks(found: dict[int, PuckInfo]) -> None:
         if info.cts <= 0 or info.ipnm <= 0:
             raise BackendError(f"puck {i}: CTS={info.cts}, IPNM={info.ipnm} must be positive")
     problems = configuration_problems({i: p.groups for i, p in found.items() if p.groups is not None},
-                                      {i: p.poles for i, p in found.items() if p.poles is not None})
+                                      {i: p.poles for i, p in found.items() if p.poles is not None}, arm)
     if problems:
         raise ConfigurationRefused("the arm is not the one wamctl's model describes: " + "; ".join(problems))
 

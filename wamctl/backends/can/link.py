@@ -10,7 +10,7 @@ import time
 import can
 import numpy as np
 
-from wamctl.backends.can.bus_tools import ALL_WAM_PUCKS, recv_until
+from wamctl.backends.can.bus_tools import recv_until
 from wamctl.backends.can.monitor import stop_reason
 from wamctl.backends.can.protocol.addressing import (
     FEEDBACK_OTHER_TARGET,
@@ -18,7 +18,6 @@ from wamctl.backends.can.protocol.addressing import (
     GROUP_WHOLE_BUS,
     MAX_CAN_ID,
     SAFETY_PUCK_ID,
-    WAM_PUCK_IDS,
     BusId,
     PuckFrameError,
     decode_bus_id,
@@ -27,7 +26,7 @@ from wamctl.backends.can.protocol.positions import parse_position_reply
 from wamctl.backends.can.protocol.properties import parse_property_reply
 from wamctl.backends.can.protocol.safety import SafetyMode
 from wamctl.errors import BackendError, SafetyLimitError
-from wamctl.model.transmission import J2MP, counts_to_joint_rad
+from wamctl.model.transmission import counts_to_joint_rad
 
 __all__ = ["Link"]
 
@@ -36,7 +35,8 @@ class Link:
     """Polling the positions and watching the replies (mixed into :class:`~.backend.CanBackend`)."""
 
     def _decode(self, msg: can.Message) -> BusId | None:
-        """The id of a reply from a WAM puck or the safety module, or None (counted) for anything else."""
+        """The id of a reply from one of the arm's pucks or the safety module, or None (counted) for anything else
+        (a WAM puck the arm does not have is foreign: the session refused a bus where one answers)."""
         self._stats["frames_received"] += 1
         if msg.is_error_frame:
             self._stats["error_frames"] += 1
@@ -48,9 +48,11 @@ class Link:
         if bid.sender == SAFETY_PUCK_ID and bid.is_group and bid.target == GROUP_WHOLE_BUS & 0x1F:
             self._stats["safety_broadcasts"] += 1  # 0x540: libbarrett discards them too
             return None
-        if bid.is_group and bid.target == FEEDBACK_OTHER_TARGET and bid.sender in (*WAM_PUCK_IDS, SAFETY_PUCK_ID):
+        pucks = self.arm.puck_ids
+        if bid.is_group and bid.target == FEEDBACK_OTHER_TARGET and (bid.sender in pucks
+                                                                     or bid.sender == SAFETY_PUCK_ID):
             return bid
-        if bid.is_group and bid.target == FEEDBACK_POSITION_TARGET and bid.sender in WAM_PUCK_IDS:
+        if bid.is_group and bid.target == FEEDBACK_POSITION_TARGET and bid.sender in pucks:
             return bid
         self._stats["foreign_frames"] += 1
         return None
@@ -86,24 +88,25 @@ class Link:
         recv_until(bus, t_sent + self.reply_timeout_s, self._on_frame)
         # a host descheduled past the deadline still reads what arrived meanwhile: only replies that are not there
         # count as missing (a stall of the host is an overrun, not a link fault)
-        while self._got != ALL_WAM_PUCKS and self._garbage_seen is None \
+        all_in = self.arm.all_replied_mask
+        while self._got != all_in and self._garbage_seen is None \
                 and (msg := bus.recv(timeout=0.0)) is not None:
             self._on_frame(msg)
         if self._garbage_seen is not None:
             self._garbage(self._garbage_seen)
-        if self._got != ALL_WAM_PUCKS:
-            self._missing_replies([i for i in WAM_PUCK_IDS if not self._got & (1 << (i - 1))])
+        if self._got != all_in:
+            self._missing_replies([i for i in self.arm.puck_ids if not self._got & (1 << (i - 1))])
         else:
             (self.timing if self.phase == "run" else self.heartbeat_timing).reply(time.perf_counter() - t_sent)
             if self._bad_run_start is not None:
                 self._event("link", f"cycle {self._cycle}: replies back after {self._bad_cycles} bad cycles")
             self._bad_cycles = 0
             self._bad_run_start = None
-        self._q[:] = counts_to_joint_rad(self._counts, self._cts, J2MP)
+        self._q[:] = counts_to_joint_rad(self._counts, self._cts, self.arm.j2mp)
         return self._q
 
     def _on_frame(self, msg: can.Message) -> bool:
-        """One frame within a cycle's reply window; True once all seven positions are in (or garbage came)."""
+        """One frame within a cycle's reply window; True once all the arm's positions are in (or garbage came)."""
         bid = self._decode(msg)
         if bid is None:
             return False
@@ -116,7 +119,7 @@ class Link:
             puck, counts = reply
             self._counts[puck - 1] = counts
             self._got |= 1 << (puck - 1)
-        return self._got == ALL_WAM_PUCKS
+        return self._got == self.arm.all_replied_mask
 
     def _missing_replies(self, missing: list[int]) -> None:
         self._stats["missed_reply_cycles"] += 1

@@ -15,6 +15,8 @@ end, and why, in words:
 
 from __future__ import annotations
 
+from collections.abc import Sequence
+
 import can
 
 from wamctl.backends.can.protocol.addressing import GROUP_WAM, SAFETY_PUCK_ID, WAM_PUCK_IDS, PuckFrameError
@@ -58,9 +60,11 @@ def stop_reason(mode: int | None, pen: PendantState | None, limits: dict[str, in
 
 
 class SafetyMonitor:
-    """What the latest replies of the safety module and the pucks say (see the module docstring)."""
+    """What the latest replies of the safety module and the arm's pucks (``puck_ids``, default the wam7's 1-7) say
+    (see the module docstring)."""
 
-    def __init__(self) -> None:
+    def __init__(self, puck_ids: Sequence[int] = WAM_PUCK_IDS) -> None:
+        self.puck_ids = tuple(puck_ids)
         self.module_mode: int | None = None
         self.pen: PendantState | None = None
         self.pen_error: str | None = None
@@ -89,7 +93,7 @@ class SafetyMonitor:
                     self.pen_error = None
                 except PuckFrameError as exc:
                     self.pen_error = str(exc)
-        elif reply.puck_id in WAM_PUCK_IDS and reply.prop == Prop.MODE:
+        elif reply.puck_id in self.puck_ids and reply.prop == Prop.MODE:
             self.puck_modes[reply.puck_id] = reply.value
 
     @property
@@ -97,7 +101,7 @@ class SafetyMonitor:
         return self.module_mode == SafetyMode.ACTIVE
 
     def all_pucks_torque(self) -> bool:
-        return len(self.puck_modes) == len(WAM_PUCK_IDS) and all(m == Mode.TORQUE for m in self.puck_modes.values())
+        return len(self.puck_modes) == len(self.puck_ids) and all(m == Mode.TORQUE for m in self.puck_modes.values())
 
     def silent(self) -> str | None:
         if self.unanswered_polls > SILENT_POLLS:

@@ -6,12 +6,15 @@
    reported.
 3. It must be idle (libbarrett ``waitForMode(IDLE)``): after an E-stop, or while active, the operator is asked
    to press Shift-Idle (countdown, timeout).
-4. Pucks 1-7 must answer; those in the monitor are woken with libbarrett's pacing; firmware, ROLE, CTS, IPNM,
-   PIDX, POLES and groups are read and a configuration the model does not describe is refused.
+4. The WAM pucks that answer must be the arm's (:class:`~.protocol.configuration.BusArm`: pucks 1-7 for a
+   wam7; pucks 1-4 and none of 5-7 for a wam4, libbarrett's ``foundWam4``): another arm on the bus (a wam4
+   spec on a 7-DOF WAM, a wam7 spec on a 4-DOF WAM) is refused naming the pucks, before any puck is woken.
+   The arm's pucks in the monitor are woken with libbarrett's pacing; firmware, ROLE, CTS, IPNM, PIDX, POLES
+   and groups are read and a configuration the model does not describe is refused.
 5. MODE=IDLE to the whole WAM (libbarrett's only MODE write: "make sure the Pucks are IDLE").
-6. If the safety module's ZERO is not 1: the operator confirms the arm is at its home pose, then IFAULT=5,
-   P of every puck from the home pose through J2MP, ZERO=1 (libbarrett ``LowLevelWam``); the positions are
-   read back and must be the home pose.
+6. If the safety module's ZERO is not 1: the operator confirms the arm is at its home pose (the arm's: wam7w's
+   or wam4's zerocal.conf), then IFAULT=5, P of every puck from the home pose through the arm's J2MP, ZERO=1
+   (libbarrett ``LowLevelWam``); the positions are read back and must be the home pose.
 7. IFAULT=5 (libbarrett: "prevent velocity faults on startup due to WAM motion while no program was running").
 
 The 500 Hz polling, the wait for the start pose and for Shift-Activate follow in the backend
@@ -40,7 +43,7 @@ from wamctl.backends.can.bus_tools import (
 )
 from wamctl.backends.can.operator import Operator
 from wamctl.backends.can.protocol.addressing import GROUP_WAM, SAFETY_PUCK_ID, WAM_PUCK_IDS
-from wamctl.backends.can.protocol.configuration import HOME_Q_RAD, zeroing_counts
+from wamctl.backends.can.protocol.configuration import HOME_Q_RAD, WAM7_BUS, BusArm, puck_set_problem, zeroing_counts
 from wamctl.backends.can.protocol.properties import Mode, Prop, make_set_property
 from wamctl.backends.can.protocol.safety import (
     IGNORE_VELOCITY_FAULTS,
@@ -55,7 +58,6 @@ from wamctl.backends.can.protocol.safety import (
 )
 from wamctl.backends.can.protocol.torques import IPNM_DEFAULT
 from wamctl.errors import BackendError, ConfigurationRefused
-from wamctl.model.transmission import J2MP
 
 logger = logging.getLogger(__name__)
 
@@ -118,8 +120,9 @@ def format_limits(limits: dict[str, int]) -> str:
 
 class _Start:
     def __init__(self, bus: can.BusABC, send: Callable[[can.Message], None], operator: Operator,
-                 settings: SessionSettings, sleep: Callable[[float], None]) -> None:
+                 settings: SessionSettings, sleep: Callable[[float], None], arm: BusArm = WAM7_BUS) -> None:
         self.bus, self.send, self.op, self.settings, self.sleep = bus, send, operator, settings, sleep
+        self.arm = arm
 
     def get(self, node: int, prop: int) -> int | None:
         return read_property(self.bus, [node], prop, PROBE_TIMEOUT_S, retries=1, send=self.send).get(node)
@@ -187,18 +190,24 @@ class _Start:
 
     # 4
     def pucks(self) -> dict[int, PuckInfo]:
-        found = probe_pucks(self.bus, WAM_PUCK_IDS, wake=True, send=self.send, sleep=self.sleep)
-        missing = [i for i in WAM_PUCK_IDS if i not in found]
-        if missing:
-            raise BackendError(f"WAM pucks {missing} did not answer (power, cabling, termination? after an E-stop "
-                               "press Shift-Idle so the pucks are powered)")
-        check_motor_pucks(found)
+        arm = self.arm
+        # which WAM pucks are there (the monitor answers STAT too): the arm's, and none other, before waking any
+        present = read_property(self.bus, WAM_PUCK_IDS, Prop.STAT, PROBE_TIMEOUT_S, send=self.send)
+        problem = puck_set_problem(arm, present)
+        if problem is not None:
+            text, refused = problem
+            raise (ConfigurationRefused if refused else BackendError)(text)
+        found = probe_pucks(self.bus, arm.puck_ids, wake=True, send=self.send, sleep=self.sleep)
+        problem = puck_set_problem(arm, found)
+        if problem is not None:  # a puck of the arm gone silent since (while waking)
+            raise BackendError(problem[0])
+        check_motor_pucks(found, arm)
         return found
 
     # 6
     def zero(self, pucks: dict[int, PuckInfo]) -> list[int]:
-        s = self.settings
-        home = ", ".join(f"{x:g}" for x in HOME_Q_RAD)
+        s, arm = self.settings, self.arm
+        home = ", ".join(f"{x:g}" for x in arm.home_q_rad)
         question = (f"The WAM needs to be zeroed. Put the arm at its home pose ({home}) rad: folded, every joint "
                     "against its stop as in Barrett's manual. Is the arm at its home pose?")
         if s.zeroing_confirmed:
@@ -207,25 +216,27 @@ class _Start:
         elif not self.op.confirm(question):
             raise BackendError("the WAM is not zeroed and zeroing was not confirmed: nothing was done (put the "
                                "arm at its home pose and confirm, or answer with --yes)")
-        cts = [pucks[i].cts for i in WAM_PUCK_IDS]
-        counts = zeroing_counts(cts, HOME_Q_RAD, J2MP)
+        cts = [pucks[i].cts for i in arm.puck_ids]
+        counts = zeroing_counts(cts, arm.home_q_rad, arm.j2mp)
         self.set_module(SafetyProp.IFAULT, IGNORE_VELOCITY_FAULTS)
-        for i, c in zip(WAM_PUCK_IDS, counts.tolist()):
+        for i, c in zip(arm.puck_ids, counts.tolist()):
             self.send(make_set_property(i, Prop.P, c))
-        got = read_property(self.bus, WAM_PUCK_IDS, Prop.STAT, PROBE_TIMEOUT_S, send=self.send)
-        if len(got) < len(WAM_PUCK_IDS):
-            raise BackendError(f"pucks {[i for i in WAM_PUCK_IDS if i not in got]} did not answer after zeroing")
+        got = read_property(self.bus, arm.puck_ids, Prop.STAT, PROBE_TIMEOUT_S, send=self.send)
+        if len(got) < len(arm.puck_ids):
+            raise BackendError(f"pucks {[i for i in arm.puck_ids if i not in got]} did not answer after zeroing")
         self.set_module(SafetyProp.ZERO, 1)
         if self.get(SAFETY_PUCK_ID, SafetyProp.ZERO) != 1:
             raise BackendError("the safety module did not record the zeroing (ZERO is not 1)")
-        self.op.say(f"Zeroed at the home pose: P = {counts.tolist()} counts on pucks 1-7.")
+        self.op.say(f"Zeroed at the home pose: P = {counts.tolist()} counts on {arm.pucks_words()}.")
         return counts.tolist()
 
 
 def start_session(bus: can.BusABC, send: Callable[[can.Message], None], operator: Operator,
-                  settings: SessionSettings, sleep: Callable[[float], None] = time.sleep) -> StartState:
-    """Steps 1-7 of the module docstring; raises :class:`BackendError` naming what is wrong (nothing moves)."""
-    st = _Start(bus, send, operator, settings, sleep)
+                  settings: SessionSettings, sleep: Callable[[float], None] = time.sleep,
+                  arm: BusArm = WAM7_BUS) -> StartState:
+    """Steps 1-7 of the module docstring for ``arm`` (default the wam7); raises :class:`BackendError` naming what is
+    wrong (nothing moves)."""
+    st = _Start(bus, send, operator, settings, sleep, arm)
     safety = st.safety_module()
     limits = st.limits()
     operator.say(f"Safety module: {safety.mode_words()}, {'zeroed' if safety.zeroed else 'not zeroed'}; limits: "
@@ -239,10 +250,10 @@ def start_session(bus: can.BusABC, send: Callable[[can.Message], None], operator
         state.zeroed_now = True
         safety.zero = 1
     st.set_module(SafetyProp.IFAULT, IGNORE_VELOCITY_FAULTS)
-    logger.info("session started: pucks %s, VERS %s", list(pucks), [pucks[i].vers for i in WAM_PUCK_IDS])
+    logger.info("session started (%s): pucks %s, VERS %s", arm.name, list(pucks), [pucks[i].vers for i in arm.puck_ids])
     return state
 
 
-def home_deviation_rad(q_rad: np.ndarray) -> np.ndarray:
-    """``|q - home|`` per joint (after a zeroing the measured pose must be the home pose)."""
-    return np.abs(np.asarray(q_rad, float) - HOME_Q_RAD)
+def home_deviation_rad(q_rad: np.ndarray, home_q_rad: np.ndarray = HOME_Q_RAD) -> np.ndarray:
+    """``|q - home|`` per joint (after a zeroing the measured pose must be the home pose; the wam7's by default)."""
+    return np.abs(np.asarray(q_rad, float) - np.asarray(home_q_rad, float))

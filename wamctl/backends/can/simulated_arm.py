@@ -2,7 +2,8 @@
 
 Simulated pucks (``backend: {kind: can, simulate_pucks: true}``, virtual bus only, or ``wamctl sim-arm`` in
 its own process): a :class:`~wamctl.backends.can.sim.simulator.PuckSimulator` answers on the bus, its plant a
-:class:`~wamctl.backends.sim.SimBackend` of the spec's plant wrapped in :class:`SimulatedArm`. The CAN
+:class:`~wamctl.backends.sim.SimBackend` of the spec's plant and robot (the wam7, or the wam4: four pucks, its
+own dynamics) wrapped in :class:`SimulatedArm`. The CAN
 frames are the only coupling: the physics runs on the simulator's thread, one control period per position
 request once the pucks apply torque. The arm is held at rest while no puck is in TORQUE mode (idle pucks
 brake) and, after Shift-Activate, until the first non-zero torque command arrives: an operator holds the WAM
@@ -24,7 +25,6 @@ import numpy as np
 
 from wamctl.backends.base import SafetyLimits
 from wamctl.backends.can.protocol.properties import Mode
-from wamctl.model import params as P
 
 __all__ = ["SIM_CTS_IDEAL_SENSOR", "SimulatedArm", "build_simulated_arm", "inject_fault", "open_limits"]
 
@@ -51,7 +51,7 @@ class SimulatedArm:
     ----------
     cycle : int
         Control periods simulated: the index of the current cycle.
-    zero_torque_since_cycle : numpy.ndarray, shape (7,)
+    zero_torque_since_cycle : numpy.ndarray, shape (n,)
         Per joint, the cycle since which the applied torque has been exactly zero (-1: since before the
         loop; NaN: not zero now).
     """
@@ -61,11 +61,12 @@ class SimulatedArm:
         sim.open()
         self._rebuild = rebuild
         self._lock = threading.Lock()
-        self._tau_Nm = np.zeros(P.N_JOINTS)
+        self.n_joints = int(sim.n_joints)
+        self._tau_Nm = np.zeros(self.n_joints)
         self._released = False
         self._simulator = None
         self.cycle = 0
-        self.zero_torque_since_cycle = np.full(P.N_JOINTS, -1.0)
+        self.zero_torque_since_cycle = np.full(self.n_joints, -1.0)
 
     def attach(self, simulator) -> None:
         """The :class:`PuckSimulator` whose pucks' MODE gates the physics."""
@@ -120,14 +121,14 @@ class SimulatedArm:
                                                 for c in self.zero_torque_since_cycle]}
 
 
-def open_limits() -> SafetyLimits:
-    inf = np.full(P.N_JOINTS, np.inf)
+def open_limits(n_joints: int = 7) -> SafetyLimits:
+    inf = np.full(n_joints, np.inf)
     return SafetyLimits(tau_max_Nm=inf.copy(), q_min_rad=-inf, q_max_rad=inf.copy(), qd_max_rad_s=inf.copy())
 
 
 
 def build_simulated_arm(plant_spec, base_dir: Path | None, q0_rad, rng: np.random.Generator,
-                        physics_substeps: int) -> tuple[SimulatedArm, int]:
+                        physics_substeps: int, robot=None) -> tuple[SimulatedArm, int]:
     """The simulated arm a spec's plant describes, at rest at ``q0_rad``, and the CTS its pucks report.
 
     Parameters
@@ -136,12 +137,14 @@ def build_simulated_arm(plant_spec, base_dir: Path | None, q0_rad, rng: np.rando
         Friction, effects and sensors of the simulated arm.
     base_dir : Path or None
         Directory relative paths in the plant spec are resolved against.
-    q0_rad : array_like, shape (7,)
+    q0_rad : array_like, shape (n,)
         Start configuration.
     rng : numpy.random.Generator
         The arm's random draws.
     physics_substeps : int
         Physics steps per control period.
+    robot : str or Robot, optional
+        The arm (default the wam7): its joints, dynamics and transmission.
 
     Returns
     -------
@@ -152,16 +155,17 @@ def build_simulated_arm(plant_spec, base_dir: Path | None, q0_rad, rng: np.rando
     from wamctl.backends.sim import SimBackend
     from wamctl.model.plant import Plant
 
-    plant = Plant(plant_spec, base_dir)
+    plant = Plant(plant_spec, base_dir, robot)
+    n = plant.n_joints
     # one physics step of a throwaway copy now (its own plant: effects keep state), not at the run's first cycle
-    warm = SimBackend(Plant(plant_spec, base_dir), q0_rad, np.random.default_rng(0), physics_substeps,
-                      limits=open_limits())
+    warm = SimBackend(Plant(plant_spec, base_dir, robot), q0_rad, np.random.default_rng(0), physics_substeps,
+                      limits=open_limits(n))
     warm.open()
-    warm.command_torques(np.zeros(P.N_JOINTS))
+    warm.command_torques(np.zeros(n))
     warm.wait_next_cycle()
 
     def rebuild(q_rad):
-        return SimBackend(plant, q_rad, rng, physics_substeps, limits=open_limits())
+        return SimBackend(plant, q_rad, rng, physics_substeps, limits=open_limits(n))
 
     arm = SimulatedArm(rebuild(q0_rad), rebuild)
     return arm, plant.sensors.encoder_counts_per_rev or SIM_CTS_IDEAL_SENSOR

@@ -11,8 +11,7 @@ import time
 import can
 import numpy as np
 
-from wamctl.backends.can.protocol.addressing import GROUP_WAM, SAFETY_PUCK_ID, WAM_PUCK_IDS
-from wamctl.backends.can.protocol.configuration import HOME_Q_RAD
+from wamctl.backends.can.protocol.addressing import GROUP_WAM, SAFETY_PUCK_ID
 from wamctl.backends.can.protocol.properties import Mode, Prop, make_set_property
 from wamctl.backends.can.protocol.safety import SafetyMode, SafetyProp
 from wamctl.backends.can.session import home_deviation_rad
@@ -33,12 +32,13 @@ class SessionWaits:
     def _wait_for_start_pose(self) -> None:
         q = self._beat()
         if self.start.zeroed_now:
-            dev = home_deviation_rad(q)
-            tol = 3 * joint_rad_per_count(self._cts)
+            home = self.arm.home_q_rad
+            dev = home_deviation_rad(q, home)
+            tol = 3 * joint_rad_per_count(self._cts, self.arm.j2mp)
             if (dev > tol).any():
                 j = int(np.argmax(dev / tol))
                 raise BackendError(f"after zeroing, joint {j + 1} reads {q[j]:.4f} rad instead of the home pose's "
-                                   f"{HOME_Q_RAD[j]:.4f} rad: the pucks did not take the new positions")
+                                   f"{home[j]:.4f} rad: the pucks did not take the new positions")
         if self.q0_rad is None:
             return
         t_start = time.monotonic()
@@ -100,7 +100,7 @@ class SessionWaits:
                 elif m.all_pucks_torque():
                     break
                 if now - active_since > TORQUE_CONFIRM_S:
-                    missing = [i for i in WAM_PUCK_IDS if m.puck_modes.get(i) != Mode.TORQUE]
+                    missing = [i for i in self.arm.puck_ids if m.puck_modes.get(i) != Mode.TORQUE]
                     self._refuse_activation(f"the safety module is active but pucks {missing} did not report TORQUE "
                                             f"within {TORQUE_CONFIRM_S} s: nothing was applied")
             else:
@@ -124,7 +124,7 @@ class SessionWaits:
         self.session_log["activation_wait_s"] = round(time.monotonic() - t_start, 3)
         self.session_log["heartbeat_cycles_before_run"] = self._tick
         self.operator.say("Active: every puck reports TORQUE; the run starts.")
-        logger.info("pucks 1-7 in TORQUE mode after Shift-Activate")
+        logger.info("%s in TORQUE mode after Shift-Activate", self.arm.pucks_words())
 
     def _back_to_idle(self, text: str) -> None:
         """Pucks and safety module asked to go idle (the safe direction), the operator told; the wait goes on."""

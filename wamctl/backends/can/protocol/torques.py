@@ -1,7 +1,8 @@
 """Torque commands on the bus: packed 14-bit torque frames and puck torque units.
 
-The host sends the seven WAM pucks their torques in two packed frames, one per torque group (0x401: pucks
-1-4, 0x402: pucks 5-7), each puck in the slot its PIDX names; a puck's command is in puck units, ``IPNM``
+The host sends the WAM pucks their torques in packed frames, one per torque group (a wam7: 0x401 pucks 1-4,
+0x402 pucks 5-7; a wam4: 0x401 pucks 1-4 only, libbarrett ``LowLevelWam``'s ``ceil(dof / 4)`` groups), each
+puck in the slot its PIDX names; a puck's command is in puck units, ``IPNM``
 per N m of motor torque. Sources: libbarrett ``src/products/motor_puck.cpp`` (``sendPackedTorques``),
 ``include/barrett/products/motor_puck.h`` and ``puck.h`` (``DEFAULT_IPNM``). Joint <-> motor torques:
 :mod:`wamctl.model.transmission`.
@@ -18,7 +19,6 @@ from numpy.typing import ArrayLike
 from wamctl.backends.can.protocol.addressing import (
     DEFAULT_PIDX,
     HOST_ID,
-    N_JOINTS,
     PUCKS_PER_TORQUE_GROUP,
     TORQUE_GROUPS,
     PuckFrameError,
@@ -147,13 +147,17 @@ def unpack_torques(data: bytes | bytearray | Sequence[int]) -> np.ndarray:
     return out
 
 
-def torque_slot_of_puck(pidx: dict[int, int] | None = None) -> dict[int, tuple[int, int]]:
-    """Map each WAM puck to its packed-torque group and slot, checking the PIDX values read at start-up.
+def torque_slot_of_puck(pidx: dict[int, int] | None = None,
+                        groups: dict[int, tuple[int, ...]] | None = None) -> dict[int, tuple[int, int]]:
+    """Map each of the arm's pucks to its packed-torque group and slot, checking the PIDX values read at start-up.
 
     Parameters
     ----------
     pidx : dict of int to int, optional
-        PIDX per puck id (1..7). Default :data:`DEFAULT_PIDX`.
+        PIDX per puck id. Default :data:`DEFAULT_PIDX` (the wam7's).
+    groups : dict of int to tuple of int, optional
+        The arm's torque groups (group id -> pucks; :attr:`~.configuration.BusArm.torque_groups`). Default
+        :data:`TORQUE_GROUPS` (the wam7's two).
 
     Returns
     -------
@@ -167,7 +171,7 @@ def torque_slot_of_puck(pidx: dict[int, int] | None = None) -> dict[int, tuple[i
     """
     pidx = dict(DEFAULT_PIDX if pidx is None else pidx)
     out: dict[int, tuple[int, int]] = {}
-    for group, members in TORQUE_GROUPS.items():
+    for group, members in (TORQUE_GROUPS if groups is None else groups).items():
         seen: dict[int, int] = {}
         for puck in members:
             if puck not in pidx:
@@ -184,27 +188,33 @@ def torque_slot_of_puck(pidx: dict[int, int] | None = None) -> dict[int, tuple[i
     return out
 
 
-def make_torque_frames(puck_units: ArrayLike, pidx: dict[int, int] | None = None) -> list[can.Message]:
-    """Build the two packed-torque frames for the seven WAM pucks.
+def make_torque_frames(puck_units: ArrayLike, pidx: dict[int, int] | None = None,
+                       groups: dict[int, tuple[int, ...]] | None = None) -> list[can.Message]:
+    """Build the packed-torque frames for the arm's pucks (one per torque group).
 
     Parameters
     ----------
-    puck_units : array_like, shape (7,)
-        Commands for pucks 1..7 in puck units (rounded, saturated at +-8191).
+    puck_units : array_like, shape (n,)
+        Commands for pucks 1..n in puck units (rounded, saturated at +-8191).
     pidx : dict of int to int, optional
         PIDX per puck id; default :data:`DEFAULT_PIDX`.
+    groups : dict of int to tuple of int, optional
+        The arm's torque groups; default :data:`TORQUE_GROUPS` (the wam7: n = 7).
 
     Returns
     -------
     list of can.Message
-        8-byte frames to 0x401 (pucks 1-4) and 0x402 (pucks 5-7), in that order.
+        8-byte frames, one per group in order: the wam7's to 0x401 (pucks 1-4) and 0x402 (pucks 5-7), the wam4's
+        to 0x401 only.
     """
+    groups = TORQUE_GROUPS if groups is None else groups
+    n = sum(len(m) for m in groups.values())
     values = np.asarray(puck_units, dtype=float).reshape(-1)
-    if values.size != N_JOINTS:
-        raise ValueError(f"expected 7 puck torques, got {values.size}")
-    slots = torque_slot_of_puck(pidx)
+    if values.size != n:
+        raise ValueError(f"expected {n} puck torques, got {values.size}")
+    slots = torque_slot_of_puck(pidx, groups)
     frames = []
-    for group, members in TORQUE_GROUPS.items():
+    for group, members in groups.items():
         payload = pack_torques([values[p - 1] for p in members], [slots[p][1] for p in members])
         frames.append(data_frame(encode_bus_id(HOST_ID, group), payload))
     return frames
@@ -256,16 +266,16 @@ def joint_torque_to_puck_units(
 
     Parameters
     ----------
-    tau_Nm : array_like, shape (..., 7)
-        Joint torques (N m).
+    tau_Nm : array_like, shape (..., n)
+        Joint torques (N m), n = the arm's joints (7 for the default ``j2mp``, 4 with the wam4's).
     ipnm : float or array_like, default 2700
         Puck units per N m, per puck.
     j2mp : numpy.ndarray, default :data:`J2MP`
 
     Returns
     -------
-    numpy.ndarray, shape (..., 7)
-        ``int64`` puck units for pucks 1..7. Saturated entries equal +-:data:`MAX_PUCK_TORQUE`.
+    numpy.ndarray, shape (..., n)
+        ``int64`` puck units for pucks 1..n. Saturated entries equal +-:data:`MAX_PUCK_TORQUE`.
     """
     return motor_Nm_to_puck_units(joint_torque_to_motor_Nm(tau_Nm, j2mp), ipnm)
 
@@ -277,16 +287,17 @@ def puck_units_to_joint_torque_Nm(
 
     Parameters
     ----------
-    puck_units : array_like, shape (..., 7)
-        Commands of pucks 1..7.
+    puck_units : array_like, shape (..., n)
+        Commands of pucks 1..n (n = the size of ``j2mp``).
     ipnm : float or array_like, default 2700
         Puck units per N m, per puck.
     j2mp : numpy.ndarray, default :data:`J2MP`
 
     Returns
     -------
-    numpy.ndarray, shape (..., 7)
+    numpy.ndarray, shape (..., n)
         Joint torques (N m).
     """
-    return motor_torque_to_joint_Nm(puck_units_to_motor_Nm(as_joint_vectors(puck_units, "puck_units"), ipnm), j2mp)
+    units = as_joint_vectors(puck_units, "puck_units", np.shape(j2mp)[0])
+    return motor_torque_to_joint_Nm(puck_units_to_motor_Nm(units, ipnm), j2mp)
 

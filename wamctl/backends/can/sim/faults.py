@@ -11,7 +11,6 @@ from wamctl.backends.can.protocol.addressing import (
     FEEDBACK_OTHER,
     FEEDBACK_POSITION,
     FEEDBACK_POSITION_TARGET,
-    WAM_PUCK_IDS,
     decode_bus_id,
     encode_bus_id,
 )
@@ -44,7 +43,7 @@ class FaultInjection:
     def send_garbage(self, count: int = 1) -> None:
         """Send ``count`` malformed frames now: puck -> feedback group frames of the wrong length."""
         for _ in range(count):
-            puck_id = self._rng.choice(WAM_PUCK_IDS)
+            puck_id = self._rng.choice(sorted(self._pucks))
             group = self._rng.choice((FEEDBACK_POSITION, FEEDBACK_OTHER))
             self._send(self._garble(encode_bus_id(puck_id, group)), counter="garbage_sent")
 

@@ -63,7 +63,16 @@ for _i in range(5):
 
 def elbow_and_end_point_m(q_rad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Positions (m, base frame) of the elbow (DH frame 3) and the 4-DOF end point (DH frame 5, the wrist
-    centre) where the safety module measures speed."""
+    centre) where the safety module measures speed.
+
+    Only joints 1-4 move these points (frame 5's origin lies on joint 5's axis), so the angles of a wam4 (four
+    joints) give them too: the module hears the positions of pucks 1-4 on either arm. Where a real module measures
+    on a wam4 (the wam7's wrist centre, 0.30 m along the forearm, or wam4.conf's tool plate at 0.36 m) is not
+    documented; the simulation takes the wam7's wrist centre on both arms (the same firmware)."""
+    q = np.zeros(5)
+    k = min(5, len(q_rad))
+    q[:k] = np.asarray(q_rad, float)[:k]
+    q_rad = q
     t = np.eye(4)
     out = []
     for i in range(5):

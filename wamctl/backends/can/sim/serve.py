@@ -1,9 +1,10 @@
 """Serve the simulated WAM on any python-can bus, in its own process (``wamctl sim-arm``), so that a run in another
 process talks to it as it will to the arm on the lab bus (e.g. over ``udp_multicast``).
 
-The arm is the simulated plant of a spec (its ``plant``, ``seed``, ``q0_rad`` and CAN ``physics_substeps``; the
-default plant without one) behind :class:`~.simulator.PuckSimulator`: by default as just powered up (pucks in the
-monitor, encoders at arbitrary offsets, not zeroed, the safety module idle), standing at the spec's start pose.
+The arm is the simulated plant of a spec (its ``robot``: the wam7's pucks 1-7 or the wam4's 1-4, its ``plant``,
+``seed``, ``q0_rad`` and CAN ``physics_substeps``; the default plant without one) behind
+:class:`~.simulator.PuckSimulator`: by default as just powered up (pucks in the monitor, encoders at arbitrary
+offsets, not zeroed, the safety module idle), standing at the spec's start pose.
 Before serving, the bus is probed: if a WAM (or another simulated one) already answers, nothing is served.
 """
 
@@ -19,7 +20,7 @@ import numpy as np
 
 from wamctl.backends.can.bus_tools import open_bus, read_property
 from wamctl.backends.can.protocol.addressing import SAFETY_PUCK_ID, WAM_PUCK_IDS
-from wamctl.backends.can.protocol.configuration import FACTORY_GROUPS, GIMBALS_PUCK7_POLES, HOME_Q_RAD
+from wamctl.backends.can.protocol.configuration import FACTORY_GROUPS, GIMBALS_PUCK7_POLES, bus_arm
 from wamctl.backends.can.protocol.properties import Prop
 from wamctl.backends.can.sim.pendant import parse_pendant_script
 from wamctl.errors import BackendError, SpecError
@@ -104,10 +105,13 @@ def serve_simulated_arm(interface: str, channel: str, bitrate: int = 1_000_000, 
     if o.pose not in ("q0", "home"):
         raise SpecError(f"--pose: expected q0 or home, not {o.pose!r}")
     spec = spec or Common()
+    robot = bus_arm(getattr(spec, "robot", None))
+    if 7 not in robot.puck_ids and (o.gimbals or o.upper_group != 4):
+        raise SpecError(f"--gimbals / --upper-group: pucks 5-7 are not on a {robot.name} bus")
     q0 = np.asarray(spec.q0_rad, float)
     substeps = spec.backend.physics_substeps if isinstance(spec.backend, CanBackendSpec) else 2
-    arm, cts = build_simulated_arm(spec.plant, base_dir, HOME_Q_RAD if o.pose == "home" else q0,
-                                   np.random.default_rng(spec.seed), substeps)
+    arm, cts = build_simulated_arm(spec.plant, base_dir, robot.home_q_rad if o.pose == "home" else q0,
+                                   np.random.default_rng(spec.seed), substeps, robot.name)
     bus = open_bus(interface, channel, bitrate, receive_own_messages=False, **(bus_options or {}))
     try:
         _check_bus_is_free(bus)
@@ -118,7 +122,7 @@ def serve_simulated_arm(interface: str, channel: str, bitrate: int = 1_000_000, 
             groups=None if o.upper_group == 4 else {p: (FACTORY_GROUPS[p][0], FACTORY_GROUPS[p][1], o.upper_group)
                                                     for p in (5, 6, 7)},
             poles={7: GIMBALS_PUCK7_POLES} if o.gimbals else None,
-            **({} if o.firmware is None else {"firmware_version": o.firmware}))
+            robot=robot.name, **({} if o.firmware is None else {"firmware_version": o.firmware}))
         arm.attach(sim)
         stop = stop or threading.Event()
         old = None
@@ -126,9 +130,9 @@ def serve_simulated_arm(interface: str, channel: str, bitrate: int = 1_000_000, 
             old = signal.signal(signal.SIGTERM, lambda *_: stop.set())
         with sim:
             if on_ready is not None:
-                on_ready(f"simulated WAM on {interface} {channel}: pucks {'awake' if o.awake else 'in the monitor'}, "
-                         f"{'zeroed' if o.zeroed else 'not zeroed'}, at its {o.pose} pose, CTS {cts}, pendant "
-                         f"{sim.pendant}")
+                on_ready(f"simulated {robot.name} on {interface} {channel}: {robot.pucks_words()} "
+                         f"{'awake' if o.awake else 'in the monitor'}, {'zeroed' if o.zeroed else 'not zeroed'}, at "
+                         f"its {o.pose} pose, CTS {cts}, pendant {sim.pendant}")
             try:
                 stop.wait()  # (interrupted by Ctrl-C; SIGTERM sets it)
             except KeyboardInterrupt:

@@ -1,9 +1,12 @@
-"""Simulated WAM on a python-can bus: motor pucks 1-7, the safety module and its pendant, driven by a plant.
+"""Simulated WAM on a python-can bus: the arm's motor pucks (1-7 for a wam7, 1-4 for a wam4), the safety module
+and its pendant, driven by a plant.
 
 :class:`PuckSimulator` listens on a bus (python-can's ``virtual`` interface in-process, or any interface,
 e.g. ``udp_multicast``, when served by ``wamctl sim-arm`` in its own process) in a background thread and
 behaves as strictly as the real arm does for what wamctl relies on:
 
+- the arm is a robot of :mod:`wamctl.model.robots` (``robot``, default the wam7): only its motor pucks are on
+  the bus (a wam4: pucks 1-4, no 5-7, libbarrett's ``foundWam4``), its plant takes and reports its joints;
 - the pucks (:mod:`.pucks`) answer property gets (only VERS..STAT in the monitor), wake on STAT=READY with
   a wake window in which any frame but the next STAT=READY puts the host bus-off (for ``BUS_OFF_S`` the
   simulated bus drops the host's frames and nothing answers), answer the position request of the groups
@@ -36,17 +39,14 @@ import can
 import numpy as np
 
 from wamctl.backends.can.protocol.addressing import (
-    DEFAULT_PIDX,
     FEEDBACK_POSITION_TARGET,
     HOST_ID,
-    N_JOINTS,
     SAFETY_PUCK_ID,
     TORQUE_GROUPS,
-    WAM_PUCK_IDS,
     PuckFrameError,
     decode_bus_id,
 )
-from wamctl.backends.can.protocol.configuration import FACTORY_GROUPS, groups_of
+from wamctl.backends.can.protocol.configuration import FACTORY_GROUPS, bus_arm, groups_of
 from wamctl.backends.can.protocol.positions import POSITION_MAX_COUNTS, POSITION_MIN_COUNTS, make_position_reply
 from wamctl.backends.can.protocol.properties import (
     CTS_DEFAULT,
@@ -70,7 +70,7 @@ from wamctl.backends.can.sim.pendant import Pendant
 from wamctl.backends.can.sim.pucks import JOINT_ENCODER_COUNTS, SIM_FIRMWARE_VERSION, MotorPuck, motor_puck
 from wamctl.backends.can.sim.safety_module import SIM_SAFETY_FIRMWARE_VERSION, SimulatedSafetyModule
 from wamctl.backends.can.timing import RealtimeSection
-from wamctl.model.transmission import J2MP, counts_to_joint_rad, joint_rad_to_counts, load_kernels
+from wamctl.model.transmission import counts_to_joint_rad, joint_rad_to_counts, load_kernels
 
 logger = logging.getLogger(__name__)
 
@@ -107,12 +107,16 @@ class SimStats:
 
 
 class PuckSimulator(FaultInjection):
-    """A simulated WAM (pucks 1..7 and, unless ``safety_module=False``, the safety module) on a python-can bus.
+    """A simulated WAM (the arm's pucks 1..n and, unless ``safety_module=False``, the safety module) on a python-can
+    bus.
 
     Parameters
     ----------
     plant : PlantAdapter
-        Supplies joint angles, receives joint torques (optionally ``place(q)``: the operator moves the arm).
+        Supplies joint angles, receives joint torques (optionally ``place(q)``: the operator moves the arm), n
+        joints each.
+    robot : str or Robot, optional
+        The arm (:mod:`wamctl.model.robots`): ``wam7`` (default, pucks 1-7) or ``wam4`` (pucks 1-4).
     bus : can.BusABC, optional
         Bus to listen on. If None, one is opened with ``interface``, ``channel`` and ``bus_options`` and
         closed by :meth:`shutdown`; a bus passed in is left open.
@@ -123,7 +127,7 @@ class PuckSimulator(FaultInjection):
     cts, ipnm : int or sequence of int
         Per puck.
     pidx : dict of int to int, optional
-        PIDX per puck (default 1-4, 1-3).
+        PIDX per puck (default: the arm's, 1-4 then 1-3).
     groups : dict of int to (int, int, int), optional
         GRPA/GRPB/GRPC per puck, overriding Barrett's factory values (e.g. ``{5: (0, 2, 5), ...}``).
     poles : dict of int to int, optional
@@ -148,7 +152,8 @@ class PuckSimulator(FaultInjection):
         Pendant script (:mod:`.pendant`), e.g. ``"activate@0.5"``; ``never`` by default.
     start_pose_rad : array_like, optional
         Where the pendant's ``move`` action puts the arm.
-    j2mp : numpy.ndarray
+    j2mp : numpy.ndarray, optional
+        The transmission (default the arm's).
     seed : int, optional
         Encoder offsets and fault draws.
     poll_timeout_s : float
@@ -167,27 +172,32 @@ class PuckSimulator(FaultInjection):
                  safety_firmware_version: int = SIM_SAFETY_FIRMWARE_VERSION, start_awake: bool = True,
                  zeroed: bool = True, wake_s: float = WAKE_S, joint_encoders: bool = False,
                  safety_module: bool = True, safety_mode: str = "idle", heartbeat_timeout_s: float = 0.5,
-                 pendant: str = "never", start_pose_rad=None, j2mp: np.ndarray = J2MP, seed: int | None = None,
-                 poll_timeout_s: float = 0.005, realtime: bool = False) -> None:
+                 pendant: str = "never", start_pose_rad=None, j2mp: np.ndarray | None = None,
+                 seed: int | None = None, poll_timeout_s: float = 0.005, realtime: bool = False,
+                 robot=None) -> None:
         self._plant = plant
-        self._j2mp = np.asarray(j2mp, dtype=float)
-        self._cts = np.broadcast_to(np.asarray(cts, dtype=np.int64), (N_JOINTS,)).copy()
-        self._ipnm = np.broadcast_to(np.asarray(ipnm, dtype=np.int64), (N_JOINTS,)).copy()
+        self.arm = bus_arm(robot)
+        n = self._n = self.arm.n_joints
+        self._j2mp = np.asarray(self.arm.j2mp if j2mp is None else j2mp, dtype=float)
+        if self._j2mp.shape != (n, n):
+            raise ValueError(f"j2mp of shape {self._j2mp.shape}; the {self.arm.name} has {n} joints")
+        self._cts = np.broadcast_to(np.asarray(cts, dtype=np.int64), (n,)).copy()
+        self._ipnm = np.broadcast_to(np.asarray(ipnm, dtype=np.int64), (n,)).copy()
         if np.any(self._cts <= 0) or np.any(self._ipnm <= 0):
             raise ValueError("CTS and IPNM must be positive")
         load_kernels()  # the transmission's kernels now, not within the first reply's deadline
-        joint_rad_to_counts(np.zeros(N_JOINTS), self._cts, self._j2mp)
+        joint_rad_to_counts(np.zeros(n), self._cts, self._j2mp)
         self._rng = random.Random(seed)
         self._wake_s = float(wake_s)
         self._zeroed = bool(zeroed)
-        pidx_map = dict(DEFAULT_PIDX if pidx is None else pidx)
+        pidx_map = dict(self.arm.default_pidx if pidx is None else pidx)
         groups, poles = dict(groups or {}), dict(poles or {})
         self._pucks: dict[int, MotorPuck] = {
             pid: motor_puck(pid, vers=int(firmware_version), cts=int(self._cts[i]), ipnm=int(self._ipnm[i]),
                             pidx=int(pidx_map.get(pid, 0)), awake=start_awake,
                             offset_counts=0 if zeroed else self._random_offset(i), groups=groups.get(pid),
                             poles=poles.get(pid), joint_encoder_counts=JOINT_ENCODER_COUNTS[i] if joint_encoders else 0)
-            for i, pid in enumerate(WAM_PUCK_IDS)}
+            for i, pid in enumerate(self.arm.puck_ids)}
         self.safety = None if not safety_module else SimulatedSafetyModule(
             firmware_version=safety_firmware_version, mode=SafetyMode[safety_mode.upper()], zeroed=zeroed,
             heartbeat_timeout_s=heartbeat_timeout_s, groups=groups.get(SAFETY_PUCK_ID, FACTORY_GROUPS[10]))
@@ -309,17 +319,18 @@ class PuckSimulator(FaultInjection):
             return {pid: p.props[Prop.MODE] for pid, p in self._pucks.items()}
 
     def puck_torque_units(self) -> np.ndarray:
-        """Torque commands the pucks hold, puck units, shape (7,) (zero for pucks not in TORQUE mode)."""
+        """Torque commands the pucks hold, puck units, shape (n,) (zero for pucks not in TORQUE mode)."""
         with self._lock:
-            return np.array([self._pucks[p].torque_units for p in WAM_PUCK_IDS], dtype=np.int64)
+            return np.array([self._pucks[p].torque_units for p in self.arm.puck_ids], dtype=np.int64)
 
     def joint_torques_Nm(self) -> np.ndarray:
-        """Joint torques the held puck commands produce, N m, shape (7,)."""
+        """Joint torques the held puck commands produce, N m, shape (n,)."""
         return puck_units_to_joint_torque_Nm(self.puck_torque_units(), self._ipnm, self._j2mp)
 
     def describe(self) -> dict:
         with self._lock:
-            return {"stats": dataclasses.asdict(self._stats), "pendant": str(self.pendant),
+            return {"robot": self.arm.name, "pucks": list(self.arm.puck_ids),
+                    "stats": dataclasses.asdict(self._stats), "pendant": str(self.pendant),
                     "realtime": self.realtime_granted,
                     "safety_module": None if self.safety is None else self.safety.describe(),
                     "bus_off": list(self.bus_off_reasons[-10:])}
@@ -490,7 +501,7 @@ class PuckSimulator(FaultInjection):
             self._reply(make_property_reply(puck.puck_id, prop, value))
 
     def _raw_counts(self) -> tuple[np.ndarray, np.ndarray]:
-        q_rad = np.asarray(self._plant.joint_positions_rad(), dtype=float).reshape(N_JOINTS)
+        q_rad = np.asarray(self._plant.joint_positions_rad(), dtype=float).reshape(self._n)
         return joint_rad_to_counts(q_rad, self._cts, self._j2mp), q_rad
 
     def _on_position_request(self, pucks: list[MotorPuck], group: bool) -> None:
