@@ -148,31 +148,43 @@ class NextRun:
     limit_use: object
 
 
-def _scaled_to_limits(traj, limits, dynamics, friction, fill: float):
+def scaled_to_limits(traj, limits, dynamics, friction, fill: float, rate_hz: float | None = None):
     """``traj`` scaled (its coefficients, about q0) as far as its closest limit stays within ``fill`` of it, by
     excite's own check (:func:`~wamctl.analysis.identification.excitation.sampled_limit_use`; bisection on the
-    scale, at most 1); None when a hundredth of it already crosses ``fill``."""
+    scale, at most 1); None when a hundredth of it already crosses ``fill``. ``rate_hz``: the bisection's check
+    on this coarser grid, the result then checked at the control rate and shrunk (3 % a step) until it keeps
+    within ``fill`` there too (None: every check at the control rate)."""
     from wamctl.analysis.identification.excitation import FourierTrajectory, sampled_limit_use
 
-    def at(k):
+    kw = {} if rate_hz is None else {"rate_hz": rate_hz}
+
+    def at(k, **kw_at):
         tr = FourierTrajectory(traj.q0_rad, traj.period_s, traj.a * k, traj.b * k)
-        return tr, sampled_limit_use(tr, limits, dynamics, friction)
+        return tr, sampled_limit_use(tr, limits, dynamics, friction, **kw_at)
 
     lo, hi = 0.01, 1.0
-    best = at(lo)
+    best = at(lo, **kw)
     if best[1].worst[2] > fill:
         return None
-    top = at(hi)
+    top = at(hi, **kw)
     if top[1].worst[2] <= fill:
-        return top
-    for _ in range(8):
-        mid = np.sqrt(lo * hi)
-        got = at(mid)
+        lo, best = hi, top
+    else:
+        for _ in range(8):
+            mid = np.sqrt(lo * hi)
+            got = at(mid, **kw)
+            if got[1].worst[2] <= fill:
+                lo, best = mid, got
+            else:
+                hi = mid
+    if rate_hz is None:
+        return best
+    for _ in range(60):                     # the control rate's check (a peak between the coarse samples)
+        got = at(lo)
         if got[1].worst[2] <= fill:
-            lo, best = mid, got
-        else:
-            hi = mid
-    return best
+            return got
+        lo *= 0.97
+    return None
 
 
 def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float, rows_run: Rows, limits,
@@ -190,7 +202,7 @@ def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float
     for js in joint_sets:
         for _ in range(per_set):
             x = rng.normal(size=(len(js), 2 * (harmonics - 1))) / np.tile(np.arange(2, harmonics + 1), 2)
-            got = _scaled_to_limits(FourierTrajectory.from_free(q0_rad, period_s, js, x, harmonics), limits,
+            got = scaled_to_limits(FourierTrajectory.from_free(q0_rad, period_s, js, x, harmonics), limits,
                                     dynamics, friction, fill)
             if got is None:
                 continue
