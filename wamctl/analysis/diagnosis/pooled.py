@@ -307,6 +307,8 @@ class PooledDiagnosis:
             if outcome == "payload" or label == "pooled" or len(rs) == 1:
                 stacks[label]["payload"] = self._payload_estimate(sub, own, sys_.w)
         self.payload_or_links_ = stacks
+        if all(st["outcome"] == "none" for st in stacks.values()):
+            return              # nothing rigid-body to decide, pooled or in any run
         pooled = stacks["pooled"]
         outcome = pooled["outcome"]
         if outcome == "payload":
@@ -371,35 +373,62 @@ class PooledDiagnosis:
 
     # -------------------------------------------------------------------------------- joint-own effects
     def _joint_effects(self, ms: list[_Member], runs: list[int]) -> None:
-        """Each joint-own effect kept at a joint in some run, tested on that joint in every run that diagnosed it:
-        shared coefficients, the shape the run with the strongest evidence chose."""
+        """Each joint-own effect kept at a joint in some run, tested on that joint in every run that diagnosed it,
+        with the shape the run with the strongest evidence chose: its columns' coefficients shared by the runs, or
+        (a Stribeck effect measured at the breakaways or on the friction map, which shapes the friction columns)
+        each run's friction levels shaped alike. A run's own naming is recorded beside each statistic; an effect
+        whose evidence is at the onsets only (a dead band behind a motor-side encoder) is not tested again: it
+        stays named from the runs that named it, and says so."""
         wanted = {}
         for m in ms:
             for t in m.res.kept:
-                if t["name"] in JOINT_OWN and ncols(t) > 0:
+                if t["name"] in JOINT_OWN:
                     p = float(t["evidence"].get("p_value", 1.0))
                     if (m.j, t["name"]) not in wanted or p < wanted[(m.j, t["name"])][0]:
                         wanted[(m.j, t["name"])] = (p, m.r, t)
         for (j, name), (_, r_best, term) in sorted(wanted.items()):
             sub_all = [m for m in ms if m.j == j]
-            h = term["h_all"]
-            own, shared = {}, {}
+            named_alone = {m.r: any(t["name"] == name for t in m.res.kept) for m in sub_all}
+            shaped = ncols(term) == 0 and name == "stribeck"
+            onsets_only = ncols(term) == 0 and not shaped
+            own, own1, shared = {}, {}, {}
             for m in sub_all:
                 terms = _own_terms(m.res, ("payload", "link_parameters", name))
                 own[m.key] = target_and_design(m.des, m.jd, terms, None)
-                shared[m.key] = columns(m.des, name, m.jd, h)
+                if shaped:
+                    own1[m.key] = target_and_design(m.des, m.jd, terms + [term], None)
+                elif not onsets_only:
+                    shared[m.key] = columns(m.des, name, m.jd, term["h_all"])
             per = {}
             for label, rs in _subsets(sorted({m.r for m in sub_all}), self.labels).items():
                 sub = [m for m in sub_all if m.r in rs]
+                alone = {"named_by_the_run_alone": named_alone[rs[0]]} if len(rs) == 1 else {}
+                if onsets_only:
+                    per[label] = dict(alone, p_value=None, delta_bic=None, ssr_ratio=None,
+                                      named=any(named_alone[r] for r in rs))
+                    continue
                 e0, _, _ = _stack_cv(sub, own, {}, self.w_, self.n_folds)
-                e1, _, _ = _stack_cv(sub, own, {m.key: shared[m.key] for m in sub}, self.w_, self.n_folds)
-                p_extra = shared[sub[0].key].shape[1] + (0 if name == "backlash" else 1)
+                if shaped:          # ratio per direction and Stribeck velocity
+                    e1, _, _ = _stack_cv(sub, own1, {}, self.w_, self.n_folds)
+                    p_extra = 3
+                else:
+                    e1, _, _ = _stack_cv(sub, own, {m.key: shared[m.key] for m in sub}, self.w_, self.n_folds)
+                    p_extra = shared[sub[0].key].shape[1] + (0 if name == "backlash" else 1)
                 k1 = sum(own[m.key][1].shape[1] for m in sub) + p_extra
                 t = _test(sub, e0, e1, self.w_, p_extra, k1)
-                per[label] = dict(t, named=_passes(t, self.threshold_))
-            finding = {"name": name, "joint": j + 1, "what": f"joint {j + 1}: {name} (shape from "
-                       f"{self.labels[r_best]}, coefficients shared by every run)",
+                per[label] = dict(t, named=_passes(t, self.threshold_), **alone)
+            how = ("its evidence is at the onsets only: not tested again, named from the runs that named it"
+                   if onsets_only else "each run's friction levels shaped alike" if shaped else
+                   "coefficients shared by every run")
+            finding = {"name": name, "joint": j + 1,
+                       "what": f"joint {j + 1}: {name} (shape from {self.labels[r_best]}; {how})",
                        "pooled": per["pooled"], "per_stack": {k: v for k, v in per.items() if k != "pooled"}}
+            if shaped and not per["pooled"]["named"] and term.get("seen") == "at the breakaways":
+                # the breakaways decided it in the run that named it; the sliding samples pooled do not contradict
+                # it unless they say so: kept, with why
+                finding["pooled"] = dict(per["pooled"], named=True, basis=(
+                    f"named at the breakaways by {', '.join(self.labels[r] for r, v in named_alone.items() if v)}; "
+                    "the sliding samples pooled do not show it on their own"))
             finding["decided_by"], finding["added_nothing"] = self._who_decided(finding, runs)
             self.findings_.append(finding)
 
@@ -443,14 +472,12 @@ class PooledDiagnosis:
             own, shared = {}, {}
             for m in sub:
                 terms = _own_terms(m.res, ("payload", "link_parameters") + JOINT_OWN)
-                y, X = target_and_design(m.des, m.jd, terms, None)
-                cols = [X]
-                for (jj, name) in named:
-                    if jj == j + 1:
-                        t = next((t for mm in sub for t in mm.res.kept if t["name"] == name), None)
-                        if t is not None:
-                            cols.append(columns(m.des, name, m.jd, t["h_all"]))
-                own[m.key] = (y, np.hstack(cols))
+                for (jj, name) in sorted(named):        # the joint's effects named pooled, in every run's model
+                    t = next((t for mm in sub for t in mm.res.kept if t["name"] == name), None) \
+                        if jj == j + 1 else None
+                    if t is not None:
+                        terms = terms + [t]
+                own[m.key] = target_and_design(m.des, m.jd, terms, None)
                 if self.payload_ is not None:
                     shared[m.key] = m.jd.extra.get("payload")
             if any(v is None for v in shared.values()):
