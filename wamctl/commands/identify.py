@@ -106,13 +106,16 @@ def identify(data: Annotated[list[Path] | None, typer.Argument(help="Measured ru
     estimate (every link's pseudo-inertia positive definite, an SDP), validated on held-out data against the
     nominal model. What the data cannot determine is named, not printed. Writes a run directory with model.yaml
     (usable as plant:, controller.declared_links:, diagnose --model), identification.json, parameters.csv and a
-    report.
+    report. The runs name their arm (robot: wam7 or wam4, all the same); a wam4's model.yaml says robot: wam4 and
+    no URDF is written for it. Runs whose torque is the controller's output (torque: controller, gravity not
+    logged) use only the joints whose gravity torque is constant; the others are named with the reason.
 
     Held-out check: the identified model must predict held-out torque (the --validate runs, else the last quarter
     of each run) at least as well as the declared arm with friction fitted on the same data, on every joint that
-    moves, or be above it by less than the held-out data can tell (Diebold-Mariano, one-sided, 5 %; said with the
-    ratio and p). If it is significantly worse (or cannot be checked), the model is written as model_rejected.yaml,
-    not model.yaml (unless --force), and the command exits with code 3. Exit code 2 for unusable data.
+    moves, or be above it by less than the fit's uncertainty and the held-out data can tell (Diebold-Mariano,
+    one-sided, 5 %; said with the ratio and p); better only where some joint is significantly better. If it is
+    significantly worse (or cannot be checked), the model is written as model_rejected.yaml, not model.yaml
+    (unless --force), and the command exits with code 3. Exit code 2 for unusable data.
 
     With --payload: a payload at the wrist from one trajectory run loaded (--loaded) and bare (--bare), best in
     the ABBA order of `wamctl excite SPEC --payload-schedule`: mass, centre of mass and the inertia the trajectory
