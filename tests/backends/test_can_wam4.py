@@ -302,6 +302,8 @@ FAULTS = {
     # TL2 = 0.05 N m of motor torque (135 puck units): the gravity torque of joint 2 needs more at once
     "torque_fault": ({"torque_limit_Nm": 0.05}, "safety module: torque fault TL2 (a motor command above 135 puck "
                                                 "units)"),
+    # the safety module measures the elbow of the wam4 (pucks 1-4's positions) faster than 0.03 m/s as joint 2 turns
+    "velocity_fault": ({"velocity_limit_m_s": 0.03}, "safety module: velocity fault VL2 (faster than 0.03 m/s"),
     "silent_puck": ({"simulated_fault": {"kind": "silent_puck", "puck": 4, "at_cycle": 150}, "watchdog_cycles": 3},
                     "position replies from pucks [4] missing or late for 4 consecutive cycles"),
 }

@@ -11,7 +11,8 @@ What lives here:
 - :mod:`.properties`: property ids (:class:`~.properties.Prop`), MODE and STAT values, ROLE bits, the firmware
   check, and property get / set / reply messages.
 - :mod:`.safety`: the safety module's ids, modes, pendant state (PEN), limits and broadcast.
-- :mod:`.configuration`: the arm the model describes (groups, POLES) and the zeroing counts at the home pose.
+- :mod:`.configuration`: the arm a session expects (:class:`~.configuration.BusArm` of a robot: the wam7's pucks
+  1-7, the wam4's 1-4 with 5-7 absent; groups, POLES, torque frames) and the zeroing counts at its home pose.
 - :mod:`.positions`: 22-bit position replies (3 bytes, or 6 with a joint encoder) and the position request.
 - :mod:`.torques`: packed 14-bit torque frames and puck torque units (IPNM).
 
@@ -20,8 +21,8 @@ Joint <-> motor <-> encoder-count conversions are the arm's, not the bus's: they
 
 Conventions
 -----------
-- Joints and pucks are numbered 1..7 on the bus and in user-facing text, 0..6 in arrays; WAM puck ``n``
-  drives motor ``n``.
+- Joints and pucks are numbered 1..n on the bus and in user-facing text (n = 7 on a wam7, 4 on a wam4), 0..n-1
+  in arrays; WAM puck ``n`` drives motor ``n``.
 - SI units everywhere except on the wire; names carry units: ``q_rad`` (joint angle), ``m_rad`` (motor
   angle), ``counts`` (encoder counts), ``tau_Nm`` (joint torque), ``tau_m_Nm`` (motor torque),
   ``puck_units`` (puck torque command, ``IPNM`` units per N m of motor torque).
