@@ -12,9 +12,9 @@ import numpy as np
 
 def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -> dict | None:
     """The delay-or-inertia check of a fitted diagnosis (:func:`~wamctl.analysis.diagnosis.delay_inertia.
-    check_run`). None when the residual holds no effect either explains (by at least the noise floor beyond
-    friction). Decided on this run: ``{"spec": None, "hypotheses", "decision", "why"}``. Ambiguous: the designed
-    run written as ``out_dir/next_experiment.yaml`` (an excitation spec for the run's backend, plant and controller
+    check_run`). None when the diagnosis leaves no room for either (:func:`delay_or_inertia_suspected`) or the
+    residual holds no effect either explains (by at least the noise floor beyond friction). Decided on this run:
+    ``{"spec": None, "hypotheses", "decision", "why"}``. Ambiguous: the designed run written as ``out_dir/next_experiment.yaml`` (an excitation spec for the run's backend, plant and controller
     when the run directory names them) and ``{"spec", "hypotheses", "decision", "separation_noise_floors",
     "original_separation_noise_floors", "joints", "period_s", "noise_floor_Nm", "why", "candidates"}``."""
     import yaml
@@ -26,7 +26,7 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
     from wamctl.model.friction import FrictionModel
     from wamctl.specs.excitation import ExcitationLimitsSpec
 
-    if not diag.joints_:
+    if not (diag.joints_ and delay_or_inertia_suspected(diag)):
         return None
     dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
     chk = DI.check_run(diag, dyn)
@@ -77,6 +77,13 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
                 period_s=float(tr.period_s), noise_floor_Nm={j + 1: v for j, v in noise.items()}, why=why,
                 candidates=[{"joints": js, "period_s": p, "separation_noise_floors": float(v)}
                             for js, p, v in nr.scored])
+
+
+def delay_or_inertia_suspected(diag) -> bool:
+    """The diagnosis leaves room for a delay or an inertia error: a delay named, a delay in an ambiguous group, or
+    a structured residual left unexplained at a joint."""
+    return ("delay" in diag.effects_found_ or any("delay" in g for g in diag.ambiguous_)
+            or any(r.unexplained for r in diag.joints_.values()))
 
 
 def _floors(dec: dict) -> str:
