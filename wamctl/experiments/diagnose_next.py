@@ -14,8 +14,9 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
     """The delay-or-inertia check of a fitted diagnosis (:func:`~wamctl.analysis.diagnosis.delay_inertia.
     check_run`). None when the diagnosis leaves no room for either (:func:`delay_or_inertia_suspected`) or the
     residual holds no effect either explains (by at least the noise floor beyond friction). Decided on this run:
-    ``{"spec": None, "hypotheses", "decision", "why"}``. Ambiguous: the designed run written as ``out_dir/next_experiment.yaml`` (an excitation spec for the run's backend, plant and controller
-    when the run directory names them) and ``{"spec", "hypotheses", "decision", "separation_noise_floors",
+    ``{"spec": None, "hypotheses", "decision", "why"}``. Ambiguous: the designed run written as
+    ``out_dir/next_experiment.yaml`` (an excitation spec for the run's backend, plant and controller when the run
+    directory names them) and ``{"spec", "hypotheses", "decision", "separation_noise_floors",
     "original_separation_noise_floors", "joints", "period_s", "noise_floor_Nm", "why", "candidates"}``."""
     import yaml
 
