@@ -25,7 +25,8 @@ def import_cmd(
                                            "exported CSV, a JSON list of JointState records, a ROS 1 .bag or a ROS 2 "
                                            "bag directory, a CSV.", show_default=False)],
     fmt: Annotated[str | None, typer.Option("--format", help="measured (a directory with meta.yaml: the default "
-                                            "for a directory) | libbarrett-csv | jointstate-json | rosbag | csv.",
+                                            "for a directory) | libbarrett-csv | jointstate-json | rosbag | csv | "
+                                            "table (a headerless table of numbers, e.g. a recorder's .dat).",
                                             show_default=False)] = None,
     robot: Annotated[str | None, typer.Option("--robot", help="wam7 | wam4: the arm the log is of.",
                                               show_default=False)] = None,
@@ -34,7 +35,7 @@ def import_cmd(
                                                "(the user's controller output; gravity compensation added "
                                                "downstream, not logged) | measured (a torque sensor).",
                                                show_default=False)] = None,
-    layout: Annotated[str | None, typer.Option("--layout", help="libbarrett-csv: the logged tuple, e.g. "
+    layout: Annotated[str | None, typer.Option("--layout", help="libbarrett-csv, table: the columns, e.g. "
                                                "\"t,q_ref[4],qd_ref[4],q[4],qd[4],tau[4]\" (t q qd qdd tau q_ref "
                                                "qd_ref qdd_ref skip; [n]: n values, one per joint logged).",
                                                show_default=False)] = None,
@@ -61,7 +62,7 @@ def import_cmd(
         if not (source.is_dir() and (source / "meta.yaml").is_file()):
             hint = " (a ROS 2 bag: --format rosbag)" if (source / "metadata.yaml").is_file() else ""
             raise DataFormatError(f"{source}: not a measured-run directory (no meta.yaml){hint}; a log needs "
-                                  "--format libbarrett-csv | jointstate-json | rosbag | csv")
+                                  "--format libbarrett-csv | jointstate-json | rosbag | csv | table")
         fmt = "measured"
     opts = ImportOptions(format=fmt, robot=robot, torque=torque, joints=parse_joints(joints), rate_hz=rate_hz,
                          layout=layout, columns=columns, topic=topic)

@@ -2,9 +2,10 @@
 
 Each format has a reader (``read(path, options) -> Imported``): libbarrett's exported CSV (``libbarrett.py``),
 a JSON dump of ``sensor_msgs/JointState`` records and ROS 1 / ROS 2 bags (``jointstate.py``), a CSV with a
-column map (``csv_map.py``). What they read is checked like any measured run (:func:`validate_samples`: row
-numbers the file's own), described (robot, joints logged, what the torque is, how the time was read) and stored
-as a run directory by :func:`wamctl.runs.measured.store_measured`. Joints not logged have no columns: never zeros.
+column map (``csv_map.py``), a headerless table of numbers with a layout (``table.py``). What they read is
+checked like any measured run (:func:`validate_samples`: row numbers the file's own), described (robot, joints
+logged, what the torque is, how the time was read) and stored as a run directory by
+:func:`wamctl.runs.measured.store_measured`. Joints not logged have no columns: never zeros.
 """
 
 from __future__ import annotations
@@ -31,7 +32,7 @@ from wamctl.runs.measured import (
 
 # --format -> the module that reads it ("measured": the measured-run directory, wamctl.runs.measured)
 READERS = {"libbarrett-csv": "libbarrett", "jointstate-json": "jointstate", "rosbag": "jointstate",
-           "csv": "csv_map"}
+           "csv": "csv_map", "table": "table"}
 FORMATS = ("measured", *READERS)
 # a joint "moved" (experiment.joints) when its position spans more than this
 MOVED_RAD = 0.01
@@ -68,7 +69,7 @@ class Imported:
     source: str = ""
 
 
-APPLIES = {"layout": ("libbarrett-csv",), "columns": ("csv",), "topic": ("rosbag",)}
+APPLIES = {"layout": ("libbarrett-csv", "table"), "columns": ("csv",), "topic": ("rosbag",)}
 
 
 def _check_options(opts: ImportOptions) -> None:
