@@ -218,6 +218,11 @@ def test_wam4_controller_torque_uses_only_the_joints_without_gravity(tmp_path):
     rms = validation["rms"]
     assert np.isfinite(rms["identified"][0]) and np.isnan(rms["identified"][1:]).all()
     assert rms["identified"][0] <= 0.8 * rms["nominal"][0], rms
+    from wamctl.experiments.identify import check_statement, held_out_check
+
+    check = held_out_check(validation, [0], refused={j + 1: why for j, why in skipped.items()})
+    assert check["not_moving_joints"] == [] and sorted(check["refused_joints"]) == [2, 3, 4]
+    assert "joint(s) 2, 3, 4 moved but give no rows (joint 2: torque controller" in check_statement(check)
 
 
 def test_wam4_controller_torque_without_a_usable_joint_is_refused(tmp_path):

@@ -50,10 +50,12 @@ REJECTED_MODEL = "model_rejected.yaml"
 WRITTEN_VERDICTS = ("better", "no_worse")   # written as model.yaml; any other only with --force
 
 
-def held_out_check(validation: dict, fitted_joints: list[int], alpha: float = 0.05) -> dict:
+def held_out_check(validation: dict, fitted_joints: list[int], alpha: float = 0.05,
+                   refused: dict | None = None) -> dict:
     """The verdict of the held-out check (see the module doc) from :func:`validation_of`'s RMS and comparison and
     the 0-based joints with fitting rows: ``{verdict, ratio: {joint: identified / nominal}, p_worse: {joint: p},
-    worse_joints, within_noise_joints, unchecked_joints, not_moving_joints}`` (1-based joints).
+    worse_joints, within_noise_joints, unchecked_joints, not_moving_joints, refused_joints}`` (1-based joints;
+    ``refused``: {1-based joint (str or int): why} of joints that moved but give no rows, e.g. gravity not logged).
 
     A joint is ``worse`` when its identified RMS is above the nominal's and Diebold and Mariano's test rejects
     "not worse" at ``alpha`` (one-sided); above it but not rejected, it is ``within noise`` of the nominal (the
@@ -79,10 +81,11 @@ def held_out_check(validation: dict, fitted_joints: list[int], alpha: float = 0.
         verdict = "not_checked"
     else:
         verdict = "no_worse" if within or not improved else "better"
-    moved = set(fitted_joints) | set(checked)
+    refused = {int(j): why for j, why in (refused or {}).items()}
+    moved = set(fitted_joints) | set(checked) | {j - 1 for j in refused}
     return {"verdict": verdict, "ratio": ratio, "p_worse": p_worse, "p_worse_given_fit": p_fit,
             "worse_joints": worse, "within_noise_joints": within, "improved_joints": improved,
-            "unchecked_joints": unchecked,
+            "unchecked_joints": unchecked, "refused_joints": refused,
             "not_moving_joints": [j + 1 for j in range(len(nom)) if j not in moved],
             "rule": "identified held-out torque RMS <= nominal's (declared arm, friction fitted on the same data) "
                     "on every joint that moves and significantly below it on one (better), or above it by less "
@@ -130,6 +133,10 @@ def check_statement(check: dict) -> str:
         s = ("held-out check NOT DONE: no held-out rows for joint(s) "
              f"{', '.join(map(str, check['unchecked_joints'])) or 'any'}"
              + (f" (checked: {ratios})" if ratios else ""))
+    if check.get("refused_joints"):
+        s += (f"; joint(s) {', '.join(map(str, check['refused_joints']))} moved but give no rows ("
+              + "; ".join(f"joint {j}: {why}" for j, why in check["refused_joints"].items())
+              + "): not identified from their torque")
     if check["not_moving_joints"]:
         s += (f"; joint(s) {', '.join(map(str, check['not_moving_joints']))} did not move: not identified "
               "(what only they could show stays the declared arm's)")
@@ -313,7 +320,8 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
     n = est.n_joints_
     held = {str(j + 1): {k: _num(validation["rms"][k][j]) for k in ("nominal", "identified")} for j in range(n)}
     fitted = sorted({j for rr in est.rows_ for j in rr.joints})
-    check = held_out_check(validation, fitted)
+    check = held_out_check(validation, fitted, refused={
+        j: why for j, why in _refused(est.rows_).items() if why.startswith("torque controller")})
     model_name = "model.yaml" if check["verdict"] in WRITTEN_VERDICTS or force else REJECTED_MODEL
     check.update(statement=check_statement(check), model_written=model_name == "model.yaml", forced=bool(
         force and check["verdict"] not in WRITTEN_VERDICTS), model_file=model_name,
@@ -331,9 +339,9 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
     robot = provenance["robot"]
     urdf_name = str(Path(model_name).with_suffix(".urdf"))
     if robot != "wam7":     # wamctl.model.urdf writes the 7-DOF WAM only
-        result["urdf"] = {"written": False, "reason": f"no URDF of the {robot}: wamctl's URDF writer "
-                                                      "(wamctl.model.urdf) knows the 7-DOF WAM only; "
-                                                      f"{model_name} holds the identified links"}
+        result["urdf"] = {"written": False, "reason": f"wamctl's URDF writer (wamctl.model.urdf) knows the 7-DOF "
+                                                      f"WAM only, not the {robot}; {model_name} holds the "
+                                                      "identified links"}
     else:
         result["urdf"] = {"written": True, "file": urdf_name}
     run.write_json("identification.json", result)
@@ -345,7 +353,7 @@ def identify_to_run_dir(data_paths: list[Path], validate: list[Path] | None = No
             f"wamctl identify {provenance['run_dir']}: the identified links ({check['verdict']}); DH frames of "
             "wamctl.model.params, armature on each joint's dynamics element")))
     else:
-        log.warning("identify: %s", result["urdf"]["reason"])
+        log.warning("identify: no URDF written: %s", result["urdf"]["reason"])
     est.table().to_csv(run.path / "parameters.csv", index=False)
     if validation["traces"]:
         pd.concat([pd.DataFrame(t) for t in validation["traces"]], ignore_index=True).to_parquet(
