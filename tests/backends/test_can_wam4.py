@@ -10,8 +10,8 @@ naming the pucks before any puck is woken; a torque fault and a silent puck stop
 
 Tolerances chosen before looking: positions within one encoder count's joint angle of the truth (the pucks
 quantise once); zero torque within three cycles of the fault (issue 9's bound); the held arm within 0.01 rad of the
-start pose (about 15 counts of joint 2) under the model's own gravity; the move's end within 0.02 rad of the
-target under PD + gravity (a 0.1 rad step, libbarrett's wam4 gains). No assertion is on wall time.
+start pose (about 15 counts of joint 2) under the model's own gravity; the move's end within 0.01 rad of the
+target under PD + gravity (a 0.05 rad ramp, libbarrett's wam4 gains). No assertion is on wall time.
 """
 
 from __future__ import annotations
@@ -180,23 +180,25 @@ def test_a_wam4_session_zeroes_at_its_home_and_drives_pucks_1_to_4_only(channel)
 
 def test_wam4_holds_under_gravity_compensation_and_moves_with_positions_at_the_truth(channel):
     """The simulated wam4's dynamics behind the pucks: 0.3 s held by the model's gravity torque plus libbarrett's
-    wam4 PD, then a 0.1 rad step of joint 2 for 0.7 s; every reading within one encoder count of the truth."""
+    wam4 PD, then joint 2 ramped 0.05 rad at 0.1 rad/s and held 0.3 s; every reading within one encoder count of
+    the truth. (A step instead of the ramp swings the elbow near the safety module's 1 m/s: the simulated module
+    times its speed by the wall clock, which a loaded machine compresses.)"""
     spec = parse_spec(wam4_spec(channel, friction="none"))
     b = CanBackend.from_spec(spec, None, Q0_WAM4, np.random.default_rng(0))
     b.operator = ScriptedOperator()
     dyn = WamDynamics(robot="wam4")
     kp, kd = WAM4.kp, WAM4.kd
     count_rad = joint_rad_per_count(4096, WAM4.j2mp)
-    target = Q0_WAM4 + np.array([0.0, 0.1, 0.0, 0.0])
+    move = np.array([0.0, 0.05, 0.0, 0.0])
     worst = np.zeros(4)
     with b:
         q_prev = b.read_positions().copy()
         held = None
-        for k in range(500):
+        for k in range(550):
             q = b.read_positions() if k else q_prev
             q_true, _ = b.simulated_arm.truth()
             worst = np.maximum(worst, np.abs(q - q_true))
-            ref = Q0_WAM4 if k < 150 else target
+            ref = Q0_WAM4 + move * min(1.0, max(0.0, (k - 150) / 250))
             qd = (q - q_prev) * 500.0
             q_prev = q.copy()
             b.command_torques(dyn.gravity(q) + kp * (ref - q) - kd * qd)
@@ -208,8 +210,8 @@ def test_wam4_holds_under_gravity_compensation_and_moves_with_positions_at_the_t
     assert b.trip_reason is None
     np.testing.assert_array_less(worst, count_rad + 1e-12)
     np.testing.assert_array_less(np.abs(held - Q0_WAM4), 0.01)
-    np.testing.assert_array_less(np.abs(q_end - target), 0.02)
-    assert abs(q_end[1] - Q0_WAM4[1]) > 0.08          # it did move
+    np.testing.assert_array_less(np.abs(q_end - (Q0_WAM4 + move)), 0.01)
+    assert abs(q_end[1] - Q0_WAM4[1]) > 0.04          # it did move
 
 
 def test_a_wam4_rotation_over_can_runs_end_to_end(runs_dir, channel):
