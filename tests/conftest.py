@@ -40,6 +40,16 @@ settings.register_profile("explore", derandomize=False, max_examples=1000, print
 
 Q0 = np.array([0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0])
 
+
+def pytest_sessionfinish(session):
+    """The values made once for every worker (tests/once.py) are removed when the session ends: by the controller
+    under xdist (its temporary folder is the one the workers share), after every worker has finished."""
+    factory = getattr(session.config, "_tmp_path_factory", None)
+    if not hasattr(session.config, "workerinput") and getattr(factory, "_basetemp", None) is not None:
+        from once import remove_values
+
+        remove_values(factory.getbasetemp())
+
 @pytest.fixture
 def runs_dir(tmp_path):
     d = tmp_path / "runs"

@@ -38,7 +38,7 @@ class Generated:
     the tests of one run need not wait for the other seven, nor two workers make the same one."""
 
     def __init__(self, tmp_path_factory):
-        self.tmp_path_factory = tmp_path_factory
+        self.tmp_path_factory, self.made = tmp_path_factory, {}
 
     def __getitem__(self, name: str):
         effect, seed = (None, int(name[5:])) if name.startswith("clean") else (name, SEEDS[name])
@@ -48,7 +48,9 @@ class Generated:
         def make(root: Path):
             g = generate_run(root, effect, seed)
             return g, ModelDiagnosis(simulator=simulate_positions).fit(load_run_data(g.path))
-        return make_once(self.tmp_path_factory, f"diagnose_{name}", make)
+        if name not in self.made:       # held while this module runs (50-150 MB each), as the module fixture did
+            self.made[name] = make_once(self.tmp_path_factory, f"diagnose_{name}", make, keep=False)
+        return self.made[name]
 
 
 @pytest.fixture(scope="module")
