@@ -51,13 +51,14 @@ class StaticPlant:
 
     Parameters
     ----------
-    q_rad : array_like, shape (7,), optional
-        Joint angles reported to the pucks; default zeros. May be reassigned (or :meth:`place`) at any time.
+    q_rad : array_like, shape (n,), optional
+        Joint angles reported to the pucks (n the arm's joints: 4 for a wam4); default seven zeros. May be
+        reassigned (or :meth:`place`) at any time.
     """
 
     def __init__(self, q_rad: np.ndarray | None = None) -> None:
         self.q_rad = np.zeros(N_JOINTS) if q_rad is None else np.asarray(q_rad, dtype=float).copy()
-        self.tau_Nm = np.zeros(N_JOINTS)
+        self.tau_Nm = np.zeros(len(self.q_rad))
         self.n_position_reads = 0
         self.n_torque_updates = 0
         self._lock = threading.Lock()
