@@ -343,10 +343,11 @@ def stall_residual(diag, j: int, ons: dict, after: bool) -> np.ndarray:
     stops = [stall_stop(w, leads) for w in ons["windows"]]
     res.stall_t = np.concatenate([sig.t_s[w["start"]:w["start"] + m] for w, m in zip(ons["windows"], stops)])
     for w, f_on, m in zip(ons["windows"], ons["fold"], stops):
-        if after:       # ratios against the reference levels the onsets measured them with
+        if after:       # a Stribeck effect's ratios against the reference levels the onsets measured them with
             u, f = w["u"][:m], w["friction"]
             ratio, band = _held_out_levels(ons, w, int(f_on), kept, p_ratio)
-            ref = breakaway_reference_Nm(f["fc_pos_Nm"], f["fc_neg_Nm"])
+            ref = breakaway_reference_Nm(f["fc_pos_Nm"], f["fc_neg_Nm"]) if "stribeck" in kept \
+                else (f["fc_pos_Nm"], f["fc_neg_Nm"])
         else:
             u, f = w["u_declared"][:m], {k: max(v, 0.0) for k, v in fb.items()}
             ratio, band = (1.0, 1.0), 0.0
