@@ -11,12 +11,15 @@ line of error or its held-out figures. Beside them, the reference every estimato
 (wamctl's rigid-body model, armature included) plus per-joint Coulomb + viscous friction and a constant offset
 fitted by least squares on the first part of the run, evaluated on the last ``--holdout`` part (identify's own
 default split is the last quarter). Accelerations: Savitzky-Golay second derivative of the logged positions
-(cubic, 0.1 s window); velocities: the logged ones. Reported per moving joint (range above 0.1 rad): the
-held-out torque RMS, and over the moving joints the relative error ||tau - tau_hat|| / ||tau|| (the figure of
-Sousa and Cortesao's identification of a real 7-DOF WAM: 6.7-8.5 % held out).
+(cubic, 0.1 s window); velocities: the logged ones (their first derivative where the log has none). Reported
+per moving joint (range above 0.1 rad): the held-out torque RMS, and over the moving joints the relative error
+||tau - tau_hat|| / ||tau|| (the figure of Sousa and Cortesao's identification of a real 7-DOF WAM: 6.7-8.5 % held out).
 
 The datasheet reference needs the whole arm's torque: it is computed only where the log's torque is ``total``
-(libbarrett's jtSum, wam_node's effort) and the robot is one wamctl's model describes. Nothing is asserted.
+(libbarrett's jtSum, wam_node's effort), with the datasheet arm of the robot the recording names (wam7, wam4).
+Logs without a reference (JointState records, a recorder's table) are also imported with the reference set to
+the measurement, split in a training and a held-out part, and every model is checked on the held-out part.
+Nothing is asserted.
 """
 
 from __future__ import annotations
@@ -45,6 +48,9 @@ class Recording:
     robot: str              # wam7 | wam4
     torque: str             # total | controller | measured
     import_args: tuple[str, ...]
+    # a wam7 whose wrist was held and not logged (a "4-DOF" log of a 7-DOF arm): its joints 5-7 (rad), to compare
+    # the wam4 datasheet (no wrist) with the wam7's (wrist held there)
+    held_wrist_rad: tuple[float, float, float] | None = None
 
 
 RECORDINGS = (
@@ -59,6 +65,9 @@ RECORDINGS = (
     Recording("iitk-wam4-hosmc-j1-sine", "disturbancesHOSMC1_1.csv", "wam4", "controller",
               ("--format", "libbarrett-csv", "--rate-hz", "500",
                "--layout", "t,q_ref[4],qd_ref[4],q[4],qd[4],tau[4]")),
+    Recording("alberta-zeus-4dof-fourier", "rbtlog_15_zeus_4dof_excerpt.dat", "wam4", "total",
+              ("--format", "table", "--layout", "t,q[4],tau[4]"),
+              held_wrist_rad=(0.0212, -0.1193, 0.0356)),
 )
 
 
@@ -82,29 +91,40 @@ def joint_columns(frame: pd.DataFrame, prefix: str, unit: str) -> list[str]:
             and c[len(prefix):-len(unit)].strip("_").isdigit()]
 
 
-def datasheet_reference(run_dir: Path, holdout: float) -> dict:
-    """Held-out torque of the datasheet arm + friction fitted on the training part (wam7 logs only)."""
-    from wamctl.model.dynamics import WamDynamics
-    from wamctl.model.friction import FrictionModel
-    from wamctl.model.params import N_JOINTS
-
+def run_signals(run_dir: Path) -> tuple[list[int], np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+    """A run's joints, q, qd (logged, else the Savitzky-Golay first derivative of q), qdd (Savitzky-Golay), tau
+    and the filter's window in rows (rows within it of either end are not used)."""
     frame = pd.read_csv(run_dir / "data.csv")
     t_s = frame["t_s"].to_numpy()
     q_cols = joint_columns(frame, "q_", "_rad")
     joints = [int(c.split("_")[1]) for c in q_cols]
-    if len(joints) != N_JOINTS:
-        return {"skipped": f"the datasheet reference needs all {N_JOINTS} joints; the log has {joints}"}
     q = frame[q_cols].to_numpy()
-    qd = frame[[f"qd_{j}_rad_s" for j in joints]].to_numpy()
-    tau = frame[[f"tau_{j}_Nm" for j in joints]].to_numpy()
     dt_s = float(np.median(np.diff(t_s)))
     window = int(round(SAVGOL_WINDOW_S / dt_s)) | 1
+    qd_cols = [f"qd_{j}_rad_s" for j in joints]
+    qd = (frame[qd_cols].to_numpy() if all(c in frame for c in qd_cols)
+          else savgol_filter(q, window, 3, deriv=1, delta=dt_s, axis=0))
     qdd = savgol_filter(q, window, 3, deriv=2, delta=dt_s, axis=0)
-    tau_rb = WamDynamics().inverse_dynamics_many(q, qd, qdd)
-    n_train = int(round(len(t_s) * (1.0 - holdout)))
+    tau = frame[[f"tau_{j}_Nm" for j in joints]].to_numpy()
+    return joints, q, qd, qdd, tau, window
+
+
+def datasheet_reference(run_dir: Path, holdout: float, robot: str = "wam7") -> dict:
+    """Held-out torque of the robot's datasheet arm + friction fitted on the training part (all joints logged)."""
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.friction import FrictionModel
+
+    dyn = WamDynamics(robot=robot)
+    joints, q, qd, qdd, tau, window = run_signals(run_dir)
+    if joints != list(range(1, dyn.n_joints + 1)):
+        return {"skipped": f"the datasheet reference needs all {dyn.n_joints} joints of the {robot}; the log has "
+                           f"{joints}"}
+    n_rows = len(q)
+    tau_rb = dyn.inverse_dynamics_many(q, qd, qdd)
+    n_train = int(round(n_rows * (1.0 - holdout)))
     edge = window                                   # the filter's ends are not used
     train = slice(edge, n_train)
-    test = slice(n_train, len(t_s) - edge)
+    test = slice(n_train, n_rows - edge)
     moving = [k for k in range(len(joints)) if np.ptp(q[:, k]) > MOVING_RANGE_RAD]
     fitted = tau_rb.copy()
     for k in range(len(joints)):
@@ -112,8 +132,8 @@ def datasheet_reference(run_dir: Path, holdout: float) -> dict:
         coef, *_ = np.linalg.lstsq(basis[train], (tau[:, k] - tau_rb[:, k])[train], rcond=None)
         fitted[:, k] += basis @ coef
     result = {"moving_joints": [joints[k] for k in moving], "train_rows": n_train - edge,
-              "held_out_rows": len(t_s) - edge - n_train}
-    declared = tau_rb + FrictionModel.table_4_1().friction_torque(qd)
+              "held_out_rows": n_rows - edge - n_train}
+    declared = tau_rb + FrictionModel.table_4_1(dyn.n_joints).friction_torque(qd)
     for label, tau_hat in (("table_4_1_friction", declared), ("friction_fitted", fitted)):
         err = tau[test] - tau_hat[test]
         result[label] = {
@@ -152,41 +172,41 @@ def joint1_reference(run_dir: Path, holdout: float) -> dict:
             "relative_error": round(float(np.linalg.norm(err) / np.linalg.norm(tau1[test])), 4)}
 
 
-def model_torque(q, qd, qdd, model_file: Path | None):
+def model_torque(q, qd, qdd, model_file: Path | tuple | None, robot: str = "wam7"):
     """Torque of the datasheet arm (``None``: Table 4.1 friction) or of a wamctl-model/1 file (links, friction and
-    a payload effect, as `identify` and `diagnose` write them; what the file leaves out stays the datasheet's)."""
+    a payload effect, as `identify` and `diagnose` write them; what the file leaves out stays the datasheet's);
+    a tuple: the wam7 datasheet arm with its wrist held at those joint angles (rad), Table 4.1 friction, the
+    first ``q.shape[1]`` joints' torque."""
     from wamctl.io import load_yaml
     from wamctl.model.dynamics import Payload, WamDynamics
     from wamctl.model.friction import FrictionModel
     from wamctl.model.params import LinkParameters
 
+    if isinstance(model_file, tuple):
+        n, rows = q.shape[1], len(q)
+        pad = np.tile(np.asarray(model_file, float), (rows, 1))
+        zero = np.zeros((rows, 7 - n))
+        q7, qd7, qdd7 = (np.hstack([q, pad]), np.hstack([qd, zero]), np.hstack([qdd, zero]))
+        tau7 = WamDynamics().inverse_dynamics_many(q7, qd7, qdd7) + FrictionModel.table_4_1().friction_torque(qd7)
+        return tau7[:, :n]
     data = load_yaml(model_file) if model_file else {}
-    links = LinkParameters.datasheet().with_overrides(data.get("links"))
+    links = LinkParameters.datasheet(robot).with_overrides(data.get("links"))
     load = (data.get("effects") or {}).get("payload")
     payload = Payload(float(load["mass_kg"]), tuple(load.get("com_m") or (0.0, 0.0, 0.0))) if load else None
-    friction = (FrictionModel.from_dict(data["friction"]) if data.get("friction")
-                else FrictionModel.table_4_1())
+    friction = (FrictionModel.from_dict(data["friction"], n_joints=q.shape[1]) if data.get("friction")
+                else FrictionModel.table_4_1(q.shape[1]))
     return WamDynamics(payload=payload, links=links).inverse_dynamics_many(q, qd, qdd) + friction.friction_torque(qd)
 
 
-def held_out_models(test_run: Path, models: dict[str, Path | None]) -> dict:
+def held_out_models(test_run: Path, models: dict[str, Path | tuple | None], robot: str = "wam7") -> dict:
     """Each model's torque RMS per moving joint and relative error on the whole of ``test_run`` (a run kept out
     of every fit), unfiltered torque, Savitzky-Golay accelerations, the filter's ends left out."""
-    frame = pd.read_csv(test_run / "data.csv")
-    t_s = frame["t_s"].to_numpy()
-    q_cols = joint_columns(frame, "q_", "_rad")
-    joints = [int(c.split("_")[1]) for c in q_cols]
-    q = frame[q_cols].to_numpy()
-    qd = frame[[f"qd_{j}_rad_s" for j in joints]].to_numpy()
-    tau = frame[[f"tau_{j}_Nm" for j in joints]].to_numpy()
-    dt_s = float(np.median(np.diff(t_s)))
-    window = int(round(SAVGOL_WINDOW_S / dt_s)) | 1
-    qdd = savgol_filter(q, window, 3, deriv=2, delta=dt_s, axis=0)
-    rows = slice(window, len(t_s) - window)
+    joints, q, qd, qdd, tau, window = run_signals(test_run)
+    rows = slice(window, len(q) - window)
     moving = [k for k in range(len(joints)) if np.ptp(q[:, k]) > MOVING_RANGE_RAD]
-    out = {"rows": len(t_s) - 2 * window, "moving_joints": [joints[k] for k in moving]}
+    out = {"rows": len(q) - 2 * window, "moving_joints": [joints[k] for k in moving]}
     for label, path in models.items():
-        err = (tau - model_torque(q, qd, qdd, path))[rows]
+        err = (tau - model_torque(q, qd, qdd, path, robot))[rows]
         out[label] = {"rms_Nm": {joints[k]: round(float(np.sqrt(np.mean(err[:, k] ** 2))), 3) for k in moving},
                       "relative_error_moving": round(float(np.linalg.norm(err[:, moving])
                                                            / np.linalg.norm(tau[rows][:, moving])), 4),
@@ -210,15 +230,47 @@ def import_json(records: list[dict], path: Path, out: Path, name: str) -> Path:
     return Path(json.loads(text[text.index("{"):])["run_dir"])
 
 
-def reference_is_measurement(source: Path, out: Path, holdout: float) -> None:
-    """identify and diagnose on the first part of a JointState log whose reference is set to the measurement,
-    every model then checked on the last part, which no fit has seen."""
-    records = json.loads(source.read_text())
+def import_table(lines: list[str], rec: Recording, path: Path, out: Path, name: str) -> Path:
+    """A recorder's table lines with the measured positions appended as the reference (``q_ref``), imported
+    with ``--format table``."""
+    layout = rec.import_args[rec.import_args.index("--layout") + 1]
+    q_item = next(it for it in layout.split(",") if it.startswith("q["))
+    width = sum(int(it[it.index("[") + 1:-1]) if "[" in it else 1 for it in layout.split(","))
+    first = sum(int(it[it.index("[") + 1:-1]) if "[" in it else 1 for it in layout.split(",")[:layout.split(",")
+                                                                                             .index(q_item)])
+    n = int(q_item[2:-1])
+    path.write_text("".join(ln + " " + " ".join(ln.split()[first:first + n]) + "\n" for ln in lines
+                            if len(ln.split()) == width))
+    code, text = run(["import", str(path), "--format", "table", "--layout", f"{layout},q_ref[{n}]", "--robot",
+                      rec.robot, "--torque", rec.torque, "--out", str(out), "--name", name, "--json"])
+    if code != 0:
+        raise SystemExit(f"import of {path}: {first_error(text)}")
+    return Path(json.loads(text[text.index("{"):])["run_dir"])
+
+
+def reference_is_measurement(source: Path, out: Path, holdout: float, rec: Recording) -> None:
+    """identify and diagnose on the first part of a log without a reference, its reference set to the
+    measurement, every model then checked on the last part, which no fit has seen; friction-id on the whole."""
     out.mkdir(parents=True, exist_ok=True)
-    n_train = int(round(len(records) * (1.0 - holdout)))
-    train = import_json(records[:n_train], out / "train.csv", out / "runs", "train")
-    test = import_json(records[n_train:], out / "test.csv", out / "runs", "held-out")
-    models: dict[str, Path | None] = {"datasheet arm + Table 4.1 friction": None}
+    if source.suffix == ".json":
+        records = json.loads(source.read_text())
+        n_train = int(round(len(records) * (1.0 - holdout)))
+        train = import_json(records[:n_train], out / "train.csv", out / "runs", "train")
+        test = import_json(records[n_train:], out / "test.csv", out / "runs", "held-out")
+        whole = None
+    else:
+        records = [ln for ln in source.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
+        n_train = int(round(len(records) * (1.0 - holdout)))
+        train = import_table(records[:n_train], rec, out / "train.dat", out / "runs", "train")
+        test = import_table(records[n_train:], rec, out / "test.dat", out / "runs", "held-out")
+        whole = import_table(records, rec, out / "whole.dat", out / "runs", "whole")
+    if whole is not None:
+        code, text = run(["friction-id", "--data", str(whole), "--out", str(out / "analyses")])
+        tail = first_error(text) if code != 0 else text.splitlines()[-1] if text else ""
+        print(f"  wamctl friction-id --data (reference = measurement, whole excerpt): exit {code}: {tail}")
+    models: dict[str, Path | tuple | None] = {"datasheet arm + Table 4.1 friction": None}
+    if rec.held_wrist_rad is not None:
+        models["wam7 datasheet arm, wrist held, + Table 4.1 friction"] = rec.held_wrist_rad
     for command in (["identify", str(train), "--validate", str(test)], ["diagnose", str(train)]):
         code, text = run([*command, "--out", str(out / "analyses"), "--json"])
         if code != 0:
@@ -230,7 +282,7 @@ def reference_is_measurement(source: Path, out: Path, holdout: float) -> None:
                  else f"effects found: {summary['effects_found']}"))
         models[f"{command[0]}'s model.yaml"] = Path(summary["run_dir"]) / "model.yaml"
     print(f"  on the last {holdout:.0%} ({len(records) - n_train} records): "
-          f"{json.dumps(held_out_models(test, models))}")
+          f"{json.dumps(held_out_models(test, models, rec.robot))}")
 
 
 def main() -> None:
@@ -252,9 +304,9 @@ def main() -> None:
         if code != 0:
             continue
         run_dir = Path(json.loads(text[text.index("{"):])["run_dir"])
-        if rec.torque == "total" and rec.robot == "wam7":
+        if rec.torque == "total":
             print(f"  datasheet arm + friction fitted, last {args.holdout:.0%} held out: "
-                  f"{json.dumps(datasheet_reference(run_dir, args.holdout))}")
+                  f"{json.dumps(datasheet_reference(run_dir, args.holdout, rec.robot))}")
         else:
             print(f"  joint 1 alone, inertia + friction fitted, last {args.holdout:.0%} held out: "
                   f"{json.dumps(joint1_reference(run_dir, args.holdout))}")
@@ -262,8 +314,8 @@ def main() -> None:
             code, text = run([*command, str(run_dir), "--out", str(args.out / "analyses")])
             tail = first_error(text) if code != 0 else text.splitlines()[-1] if text else ""
             print(f"  wamctl {' '.join(command)}: exit {code}: {tail}")
-        if rec.file.endswith(".json"):
-            reference_is_measurement(source, args.out / rec.name, args.holdout)
+        if rec.file.endswith((".json", ".dat")):
+            reference_is_measurement(source, args.out / rec.name, args.holdout, rec)
 
 
 if __name__ == "__main__":
