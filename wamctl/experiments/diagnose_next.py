@@ -90,3 +90,111 @@ def delay_or_inertia_suspected(diag) -> bool:
 def _floors(dec: dict) -> str:
     """The measured noise floors in words."""
     return ", ".join(f"{v:.2g} N m at joint {j}" for j, v in sorted(dec["floor_Nm"].items()))
+
+
+DESIGN_TARGET_FLOORS = 2.0      # the predicted separation a designed run is asked for
+BACKLASH_GAP_RAD = 0.008        # the total gap the crossing run is designed to show (the generator's medium: 4-8 mrad)
+
+
+def backlash_suspects(diag) -> list[int]:
+    """0-based joints where a gap behind a motor-side encoder cannot be excluded and the diagnosis left it open:
+    backlash in an ambiguous group at a joint whose gravity torque kept one sign over the run (the drive never let
+    the link fall through a gap). (A structured residual left unexplained is not enough: a gap is one of many
+    things it could be.)"""
+    from wamctl.model.dynamics import WamDynamics
+
+    dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
+    out = []
+    for j, res in diag.joints_.items():
+        if not any("backlash" in g["names"] for g in res.ambiguous):
+            continue
+        jd = diag.jd_[j]
+        g = dyn.gravity_many(diag.signals_.at("q", jd.idx[:: max(1, len(jd.idx) // 400)]))[:, j]
+        if len(g) and (g.min() > 0 or g.max() < 0):
+            out.append(j)
+    return out
+
+
+def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints: list[int] | None = None,
+                             gap_rad: float = BACKLASH_GAP_RAD, seed: int = 0) -> dict | None:
+    """A gap behind a motor-side encoder against nothing (:mod:`wamctl.analysis.diagnosis.backlash_design`): for
+    the suspected ``joints`` (0-based; default :func:`backlash_suspects`) the slow crossing of the pose where the
+    joint's gravity torque changes sign that shows a gap of ``gap_rad`` best, written as
+    ``out_dir/next_experiment.yaml``; ``{"spec", "hypotheses", "joint", "gap_rad", "separation_noise_floors",
+    "original_separation_noise_floors", "joints", "period_s", "crossing_pose_rad", "gravity_slope_Nm_rad",
+    "noise_floor_Nm", "why"}``. None when no joint is suspected; ``spec`` None with ``why`` when no crossing keeps
+    within the limits."""
+    import yaml
+
+    from wamctl.analysis.diagnosis.backlash_design import design_crossing
+    from wamctl.analysis.identification.excitation import ExcitationLimits
+    from wamctl.experiments.excitation import designed_spec
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.friction import FrictionModel
+    from wamctl.specs.excitation import ExcitationLimitsSpec
+
+    joints = backlash_suspects(diag) if joints is None else list(joints)
+    if not joints:
+        return None
+    dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
+    lim = ExcitationLimitsSpec()
+    limits = ExcitationLimits(*lim.arrays(), 1 - lim.torque_margin, lim.max_cartesian_speed_m_s)
+    q0 = np.array([0.0 if v is None else float(v) for v in data.meta.q0])
+    friction = diag.declared_.friction or FrictionModel.table_4_1()
+    sig = diag.signals_
+    best, why_not = None, []
+    for j in joints:
+        idx = diag.jd_[j].idx
+        idx = idx[:: max(1, int(round(1.0 / (sig.dt_s * 25.0))))]
+        noise = float(diag.joints_[j].torque_rms_after_Nm)
+        if not np.isfinite(noise) or noise <= 0:
+            why_not.append(f"joint {j + 1}: no noise floor (held-out torque RMS) to design against")
+            continue
+        try:
+            cr = design_crossing(dyn, friction, q0, j, gap_rad, noise, limits, sig.at("q", idx), sig.at("qd", idx))
+        except ValueError as exc:
+            why_not.append(f"joint {j + 1}: {exc}")
+            continue
+        if best is None or cr.separation > best[1].separation:
+            g = dyn.gravity_many(sig.at("q", idx))[:, j]
+            best = (j, cr, noise, bool(g.min() > 0 or g.max() < 0))
+    base = {"hypotheses": ["backlash", "none"], "gap_rad": gap_rad}
+    if best is None:
+        return dict(base, spec=None, why="no run designed to show a gap behind the encoder: " + "; ".join(why_not))
+    j, cr, noise, one_sign = best
+    tr = cr.trajectory
+    raw = {"kind": "excitation", "name": f"next-{Path(data_path).name}", "seed": seed,
+           "q0_rad": [float(x) for x in tr.q0_rad]}
+    src = Path(data_path) / "spec.yaml"
+    if src.is_file():
+        orig = yaml.safe_load(src.read_text()) or {}
+        raw.update({k: orig[k] for k in ("backend", "plant", "controller") if k in orig})
+    raw["excitation"] = {"joints": [j + 1], "period_s": float(tr.period_s), "harmonics": int(tr.harmonics),
+                         "periods": 3, "settle_s": 1.0}
+    spec = designed_spec(raw, tr)
+    seen = ("kept one sign over the run, so a gap behind a motor-side encoder was never crossed" if one_sign else
+            "changed sign over the run")
+    why = (f"joint {j + 1}'s gravity torque {seen} (a {gap_rad * 1e3:g} mrad gap: separation {cr.original:.2g} "
+           f"noise floors of {noise:.3g} N m); moving joint {j + 1} slowly ({tr.period_s:g} s period) about "
+           f"{tr.q0_rad[j]:.3f} rad, where its "
+           f"gravity torque changes sign ({cr.slope_Nm_rad:.3g} N m/rad), the link falls through the gap at each "
+           f"crossing: the residual steps by {gap_rad * cr.slope_Nm_rad:.2g} N m, {cr.separation:.2g} noise floors "
+           "RMS after friction and an offset are refitted (the run starts at the crossing pose: move the arm there "
+           "first)" + ("" if cr.separation > DESIGN_TARGET_FLOORS else
+                       f"; still below {DESIGN_TARGET_FLOORS:g}: only a larger gap would show on this joint"))
+    (Path(out_dir) / "next_experiment.yaml").write_text(
+        f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
+    return dict(base, spec="next_experiment.yaml", joint=j + 1, joints=[j + 1],
+                separation_noise_floors=float(cr.separation), original_separation_noise_floors=float(cr.original),
+                period_s=float(tr.period_s), crossing_pose_rad=[float(x) for x in tr.q0_rad],
+                gravity_slope_Nm_rad=float(cr.slope_Nm_rad), noise_floor_Nm=noise, why=why)
+
+
+def next_experiment_more(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -> dict | None:
+    """The next experiments beyond the payload against link errors, in turn: a delay against inertia errors
+    (:func:`next_experiment_delay`), then a gap behind a motor-side encoder (:func:`next_experiment_backlash`)."""
+    out = next_experiment_delay(diag, data, data_path, out_dir, seed)
+    if out is not None and out.get("spec"):
+        return out
+    more = next_experiment_backlash(diag, data, data_path, out_dir, seed=seed)
+    return more if (more is not None and more.get("spec")) else (out or more)
