@@ -106,9 +106,9 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
             pd.DataFrame(cols).to_parquet(run.path / "positions.parquet", index=False)
     if diag.conclusive_:
         nxt = next_experiment(diag, data, Path(data_path), run.path)
-        if nxt is None:       # a delay against inertia errors (wamctl/experiments/diagnose_next.py)
-            from wamctl.experiments.diagnose_next import next_experiment_delay
-            nxt = next_experiment_delay(diag, data, Path(data_path), run.path)
+        if nxt is None:       # a delay against inertia errors, backlash (wamctl/experiments/diagnose_next.py)
+            from wamctl.experiments.diagnose_next import next_experiment_more
+            nxt = next_experiment_more(diag, data, Path(data_path), run.path)
         if nxt is not None:
             result["next_experiment"] = nxt
             run.write_json("diagnosis.json", result)
