@@ -53,7 +53,7 @@ def test_a_csv_with_a_column_map(tmp_path):
     (("--columns", "t=time,q=pos{j}", "--joints", "2,4"), "--columns: no tau"),
     (("--columns", MAP, "--joints", "4,2"), "--joints: expected joint numbers in increasing order"),
     (("--columns", MAP, "--joints", "2,9"), "--joints: joint numbers of wam7 are 1..7, got [9]"),
-    (("--layout", "q[2]", "--columns", MAP), "--layout applies to --format libbarrett-csv only"),
+    (("--layout", "q[2]", "--columns", MAP), "--layout applies to --format libbarrett-csv / table only"),
 ])
 def test_bad_column_maps_are_one_line_exit_2(tmp_path, args, expected):
     src = tmp_path / "lab.csv"
