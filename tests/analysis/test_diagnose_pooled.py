@@ -165,3 +165,35 @@ def test_pooled_run_directory_and_report(runs, tmp_path):
     assert np.isfinite(result["payload"]["params"]["mass_kg"])
     with pytest.raises(PoolingError, match="more than once"):
         diagnose_runs_to_run_dir([paths[0], paths[0]], out=tmp_path)
+
+
+def test_friction_that_changed_between_runs_is_each_run_own(runs, tmp_path):
+    """The elbow sweep again with 0.3 N m more Coulomb friction at joint 4 in both directions (the logged torque
+    plus 0.3 sign of its true velocity where it slides): pooled, the second run's friction torque at its median
+    sliding speed of each direction is 0.3 N m above the first run's within 0.05 N m, with a 95 % interval that
+    excludes zero (the Coulomb and viscous levels themselves trade against each other on a sweep at nearly one
+    speed per direction); the payload is still named (the shared effect does not take up the drift)."""
+    import pandas as pd
+
+    runs, _ = runs
+    src = runs["elbow"][0]
+    p = shutil.copytree(src, tmp_path / "elbow-later")
+    df = pd.read_parquet(p / "data.parquet")
+    truth = pd.read_parquet(p / "truth_states.parquet")        # the generator's true link velocity
+    assert len(truth) == len(df)
+    df["tau_4"] = df["tau_4"] + 0.3 * np.sign(truth["qd_true_4"].to_numpy()) * ~truth["stuck_4"].to_numpy(bool)
+    df.to_parquet(p / "data.parquet", index=False)
+    logging.disable(logging.WARNING)
+    try:
+        data = load_run_data(p)
+        later = ModelDiagnosis().fit(data)
+    finally:
+        logging.disable(logging.NOTSET)
+    out = PooledDiagnosis([runs["elbow"][2], later], ["elbow", "elbow-later"], [runs["elbow"][1], data]).fit() \
+        .to_dict([str(src), str(p)])
+    assert out["effects_found"][:1] == ["payload"]
+    at = out["friction_per_run"]["4"]["elbow-later"]["torque_change_at_median_speed"]
+    assert set(at) == {"pos", "neg"}
+    for d in ("pos", "neg"):
+        assert at[d]["change_Nm"] == pytest.approx(0.3, abs=0.05), at
+        assert at[d]["change_ci_Nm"][0] > 0, at

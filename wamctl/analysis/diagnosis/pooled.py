@@ -282,11 +282,11 @@ class PooledDiagnosis:
             sys_.w = {m.key: 1.0 / max(float(np.sqrt(np.nanmean(e_own[m.key] ** 2))), 1e-9) for m in sub}
             k_own = sum(own[m.key][1].shape[1] for m in sub)
             p_pay = max(_excited_rank(jds, [m.key for m in sub], payload_map()[:, :4]), 1)
-            tests = {}
-            outcome = None
+            tests, e_links = {}, None
             for name, scale in (("links", 1.0), ("wide_links", WIDE_PRIOR)):
                 lim = np.full(nl, scale)
                 e_l = arm_cv(sys_, jds, link_map, (-lim, lim))[0]
+                e_links = e_l if e_links is None else e_links
                 e_pl = arm_cv(sys_, jds, np.hstack([cone, link_map]), (np.r_[pos[0], -lim], np.r_[pos[1], lim]))[0]
                 t = _test(sub, e_l, e_pl, sys_.w, p_pay, k_own + p_pay)
                 t["passes"] = _passes(t, self.threshold_)
@@ -296,9 +296,8 @@ class PooledDiagnosis:
             outcome = ("payload" if tests.get("beyond_wide_links", {}).get("passes") else
                        "ambiguous" if tests["beyond_links"]["passes"] else "link_parameters")
             # is there anything rigid-body at all? link errors within the declared accuracy against the own models
-            e_l = arm_cv(sys_, jds, link_map, (-np.ones(nl), np.ones(nl)))[0]
             rank = max(determined_parameters(sys_)[1], 1)
-            t_any = _test(sub, e_own, e_l, sys_.w, rank, k_own + rank)
+            t_any = _test(sub, e_own, e_links, sys_.w, rank, k_own + rank)
             t_any["passes"] = _passes(t_any, self.threshold_)
             if outcome == "link_parameters" and not t_any["passes"]:
                 outcome = "none"
@@ -345,7 +344,7 @@ class PooledDiagnosis:
         est = payload_from_pi(theta[n_own:])
         reps = group_bootstrap(X, y, groups, rng=np.random.default_rng(6000), w=wr)
         ests = [payload_from_pi(pi) for pi in reps[:, n_own:]]
-        ng = len({tuple(g) for g in groups})
+        ng = len(np.unique(groups, axis=0))
 
         def widened(ci, center, half):
             lo, hi = ci
@@ -484,7 +483,7 @@ class PooledDiagnosis:
                 shared = {}
             _, theta, (X, yy, wr, groups) = _stack_cv(sub, own, shared, self.w_, self.n_folds)
             reps = group_bootstrap(X, yy, groups, rng=np.random.default_rng(7000 + j), w=wr)
-            ng = len({tuple(g) for g in groups})
+            ng = len(np.unique(groups, axis=0))
             out, c0, first = {}, 0, None
             for m in sub:
                 fr = levels(m.des.friction_given, j, theta[c0:c0 + 4])
@@ -499,6 +498,19 @@ class PooledDiagnosis:
                     row["change_from_first"] = {k: float(v) for k, v in zip(FRICTION_KEYS, dd)}
                     row["change_from_first_ci"] = {k: percentile_ci(dds[:, i], center=dd[i], n_groups=ng)
                                                    for i, k in enumerate(FRICTION_KEYS)}
+                    # Coulomb and viscous trade against each other where a direction ran at one speed; the friction
+                    # torque at the run's median sliding speed of each direction is what the data determine
+                    qd = m.jd.qd_rad_s
+                    at = {}
+                    for d, sgn, (ic, iv) in (("pos", 1.0, (0, 2)), ("neg", -1.0, (1, 3))):
+                        v = np.abs(qd[np.sign(qd) == sgn])
+                        if len(v) < 20:
+                            continue
+                        vm = float(np.median(v))
+                        c, cs = dd[ic] + dd[iv] * vm, dds[:, ic] + dds[:, iv] * vm
+                        at[d] = {"speed_rad_s": vm, "change_Nm": float(c),
+                                 "change_ci_Nm": percentile_ci(cs, center=c, n_groups=ng)}
+                    row["torque_change_at_median_speed"] = at
                 out[self.labels[m.r]] = row
                 c0 += own[m.key][1].shape[1]
             self.friction_[str(j + 1)] = out
