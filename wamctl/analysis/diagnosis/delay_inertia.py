@@ -34,6 +34,7 @@ DELAY_GRID_S = np.r_[0.0, np.linspace(0.5e-3, MAX_DELAY_S, 40)]
 MIN_SPEED_RAD_S = 0.01            # a joint's sample counts where it moves faster than this
 DECIDED_FLOORS = 1.0              # the losing hypothesis' excess residual (RMS, noise floors) that decides
 DESIGN_TARGET_FLOORS = 2.0        # the predicted separation the design asks for
+MAX_ROWS = 4000                   # a run's samples the check uses at most (an hour's log: evenly spread)
 
 
 @dataclass
@@ -302,11 +303,11 @@ class RunCheck:
 
 def check_run(diag, dynamics, rate_hz: float = DESIGN_RATE_HZ) -> RunCheck:
     """Both hypotheses fitted to a diagnosed run's measured residual ``tau - rnea(q)`` (the diagnosed joints'
-    sliding samples, every ``1 / rate_hz`` s; ``diag`` a fitted :class:`~wamctl.analysis.diagnosis.estimator.
-    ModelDiagnosis`, ``dynamics`` its declared rigid body)."""
+    sliding samples, every ``1 / rate_hz`` s, at most :data:`MAX_ROWS` of them; ``diag`` a fitted
+    :class:`~wamctl.analysis.diagnosis.estimator.ModelDiagnosis`, ``dynamics`` its declared rigid body)."""
     sig = diag.signals_
     idx = np.unique(np.concatenate([diag.jd_[j].idx for j in diag.joints_]))
-    idx = idx[:: max(1, int(round(1.0 / (sig.dt_s * rate_hz))))]
+    idx = idx[:: max(1, int(round(1.0 / (sig.dt_s * rate_hz))), -(-len(idx) // MAX_ROWS))]
     rows = rows_of(dynamics, signals_source(sig, idx, list(diag.joints_)))
     tau = sig.at("tau", idx)
     y = {j: tau[rows.mask[j], j] - rows.R[0][j] for j in rows.joints}
