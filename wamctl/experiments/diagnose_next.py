@@ -62,8 +62,9 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
     spec = designed_spec(raw, tr)
     sep, orig_sep = float(nr.separation["separation"]), float(nr.original["separation"])
     joints = ", ".join(str(j + 1) for j in tr.moving)
-    why = (f"the run cannot tell a {dec['delay_s'] * 1e3:.1f} ms measurement delay from inertia errors of joints "
-           f"{', '.join(str(j + 1) for j in ran)} (a delay times the viscous friction acts as an inertia at one "
+    why = (f"the run cannot tell a {dec['delay_s'] * 1e3:.1f} ms measurement delay from inertia errors of joint"
+           f"{'s' if len(ran) > 1 else ''} {', '.join(str(j + 1) for j in ran)} (a delay times the viscous friction "
+           "acts as an inertia at one "
            f"speed; separation {orig_sep:.2g} noise floors, {_floors(dec)}); moving joints {joints} with "
            f"{tr.harmonics} harmonics of a {tr.period_s:g} s period (several speeds: the delay's apparent damping "
            f"grows with the square of the frequency, an inertia error's does not) their predicted torques differ by "
