@@ -22,19 +22,26 @@ def _ci(v, lo_hi, scale: float = 1.0, fmt: str = "{:.4g}") -> str:
 
 
 def runs_table(result: dict) -> pd.DataFrame:
-    """One row per run: its joints, gains, start state and what it decided alone."""
+    """One row per run: its joints and what it decided alone (the terminal's table)."""
     rows = []
     for r in result.get("runs") or []:
         a = r["alone"]
-        c = r["controller"]
         rows.append({"run": r["label"], "joints": ", ".join(map(str, r["joints_diagnosed"])) or "-",
-                     "samples": r["samples"],
-                     "q0_rad": ", ".join("-" if v is None else f"{v:.3g}" for v in r["q0_rad"]),
-                     "gains": f"{c['kind']}, {c['source']}",
                      "alone: effects found": ", ".join(a["effects_found"]) or ("none" if a["conclusive"] else
                                                                              "nothing concluded"),
                      "alone: ambiguous": "; ".join(" / ".join(g) for g in a["ambiguous"]) or "-",
                      "alone: payload or links": a["payload_or_links"] or "-"})
+    return pd.DataFrame(rows)
+
+
+def run_states_table(result: dict) -> pd.DataFrame:
+    """One row per run: samples, start state, controller gains (each run's own)."""
+    rows = []
+    for r in result.get("runs") or []:
+        c = r["controller"]
+        rows.append({"run": r["label"], "samples": r["samples"],
+                     "q0_rad": ", ".join("-" if v is None else f"{v:.3g}" for v in r["q0_rad"]),
+                     "controller": c["kind"], "gains": c["source"]})
     return pd.DataFrame(rows)
 
 
@@ -92,9 +99,11 @@ def friction_table(result: dict) -> pd.DataFrame:
                    "fc_neg_Nm": _ci(lv["fc_neg_Nm"], ci["fc_neg_Nm"], fmt="{:.3g}"),
                    "viscous_pos_Nm_s_rad": _ci(lv["viscous_pos_Nm_s_rad"], ci["viscous_pos_Nm_s_rad"], fmt="{:.3g}"),
                    "viscous_neg_Nm_s_rad": _ci(lv["viscous_neg_Nm_s_rad"], ci["viscous_neg_Nm_s_rad"], fmt="{:.3g}")}
-            ch = row.get("change_from_first")
-            out["fc_pos change_Nm"] = "-" if ch is None else _ci(ch["fc_pos_Nm"],
-                                                                 row["change_from_first_ci"]["fc_pos_Nm"], fmt="{:.3g}")
+            at = row.get("torque_change_at_median_speed")
+            for d in ("pos", "neg"):
+                c = (at or {}).get(d)
+                out[f"change_{d}_Nm"] = "-" if c is None else (
+                    _ci(c["change_Nm"], c["change_ci_Nm"], fmt="{:.3g}") + f" at {c['speed_rad_s']:.2g} rad/s")
             rows.append(out)
     return pd.DataFrame(rows)
 
@@ -102,7 +111,9 @@ def friction_table(result: dict) -> pd.DataFrame:
 def report_pooled(result: dict, manifest: dict, doc: Document) -> Document:
     """The pooled diagnosis into ``doc``."""
     runs = result.get("runs") or []
-    doc.text("Runs pooled: " + ", ".join(r["label"] for r in runs) + ". " + (result.get("method") or "") + ".")
+    method = result.get("method") or ""
+    doc.text("Runs pooled: " + ", ".join(r["label"] for r in runs) + ". " + method[:1].upper() + method[1:]
+             + ("." if method else ""))
     if not result.get("conclusive"):
         doc.heading("Nothing could be concluded")
         doc.text(str(result.get("reason")))
@@ -115,8 +126,10 @@ def report_pooled(result: dict, manifest: dict, doc: Document) -> Document:
              + (" Ambiguous: " + "; ".join(" / ".join(g) for g in amb) + "." if amb else ""))
     for line in decided_lines(result):
         doc.text(line[0].upper() + line[1:] + ".")
-    doc.table("summary", runs_table(result), "each run on its own: joints, controller gains (as its log or meta.yaml "
-              "give them), start state, and what its own diagnosis decided")
+    doc.table("summary", runs_table(result), "each run on its own: the joints it diagnosed and what its own "
+              "diagnosis decided")
+    doc.table("runs", run_states_table(result), "each run's start state and controller gains (as its log or "
+              "meta.yaml give them), its own in the pooled fit")
     doc.heading("Every decision per stack")
     thr = _p(result.get("test_threshold_p"))
     doc.table("effects", findings_table(result), f"nested held-out tests (threshold p < {thr} and a BIC drop); "
@@ -131,7 +144,8 @@ def report_pooled(result: dict, manifest: dict, doc: Document) -> Document:
     if len(ft):
         doc.heading("Friction per run")
         doc.table("friction", ft, "classic friction of each run fitted in the pooled stack (its own levels: a "
-                  "friction that drifted between runs), 95 % intervals; the change of the positive Coulomb level "
-                  "from the first run")
+                  "friction that drifted between runs), 95 % intervals; the change of the friction torque from the "
+                  "first run at this run's median sliding speed of each direction (what the data determine where a "
+                  "direction ran at one speed: Coulomb and viscous levels then trade against each other)")
     doc.text("Each run's own diagnosis is in alone-<k>.json; no model file is written for the pooled runs.")
     return doc
