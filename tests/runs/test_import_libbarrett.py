@@ -129,13 +129,19 @@ def test_a_ramp_never_started_and_a_missing_t_are_said(tmp_path):
     assert r.code == 0 and "no t in the layout" in " ".join(r.out.split()), r.err
 
 
-def test_the_analyses_refuse_a_wam4_in_one_line_and_the_report_reads_it(tmp_path):
+def test_the_analyses_on_a_wam4_controller_log_and_the_report_reads_it(tmp_path):
     src = tmp_path / "wam4.csv"
     wam4_log(src)
     run = json.loads(imp(src, tmp_path, "--json").out)["run_dir"]
-    for cmd in ("diagnose", "identify"):
-        line = one_error_line(run_cli(cmd, run, "--out", tmp_path / cmd))
-        assert line.endswith(f"robot wam4: not supported by {cmd} yet"), line
+    line = one_error_line(run_cli("diagnose", run, "--out", tmp_path / "diagnose"))
+    assert line.endswith("robot wam4: not supported by diagnose yet"), line
+    # identify takes a wam4 (tests/analysis/test_identification_wam4.py) and, of the controller's torque, the joints
+    # whose gravity torque is constant: joint 1 here; joints 2-4 moved and are refused with the reason
+    r = run_cli("identify", run, "--out", tmp_path / "identify", "--json")
+    assert r.code == 0, r.err
+    check = json.loads(r.out)["held_out_check"]
+    assert check["improved_joints"] == [1] and sorted(check["refused_joints"]) == ["2", "3", "4"]
+    assert "gravity compensation not logged" in check["refused_joints"]["2"]
     # friction-id takes a wam4 (tests/runs/test_wam4_friction_id.py) and, of the controller's torque, the joints
     # without gravity: here joint 1 (a sine, no constant-velocity stage); joints 2-4 refused with the reason
     line = one_error_line(run_cli("friction-id", "--data", run, "--out", tmp_path / "fid"))
