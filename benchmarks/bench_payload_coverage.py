@@ -18,7 +18,8 @@ test_payload_identification.py::test_bare_fitted_friction_removes_the_drift_bias
 
     python benchmarks/bench_payload_coverage.py [--seeds 40] [--first 0] [--out benchmarks/out/payload_coverage]
 
-Takes about 1.5 min per 10 seeds on one core (4 simulated runs of 33 s and their rows per seed).
+About 15 s per seed on an idle core (4 simulated runs of 33 s and their rows); re-fitting cached runs, a few
+seconds per seed.
 """
 
 from __future__ import annotations

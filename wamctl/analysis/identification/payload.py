@@ -28,9 +28,10 @@ own effect (it is what moves the motion) and leaks into ``p``. On the simulated 
 errors on average over 40 seeds (noise-free: +0.15 g and +0.061 mm), and the 95 % intervals held the truth in
 32/40 (mass) and 25/40 (COM x) seeds; with the friction fitted on the bare runs' sliding rows (per joint, the
 classic four-parameter model, declared links; in ABBA the bare runs' mean friction is the loaded runs' mean)
-38/40 and 38/40, the mean error within 0.3 standard errors (``benchmarks/bench_payload_coverage.py``). The
-declared links still enter: their error times the tracking difference leaks alike (not removed; on the simulator
-the arm is the declared one). ``fit_friction=False`` keeps the declared friction (the comparison).
+39/40 and 38/40 (COM y, z: 37/40, 39/40), the mean error within 0.3 standard errors
+(``benchmarks/bench_payload_coverage.py``). The declared links still enter: their error times the tracking
+difference leaks alike (not removed; on the simulator the arm is the declared one). ``fit_friction=False`` keeps
+the declared friction (the comparison).
 
 Fit: least squares on the usable rows (every run's joint sliding there), each joint's rows weighted by ``1 /
 sigma_j`` (its residual RMS). Which of the ten parameters the trajectory determines: those whose unit vector lies
