@@ -131,3 +131,18 @@ def test_wam4_links_round_trip_and_refusals():
         links.with_overrides({5: {"mass_kg": 1.0}})
     with pytest.raises(ValueError, match="links of wam7 for a wam4 model"):
         WamDynamics(robot="wam4", links=P.LinkParameters.datasheet())
+
+
+@pytest.mark.parametrize("name", sorted(ROBOTS))
+def test_link_parameters_survive_pickling(name):
+    """A sweep's workers and the tests' shared values pickle the links: the immutable slots came back (they had
+    raised 'LinkParameters is immutable' on unpickling)."""
+    import pickle
+
+    links = P.LinkParameters.datasheet(name).with_overrides({2: {"mass_kg": 4.2}})
+    back = pickle.loads(pickle.dumps(links))
+    assert back.robot == name and back.mass_kg[1] == 4.2
+    for key in P.LINK_KEYS:
+        np.testing.assert_array_equal(getattr(back, key), getattr(links, key))
+    with pytest.raises(AttributeError):
+        back.mass_kg = None

@@ -131,6 +131,11 @@ class LinkParameters:
     def __setattr__(self, name, value):
         raise AttributeError("LinkParameters is immutable; use with_overrides()")
 
+    def __reduce__(self):
+        """Pickled (a sweep's worker, a test shared between processes) as its constructor's arguments: the
+        default pickling of slots sets them one by one, which ``__setattr__`` refuses."""
+        return (type(self), (self.mass_kg, self.com_m, self.inertia_kg_m2, self.armature_kg_m2, self.robot))
+
     @classmethod
     def datasheet(cls, robot=None) -> LinkParameters:
         """The robot's datasheet links (default the wam7: libbarrett wam7w.conf, Sept 2008) and the reflected
