@@ -72,9 +72,9 @@ def test_abba_recovers_mass_and_com_within_their_intervals(estimates):
     assert est.mass_ci_kg[0] <= m <= est.mass_ci_kg[1]
     assert _com_error_m(est) < 0.003
     # these runs are seed 0 of benchmarks/bench_payload_coverage.py, whose COM z interval is one of that study's
-    # 1/40 misses since the arm's friction is fitted on the bare runs (z = +2.18; with the declared friction it
-    # held, z = +1.17, while the mass and COM x were biased by +1.3 and +1.7 standard errors on average and held
-    # the truth in 32/40 and 25/40 seeds, now 39/40 and 38/40): COM z is held to 2.5 standard errors here
+    # 2/60 misses since the arm's friction is fitted on the bare runs (z = +2.18; with the declared friction it
+    # held, z = +1.17, while the mass and COM x were biased by +1.2 and +1.9 standard errors on average and held
+    # the truth in 48/60 and 33/60 seeds, now 58/60 and 55/60): COM z is held to 2.5 standard errors here
     for axis, (c, ci, truth) in enumerate(zip(est.com_m, est.com_ci_m, TRUTH["com_m"])):
         if axis < 2:
             assert ci[0] <= truth <= ci[1], (c, ci, truth)
@@ -110,7 +110,7 @@ def test_bare_fitted_friction_removes_the_drift_bias(clean_abba):
     not the arm's (the schedule's mean is 0.85 of it): that remainder follows the payload and leaked into it (noise-
     free: mass +0.15 g, COM x +0.06 mm, 1.3 and 1.7 standard errors of the noisy case on average). Fitted on the
     bare runs, the arm's friction is the schedule's mean and the bias is gone (benchmarks/bench_payload_coverage.py:
-    intervals holding the truth 32 -> 38 of 40 seeds for the mass, 25 -> 38 for COM x)."""
+    intervals holding the truth 48 -> 58 of 60 seeds for the mass, 33 -> 55 for COM x)."""
     L0, B1, B2, L3 = clean_abba
     cache: dict = {}
     est = identify_payload([L0, L3], [B1, B2], rows_cache=cache)

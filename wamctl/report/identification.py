@@ -266,8 +266,8 @@ def payload_report(run_path: Path, manifest: dict) -> Document:
     tab = pd.read_csv(run_path / "payload.csv")
     doc.table("payload", tab, caption="mass, centre of mass (link-7 frame) and inertia about the centre of mass "
                                       "(link-7 axes), 95 % intervals (HAC for the dynamic variant: the noise's "
-                                      "share; on the simulator mass and COM held the truth in 37-39 of 40 "
-                                      "seeds, I_xy in 22, docs/payload.md); 'not identified': the runs do not "
+                                      "share; on the simulator mass and COM held the truth in 55-58 of 60 "
+                                      "seeds, I_xy in 36, docs/payload.md); 'not identified': the runs do not "
                                       "determine it", digits=5)
     sig = pd.DataFrame({"joint": range(1, P.N_JOINTS + 1), "residual_rms_Nm": r["sigma_Nm"]})
     doc.table("payload residual", sig, caption="RMS of the loaded-minus-bare residual per joint", digits=4)

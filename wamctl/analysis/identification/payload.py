@@ -25,10 +25,10 @@ friction is not the declared one (a warming-up arm: the ABBA schedule's mean; a 
 of per cent), the difference keeps ``(F_true - F_declared)(qd_L) - (...)(qd_B)``, and that follows the payload's
 own effect (it is what moves the motion) and leaks into ``p``. On the simulated ABBA schedule of the tests
 (friction 1.0, 0.9, 0.8, 0.7 of Table 4.1, mean 0.85) it biased the mass by +1.3 and the COM's x by +1.7 standard
-errors on average over 40 seeds (noise-free: +0.15 g and +0.061 mm), and the 95 % intervals held the truth in
-32/40 (mass) and 25/40 (COM x) seeds; with the friction fitted on the bare runs' sliding rows (per joint, the
+errors on average over 60 seeds (noise-free: +0.15 g and +0.061 mm), and the 95 % intervals held the truth in
+48/60 (mass) and 33/60 (COM x) seeds; with the friction fitted on the bare runs' sliding rows (per joint, the
 classic four-parameter model, declared links; in ABBA the bare runs' mean friction is the loaded runs' mean)
-39/40 and 38/40 (COM y, z: 37/40, 39/40), the mean error within 0.3 standard errors
+58/60 and 55/60 (COM y, z: 56/60, 58/60), mean errors 0.2-0.4 standard errors
 (``benchmarks/bench_payload_coverage.py``). The declared links still enter: their error times the tracking
 difference leaks alike (not removed; on the simulator the arm is the declared one). ``fit_friction=False`` keeps
 the declared friction (the comparison).
