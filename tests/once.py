@@ -29,23 +29,6 @@ except ImportError:          # no flock (Windows): each worker makes its own val
 _MEMORY: dict[tuple[str, str], Any] = {}
 
 
-def _link_parameters(p):
-    from wamctl.model.params import LinkParameters
-
-    return LinkParameters, (p.mass_kg, p.com_m, p.inertia_kg_m2, p.armature_kg_m2, p.robot)
-
-
-def _register_reducers() -> None:
-    """LinkParameters (slots, every ``__setattr__`` refused) cannot be unpickled by pickle's default (it sets the
-    slots through ``setattr``): a diagnosis made in one worker failed to load in the other. It is rebuilt through
-    its constructor, which checks the arrays again."""
-    import copyreg
-
-    from wamctl.model.params import LinkParameters
-
-    copyreg.pickle(LinkParameters, _link_parameters)
-
-
 def shared_folder(tmp_path_factory) -> Path:
     """The session's temporary folder every xdist worker sees (each worker's own basetemp is a child of it)."""
     base = tmp_path_factory.getbasetemp()
@@ -64,7 +47,6 @@ def make_once(tmp_path_factory, key: str, make: Callable[[Path], Any], keep: boo
     if not os.environ.get("PYTEST_XDIST_WORKER") or fcntl is None:     # one process: nothing to share
         value = _make_in(root / key, make)
     else:
-        _register_reducers()
         value_file = root / f"{key}.pkl"
         with open(root / f"{key}.lock", "w") as lock:
             fcntl.flock(lock, fcntl.LOCK_EX)     # released when the file closes (also if make raises)
