@@ -24,6 +24,17 @@ if _WORKER and "NUMBA_CACHE_DIR" not in os.environ:
                                       if b"@njit" in p.read_bytes())).hexdigest()[:12]
     os.environ["NUMBA_CACHE_DIR"] = str(_SRC.parent / ".pytest_cache" / "numba" / _DIGEST / _WORKER)
 
+# A shell that runs the suite in the background (`nohup make test &`, some CI runners) hands it SIGINT ignored, and
+# the workers inherit that; the tests of Ctrl-C send SIGINT to their own process and need Python's handler, as a
+# terminal gives it. (Tests of a child process set the child's own: tests/commands/test_cli.py.)
+import signal  # noqa: E402
+
+if signal.getsignal(signal.SIGINT) is signal.SIG_IGN:
+    try:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    except ValueError:       # not the main thread: nothing to do there
+        pass
+
 import numpy as np  # noqa: E402
 import pytest  # noqa: E402
 from cli_runs import small_runs  # noqa: F401, E402 - the session fixture of small runs of every kind (cli_runs.py)
