@@ -17,6 +17,7 @@ from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 
 import pytest
+from once import make_once
 
 VIEWPORT_PX = 1280
 SHOT_HEIGHT_PX = 9000      # a window this tall holds every report; the screenshot is cut to the page's height
@@ -112,10 +113,13 @@ def rendered(small_runs, tmp_path_factory):
     if browser is None:
         pytest.skip("Debian's chromium is not installed and could not be (`make test` runs `apt-get install -y "
                     "chromium` when it is missing; this machine refused it)")
-    work = tmp_path_factory.mktemp("browser")
-    with ThreadPoolExecutor(max_workers=4) as pool:
-        jobs = {name: pool.submit(render, browser, html, work, name) for name, html in small_runs.reports.items()}
-        found = {name: job.result() for name, job in jobs.items()}
+
+    def make(work: Path):            # once for the session's xdist workers (tests/once.py): Chromium is slow
+        with ThreadPoolExecutor(max_workers=4) as pool:
+            jobs = {name: pool.submit(render, browser, html, work, name) for name, html in small_runs.reports.items()}
+            return {name: job.result() for name, job in jobs.items()}, work
+
+    found, work = make_once(tmp_path_factory, "browser_rendered", make)
     print(f"screenshots: {work / 'screenshots'}")
     return found, work
 
