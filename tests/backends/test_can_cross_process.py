@@ -2,7 +2,7 @@
 this one: the lab's situation (issue 14). A whole first session of the day, from power-up (pucks in the monitor,
 encoders not zeroed, the arm at its home pose) through zeroing, the operator moving the arm to the start pose,
 Shift-Activate and the rotation test, must match the direct simulation as the in-process virtual bus does; the
-wire (recorded by a third bus in this process) shows libbarrett's pacing, no MODE=TORQUE from wamctl and zero
+wire (recorded by python-can's logger in a third process) shows libbarrett's pacing, no MODE=TORQUE from wamctl and zero
 torque until every puck reports TORQUE. A gimbals arm is refused on the command line in one line.
 
 Each test uses its own multicast group and port, so that runs of other test sessions on this machine do not mix
@@ -10,6 +10,10 @@ Each test uses its own multicast group and port, so that runs of other test sess
 """
 
 from __future__ import annotations
+
+import signal
+import subprocess
+import sys
 
 import can
 import numpy as np
@@ -34,27 +38,45 @@ SHORT_ROTATION = {"joints": [2, 4], "mode": "all_together", "amplitude_rad": 0.2
                   "tc_s": 0.3, "settle_s": 0.2, "hold_s": 0.5}
 
 
+class WireLog:
+    """``python -m can.logger`` on the multicast group, in its own process, into ``path`` (candump format); on
+    leaving, stopped with SIGINT (it closes the file) and its frames read back in the order received."""
+
+    def __init__(self, group: str, port: int, path):
+        self.path, self.frames = path, []
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "can.logger", "-i", "udp_multicast", "-c", group, "--bus-kwargs", f"port={port}",
+             "-f", str(path)], stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+            preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))   # a background shell ignores it
+
+    def __enter__(self):
+        line = self.proc.stdout.readline()          # "Connected to UdpMulticastBus..." once it listens
+        assert "Connected" in line, line + self.proc.stdout.read()
+        return self
+
+    def __exit__(self, *exc):
+        self.proc.send_signal(signal.SIGINT)
+        self.proc.wait(timeout=30)
+        self.frames = list(can.LogReader(self.path))
+
+
 def test_first_session_of_the_day_over_udp_matches_the_direct_simulation(runs_dir, udp, tmp_path):
     group, port = udp
     can_spec = rotation_spec(name="xproc", rotation=SHORT_ROTATION,
                              backend=can_backend(group, port, zeroing_confirmed=True))
     spec_file = tmp_path / "xproc.yaml"
     spec_file.write_text(yaml.safe_dump(can_spec))
-    # the monitor reads in a thread of its own (python-can's Notifier): a socket left unread overflows
-    monitor = can.Bus(interface="udp_multicast", channel=group, port=port)
-    recorded = can.BufferedReader()
-    notifier = can.Notifier(monitor, [recorded], timeout=0.1)
-    arm = SimArm(group, port, "--spec", str(spec_file), "--pose", "home", "--not-zeroed", "--asleep",
-                 "--pendant", "move@0.3,activate@0.8,idle@end")
-    try:
-        out_can = run_spec(parse_spec(can_spec), tmp_path, runs_dir, make_report=False)
-    finally:
-        seen = arm.stop()
-        notifier.stop()
-        monitor.shutdown()
-    frames = []
-    while (m := recorded.get_message(0.0)) is not None:
-        frames.append(m)
+    # the wire is recorded by python-can's logger in a process of its own: a reader thread in this process (which
+    # runs the 500 Hz session) could be starved of the GIL on a loaded machine, its socket overflow and a frame be
+    # missing from the record (a puck's MODE=TORQUE reply lost put the confirmation later than the torques)
+    with WireLog(group, port, tmp_path / "wire.log") as wire:
+        arm = SimArm(group, port, "--spec", str(spec_file), "--pose", "home", "--not-zeroed", "--asleep",
+                     "--pendant", "move@0.3,activate@0.8,idle@end")
+        try:
+            out_can = run_spec(parse_spec(can_spec), tmp_path, runs_dir, make_report=False)
+        finally:
+            seen = arm.stop()
+    frames = wire.frames
     out_direct = run_spec(parse_spec(rotation_spec(name="direct", rotation=SHORT_ROTATION)), None, runs_dir,
                           make_report=False)
     assert out_can.status == "completed", out_can.reason
@@ -75,9 +97,13 @@ def test_first_session_of_the_day_over_udp_matches_the_direct_simulation(runs_di
     assert {v for _, v in host_mode_writes(frames)} == {int(Mode.IDLE)}
     i_torque = all_pucks_torque_index(frames)
     tq = torque_frames(frames)
-    assert not any(s.any() for i, s in tq if i < i_torque) and any(s.any() for i, s in tq if i > i_torque)
-    # what the arm saw
     st = seen["stats"]
+    # what the arm saw: no torque other than zero to a puck before it was in TORQUE (counted by the arm itself)
+    assert st["nonzero_torque_not_in_torque_mode"] == 0 and any(s.any() for i, s in tq if i > i_torque)
+    # and on the wire, when the record holds every torque frame the arm got (on a loaded machine the recorder's
+    # socket can overflow: a hole in its kernel time stamps, a TORQUE reply missing, the check inconclusive)
+    if len(tq) == st["torque_frames"]:
+        assert not any(s.any() for i, s in tq if i < i_torque)
     assert st["host_mode_writes_refused"] == 0 and st["bus_off_events"] == 0
     assert seen["safety_module"]["zero"] == 1 and seen["safety_module"]["mode"] == "Shift-idle"
     manifest, _ = open_run(out_can.path)

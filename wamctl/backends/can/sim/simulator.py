@@ -101,6 +101,7 @@ class SimStats:
     handler_errors: int = 0
     broadcasts_sent: int = 0  # the safety module's 0x540 frames
     host_mode_writes_refused: int = 0  # MODE other than IDLE set by the host: ignored, as on the real arm
+    nonzero_torque_not_in_torque_mode: int = 0  # a torque slot other than zero for an awake puck not in TORQUE
     wake_window_frames: int = 0  # host frames inside a puck's wake window (each puts the host bus-off)
     bus_off_events: int = 0
     frames_dropped_bus_off: int = 0
@@ -585,6 +586,8 @@ class PuckSimulator(FaultInjection):
         for puck in pucks:
             slot = puck.props.get(Prop.PIDX, 0)
             if puck.awake(now) and 1 <= slot <= values.size:
+                if values[slot - 1] != 0 and puck.props[Prop.MODE] != Mode.TORQUE:
+                    self._count("nonzero_torque_not_in_torque_mode")      # the host's contract broken (tests)
                 self._hold_torque(puck, int(values[slot - 1]))
         self._apply_torques()
         if module:
