@@ -101,27 +101,39 @@ def read(path: Path, opts: ImportOptions) -> Imported:
         raise DataFormatError(f"{path}: {what} {counts[k]} values{blank}; the layout {opts.layout!r} has {width}")
     raw = pd.read_csv(path, header=None, names=range(width), dtype=str, skip_blank_lines=False, nrows=len(lines),
                       na_filter=False, engine="c")
+    num = numeric_values(path, raw, items, range(1, len(lines) + 1))
+    rate = float(opts.rate_hz)
+    t_logged, columns = layout_columns(num, items, joints)
+    out = {"t_s": np.arange(len(num)) / rate, **columns}
+    notes = [time_note(t_logged, rate, str(path))]
+    return Imported(pd.DataFrame(out), joints, rate, "line", notes)
+
+
+def numeric_values(path: Path, raw: pd.DataFrame, items: list[tuple[str, int]], line_numbers) -> pd.DataFrame:
+    """A layout's values (strings, one column per value) as numbers; a value that is neither a number nor nan is
+    an error naming the file's line, the value's place and the layout's name for it."""
     num = raw.apply(lambda c: pd.to_numeric(c.str.strip(), errors="coerce"))
     bad = num.isna().to_numpy() & ~raw.apply(lambda c: c.str.strip().str.lower().isin(["nan", "-nan"])).to_numpy()
-    names = [f"{k}[{i + 1}]" if k not in ("t", "skip") else k for k, n in items for i in range(n)]
     if bad.any():
+        names = [f"{k}[{i + 1}]" if k not in ("t", "skip") else k for k, n in items for i in range(n)]
         row, col = map(int, np.argwhere(bad)[0])
-        raise DataFormatError(f"{path}: line {row + 1}, value {col + 1} ({names[col]}): {raw.iat[row, col][:40]!r} "
-                              "is not a number")
-    rate = float(opts.rate_hz)
-    n_rows = len(num)
-    out = {"t_s": np.arange(n_rows) / rate}
-    col = 0
-    t_logged = None
+        raise DataFormatError(f"{path}: line {list(line_numbers)[row]}, value {col + 1} ({names[col]}): "
+                              f"{raw.iat[row, col][:40]!r} is not a number")
+    return num
+
+
+def layout_columns(num: pd.DataFrame, items: list[tuple[str, int]],
+                   joints: list[int]) -> tuple[np.ndarray | None, dict[str, np.ndarray]]:
+    """(the layout's t column or None, the joint vectors under the measured-run format's names)."""
+    t, out, col = None, {}, 0
     for k, n in items:
         if k == "t":
-            t_logged = num[col].to_numpy(float)
+            t = num[col].to_numpy(float)
         elif k != "skip":
             for i, j in enumerate(joints):
                 out[internal_name(k, j)] = num[col + i].to_numpy(float)
         col += n
-    notes = [time_note(t_logged, rate, str(path))]
-    return Imported(pd.DataFrame(out), joints, rate, "line", notes)
+    return t, out
 
 
 def _print_step(t: np.ndarray) -> np.ndarray:

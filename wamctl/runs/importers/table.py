@@ -21,8 +21,7 @@ import pandas as pd
 
 from wamctl.errors import DataFormatError
 from wamctl.runs.importers import Imported, ImportOptions, median_rate_hz, resolve_joints
-from wamctl.runs.importers.libbarrett import parse_layout
-from wamctl.runs.measured import internal_name
+from wamctl.runs.importers.libbarrett import layout_columns, numeric_values, parse_layout
 
 
 def _rows(path: Path) -> tuple[list[int], list[list[str]], str]:
@@ -60,23 +59,8 @@ def read(path: Path, opts: ImportOptions) -> Imported:
         what = "every line has" if (counts == counts[k]).all() else f"line {lines[k]} has"
         raise DataFormatError(f"{path}: {what} {counts[k]} values (separated by {sep}); the layout "
                               f"{opts.layout!r} has {width}")
-    raw = pd.DataFrame(values)
-    num = raw.apply(lambda c: pd.to_numeric(c, errors="coerce"))
-    bad = num.isna().to_numpy() & ~raw.apply(lambda c: c.str.lower().isin(["nan", "-nan"])).to_numpy()
-    names = [f"{k}[{i + 1}]" if k not in ("t", "skip") else k for k, n in items for i in range(n)]
-    if bad.any():
-        row, col = map(int, np.argwhere(bad)[0])
-        raise DataFormatError(f"{path}: line {lines[row]}, value {col + 1} ({names[col]}): {raw.iat[row, col][:40]!r} "
-                              "is not a number")
-    out: dict[str, np.ndarray] = {}
-    col = 0
-    for k, n in items:
-        if k == "t":
-            t = num[col].to_numpy(float)
-        elif k != "skip":
-            for i, j in enumerate(joints):
-                out[internal_name(k, j)] = num[col + i].to_numpy(float)
-        col += n
+    num = numeric_values(path, pd.DataFrame(values), items, lines)
+    t, out = layout_columns(num, items, joints)
     if not np.isfinite(t).all():
         k = int(np.argmin(np.isfinite(t)))
         raise DataFormatError(f"{path}: line {lines[k]}: t is {t[k]}; every row needs its time stamp")
