@@ -65,14 +65,19 @@ def parse_layout(layout: str) -> list[tuple[str, int]]:
     return items
 
 
-def _lines(path: Path) -> list[str]:
+def read_text(path: Path, what: str) -> str:
+    """A log file's text, or a DataFormatError naming the first byte that is not text, or ``what`` the file
+    should have been when it is a directory."""
     try:
-        text = path.read_text()
+        return path.read_text()
     except UnicodeDecodeError as exc:
         raise DataFormatError(f"{path}: not text (byte 0x{exc.object[exc.start]:02x} at {exc.start})") from None
     except IsADirectoryError:
-        raise DataFormatError(f"{path}: a directory, not libbarrett's exported CSV") from None
-    lines = text.splitlines()
+        raise DataFormatError(f"{path}: a directory, not {what}") from None
+
+
+def _lines(path: Path) -> list[str]:
+    lines = read_text(path, "libbarrett's exported CSV").splitlines()
     while lines and not lines[-1].strip():
         lines.pop()
     if not lines:

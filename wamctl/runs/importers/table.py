@@ -21,17 +21,12 @@ import pandas as pd
 
 from wamctl.errors import DataFormatError
 from wamctl.runs.importers import Imported, ImportOptions, median_rate_hz, resolve_joints
-from wamctl.runs.importers.libbarrett import layout_columns, numeric_values, parse_layout
+from wamctl.runs.importers.libbarrett import layout_columns, numeric_values, parse_layout, read_text
 
 
 def _rows(path: Path) -> tuple[list[int], list[list[str]], str]:
     """The file's data lines as (1-based line numbers, their values as text, the separator's name)."""
-    try:
-        text = path.read_text()
-    except UnicodeDecodeError as exc:
-        raise DataFormatError(f"{path}: not text (byte 0x{exc.object[exc.start]:02x} at {exc.start})") from None
-    except IsADirectoryError:
-        raise DataFormatError(f"{path}: a directory, not a table of numbers") from None
+    text = read_text(path, "a table of numbers")
     numbered = [(k + 1, ln) for k, ln in enumerate(text.splitlines()) if ln.strip() and not ln.lstrip().startswith("#")]
     if not numbered:
         raise DataFormatError(f"{path}: no data lines")
