@@ -80,7 +80,7 @@ def payload_uncertainty(des: Design, joints: dict, jds: dict) -> tuple[dict, lis
     is not in the row space of the regressor, or its interval reaches zero or is wider than ``MASS_CI_MAX_SHARE``
     of it; a centre-of-mass component when the mass or its first moment is not determined, or when its interval
     is wider than ``COM_CI_MAX_WIDTH_M``. What is not determined has no interval either (``[None, None]``)."""
-    from wamctl.analysis.diagnosis.uncertainty import estimable, group_bootstrap, percentile_ci
+    from wamctl.analysis.diagnosis.uncertainty import estimable, group_bootstrap
 
     system = payload_system(des, joints, jds)
     if system is None:
@@ -92,15 +92,24 @@ def payload_uncertainty(des: Design, joints: dict, jds: dict) -> tuple[dict, lis
     pis = reps[:, n_own:n_own + N_PAYLOAD]
     ests = [payload_from_pi(pi) for pi in pis]
     est = payload_from_pi(lstsq(X * w[:, None], y * w)[n_own:n_own + N_PAYLOAD])
-    ng = len({tuple(g) for g in groups})
-    ci = {"mass_kg": _at_least(percentile_ci([e["mass_kg"] for e in ests], center=est["mass_kg"], n_groups=ng),
+    return payload_intervals(est, ests, len({tuple(g) for g in groups}), ok)
+
+
+def payload_intervals(est: dict, ests: list[dict], n_groups: int, ok) -> tuple[dict, list[str]]:
+    """The payload's 95 % intervals from bootstrap replicates ``ests`` of the estimate ``est`` (percentile, over
+    ``n_groups`` resampled blocks, widened by the declared links' systematic share) and the keys not determined
+    (``ok``: mass, then first-moment columns estimable; the rules of :func:`payload_uncertainty`), whose interval
+    is ``[None, None]``."""
+    from wamctl.analysis.diagnosis.uncertainty import percentile_ci
+
+    ci = {"mass_kg": _at_least(percentile_ci([e["mass_kg"] for e in ests], center=est["mass_kg"], n_groups=n_groups),
                                est["mass_kg"], MASS_SYSTEMATIC_SHARE * abs(est["mass_kg"]))}
     for i, ax in enumerate("xyz"):
         ci[f"com_{ax}_m"] = _at_least(percentile_ci([e["com_m"][i] if e["mass_kg"] > 0 else None for e in ests],
-                                                    center=est["com_m"][i], n_groups=ng),
+                                                    center=est["com_m"][i], n_groups=n_groups),
                                       est["com_m"][i], COM_SYSTEMATIC_M)
     m_lo, m_hi = ci["mass_kg"]
-    mass_ok = ok[0] and m_lo is not None and m_lo > 0 and m_hi - m_lo <= MASS_CI_MAX_SHARE * est["mass_kg"]
+    mass_ok = bool(ok[0] and m_lo is not None and m_lo > 0 and m_hi - m_lo <= MASS_CI_MAX_SHARE * est["mass_kg"])
     ni = [] if mass_ok else ["mass_kg"]
     for i, ax in enumerate("xyz"):
         lo, hi = ci[f"com_{ax}_m"]

@@ -25,14 +25,7 @@ from types import SimpleNamespace
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.arm import (
-    COM_CI_MAX_WIDTH_M,
-    COM_SYSTEMATIC_M,
-    MASS_CI_MAX_SHARE,
-    MASS_SYSTEMATIC_SHARE,
-    N_PAYLOAD,
-    PAYLOAD_COM_BOX_M,
-)
+from wamctl.analysis.diagnosis.arm import N_PAYLOAD, PAYLOAD_COM_BOX_M, payload_intervals
 from wamctl.analysis.diagnosis.candidates import payload_from_pi
 from wamctl.analysis.diagnosis.crossval import unpredictable
 from wamctl.analysis.diagnosis.design import FRICTION_KEYS, columns, levels, ncols, target_and_design
@@ -335,7 +328,7 @@ class PooledDiagnosis:
         """The arm's payload fitted over the members ``sub`` (shared ten inertial parameters, each member's own
         columns): mass and centre of mass with 95 % intervals (a bootstrap over every member's time blocks, widened
         by the declared links' systematic share) and what these runs cannot determine."""
-        from wamctl.analysis.diagnosis.uncertainty import estimable, group_bootstrap, percentile_ci
+        from wamctl.analysis.diagnosis.uncertainty import estimable, group_bootstrap
 
         shared = {m.key: m.jd.extra["payload"] for m in sub}
         _, theta, (X, y, wr, groups) = _stack_cv(sub, own, shared, w, self.n_folds)
@@ -344,30 +337,11 @@ class PooledDiagnosis:
         est = payload_from_pi(theta[n_own:])
         reps = group_bootstrap(X, y, groups, rng=np.random.default_rng(6000), w=wr)
         ests = [payload_from_pi(pi) for pi in reps[:, n_own:]]
-        ng = len(np.unique(groups, axis=0))
-
-        def widened(ci, center, half):
-            lo, hi = ci
-            return ci if lo is None else [min(lo, center - half), max(hi, center + half)]
-
-        ci = {"mass_kg": widened(percentile_ci([e["mass_kg"] for e in ests], center=est["mass_kg"], n_groups=ng),
-                                 est["mass_kg"], MASS_SYSTEMATIC_SHARE * abs(est["mass_kg"]))}
-        for i, ax in enumerate("xyz"):
-            ci[f"com_{ax}_m"] = widened(percentile_ci([e["com_m"][i] if e["mass_kg"] > 0 else None for e in ests],
-                                                      center=est["com_m"][i], n_groups=ng),
-                                        est["com_m"][i], COM_SYSTEMATIC_M)
-        m_lo, m_hi = ci["mass_kg"]
-        mass_ok = bool(ok[0] and m_lo is not None and m_lo > 0 and m_hi - m_lo <= MASS_CI_MAX_SHARE * est["mass_kg"])
-        ni = [] if mass_ok else ["mass_kg"]
-        for i, ax in enumerate("xyz"):
-            lo, hi = ci[f"com_{ax}_m"]
-            if not (mass_ok and ok[1 + i]) or lo is None or hi - lo > COM_CI_MAX_WIDTH_M:
-                ni.append(f"com_{ax}_m")
+        ci, ni = payload_intervals(est, ests, len(np.unique(groups, axis=0)), ok)
         params = {"mass_kg": est["mass_kg"], "com_x_m": est["com_m"][0], "com_y_m": est["com_m"][1],
                   "com_z_m": est["com_m"][2]}
-        for k in ni:                # what these runs cannot determine: no number, no interval
+        for k in ni:                # what these runs cannot determine: no number (nor interval)
             params[k] = None
-            ci[k] = [None, None]
         return {"params": params, "params_ci": ci, "not_identified": ni}
 
     # -------------------------------------------------------------------------------- joint-own effects
