@@ -37,6 +37,7 @@ from wamctl.experiments.common import Plan, closed_loop_stage, declared_dynamics
 from wamctl.model import collision as C
 from wamctl.model import params as P
 from wamctl.model.plant import resolve_friction
+from wamctl.model.robots import get_robot
 from wamctl.runs.store import RunDir
 from wamctl.specs.excitation import ExcitationSpec
 
@@ -47,16 +48,17 @@ LIMIT_LABELS = {"position": "joint range (with margin)", "speed": "speed", "acce
 
 
 def limits_of(spec: ExcitationSpec) -> ExcitationLimits:
+    """The spec's limits on its robot's joints (the torque limits are the robot's: wam4.conf's on a wam4)."""
     lim = spec.excitation.limits
-    q_min, q_max, qd, qdd = lim.arrays()
+    q_min, q_max, qd, qdd = lim.arrays(spec.robot)
     return ExcitationLimits(q_min, q_max, qd, qdd, 1.0 - lim.torque_margin, lim.max_cartesian_speed_m_s,
-                            world_of(spec))
+                            world_of(spec), get_robot(spec.robot).tau_max_Nm.copy())
 
 
 def world_of(spec: ExcitationSpec) -> World:
     """The spec's ``excitation.world``: capsules, table, box, clearance."""
     w = spec.excitation.world
-    geometry = C.ArmGeometry.default(w.tool_length_m, w.table_z_m, w.radii_m.mapping())
+    geometry = C.ArmGeometry.default(w.tool_length_m, w.table_z_m, w.radii_m.mapping(), spec.robot)
     box = w.box
     return World(geometry, w.self_collision, w.table_z_m, None if box is None else np.asarray(box.min_m, float),
                  None if box is None else np.asarray(box.max_m, float), w.clearance_m)
@@ -65,7 +67,8 @@ def world_of(spec: ExcitationSpec) -> World:
 def declared_model(spec: ExcitationSpec, base_dir: Path | None):
     """(WamDynamics, FrictionModel) the torque limit is checked with: the controller's declared rigid body and
     ``excitation.design.declared_friction``."""
-    return declared_dynamics(spec, base_dir), resolve_friction(spec.excitation.design.declared_friction, base_dir)
+    return declared_dynamics(spec, base_dir), resolve_friction(spec.excitation.design.declared_friction, base_dir,
+                                                               spec.n_joints)
 
 
 def design(spec: ExcitationSpec, base_dir: Path | None = None, progress=None) -> ExcitationDesign:
@@ -86,7 +89,7 @@ def trajectory_of(spec: ExcitationSpec, base_dir: Path | None = None, progress=N
     if ex.coefficients is None:
         log.info("excitation: no coefficients in the spec; designing them (seed %d)", spec.seed)
         return design(spec, base_dir, progress).trajectory
-    a, b = np.zeros((P.N_JOINTS, ex.harmonics)), np.zeros((P.N_JOINTS, ex.harmonics))
+    a, b = np.zeros((spec.n_joints, ex.harmonics)), np.zeros((spec.n_joints, ex.harmonics))
     for j, c in ex.coefficients.items():
         a[j - 1], b[j - 1] = c.a_rad_s, c.b_rad_s
     return FourierTrajectory(np.asarray(spec.q0_rad, float), ex.period_s, a, b)
@@ -100,7 +103,7 @@ def reference_of(spec: ExcitationSpec, traj: FourierTrajectory) -> Reference:
     n_move = int(round(ex.periods * ex.period_s / dt))
     q, qd, qdd = traj.evaluate(np.arange(n_move) * dt)
     hold = np.tile(traj.q0_rad, (n_hold, 1))
-    zeros = np.zeros((n_hold, P.N_JOINTS))
+    zeros = np.zeros((n_hold, len(traj.q0_rad)))
     n = 2 * n_hold + n_move
     segments = [(0, "settle"), (n_hold, f"excitation: {ex.periods} x {ex.period_s:g} s, joints "
                                         f"{','.join(map(str, ex.joints))}"), (n_hold + n_move, "hold")]
@@ -187,8 +190,8 @@ def plan(spec: ExcitationSpec, base_dir: Path | None = None) -> ExcitationPlan:
                "world: " + (clear.statement() if clear is not None else "none checked"),
                instruments_outlook(spec, traj, base_dir)["statement"],
                f"{len(ref)} ticks at {P.CONTROL_RATE_HZ:.0f} Hz = {len(ref) / P.CONTROL_RATE_HZ:.1f} s of arm time"]
-    return ExcitationPlan(ref, summary, feedforward_for(spec, ref, base_dir), trajectory=traj, limit_use=use,
-                          clearance=clear)
+    return ExcitationPlan(ref, summary, feedforward_for(spec, ref, base_dir), robot=spec.robot, trajectory=traj,
+                          limit_use=use, clearance=clear)
 
 
 def execute(spec: ExcitationSpec, plan: ExcitationPlan, run: RunDir, progress=None,

@@ -29,6 +29,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from wamctl.model import params as P
+from wamctl.model.robots import WAM4
 
 CAPSULES = ("shoulder", "upper arm", "forearm", "wrist and hand")
 LINKS = {"shoulder": "links 1-2 (shoulder)", "upper arm": "link 3 (upper arm)", "forearm": "link 4 (forearm)",
@@ -36,6 +37,10 @@ LINKS = {"shoulder": "links 1-2 (shoulder)", "upper arm": "link 3 (upper arm)", 
 RADIUS_M = {"shoulder": 0.10, "upper arm": 0.045, "forearm": 0.045, "wrist and hand": 0.04}
 SELF_PAIRS = (("shoulder", "forearm"), ("shoulder", "wrist and hand"), ("upper arm", "wrist and hand"))
 MOVING = ("upper arm", "forearm", "wrist and hand")
+# the wam4 (no wrist): three capsules, the forearm from frame 4's origin to the tool plate (``flange_d_m`` along
+# z4) and on by the tool; the one pair not adjacent is shoulder-forearm
+PAIRS = {"wam7": SELF_PAIRS, "wam4": (("shoulder", "forearm"),)}
+MOVING_OF = {"wam7": MOVING, "wam4": ("upper arm", "forearm")}
 
 
 @dataclass
@@ -46,12 +51,16 @@ class ArmGeometry:
     radius_m: dict
     tool_length_m: float = 0.0
     table_z_m: float | None = None
+    robot: str = "wam7"          # the wam4: no wrist capsule, the tool beyond the tool plate along z4
 
     @classmethod
-    def default(cls, tool_length_m: float = 0.0, table_z_m: float | None = None, radius_m: dict | None = None):
+    def default(cls, tool_length_m: float = 0.0, table_z_m: float | None = None, radius_m: dict | None = None,
+                robot: str = "wam7"):
         r = dict(RADIUS_M)
+        if robot == "wam4":
+            r.pop("wrist and hand")
         r.update(radius_m or {})
-        return cls(r, float(tool_length_m), table_z_m)
+        return cls(r, float(tool_length_m), table_z_m, robot)
 
     def segments(self, frames: np.ndarray) -> dict[str, tuple[np.ndarray, np.ndarray]]:
         """Each capsule's end points (n, 3), (n, 3) in frame 0, from DH frames ``frames`` (n, 8, 4, 4)."""
@@ -60,6 +69,10 @@ class ArmGeometry:
         o = frames[:, :, :3, 3]                                    # (n, 8, 3) origins
         z = frames[:, :, :3, 2]                                    # (n, 8, 3) z axes
         low = 0.0 if self.table_z_m is None else min(0.0, self.table_z_m)
+        if self.robot == "wam4":
+            return {"shoulder": (np.zeros((n, 3)), np.tile([0.0, 0.0, low], (n, 1))),
+                    "upper arm": (o[:, 2], o[:, 2] + WAM4.dh_d_m[2] * z[:, 2]),
+                    "forearm": (o[:, 4], o[:, 4] + (WAM4.flange_d_m + self.tool_length_m) * z[:, 4])}
         return {
             "shoulder": (np.zeros((n, 3)), np.tile([0.0, 0.0, low], (n, 1))),
             "upper arm": (o[:, 2], o[:, 2] + P.DH_D_M[2] * z[:, 2]),
@@ -70,6 +83,10 @@ class ArmGeometry:
     def levers_m(self) -> np.ndarray:
         """(7,) the farthest a capsule point can be from joint j's axis: the DH lengths beyond it, the tool and
         the largest radius."""
+        if self.robot == "wam4":
+            lengths = np.abs(WAM4.dh_a_m) + np.abs(WAM4.dh_d_m)
+            return np.array([lengths[j:].sum() for j in range(WAM4.n_joints)]) + WAM4.flange_d_m + \
+                self.tool_length_m + max(self.radius_m.values())
         lengths = np.abs(P.DH_A_M) + np.abs(P.DH_D_M)
         return np.array([lengths[j:].sum() for j in range(P.N_JOINTS)]) + self.tool_length_m + max(
             self.radius_m.values())
@@ -123,13 +140,14 @@ def distances(frames: np.ndarray, geometry: ArmGeometry, table_z_m: float | None
     out: dict[str, dict[str, np.ndarray]] = {}
     if self_collision:
         out["self"] = {f"{LINKS[a]} / {LINKS[b]}": segment_distance(*seg[a], *seg[b]) - r[a] - r[b]
-                       for a, b in SELF_PAIRS}
+                       for a, b in PAIRS[geometry.robot]}
+    moving = MOVING_OF[geometry.robot]
     if table_z_m is not None:
-        out["table"] = {LINKS[c]: np.minimum(seg[c][0][:, 2], seg[c][1][:, 2]) - table_z_m - r[c] for c in MOVING}
+        out["table"] = {LINKS[c]: np.minimum(seg[c][0][:, 2], seg[c][1][:, 2]) - table_z_m - r[c] for c in moving}
     if box_min_m is not None:
         lo, hi = np.asarray(box_min_m, float), np.asarray(box_max_m, float)
         out["box"] = {}
-        for c in MOVING:   # a segment is inside a convex box iff both ends are
+        for c in moving:   # a segment is inside a convex box iff both ends are
             ends = np.stack(seg[c], axis=1)                        # (n, 2, 3)
             inside = np.minimum(ends - lo, hi - ends).min(axis=(1, 2))
             out["box"][LINKS[c]] = inside - r[c]

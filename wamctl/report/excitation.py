@@ -22,7 +22,7 @@ PEAK_COLUMNS = {"position": "position_peak_rad", "speed": "speed_peak_rad_s",
 def limits_table(use) -> pd.DataFrame:
     """Per joint: the peak of each quantity and the share of its limit used (a LimitUse and its limits)."""
     rows = []
-    for j in range(P.N_JOINTS):
+    for j in range(len(use.used["position"])):
         row = {"joint": j + 1}
         for kind, col in PEAK_COLUMNS.items():
             row[col] = float(use.peak[kind][j])
@@ -116,9 +116,12 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     from wamctl.analysis.identification.data import run_rows
     from wamctl.errors import DataFormatError
     from wamctl.model.dynamics import WamDynamics
-    from wamctl.runs.measured import load_run_data
+    from wamctl.model.robots import get_robot
+    from wamctl.runs.measured import load_run_data, unsupported
 
     out_dir = Path(out_dir or run_path)
+    robot = get_robot((spec or {}).get("robot"))
+    n = robot.n_joints
     data = read_table(run_path)
     doc = Document(f"Excitation run: {manifest.get('name', run_path.name)}")
     doc.text(f"Run {run_path.name}: status {manifest.get('status')}, backend "
@@ -127,34 +130,38 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
         doc.text(f"The run ended {manifest['status']}: {manifest['reason']}.")
     if len(data) < 10:
         return doc
-    q = data[[f"q_{j}_rad" for j in range(1, 8)]].to_numpy()
-    tau = data[[f"tau_{j}_Nm" for j in range(1, 8)]].to_numpy()
+    q = data[[f"q_{j}_rad" for j in range(1, n + 1)]].to_numpy()
+    tau = data[[f"tau_{j}_Nm" for j in range(1, n + 1)]].to_numpy()
     t = data["t_s"].to_numpy()
     qd = np.gradient(q, t, axis=0)
     rows = []
-    for j in range(P.N_JOINTS):
+    for j in range(n):
         lo, hi = q[:, j].min(), q[:, j].max()
         rows.append({"joint": j + 1, "q_min_rad": lo, "q_max_rad": hi,
-                     "range_margin_rad": float(min(lo - P.Q_MIN_RAD[j], P.Q_MAX_RAD[j] - hi)),
+                     "range_margin_rad": float(min(lo - robot.q_min_rad[j], robot.q_max_rad[j] - hi)),
                      "speed_peak_rad_s": float(np.abs(qd[:, j]).max()),
                      "torque_peak_Nm": float(np.abs(tau[:, j]).max()),
-                     "torque_used_pct": 100 * float(np.abs(tau[:, j]).max() / P.TAU_MAX_NM[j])})
+                     "torque_used_pct": 100 * float(np.abs(tau[:, j]).max() / robot.tau_max_Nm[j])})
     measured = pd.DataFrame(rows).set_index("joint")
     doc.heading("Limits reached by the arm (measured)")
     doc.table("measured_limits", measured, "positions as measured; speed: finite difference of the measured "
-              "positions (with encoder noise); torque: the commanded torque against the WAM's limits")
+              f"positions (with encoder noise); torque: the commanded torque against the {robot.name}'s limits")
     doc.data["measured_limits"] = measured.reset_index().to_dict("records")
     try:
-        rr = run_rows(load_run_data(run_path), WamDynamics())
+        rd = load_run_data(run_path, partial_ok=True)      # a run of any robot (identify takes them all)
+        why = unsupported(rd.meta, rd.data.columns, any_robot=True)
+        if why:
+            raise DataFormatError(f"{run_path}: {why}")
+        rr = run_rows(rd, WamDynamics(robot=robot.name))
         Y, _, _, _ = rr.stacked()
-        base = base_parameters()
+        base = base_parameters(robot.name)
         ident = identifiability(base.regressor(Y), base)
         doc.heading("What these data determine")
         doc.text(ident.statement() + ".")
         doc.data["identifiability"] = ident.to_dict()
     except DataFormatError as exc:
         doc.text(f"No identification rows: {exc}")
-    moving = [j for j in range(P.N_JOINTS) if np.ptp(data[f"q_ref_{j + 1}_rad"]) > 1e-9]
+    moving = [j for j in range(n) if np.ptp(data[f"q_ref_{j + 1}_rad"]) > 1e-9]
     if moving:
         fig, axes = joint_grid(len(moving), "Reference, measured position and torque")
         for ax, j in zip(axes, moving):

@@ -7,12 +7,13 @@ spec without coefficients is designed when it is planned (deterministic: the spe
 
 from __future__ import annotations
 
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
-from pydantic import Field, model_validator
+from pydantic import Field, PrivateAttr, model_validator
 
 from wamctl.model import params as P
+from wamctl.model.robots import DEFAULT_ROBOT, ROBOTS, get_robot
 from wamctl.specs.common import Common, Joint, Strict, Vec7
 
 
@@ -22,27 +23,39 @@ class ExcitationLimitsSpec(Strict):
     max_speed_rad_s: float | Vec7 = Field(1.2, description="per joint (or one for all), at most 2 rad/s")
     max_acceleration_rad_s2: float | Vec7 = Field(4.0, description="per joint (or one for all)")
     torque_margin: float = Field(0.3, ge=0.0, lt=1.0, description="share of each torque limit kept free: the "
-                                 "declared model's torque stays below (1 - margin) x (25, 20, 15, 15, 5, 5, 5) N m")
+                                 "declared model's torque stays below (1 - margin) x the robot's torque limits "
+                                 "(25, 20, 15, 15, 5, 5, 5 N m on the wam7; 25, 20, 15, 15 N m on the wam4)")
     max_cartesian_speed_m_s: float = Field(0.8, gt=0.0, le=1.0, description="wrist speed (the WAM's safety "
-                                           "module faults at 1 m/s)")
+                                           "module faults at 1 m/s; the tool plate on the wam4)")
+    _robot: str = PrivateAttr(DEFAULT_ROBOT)     # the spec's robot (set by ExcitationSpec): its limits
 
     @model_validator(mode="after")
     def _check(self):
-        for name, hard in (("max_speed_rad_s", P.QD_MAX_RAD_S), ("max_acceleration_rad_s2", None)):
-            v = np.broadcast_to(np.asarray(getattr(self, name), float), (P.N_JOINTS,))
+        self.check_robot(DEFAULT_ROBOT)
+        return self
+
+    def check_robot(self, robot) -> None:
+        """Raise ValueError naming the field when a speed or acceleration is not > 0 or a speed is above the
+        velocity limit of ``robot``'s joint (a vector of the wrong length is named by the spec's robot check)."""
+        r = get_robot(robot)
+        for name, hard in (("max_speed_rad_s", r.qd_max_rad_s), ("max_acceleration_rad_s2", None)):
+            raw = np.atleast_1d(np.asarray(getattr(self, name), float))
+            if raw.size not in (1, r.n_joints):
+                continue
+            v = np.broadcast_to(raw, (r.n_joints,))
             if (v <= 0).any():
                 raise ValueError(f"{name}: must be > 0")
             if hard is not None and (v > hard).any():
                 j = int(np.argmax(v > hard))
                 raise ValueError(f"{name}: joint {j + 1}: {v[j]:g} rad/s is above the velocity limit {hard[j]:g}")
-        return self
 
-    def arrays(self) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """(q_min, q_max, qd_max, qdd_max), (7,) each."""
+    def arrays(self, robot=None) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """(q_min, q_max, qd_max, qdd_max), (n,) each for the joints of ``robot`` (default: the spec's)."""
+        r = get_robot(robot if robot is not None else self._robot)
         m = self.joint_margin_rad
-        qd = np.broadcast_to(np.asarray(self.max_speed_rad_s, float), (P.N_JOINTS,)).copy()
-        qdd = np.broadcast_to(np.asarray(self.max_acceleration_rad_s2, float), (P.N_JOINTS,)).copy()
-        return P.Q_MIN_RAD + m, P.Q_MAX_RAD - m, qd, qdd
+        qd = np.broadcast_to(np.asarray(self.max_speed_rad_s, float), (r.n_joints,)).copy()
+        qdd = np.broadcast_to(np.asarray(self.max_acceleration_rad_s2, float), (r.n_joints,)).copy()
+        return r.q_min_rad + m, r.q_max_rad - m, qd, qdd
 
 
 class DesignSpec(Strict):
@@ -113,7 +126,8 @@ class ExcitationSection(Strict):
     """The trajectory: ``q_j(t) = q0_j + sum_l a_jl / (w l) sin(w l t) - b_jl / (w l) (cos(w l t) - 1)``,
     ``w = 2 pi / period_s``, repeated ``periods`` times between two holds at ``q0_rad``."""
     joints: list[Joint] = Field(default_factory=lambda: list(range(1, P.N_JOINTS + 1)),
-                                description="the joints that move (the others hold q0)")
+                                description="the joints that move (the others hold q0); default: every joint "
+                                            "of the robot")
     period_s: float = Field(10.0, ge=1.0, le=120.0)
     harmonics: int = Field(5, ge=2, le=15)
     periods: int = Field(2, ge=1, le=100)
@@ -146,5 +160,23 @@ class ExcitationSection(Strict):
 
 
 class ExcitationSpec(Common):
+    SUPPORTED_ROBOTS: ClassVar[tuple[str, ...]] = tuple(ROBOTS)
     kind: Literal["excitation"]
     excitation: ExcitationSection = ExcitationSection()
+
+    @classmethod
+    def robot_defaults(cls, data: dict, n_joints: int) -> None:
+        ex = data.get("excitation")
+        if ex is None or (isinstance(ex, dict) and "joints" not in ex):
+            data["excitation"] = dict(ex or {}, joints=list(range(1, n_joints + 1)))
+
+    @model_validator(mode="after")
+    def _robot_limits(self):
+        """The limits are the spec's robot's (its joint range, speeds and torque limits)."""
+        lim = self.excitation.limits
+        lim._robot = self.robot
+        try:
+            lim.check_robot(self.robot)
+        except ValueError as exc:
+            raise ValueError(f"excitation.limits.{exc}") from None
+        return self
