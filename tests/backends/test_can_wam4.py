@@ -298,6 +298,32 @@ def test_bus_check_names_the_wam4(channel):
     assert r7["arm"] == "wam7"
 
 
+def test_bus_check_command_takes_the_wam4(channel):
+    """`wamctl bus-check --robot wam4` against the simulated wam4: pucks 1-4 and the safety module, no problem,
+    the 500 Hz loop's load of a wam4 (one position request, 4 replies, one packed-torque frame: (55 + 4 x 71 + 111)
+    bits x 500 Hz = 22.5 % of 1 Mbit/s, the wam7's 38.7 %), and the ok line names the 4-DOF arm; an arm wamctl does
+    not know is refused in one line."""
+    res = run_cli("bus-check", "--interface", "virtual", "--channel", channel, "--simulate-pucks", "--robot", "wam4",
+                  "--window", "0.05", "--json")
+    assert res.code == 0 and res.exc is None, res.err + res.tb
+    import json
+
+    r = json.loads(res.out)
+    assert r["arm"] == "wam4" and r["problems"] == [] and r["missing_wam_pucks"] == []
+    assert sorted(p["puck_id"] for p in r["pucks"] if p["kind"] == "wam motor") == [1, 2, 3, 4]
+    assert r["load"]["control_loop_load_pct"] == pytest.approx(100 * (55 + 4 * 71 + 111) * 500 / 1e6)
+    assert r["load"]["control_loop_load_pct"] == pytest.approx(loop_bus_load_pct(1_000_000, arm=bus_arm("wam4")))
+    text = run_cli("bus-check", "--interface", "virtual", "--channel", channel + "-t", "--simulate-pucks", "--robot",
+                   "wam4", "--window", "0.05", columns=200)
+    assert text.code == 0, text.err
+    assert ("ok safety module and WAM pucks 1-4 found (no pucks 5-7), supported firmware, a 4-DOF WAM (robot: "
+            "wam4), groups 1/4") in text.out, text.out
+    bad = run_cli("bus-check", "--interface", "virtual", "--channel", channel + "-b", "--simulate-pucks", "--robot",
+                  "wam9")
+    assert bad.code == 2 and bad.err.strip().splitlines() == ["error: --robot 'wam9': not an arm wamctl knows "
+                                                              "(wam7 or wam4)"], bad.err
+
+
 # ------------------------------------------------------------------------------ faults stop it as on the wam7
 
 FAULTS = {

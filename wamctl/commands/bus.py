@@ -46,17 +46,25 @@ def bus_check_cmd(
     wake: Annotated[bool, typer.Option("--wake/--no-wake", help="Wake motor pucks found in the monitor (10 ms "
                                        "apart, then 1 s of silence, as libbarrett) to read their constants, groups "
                                        "and POLES; they stay idle.")] = True,
+    robot: Annotated[str | None, typer.Option("--robot", help="wam7 | wam4: the arm expected on the bus (pucks 1-7; "
+                                              "pucks 1-4 and no 5-7); another arm is a problem. Default: the "
+                                              "arm the pucks found make. With --simulate-pucks: the arm "
+                                              "simulated.", show_default=False)] = None,
     json: Annotated[bool, typer.Option("--json", help="Print the result as JSON on stdout.")] = False,
 ):
     """Show the safety module (mode, zeroed or not, limits, pendant) and the pucks found on the bus (firmware VERS,
     CTS, IPNM, PIDX, groups GRPA/GRPB/GRPC, POLES, state), say what the model does not describe (gimbals, pucks
     in the wrong group, old firmware), and measure the bus load. Exits 1 if anything is wrong."""
     from wamctl.backends.can.bus_check import bus_check
+    from wamctl.errors import SpecError
     from wamctl.model import params as P
+    from wamctl.model.robots import ROBOTS
 
+    if robot is not None and robot not in ROBOTS:
+        raise SpecError(f"--robot {robot!r}: not an arm wamctl knows ({' or '.join(ROBOTS)})")
     result = bus_check(interface, channel, bitrate, simulate_pucks=simulate_pucks, window_s=window,
                        poll_hz=P.CONTROL_RATE_HZ if poll else 0.0, wake=wake,
-                       bus_options=parse_bus_options(bus_option))
+                       bus_options=parse_bus_options(bus_option), robot=robot)
     if json:
         emit_json(result)
     else:
@@ -119,8 +127,22 @@ def _print(r: dict) -> None:
     for problem in r["problems"]:
         err_console.print(f"[bold red]problem:[/] {problem}", highlight=False)
     if not r["problems"]:
-        console.print("[green]ok[/] safety module and WAM pucks 1-7 found, supported firmware, a 7-DOF WAM with "
-                      "wrist (puck 7 POLES 6), groups 1/2/4 as the torque and position frames need, PIDX consistent")
+        console.print("[green]ok[/] " + _ok_words(r), highlight=False)
+
+
+def _ok_words(r: dict) -> str:
+    """What a bus without problems holds, for the arm found (libbarrett's ``verifyWamPucks``)."""
+    from wamctl.model.robots import get_robot
+
+    arm = r["arm"]
+    if arm is None or arm == "wam7":
+        return ("safety module and WAM pucks 1-7 found, supported firmware, a 7-DOF WAM with wrist (puck 7 POLES "
+                "6), groups 1/2/4 as the torque and position frames need, PIDX consistent")
+    n = get_robot(arm).n_joints
+    groups = "/".join(map(str, sorted({g for p in r["pucks"] if p["kind"] == "wam motor"
+                                       for g in p.get("groups") or [] if g != 0})))
+    return (f"safety module and WAM pucks 1-{n} found (no pucks {n + 1}-7), supported firmware, a {n}-DOF WAM "
+            f"(robot: {arm}), groups {groups} as the torque and position frames need, PIDX consistent")
 
 
 def register(app: typer.Typer) -> None:
