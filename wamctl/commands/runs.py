@@ -98,6 +98,9 @@ def compare(run_dirs: Annotated[list[Path], typer.Argument(help="Two or more run
     dest = out or Path(run_dirs[0]).parent / "compare"
     doc = compare_runs(run_dirs, dest)
     written = doc.write(dest, "compare")
+    if not json:
+        for skipped in doc.data["skipped"]:   # runs/* holds the index page and earlier comparisons
+            console.print(f"skipped ({skipped['why']}): {skipped['path']}", highlight=False, soft_wrap=True)
     show_written_document(doc, written, json, quiet)
 
 

@@ -13,6 +13,7 @@ import pandas as pd
 
 from wamctl.errors import WamctlError
 from wamctl.report import write_report
+from wamctl.report.combined import not_a_run
 from wamctl.report.document import Document
 from wamctl.report.figures import joint_grid, save
 from wamctl.runs.store import open_run, read_table
@@ -157,11 +158,20 @@ _OVERLAYS = {"rotation": _rotation_overlay, "friction_sweep": _friction_overlay,
 
 
 def compare(run_dirs: list[Path], out_dir: Path) -> Document:
-    """The comparison document of ``run_dirs`` (figures written into ``out_dir``). WamctlError (one line, exit
-    2) for fewer than two runs or runs of different kinds."""
-    runs = [Path(r) for r in run_dirs]
+    """The comparison document of ``run_dirs`` (figures written into ``out_dir``). Paths that are not run
+    directories (``runs/index.html``, an earlier comparison's folder, a combined report's, among ``runs/*``) are
+    skipped with why, in ``doc.data["skipped"]``, as ``wamctl report`` skips them. WamctlError (one line, exit
+    2) for fewer than two runs left or runs of different kinds."""
+    runs, skipped = [], []
+    for r in map(Path, run_dirs):
+        why = not_a_run(r)
+        if why is None:
+            runs.append(r)
+        else:
+            skipped.append((r, why))
     if len(runs) < 2:
-        raise WamctlError("compare: give two or more run directories")
+        raise WamctlError("compare: give two or more run directories"
+                          + "".join(f"; skipped {p} ({why})" for p, why in skipped))
     opened = [open_run(r) for r in runs]
     kinds = [m.get("kind") for m, _ in opened]
     if len(set(kinds)) > 1:
@@ -185,6 +195,7 @@ def compare(run_dirs: list[Path], out_dir: Path) -> Document:
         p = r / "report.json"
         reports.append(json.loads(p.read_text()) if p.is_file() else write_report(r).to_json())
     doc.data["runs"] = [str(r) for r in runs]
+    doc.data["skipped"] = [{"path": str(p), "why": why} for p, why in skipped]
     for name in reports[0].get("tables", {}):
         if not all(name in rep.get("tables", {}) for rep in reports):
             continue
