@@ -146,6 +146,20 @@ def leverage_adjusted(Q: np.ndarray, e: np.ndarray, sample: np.ndarray, block: i
     return out
 
 
+def effective_blocks(influence: np.ndarray, block_id: np.ndarray) -> np.ndarray:
+    """Per parameter, the effective number of independent blocks its HAC variance rests on: ``(sum_b a_b)^2 /
+    sum_b a_b^2`` with ``a_b`` the sum over block ``b``'s rows of the row's squared influence on the parameter
+    (``influence``: rows x parameters, ``(X^T X)^-1 x_i``); Carter, Schnepel and Steigerwald's effective number
+    of clusters, the Satterthwaite degrees of freedom of the variance under a working model of equal, independent
+    blocks. Blocks of two thirds of the Newey-West lag (the Bartlett kernel's equivalent: Andrews 1991 gives its
+    estimate ``3 n / (2 L)`` degrees of freedom for a uniform design); a parameter that only a few stretches of
+    the run show has few, and its interval uses Student's t with that many less one, not the normal."""
+    a = np.zeros((int(block_id.max()) + 1, influence.shape[1]))
+    np.add.at(a, block_id, influence ** 2)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return a.sum(axis=0) ** 2 / np.sum(a ** 2, axis=0)
+
+
 class InertialIdentification:
     """Base parameters of the WAM from measured runs (see the module doc).
 
@@ -253,9 +267,12 @@ class InertialIdentification:
         S = np.zeros((len(cols), len(cols)))
         lags = []
         e_adj = np.empty_like(e)
+        block_id = np.zeros(len(e), int)
         for r_i in np.unique(groups[:, 0]):
             sel = np.flatnonzero(groups[:, 0] == r_i)
             nlags = hac_lags(len(np.unique(groups[sel, 1])), reach_rows)
+            k = groups[sel, 1] - groups[sel, 1].min()
+            block_id[sel] = block_id.max() + 1 + k // max(1, int(round(2 * nlags / 3)))
             e_adj[sel] = leverage_adjusted(Q[sel], e[sel], groups[sel, 1], nlags + 1)
             S_run, nlags = hac_score_covariance(Q[sel] * e_adj[sel, None], groups[sel, 1], reach_rows)
             lags.append(nlags)
@@ -274,6 +291,8 @@ class InertialIdentification:
         self.beta_wls_[D] = gamma[:nD]
         self.cov_[np.ix_(D, D)] = cov_c[:nD, :nD]
         self.se_ = np.sqrt(np.diag(self.cov_))
+        self.dof_ = np.full(nb, np.nan)
+        self.dof_[D] = effective_blocks(Q @ R_inv.T, block_id)[:nD]
         # what the data determine as a whole: gamma = G beta (the determined parameters, and the undetermined
         # ones only through the combinations their independent subset carries), estimate and covariance
         G = np.zeros((len(cols), nb))
@@ -355,6 +374,10 @@ class InertialIdentification:
         with np.errstate(invalid="ignore", divide="ignore"):       # data precision / posterior precision
             share = (self.se_post_ / self.se_) ** 2
         self.data_share_ = np.where(self.identified_, np.clip(np.nan_to_num(share, nan=0.0), 0, 1), 0.0)
+        # the posterior variance's degrees of freedom (Satterthwaite): only its data part is estimated, a share
+        # ``data_share`` of the precision, so var(se_post^2) / se_post^4 = data_share^2 x the data's
+        with np.errstate(invalid="ignore", divide="ignore"):
+            self.dof_post_ = (self.dof_ - 1.0) / np.maximum(self.data_share_, 1e-12) ** 2
         from wamctl.model.dynamics import links_from_standard
 
         inertial, armature, self.friction_ = split_standard(self.pi_)
@@ -384,12 +407,19 @@ class InertialIdentification:
         """(low, high) ``1 - alpha`` intervals of the base parameters: of the consistent estimate with its
         posterior standard errors (``identified``), or of the data-only estimate (``wls``); NaN where the data
         do not determine the parameter."""
-        from scipy.stats import norm
-
         b, se = (self.beta_, self.se_post_) if which == "identified" else (self.beta_wls_, self.se_)
-        z = norm.ppf(1 - self.alpha / 2)
         se = np.where(self.identified_, se, np.nan)
-        return b - z * se, b + z * se
+        return b - self.critical_values(which) * se, b + self.critical_values(which) * se
+
+    def critical_values(self, which: str = "identified") -> np.ndarray:
+        """(nb,) the intervals' half-widths in standard errors: Student's t at ``1 - alpha / 2`` with the
+        variance's degrees of freedom (:func:`effective_blocks` less one; the posterior's: that over the data
+        share squared), the normal's where those are many; NaN where undetermined."""
+        from scipy.stats import t
+
+        dof = self.dof_post_ if which == "identified" else self.dof_ - 1.0
+        dof = np.where(self.identified_, np.maximum(np.nan_to_num(dof, nan=1.0), 1.0), np.nan)
+        return t.ppf(1 - self.alpha / 2, dof)
 
     def predict(self, rows: RunRows, which: str = "identified", mask: np.ndarray | None = None) -> tuple:
         """Torque of the ``identified``, ``nominal`` (declared links, fitted friction) or ``declared`` model at
