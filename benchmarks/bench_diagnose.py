@@ -22,6 +22,7 @@ Usage::
     .venv/bin/python benchmarks/bench_diagnose.py                       # everything, report split (about 1 h)
     .venv/bin/python benchmarks/bench_diagnose.py --split dev --runs-per-effect 3 --clean 4 --fa-runs 0 --no-timing
     .venv/bin/python benchmarks/bench_diagnose.py --only-timing
+    .venv/bin/python benchmarks/bench_diagnose.py --only-design     # the next experiment's design (issue 28)
 """
 
 from __future__ import annotations
@@ -330,6 +331,93 @@ def timing(duration_s: float, cache: Path, profile: bool = False) -> dict:
 
 
 # ---------------------------------------------------------------------------------------------- the document
+WRIST_SWEEP_DELAY = """
+kind: excitation
+name: wrist-slow
+seed: 0
+q0_rad: [0.0, 0.0, 0.0, 1.9, 0.0, 0.0, 0.0]
+backend: {kind: sim}
+plant:
+  friction: table_4_1
+  effects: {delay: {delay_s: 0.004}}
+excitation:
+  joints: [7]
+  period_s: 6.0
+  harmonics: 2
+  periods: 3
+  settle_s: 1.0
+  coefficients:
+    7: {a_rad_s: [0.5, -0.5], b_rad_s: [0.0, 0.0]}
+"""
+
+
+def design_timing(cache: Path) -> dict:
+    """Issue 28: the next experiment designed in under 30 s. Two runs that cannot tell, made once into ``cache``:
+    the README's wrist sweep with a 4 ms delay (the loop of tests/analysis/test_diagnose_loop.py, a delay against
+    an inertia error) and a 12 s elbow sweep with a 1 kg payload (tests/analysis/test_diagnose_next_experiment.py,
+    a payload against link errors, its decision set to ambiguous as there). Each is diagnosed (no position check),
+    then its next experiment designed, timed (wall and this process's CPU, with the load average); the whole
+    ``wamctl diagnose RUN`` of the wrist sweep (position check, report, design) timed too."""
+    import logging
+    import os
+
+    from diagnosis_gen import generate_run
+
+    from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
+    from wamctl.experiments.diagnose import diagnose_to_run_dir, next_experiment
+    from wamctl.experiments.diagnose_next import next_experiment_delay
+    from wamctl.experiments.runner import run_spec
+    from wamctl.runs.measured import load_run_data
+    from wamctl.specs import load_spec
+
+    def clock():
+        return time.perf_counter(), time.process_time()
+
+    logging.disable(logging.WARNING)
+    d = cache / "design"
+    d.mkdir(parents=True, exist_ok=True)
+    if not (d / "wrist.txt").is_file():
+        (d / "wrist.yaml").write_text(WRIST_SWEEP_DELAY)
+        out = run_spec(load_spec(d / "wrist.yaml"), d, d / "runs", make_report=False)
+        (d / "wrist.txt").write_text(str(out.path))
+    if not (d / "payload.txt").is_file():
+        g = generate_run(d / "gen", "payload", seed=5, joint=4, duration_s=12.0)
+        (d / "payload.txt").write_text(str(g.path))
+    wrist, payload = Path((d / "wrist.txt").read_text()), Path((d / "payload.txt").read_text())
+    load_before = os.getloadavg()[0]
+    res = {}
+    data = load_run_data(wrist)
+    diag = ModelDiagnosis().fit(data)
+    t0 = clock()
+    nxt = next_experiment_delay(diag, data, wrist, d)
+    t1 = clock()
+    res["delay_or_inertia"] = {"design_s": t1[0] - t0[0], "design_cpu_s": t1[1] - t0[1],
+                               "separation_noise_floors": nxt["separation_noise_floors"],
+                               "original_separation_noise_floors": nxt["original_separation_noise_floors"],
+                               "joints": nxt["joints"], "period_s": nxt["period_s"]}
+    data = load_run_data(payload)
+    diag = ModelDiagnosis(candidates=("payload", "link_parameters")).fit(data)
+    diag.payload_vs_links_ = dict(diag.payload_vs_links_, outcome="ambiguous")
+    t0 = clock()
+    nxt = next_experiment(diag, data, payload, d)
+    t1 = clock()
+    res["payload_or_links"] = {"design_s": t1[0] - t0[0], "design_cpu_s": t1[1] - t0[1],
+                               "separation_noise_floors": nxt["separation_noise_floors"],
+                               "original_separation_noise_floors": nxt["original_separation_noise_floors"],
+                               "joints": nxt["joints"]}
+    t0 = clock()
+    _, result, _ = diagnose_to_run_dir(wrist, out=d / "diag", formats=("md",))
+    t1 = clock()
+    res["wamctl_diagnose_wrist_sweep"] = {"s": t1[0] - t0[0], "cpu_s": t1[1] - t0[1],
+                                          "next_experiment": (result.get("next_experiment") or {}).get("spec")}
+    res["load_average_1min"] = [round(load_before, 2), round(os.getloadavg()[0], 2)]
+    res["cpus"] = os.cpu_count()
+    logging.disable(logging.NOTSET)
+    for k, v in res.items():
+        print(f"{k}: {v}")
+    return res
+
+
 def _rates_lines(r: dict) -> list[str]:
     return [f"- {k}: {v:.3f}" if isinstance(v, float) else f"- {k}: {v}" for k, v in r.items()]
 
@@ -448,6 +536,8 @@ def main(argv=None) -> None:
     ap.add_argument("--long-s", type=float, default=3600.0)
     ap.add_argument("--no-timing", action="store_true")
     ap.add_argument("--only-timing", action="store_true")
+    ap.add_argument("--only-design", action="store_true",
+                    help="only the next experiment's design timed (issue 28: under 30 s), then exit")
     ap.add_argument("--profile", action="store_true", help="with the timing: cProfile (CPU time) of the diagnosis")
     ap.add_argument("--runs-dir", type=Path, default=None, help="keep generated runs here (default: temporary)")
     ap.add_argument("--write", type=Path, default=ROOT / "docs" / "diagnosis-validation.md",
@@ -474,6 +564,9 @@ def main(argv=None) -> None:
         speed = json.loads(a.timing_json.read_text()) if a.timing_json else None
         a.write.write_text(markdown(studies, fa if len(fa) else None, speed, a.split))
         print(f"wrote {a.write}")
+        return
+    if a.only_design:
+        print(json.dumps(design_timing(ROOT / "benchmarks" / "out"), indent=1, default=str))
         return
     tmp = tempfile.TemporaryDirectory() if a.runs_dir is None else None
     root = Path(tmp.name) if tmp else a.runs_dir

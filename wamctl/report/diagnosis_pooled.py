@@ -62,6 +62,9 @@ def decided_lines(result: dict) -> list[str]:
     """Which run decided each finding and which added nothing, one line each (also on the terminal)."""
     lines = []
     for f in result.get("findings") or []:
+        if f.get("delay_or_inertia"):
+            lines += delay_lines(f["delay_or_inertia"])
+            continue
         what = f["name"] + ("" if f["joint"] is None else f" at joint {f['joint']}")
         pooled = f["pooled"]
         verdict = pooled.get("outcome") if f["joint"] is None else ("named" if pooled["named"] else "not named")
@@ -73,6 +76,61 @@ def decided_lines(result: dict) -> list[str]:
             line += f"; added nothing: {', '.join(f['added_nothing'])}"
         lines.append(line)
     return lines
+
+
+def _g(x: float) -> str:
+    return f"{x:.3g}"
+
+
+def delay_lines(dec: dict) -> list[str]:
+    """A delay against inertia errors decided on the runs pooled (``findings[].delay_or_inertia``), in two lines:
+    the decision, which run decided it and the estimate with its 95 % interval; the held-out torque RMS of each
+    run before (friction only) and after (with the winner), and with the loser instead."""
+    win, out = dec["winner"], dec["outcome"]
+    lose = "inertia" if win == "delay" else "delay"
+    lose_words = {"inertia": "inertia errors", "delay": "a delay"}[lose]
+    excess = f"what {lose_words} leave{'s' if lose == 'delay' else ''} beyond the {win}, noise floors RMS"
+    runs = "; ".join(f"{p['label']} {p['excess_noise_floors']:.2g} (alone: {p['alone']['outcome']}"
+                     + ("" if p["alone"]["outcome"] == "ambiguous" else
+                        f", {p['alone']['excess_noise_floors']:.2g}") + ")" for p in dec["per_run"])
+    if win == "delay":
+        lo, hi = dec["delay_ci_s"]
+        est = (f"delay {dec['delay_s'] * 1e3:.1f} ms" + ("" if lo is None else
+                                                          f" [{lo * 1e3:.1f}, {hi * 1e3:.1f}] ms (95 %)"))
+    else:
+        est = "inertia errors " + ", ".join(
+            f"joint {j} {v:+.2g}" + ("" if dec["inertia_error_ci_kg_m2"][j][0] is None else
+                                    " [{:.2g}, {:.2g}]".format(*dec["inertia_error_ci_kg_m2"][j]))
+            for j, v in dec["inertia_error_kg_m2"].items()) + " kg m^2 (95 %)"
+    if out == "ambiguous":
+        contra = dec["contradicted_by"]
+        head = (f"delay or inertia (runs pooled): ambiguous ({excess}, "
+                + (f"per run: {runs}; the runs disagree: {', '.join(contra)} prefer{'s' if len(contra) == 1 else ''}"
+                   f" the {lose}" if contra else f"below 1 in every run: {runs}") + ")")
+    else:
+        head = (f"delay or inertia (runs pooled): {out}, decided by {', '.join(dec['decided_by'])} ({excess}, per "
+                f"run: {runs}); {est}")
+    held = ", ".join(f"{p['label']} {_g(p['held_out_rms_Nm']['neither'])} -> {_g(p['held_out_rms_Nm'][win])} N m "
+                     f"(joint{'s' if len(p['joints']) > 1 else ''} {', '.join(map(str, p['joints']))}; "
+                     f"{lose_words} instead {_g(p['held_out_rms_Nm'][lose])})" for p in dec["per_run"])
+    return [head, f"held-out torque RMS, friction only -> with the {win}: {held}"]
+
+
+def delay_table(result: dict) -> pd.DataFrame:
+    """Per run and joint: the held-out torque RMS with friction only, with a delay, with inertia errors; the run's
+    excess of the loser over the winner (pooled fits) and what the run decided alone."""
+    rows = []
+    for f in result.get("findings") or []:
+        dec = f.get("delay_or_inertia")
+        if not dec:
+            continue
+        for p in dec["per_run"]:
+            for j, h in p["held_out_rms_per_joint_Nm"].items():
+                rows.append({"run": p["label"], "joint": int(j), "friction_only_Nm": h["neither"],
+                             "with_delay_Nm": h["delay"], "with_inertia_errors_Nm": h["inertia"],
+                             "run_excess_noise_floors": p["excess_noise_floors"],
+                             "alone": p["alone"]["outcome"]})
+    return pd.DataFrame(rows)
 
 
 def payload_table(result: dict) -> pd.DataFrame:
@@ -135,6 +193,13 @@ def report_pooled(result: dict, manifest: dict, doc: Document) -> Document:
     doc.table("effects", findings_table(result), f"nested held-out tests (threshold p < {thr} and a BIC drop); "
               "payload: does a wrist payload add to link errors within (twice) the declared "
               "accuracy; a joint's effect: does it add to each run's own model with coefficients shared by the runs")
+    dt = delay_table(result)
+    if len(dt):
+        doc.heading("A delay or inertia errors")
+        doc.table("delay_or_inertia", dt, "held-out torque RMS per run and joint (each run's own friction and "
+                  "offset; the delay one for all runs, the inertia errors shared); the run's excess: how many noise "
+                  "floors RMS the losing hypothesis leaves beyond the winner in that run, both fitted on all runs "
+                  "(1 decides)")
     pt = payload_table(result)
     if len(pt):
         doc.heading("The arm's payload")

@@ -254,33 +254,53 @@ class NextRun:
 def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float, rows_run: Rows, limits,
                     joint_sets: list[list[int]], harmonics: int = 5, per_set: int = 2, fill: float = 0.95,
                     seed: int = 0, periods_s=PERIODS_S) -> NextRun:
+    """:func:`_design_next_run` with one BLAS thread (small dense products: threads only contend on a shared
+    machine)."""
+    from wamctl.analysis.identification.excitation import _single_threaded_blas
+
+    with _single_threaded_blas():
+        return _design_next_run(dynamics, friction, q0_rad, hyp, noise_Nm, rows_run, limits, joint_sets,
+                                harmonics=harmonics, per_set=per_set, fill=fill, seed=seed, periods_s=periods_s)
+
+
+def _design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float, rows_run: Rows, limits,
+                    joint_sets: list[list[int]], harmonics: int = 5, per_set: int = 2, fill: float = 0.95,
+                    seed: int = 0, periods_s=PERIODS_S) -> NextRun:
     """T-optimal choice among Fourier candidates (excite's parametrisation): ``per_set`` random series (seeded)
     per base period in ``periods_s`` on each of ``joint_sets`` (0-based), each scaled to ``fill`` of its closest
-    limit by excite's limit check (:func:`~wamctl.analysis.diagnosis.discriminate.scaled_to_limits`); the
-    candidate whose smaller separation is largest wins. Raises ValueError when no candidate keeps within the
-    limits."""
-    from wamctl.analysis.diagnosis.discriminate import scaled_to_limits
+    limit by excite's limit check on a coarse grid (:func:`~wamctl.analysis.diagnosis.discriminate.coarse_scaled`)
+    and scored there; the best checked at the control rate, shrunk where a peak between the coarse samples crosses
+    ``fill``, and scored again, until no unchecked candidate's coarse score beats the best checked one
+    (:func:`~wamctl.analysis.diagnosis.discriminate.best_within_limits`): the candidate whose smaller separation is
+    largest wins. ``scored``: each candidate's separation (after the control rate's check where it was checked).
+    Raises ValueError when no candidate keeps within the limits."""
+    from wamctl.analysis.diagnosis.discriminate import best_within_limits, coarse_scaled
     from wamctl.analysis.identification.excitation import FourierTrajectory
 
     rng = np.random.default_rng(seed)
-    scored, best = [], None
+
+    def score(traj):
+        t = np.arange(int(traj.period_s * DESIGN_RATE_HZ)) / DESIGN_RATE_HZ
+        return separation(rows_of(dynamics, fourier_source(traj, t)), hyp, noise_Nm)
+
+    cands, label = [], {}
     for js in joint_sets:
         for period in periods_s:
-            t = np.arange(int(period * DESIGN_RATE_HZ)) / DESIGN_RATE_HZ
             for _ in range(per_set):
                 x = rng.normal(size=(len(js), 2 * (harmonics - 1))) / np.tile(np.arange(2, harmonics + 1), 2)
-                got = scaled_to_limits(FourierTrajectory.from_free(q0_rad, period, js, x, harmonics), limits,
-                                       dynamics, friction, fill, rate_hz=LIMIT_CHECK_RATE_HZ)
+                got = coarse_scaled(FourierTrajectory.from_free(q0_rad, period, js, x, harmonics), limits,
+                                    dynamics, friction, fill, rate_hz=LIMIT_CHECK_RATE_HZ)
                 if got is None:
                     continue
-                traj, use = got
-                sep = separation(rows_of(dynamics, fourier_source(traj, t)), hyp, noise_Nm)
-                scored.append(([j + 1 for j in js], float(period), sep["separation"]))
-                if best is None or sep["separation"] > best[1]["separation"]:
-                    best = (traj, sep, use)
+                label[len(cands)] = ([j + 1 for j in js], float(period))
+                cands.append((score(got[0])["separation"], got[0], len(cands)))
+    best = best_within_limits(cands, score, limits, dynamics, friction, fill)
     if best is None:
         raise ValueError("no candidate trajectory keeps within the limits")
-    return NextRun(best[0], best[1], separation(rows_run, hyp, noise_Nm), scored, best[2])
+    traj, sep, use, checked = best
+    scored = [(*label[k], float(s if checked.get(k) is None else checked[k]))
+              for s, _, k in cands if not (k in checked and checked[k] is None)]
+    return NextRun(traj, sep, separation(rows_run, hyp, noise_Nm), scored, use)
 
 
 # ------------------------------------------------------------------------------------------------- on a run
@@ -294,6 +314,7 @@ class RunCheck:
     hyp: Hypotheses | None
     original: dict | None
     floors: dict | None = None
+    y: dict | None = None
 
     @property
     def suspected(self) -> bool:
@@ -313,11 +334,11 @@ def check_run(diag, dynamics, rate_hz: float = DESIGN_RATE_HZ) -> RunCheck:
     y = {j: tau[rows.mask[j], j] - rows.R[0][j] for j in rows.joints}
     dec = decide(rows, y)
     if not rows.joints or dec["effect_noise_floors"] < DECIDED_FLOORS:
-        return RunCheck(rows, dec, None, None)
+        return RunCheck(rows, dec, None, None, y=y)
     levels = {j: np.array(list(diag.friction_before(j).values()), float) for j in rows.joints}
     hyp = fitted_hypotheses(rows, dec["delay_s"], levels)
     floors = joint_floors({j - 1: v for j, v in dec["floor_Nm"].items()})
-    return RunCheck(rows, dec, hyp, separation(rows, hyp, floors), floors)
+    return RunCheck(rows, dec, hyp, separation(rows, hyp, floors), floors, y)
 
 
 def decision_line(dec: dict) -> str:
@@ -331,3 +352,216 @@ def decision_line(dec: dict) -> str:
                 f"{dec['excess_noise_floors']:.2g} noise floors, {DECIDED_FLOORS:g} needed)")
     return (f"delay or inertia: {dec['outcome']} ({fits}; the other exceeds it by {dec['excess_noise_floors']:.2g} "
             "noise floors)")
+
+
+# ------------------------------------------------------------------------------------------------- runs pooled
+N_BOOT = 200                   # block-bootstrap replicates of the pooled estimates' intervals
+
+
+@dataclass
+class RunPart:
+    """One run's share of the pooled check (:func:`decide_pooled`): its rows (:class:`Rows`), its measured residual
+    ``y`` ({j: (m_j,)}), its own decision (:func:`decide`, whose ``floor_Nm`` weighs each joint's residual) and
+    ``label``."""
+
+    label: str
+    rows: Rows
+    y: dict
+    decision: dict
+
+
+def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """Stacked normal equations ``A x = b`` (..., p, p), (..., p); a column no sample excites (a direction a
+    resample never ran) held at zero by a vanishing ridge."""
+    lam = 1e-10 * np.maximum(np.trace(A, axis1=-2, axis2=-1), 1e-300)[..., None, None]
+    return np.linalg.solve(A + lam * np.eye(A.shape[-1]), b[..., None])[..., 0]
+
+
+def _block_sums(X: np.ndarray, t: np.ndarray, blk: np.ndarray, nb: int):
+    """Per time block: ``X'X`` (nb, p, p), ``X't`` (nb, p), ``t't`` (nb,) of the rows ``X`` (m, p), ``t`` (m,)."""
+    XtX = np.zeros((nb, X.shape[1], X.shape[1]))
+    Xt, tt = np.zeros((nb, X.shape[1])), np.zeros(nb)
+    for b in range(nb):
+        m = blk == b
+        XtX[b], Xt[b], tt[b] = X[m].T @ X[m], X[m].T @ t[m], t[m] @ t[m]
+    return XtX, Xt, tt
+
+
+class _Pool:
+    """The runs' rows as sufficient statistics per time block, so that a fit on any weighting of the blocks (all,
+    without a fold, a bootstrap resample) is a sum and a small solve. Keys ``(r, j)``: run ``r``, 0-based joint
+    ``j``; each joint's residual weighed by one over its noise floor in that run."""
+
+    def __init__(self, parts: list[RunPart], n_blocks: int):
+        self.parts, self.nb = parts, n_blocks
+        self.keys = [(r, j) for r, p in enumerate(parts) for j in p.rows.joints]
+        self.w = {(r, j): 1.0 / parts[r].decision["floor_Nm"][j + 1] for r, j in self.keys}
+        self.blk, self.Xd, self.td, self.Xi, self.sd, self.si = {}, {}, {}, {}, {}, {}
+        K = len(DELAY_GRID_S)
+        for r, j in self.keys:
+            rows, y = parts[r].rows, parts[r].y[j]
+            m_all = len(rows.mask[j])
+            blk_all = np.minimum((np.arange(m_all) * n_blocks) // max(m_all, 1), n_blocks - 1)
+            blk = self.blk[(r, j)] = blk_all[rows.mask[j]]       # the run's time blocks, the joint's rows
+            self.Xd[(r, j)] = np.stack([_nuisance(rows.qd[k][j]) for k in range(K)])
+            self.td[(r, j)] = np.stack([y - (rows.R[k][j] - rows.R[0][j]) for k in range(K)])
+            self.Xi[(r, j)] = np.column_stack([rows.qdd[j], _nuisance(rows.qd[0][j])])
+            sums = [_block_sums(self.Xd[(r, j)][k], self.td[(r, j)][k], blk, n_blocks) for k in range(K)]
+            self.sd[(r, j)] = tuple(np.stack([s[i] for s in sums]) for i in range(3))     # (K, nb, ...)
+            self.si[(r, j)] = _block_sums(self.Xi[(r, j)], y, blk, n_blocks)
+
+    def fit_delay(self, c: np.ndarray):
+        """One delay for all runs (the grid point of the smallest weighted SSR), friction and offset per (run,
+        joint), on the blocks weighted ``c`` (s, runs, nb): ((s,) grid index, {key: (s, 5)})."""
+        ssr, th = 0.0, {}
+        for r, j in self.keys:
+            XtX, Xt, tt = self.sd[(r, j)]
+            A = np.einsum("sb,kbpq->skpq", c[:, r], XtX)
+            b = np.einsum("sb,kbp->skp", c[:, r], Xt)
+            x = _solve(A, b)
+            ssr = ssr + self.w[(r, j)] ** 2 * (np.einsum("sb,kb->sk", c[:, r], tt) - (x * b).sum(-1))
+            th[(r, j)] = x
+        k = np.argmin(ssr, axis=1)
+        s = np.arange(len(k))
+        return k, {key: x[s, k] for key, x in th.items()}
+
+    def fit_inertia(self, c: np.ndarray, neither: bool = False):
+        """An inertia error per joint shared by the runs (``neither``: none), friction and offset per (run,
+        joint), on the blocks weighted ``c``: ({j: (s,)}, {key: (s, 6)} inertia error then the five nuisance)."""
+        da, th = {}, {}
+        for j in sorted({j for _, j in self.keys}):
+            rs = [r for r, jj in self.keys if jj == j]
+            P = 1 + 5 * len(rs)
+            A, b = np.zeros((len(c), P, P)), np.zeros((len(c), P))
+            ix = {r: np.r_[0, 1 + 5 * n + np.arange(5)] for n, r in enumerate(rs)}
+            for r in rs:
+                XtX, Xt, _ = self.si[(r, j)]
+                w2 = self.w[(r, j)] ** 2
+                A[:, ix[r][:, None], ix[r][None, :]] += w2 * np.einsum("sb,bpq->spq", c[:, r], XtX)
+                b[:, ix[r]] += w2 * np.einsum("sb,bp->sp", c[:, r], Xt)
+            if neither:                 # the inertia column out: its row and column zero, its value zero
+                A[:, 0, :], A[:, :, 0], b[:, 0] = 0.0, 0.0, 0.0
+                A[:, 0, 0] = 1.0
+            x = _solve(A, b)
+            da[j] = x[:, 0]
+            for r in rs:
+                th[(r, j)] = x[:, ix[r]]
+        return da, th
+
+    def residuals(self, rows_of_key: dict, k: int, th_d: dict, th_i: dict, th_0: dict) -> dict:
+        """{hypothesis: {key: residual (m,) at the rows ``rows_of_key[key]``}} of the three fits (one replicate)."""
+        out = {"delay": {}, "inertia": {}, "neither": {}}
+        for key in self.keys:
+            m = rows_of_key[key]
+            y = self.parts[key[0]].y[key[1]][m]
+            out["delay"][key] = self.td[key][k][m] - self.Xd[key][k][m] @ th_d[key]
+            out["inertia"][key] = y - self.Xi[key][m] @ th_i[key]
+            out["neither"][key] = y - self.Xi[key][m] @ th_0[key]
+        return out
+
+
+def decide_pooled(parts: list[RunPart], n_blocks: int = 10, n_folds: int = 5, n_boot: int = N_BOOT,
+                  seed: int = 0) -> dict:
+    """A delay against inertia errors decided on several runs of one arm at once: the delay one for all runs
+    (``H_D``), the inertia error of each joint one for all runs (``H_I``), each (run, joint) with its own friction
+    and offset (a friction that drifted between runs, each run's own gains and start state do not enter the
+    inverse-dynamics residual). Each joint's residual in units of its noise floor in its run (:func:`decide` on
+    that run alone).
+
+    The pooled winner is the hypothesis with the smaller weighted residual over all runs. With both fitted on all
+    runs, each run's excess (the loser's weighted RMS beyond the winner's, ``sqrt(rms_lose^2 - rms_win^2) /
+    rms_win``, in noise floors, as :func:`decide`): ``outcome`` is the winner when some run's excess is at least
+    :data:`DECIDED_FLOORS` and no run prefers the loser by as much, else ``"ambiguous"``; ``decided_by`` are the
+    runs whose excess reaches it, ``added_nothing`` the others. Held-out torque RMS (N m) per run and pooled:
+    friction and offset only (before), each hypothesis (after), fitted without each fold of every run's time
+    blocks at once. The winner's estimate with its 95 % interval (a bootstrap of each run's time blocks): the
+    delay (s, on :data:`DELAY_GRID_S`) or the inertia errors (kg m^2 per 1-based joint). ``test``: the winner's
+    held-out residual against friction only (:func:`~wamctl.analysis.diagnosis.stats.nested_test`)."""
+    from wamctl.analysis.diagnosis.stats import nested_test
+    from wamctl.analysis.diagnosis.uncertainty import percentile_ci
+
+    pool = _Pool(parts, n_blocks)
+    R = len(parts)
+    ones = np.ones((1, R, n_blocks))
+    k_all, th_d = pool.fit_delay(ones)
+    da_all, th_i = pool.fit_inertia(ones)
+    _, th_0 = pool.fit_inertia(ones, neither=True)
+    allrows = {key: np.ones(len(pool.blk[key]), bool) for key in pool.keys}
+    res = pool.residuals(allrows, int(k_all[0]), {k: v[0] for k, v in th_d.items()},
+                         {k: v[0] for k, v in th_i.items()}, {k: v[0] for k, v in th_0.items()})
+
+    def wrms(h, keys):
+        n = sum(len(res[h][k]) for k in keys)
+        return float(np.sqrt(sum(pool.w[k] ** 2 * float(res[h][k] @ res[h][k]) for k in keys) / max(n, 1)))
+
+    hyps = ("delay", "inertia", "neither")
+    pooled_rms = {h: wrms(h, pool.keys) for h in hyps}
+    win = "delay" if pooled_rms["delay"] <= pooled_rms["inertia"] else "inertia"
+    lose = "inertia" if win == "delay" else "delay"
+
+    # held out: every fold of every run's blocks left out at once
+    fold_of_block = np.arange(n_blocks) % n_folds
+    held = {h: {key: np.full(len(pool.blk[key]), np.nan) for key in pool.keys} for h in hyps}
+    for f in range(n_folds):
+        c = np.broadcast_to((fold_of_block != f).astype(float), (1, R, n_blocks))
+        k_f, td_f = pool.fit_delay(c)
+        _, ti_f = pool.fit_inertia(c)
+        _, t0_f = pool.fit_inertia(c, neither=True)
+        test = {key: fold_of_block[pool.blk[key]] == f for key in pool.keys}
+        e = pool.residuals(test, int(k_f[0]), {k: v[0] for k, v in td_f.items()},
+                           {k: v[0] for k, v in ti_f.items()}, {k: v[0] for k, v in t0_f.items()})
+        for h in hyps:
+            for key in pool.keys:
+                held[h][key][test[key]] = e[h][key]
+
+    def held_rms(h, keys):
+        e = np.concatenate([held[h][k] for k in keys])
+        return float(np.sqrt(np.nanmean(e ** 2)))
+
+    per_run = []
+    for r, p in enumerate(parts):
+        keys = [k for k in pool.keys if k[0] == r]
+        rr = {h: wrms(h, keys) for h in hyps}
+        excess = float(np.sqrt(max(rr[lose] ** 2 - rr[win] ** 2, 0.0)) / max(rr[win], 1e-12))
+        against = float(np.sqrt(max(rr[win] ** 2 - rr[lose] ** 2, 0.0)) / max(rr[lose], 1e-12))
+        per_run.append({
+            "label": p.label, "joints": [j + 1 for _, j in keys],
+            "rms_noise_floors": rr, "excess_noise_floors": excess, "against_noise_floors": against,
+            "held_out_rms_Nm": {h: held_rms(h, keys) for h in hyps},
+            "held_out_rms_per_joint_Nm": {j + 1: {h: held_rms(h, [(r, j)]) for h in hyps} for _, j in keys},
+            "alone": {"outcome": p.decision["outcome"], "excess_noise_floors": p.decision["excess_noise_floors"],
+                      "delay_s": p.decision["delay_s"]}})
+    decided = [p["label"] for p in per_run if p["excess_noise_floors"] >= DECIDED_FLOORS]
+    contra = [p["label"] for p in per_run if p["against_noise_floors"] >= DECIDED_FLOORS]
+    outcome = win if decided and not contra else "ambiguous"
+
+    # the winner's estimate, 95 % interval by a bootstrap of each run's time blocks
+    rng = np.random.default_rng(seed)
+    cb = np.stack([rng.multinomial(n_blocks, np.full(n_blocks, 1.0 / n_blocks), size=n_boot)
+                   for _ in range(R)], axis=1).astype(float)
+    n_groups = R * n_blocks
+    delay_s = float(DELAY_GRID_S[k_all[0]])
+    if win == "delay":
+        kb, _ = pool.fit_delay(cb)
+        lo, hi = percentile_ci(DELAY_GRID_S[kb], center=delay_s, n_groups=n_groups)
+        half = float(np.diff(DELAY_GRID_S[1:]).max()) / 2     # the grid's own resolution: half a step each side
+        est = {"delay_s": delay_s, "delay_ci_s": [max(lo - half, 0.0), min(hi + half, MAX_DELAY_S)]}
+    else:
+        dab, _ = pool.fit_inertia(cb)
+        est = {"inertia_error_kg_m2": {j + 1: float(v[0]) for j, v in da_all.items()},
+               "inertia_error_ci_kg_m2": {j + 1: percentile_ci(dab[j], center=float(da_all[j][0]),
+                                                                n_groups=n_groups) for j in da_all}}
+    w_all = np.concatenate([np.full(len(pool.blk[k]), pool.w[k]) for k in pool.keys])
+    groups = np.concatenate([fold_of_block[pool.blk[k]] + 100 * i for i, k in enumerate(pool.keys)])
+    e0 = np.concatenate([held["neither"][k] for k in pool.keys]) * w_all
+    e1 = np.concatenate([held[win][k] for k in pool.keys]) * w_all
+    p_extra = 1 if win == "delay" else len(da_all)
+    test = nested_test(e0, e1, p_extra, 5 * len(pool.keys) + p_extra, groups=groups)
+    return {"outcome": outcome, "winner": win, "rms_noise_floors": pooled_rms,
+            "excess_noise_floors": float(np.sqrt(max(pooled_rms[lose] ** 2 - pooled_rms[win] ** 2, 0.0))
+                                         / max(pooled_rms[win], 1e-12)),
+            "per_run": per_run, "decided_by": decided if outcome != "ambiguous" else [],
+            "contradicted_by": contra, "added_nothing": [p["label"] for p in per_run if p["label"] not in decided],
+            "held_out_rms_Nm": {h: held_rms(h, pool.keys) for h in hyps},
+            "fitted_delay_s": delay_s, **est,
+            "test": {k: float(test[k]) for k in ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")}}

@@ -90,8 +90,12 @@ def refit_residual(rows: Rows, delta_true: np.ndarray, A: np.ndarray, lo: np.nda
     scale = np.sqrt((X ** 2).sum(axis=0))
     live = scale > 1e-9 * scale.max()            # columns the trajectory does not excite change nothing
     Xs = X[:, live] / scale[live]
-    Q, R = np.linalg.qr(Xs)         # the same minimiser on p rows instead of m (the residual off Q is fixed)
-    res = lsq_linear(R, Q.T @ y, bounds=(lo_all[live] * scale[live], hi_all[live] * scale[live]), method="bvls",
+    # the same minimiser on p rows instead of m (the residual off Q is fixed): R and Q'y from the triangular
+    # factor of [Xs y] alone (Q itself, m x p, is never formed)
+    Ra = np.linalg.qr(np.column_stack([Xs, y]), mode="r")
+    p = Xs.shape[1]
+    R, qty = Ra[:p, :p], Ra[:p, p]
+    res = lsq_linear(R, qty, bounds=(lo_all[live] * scale[live], hi_all[live] * scale[live]), method="bvls",
                      tol=1e-12)
     x = np.zeros(X.shape[1])
     x[live] = res.x / scale[live]
@@ -148,69 +152,133 @@ class NextRun:
     limit_use: object
 
 
+def _at_scale(traj, k: float, limits, dynamics, friction, **kw):
+    """``traj`` with its coefficients scaled by ``k`` (about q0) and its :class:`~wamctl.analysis.identification.
+    excitation.LimitUse` by excite's own check (``rate_hz`` in ``kw``: on that grid; default the control rate)."""
+    from wamctl.analysis.identification.excitation import FourierTrajectory, sampled_limit_use
+
+    tr = FourierTrajectory(traj.q0_rad, traj.period_s, traj.a * k, traj.b * k)
+    return tr, sampled_limit_use(tr, limits, dynamics, friction, **kw)
+
+
+def coarse_scaled(traj, limits, dynamics, friction, fill: float, rate_hz: float | None = None):
+    """``traj`` scaled as far as its closest limit stays within ``fill`` of it on the grid ``rate_hz`` (None: the
+    control rate), by bisection on the scale (at most 1): ``(trajectory, LimitUse, scale)``, or None when a
+    hundredth of it already crosses ``fill``. A peak between the samples of a coarse grid is not seen here:
+    :func:`at_control_rate` checks it."""
+    kw = {} if rate_hz is None else {"rate_hz": rate_hz}
+    lo, hi = 0.01, 1.0
+    best = _at_scale(traj, lo, limits, dynamics, friction, **kw)
+    if best[1].worst[2] > fill:
+        return None
+    top = _at_scale(traj, hi, limits, dynamics, friction, **kw)
+    if top[1].worst[2] <= fill:
+        return top[0], top[1], hi
+    for _ in range(8):
+        mid = np.sqrt(lo * hi)
+        got = _at_scale(traj, mid, limits, dynamics, friction, **kw)
+        if got[1].worst[2] <= fill:
+            lo, best = mid, got
+        else:
+            hi = mid
+    return best[0], best[1], lo
+
+
+def at_control_rate(traj, limits, dynamics, friction, fill: float):
+    """``traj`` checked at the control rate by excite's own check and shrunk (3 % a step) until it keeps within
+    ``fill`` there: ``(trajectory, LimitUse)``, or None when no shrink down to a sixth of it does."""
+    k = 1.0
+    for _ in range(60):
+        got = _at_scale(traj, k, limits, dynamics, friction)
+        if got[1].worst[2] <= fill:
+            return got
+        k *= 0.97
+    return None
+
+
 def scaled_to_limits(traj, limits, dynamics, friction, fill: float, rate_hz: float | None = None):
     """``traj`` scaled (its coefficients, about q0) as far as its closest limit stays within ``fill`` of it, by
     excite's own check (:func:`~wamctl.analysis.identification.excitation.sampled_limit_use`; bisection on the
     scale, at most 1); None when a hundredth of it already crosses ``fill``. ``rate_hz``: the bisection's check
     on this coarser grid, the result then checked at the control rate and shrunk (3 % a step) until it keeps
     within ``fill`` there too (None: every check at the control rate)."""
-    from wamctl.analysis.identification.excitation import FourierTrajectory, sampled_limit_use
-
-    kw = {} if rate_hz is None else {"rate_hz": rate_hz}
-
-    def at(k, **kw_at):
-        tr = FourierTrajectory(traj.q0_rad, traj.period_s, traj.a * k, traj.b * k)
-        return tr, sampled_limit_use(tr, limits, dynamics, friction, **kw_at)
-
-    lo, hi = 0.01, 1.0
-    best = at(lo, **kw)
-    if best[1].worst[2] > fill:
+    got = coarse_scaled(traj, limits, dynamics, friction, fill, rate_hz)
+    if got is None:
         return None
-    top = at(hi, **kw)
-    if top[1].worst[2] <= fill:
-        lo, best = hi, top
-    else:
-        for _ in range(8):
-            mid = np.sqrt(lo * hi)
-            got = at(mid, **kw)
-            if got[1].worst[2] <= fill:
-                lo, best = mid, got
-            else:
-                hi = mid
     if rate_hz is None:
-        return best
-    for _ in range(60):                     # the control rate's check (a peak between the coarse samples)
-        got = at(lo)
-        if got[1].worst[2] <= fill:
-            return got
-        lo *= 0.97
-    return None
+        return got[0], got[1]
+    return at_control_rate(got[0], limits, dynamics, friction, fill)
+
+
+def best_within_limits(candidates: list, score, limits, dynamics, friction, fill: float):
+    """The T-optimal candidate that keeps within the limits at the control rate, with one full check for few of
+    them: ``candidates`` are ``(coarse score, trajectory scaled on a coarse grid, label)``; in order of coarse
+    score, each is checked at the control rate (:func:`at_control_rate`, shrunk where a peak between the coarse
+    samples crosses ``fill``) and scored again (``score(trajectory) -> dict`` with ``"separation"``), until the
+    best verified score is at least the next candidate's coarse score (shrinking a trajectory does not raise its
+    separation, assumed: the hypotheses' torques grow with its motion). Returns ``(trajectory, score dict, LimitUse,
+    checked)``, ``checked`` {label: separation after the control rate's check, None where none kept within it} of
+    the candidates checked there, or None when none keeps within the limits."""
+    best, checked = None, {}
+    for sep, traj, label in sorted(candidates, key=lambda c: -c[0]):
+        if best is not None and best[1]["separation"] >= sep:
+            break
+        got = at_control_rate(traj, limits, dynamics, friction, fill)
+        checked[label] = None
+        if got is None:
+            continue
+        sc = score(got[0])
+        checked[label] = float(sc["separation"])
+        if best is None or sc["separation"] > best[1]["separation"]:
+            best = (got[0], sc, got[1])
+    return None if best is None else (*best, checked)
+
+
+LIMIT_CHECK_RATE_HZ = 50.0     # the candidates' scaling checked on this grid, the winner's at the control rate
 
 
 def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float, rows_run: Rows, limits,
                     joint_sets: list[list[int]], period_s: float = 8.0, harmonics: int = 5, per_set: int = 2,
                     fill: float = 0.95, seed: int = 0) -> NextRun:
+    """:func:`_design_next_run` with one BLAS thread (small dense products: threads only contend on a shared
+    machine)."""
+    from wamctl.analysis.identification.excitation import _single_threaded_blas
+
+    with _single_threaded_blas():
+        return _design_next_run(dynamics, friction, q0_rad, hyp, noise_Nm, rows_run, limits, joint_sets,
+                                period_s=period_s, harmonics=harmonics, per_set=per_set, fill=fill, seed=seed)
+
+
+def _design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float, rows_run: Rows, limits,
+                    joint_sets: list[list[int]], period_s: float = 8.0, harmonics: int = 5, per_set: int = 2,
+                    fill: float = 0.95, seed: int = 0) -> NextRun:
     """T-optimal choice among Fourier candidates (excite's parametrisation, :class:`~wamctl.analysis.
     identification.excitation.FourierTrajectory`): ``per_set`` random series (seeded) on each of ``joint_sets``
-    (0-based), each scaled to ``fill`` of its closest limit by excite's limit check; the candidate whose smaller
-    separation is largest wins. Raises ValueError when no candidate keeps within the limits."""
+    (0-based), each scaled to ``fill`` of its closest limit by excite's limit check on a coarse grid
+    (:func:`coarse_scaled`), scored there, and the best checked at the control rate (:func:`best_within_limits`);
+    the candidate whose smaller separation is largest wins. ``scored``: each candidate's separation, at the control
+    rate's scale where it was checked there, else at the coarse grid's. Raises ValueError when no candidate keeps
+    within the limits."""
     from wamctl.analysis.identification.excitation import FourierTrajectory
 
     rng = np.random.default_rng(seed)
     t = np.arange(int(period_s * DESIGN_RATE_HZ)) / DESIGN_RATE_HZ
-    scored, best = [], None
+
+    def score(traj):
+        return separation(trajectory_rows(dynamics, *traj.evaluate(t)), hyp, noise_Nm)
+
+    cands = []
     for js in joint_sets:
         for _ in range(per_set):
             x = rng.normal(size=(len(js), 2 * (harmonics - 1))) / np.tile(np.arange(2, harmonics + 1), 2)
-            got = scaled_to_limits(FourierTrajectory.from_free(q0_rad, period_s, js, x, harmonics), limits,
-                                    dynamics, friction, fill)
-            if got is None:
-                continue
-            traj, use = got
-            sep = separation(trajectory_rows(dynamics, *traj.evaluate(t)), hyp, noise_Nm)
-            scored.append(([j + 1 for j in js], sep["separation"]))
-            if best is None or sep["separation"] > best[1]["separation"]:
-                best = (traj, sep, use)
+            got = coarse_scaled(FourierTrajectory.from_free(q0_rad, period_s, js, x, harmonics), limits,
+                                dynamics, friction, fill, LIMIT_CHECK_RATE_HZ)
+            if got is not None:
+                cands.append((score(got[0])["separation"], got[0], len(cands)))
+    best = best_within_limits(cands, score, limits, dynamics, friction, fill)
     if best is None:
         raise ValueError("no candidate trajectory keeps within the limits")
-    return NextRun(best[0], best[1], separation(rows_run, hyp, noise_Nm), scored, best[2])
+    traj, sep, use, checked = best
+    scored = [([j + 1 for j in tr.moving], float(checked.get(k, s) if checked.get(k) is not None else s))
+              for s, tr, k in cands if not (k in checked and checked[k] is None)]
+    return NextRun(traj, sep, separation(rows_run, hyp, noise_Nm), scored, use)

@@ -93,9 +93,12 @@ def _members(diags: list) -> list[_Member]:
     return out
 
 
-def _own_terms(res, drop=("payload", "link_parameters")) -> list[dict]:
-    """A member's kept terms but ``drop`` (its friction stays its own: a drift between runs)."""
-    return [t for t in res.kept if t["name"] not in drop]
+def _own_terms(res, drop=("payload", "link_parameters"), delay: dict | None = None) -> list[dict]:
+    """A member's kept terms but ``drop`` (its friction stays its own: a drift between runs); with ``delay`` (the
+    delay the runs pooled decided, a term) that delay in place of the run's own."""
+    if delay is None:
+        return [t for t in res.kept if t["name"] not in drop]
+    return [t for t in res.kept if t["name"] not in drop + ("delay",)] + [delay]
 
 
 def _stack_cv(ms: list[_Member], own: dict, shared: dict, w: dict, n_folds: int):
@@ -217,11 +220,13 @@ class PooledDiagnosis:
         for m in ms:
             e = m.res.e_after
             self.w_[m.key] = 1.0 / max(float(np.sqrt(np.nanmean(e ** 2))) if np.isfinite(e).any() else 1.0, 1e-9)
+        self.delay_term_ = None
+        self._delay_or_inertia(runs)        # first: a delay decided is every run's own model's in what follows
         self._arm(ms, runs)
         self._joint_effects(ms, runs)
         self._friction(ms, runs)
         found = [f for f in self.findings_ if f["pooled"]["named"]]
-        found.sort(key=lambda f: (-np.log10(max(f["pooled"]["p_value"], 1e-300))))
+        found.sort(key=lambda f: np.log10(max(f["pooled"]["p_value"], 1e-300)))     # smallest p first
         self.effects_found_ = list(dict.fromkeys(f["name"] for f in found))
         return self
 
@@ -261,7 +266,8 @@ class PooledDiagnosis:
             return
         d0 = self.diags[runs[0]]
         link_map = plausible_link_map(d0.declared_.links, d0.payload_declared_)
-        own = {m.key: target_and_design(m.des, m.jd, _own_terms(m.res), None) for m in ms}
+        own = {m.key: target_and_design(m.des, m.jd, _own_terms(m.res, delay=self.delay_term_), None)
+               for m in ms}
         jds = {m.key: m.jd for m in ms}
         cone, rays = payload_cone(PAYLOAD_COM_BOX_M)
         nl, nc = link_map.shape[1], cone.shape[1]
@@ -366,7 +372,7 @@ class PooledDiagnosis:
             onsets_only = ncols(term) == 0 and not shaped
             own, own1, shared = {}, {}, {}
             for m in sub_all:
-                terms = _own_terms(m.res, ("payload", "link_parameters", name))
+                terms = _own_terms(m.res, ("payload", "link_parameters", name), self.delay_term_)
                 own[m.key] = target_and_design(m.des, m.jd, terms, None)
                 if shaped:
                     own1[m.key] = target_and_design(m.des, m.jd, terms + [term], None)
@@ -404,6 +410,50 @@ class PooledDiagnosis:
                     "the sliding samples pooled do not show it on their own"))
             finding["decided_by"], finding["added_nothing"] = self._who_decided(finding, runs)
             self.findings_.append(finding)
+
+    # -------------------------------------------------------------------------------- a delay or inertia errors
+    def _delay_or_inertia(self, runs: list[int]) -> None:
+        """A measurement delay against joint inertia errors (:func:`~wamctl.analysis.diagnosis.delay_inertia.
+        decide_pooled`): the delay one for all runs, each run's own friction and offset per joint; made when some
+        run's residual holds an effect either explains (by at least a noise floor beyond friction). The finding is
+        named ``delay`` or ``inertia`` when decided, ``delay_or_inertia`` (ambiguous) when not."""
+        from wamctl.analysis.diagnosis import delay_inertia as DI
+        from wamctl.model.dynamics import WamDynamics
+
+        parts, suspected = [], False
+        for r in runs:
+            d = self.diags[r]
+            chk = DI.check_run(d, WamDynamics(d.payload_declared_, d.declared_.links))
+            if not chk.rows.joints:
+                continue
+            suspected |= chk.suspected
+            parts.append(DI.RunPart(self.labels[r], chk.rows, chk.y, chk.decision))
+        if not suspected:
+            return
+        d0 = self.diags[runs[0]]
+        dec = DI.decide_pooled(parts, d0.n_blocks, d0.n_folds)
+        out = dec["outcome"]
+        if out == "delay":
+            d = float(dec["delay_s"])
+            self.delay_term_ = {"name": "delay", "h_all": d, "h_fold": [d] * self.n_folds, "shared": True}
+        if out == "ambiguous":
+            self.ambiguous_.append(["delay", "inertia"])
+        t = dec["test"]
+        per = {}
+        for p in dec["per_run"]:        # each run alone: its own decision (no nested test: the two do not nest)
+            a = p["alone"]
+            per[alone_key(p["label"])] = {"outcome": a["outcome"], "p_value": None, "delta_bic": None,
+                                          "ssr_ratio": None, "named": a["outcome"] == out != "ambiguous",
+                                          "named_by_the_run_alone": a["outcome"] != "ambiguous",
+                                          "excess_noise_floors": a["excess_noise_floors"]}
+        self.findings_.append({
+            "name": out if out != "ambiguous" else "delay_or_inertia", "joint": None,
+            "what": "the arm: a measurement delay (one for all runs) or joint inertia errors (shared by the runs), "
+                    "each run's own friction and offset",
+            "pooled": {"outcome": out, "p_value": t["p_value"], "delta_bic": t["delta_bic"],
+                       "ssr_ratio": t["ssr_ratio"], "named": out != "ambiguous"},
+            "per_stack": per, "decided_by": dec["decided_by"], "added_nothing": dec["added_nothing"],
+            "delay_or_inertia": dec})
 
     def _who_decided(self, finding: dict, runs: list[int], payload: bool = False) -> tuple[list[str], list[str]]:
         """The runs that decided a finding (alone named as pooled, or needed for it: without them the pooled
@@ -444,7 +494,7 @@ class PooledDiagnosis:
             sub = [m for m in ms if m.j == j]
             own, shared = {}, {}
             for m in sub:
-                terms = _own_terms(m.res, ("payload", "link_parameters") + JOINT_OWN)
+                terms = _own_terms(m.res, ("payload", "link_parameters") + JOINT_OWN, self.delay_term_)
                 for (jj, name) in sorted(named):        # the joint's effects named pooled, in every run's model
                     t = next((t for mm in sub for t in mm.res.kept if t["name"] == name), None) \
                         if jj == j + 1 else None
