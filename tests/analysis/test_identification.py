@@ -226,11 +226,9 @@ def test_data_where_only_some_joints_move_name_what_they_cannot_determine(tmp_pa
 
 
 def test_unusable_input_is_one_line_and_exit_code_2(tmp_path):
-    import subprocess
-    import sys
+    from cli_runs import wamctl_completed
 
-    r = subprocess.run([sys.executable, "-m", "wamctl", "identify", str(tmp_path / "nope")], capture_output=True,
-                       text=True, timeout=300)
+    r = wamctl_completed("identify", tmp_path / "nope")
     assert r.returncode == 2 and "Traceback" not in r.stderr and "nope" in r.stderr
 
 

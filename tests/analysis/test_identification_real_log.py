@@ -23,14 +23,13 @@ from __future__ import annotations
 
 import json
 import logging
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from cli_runs import wamctl_completed
 
 from wamctl.analysis.identification.base import ARMATURE_SLICE, FRICTION_SLICE
 from wamctl.experiments.identify import identify, identify_to_run_dir
@@ -159,8 +158,8 @@ def test_a_model_worse_than_the_declared_arm_is_not_written_and_exits_3(real_lik
     bare = generate(dict(id="bare", seed=1, effects=[], links="nominal", excitation="free", free_joints=[2, 4],
                          joint=2, rate_hz=250, noise="noisy", jitter="stamp"), tmp_path / "bare")
     _, held = _cut(bare.path, tmp_path / "bare_runs")
-    cmd = [sys.executable, "-m", "wamctl", "identify", str(fit), "--validate", str(held), "--out", str(tmp_path)]
-    r = subprocess.run(cmd + ["--quiet"], capture_output=True, text=True, timeout=300)
+    cmd = ["identify", fit, "--validate", held, "--out", tmp_path]
+    r = wamctl_completed(*cmd, "--quiet")
     assert r.returncode == 3, r.stderr[-2000:]
     assert "held-out check FAILED" in r.stdout and "NOT written as model.yaml" in r.stdout
     (run,) = tmp_path.glob("*-identify-fit")
@@ -172,7 +171,7 @@ def test_a_model_worse_than_the_declared_arm_is_not_written_and_exits_3(real_lik
     assert saved["model_file"] == "model_rejected.yaml"
     assert not (run / "model.yaml").exists() and (run / "model_rejected.yaml").is_file()
     assert (run / "report.md").read_text().split("\n\n")[1].startswith("Held-out check FAILED")
-    r = subprocess.run(cmd + ["--force", "--json"], capture_output=True, text=True, timeout=300)
+    r = wamctl_completed(*cmd, "--force", "--json")
     assert r.returncode == 0, r.stderr[-2000:]
     out = json.loads(r.stdout)
     assert out["held_out_check"]["verdict"] == "worse" and out["held_out_check"]["forced"] is True

@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import json
 import os
-import subprocess
-import sys
 import threading
 import time
 import tty
@@ -21,6 +19,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from cli_runs import wamctl_completed
 
 from wamctl.backends.gaze import tracker_sim
 from wamctl.backends.gaze.ascii_pair import format_pair
@@ -131,10 +130,9 @@ def test_nothing_at_all():
     assert result.verdict == "no bytes" and "nothing arrived" in result.notes[0]
 
 
-def _wamctl(*args, timeout=120):
-    env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
-    return subprocess.run([sys.executable, "-m", "wamctl", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, cwd=ROOT, env=env)
+def _wamctl(*args):
+    """``wamctl ARGS`` in this process (tests/cli_runs.py), as ``subprocess.run`` returns it."""
+    return wamctl_completed(*args)
 
 
 def test_cli_from_captures(tmp_path):

@@ -8,13 +8,12 @@ allowance (stated per limit below, fixed before running).
 from __future__ import annotations
 
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 import yaml
+from cli_runs import wamctl_completed
 
 from wamctl.errors import SpecError
 from wamctl.experiments.excitation import excite, plan
@@ -151,8 +150,7 @@ def test_infeasible_start_is_a_clear_error(tmp_path):
     raw["q0_rad"] = [0.0, 1.5, 0.0, 0.0, 0.0, 0.0, 0.0]      # joint 2 leaning far out: gravity beyond the margin
     f = tmp_path / "bad.yaml"
     f.write_text(yaml.safe_dump(raw))
-    r = subprocess.run([sys.executable, "-m", "wamctl", "excite", str(f), "--out", str(tmp_path / "d")],
-                       capture_output=True, text=True, timeout=300)
+    r = wamctl_completed("excite", f, "--out", tmp_path / "d")
     assert r.returncode == 2, r.stderr
     assert "no feasible excitation" in r.stderr and "joint 2 torque" in r.stderr and "Traceback" not in r.stderr
 

@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import copy
 import json
-import subprocess
-import sys
 
 import numpy as np
 import pytest
 import yaml
+from cli_runs import wamctl_completed
 
 from wamctl.errors import SpecError
 from wamctl.experiments.excitation import design, designed_spec, excite, world_of
@@ -117,8 +116,7 @@ def test_folded_elbow_at_q0_is_refused_naming_the_pair(tmp_path):
     assert d.distance_m < -0.05        # the wrist and its tool bent back into the upper arm
     f = tmp_path / "folded.yaml"
     f.write_text(yaml.safe_dump(raw))
-    r = subprocess.run([sys.executable, "-m", "wamctl", "excite", str(f), "--out", str(tmp_path / "d")],
-                       capture_output=True, text=True, timeout=300)
+    r = wamctl_completed("excite", f, "--out", tmp_path / "d")
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert (f"at q0 the self distance link 3 (upper arm) / links 5-7 (wrist and hand) is {d.distance_m:.3f} m"
             in r.stderr)

@@ -10,8 +10,6 @@ from __future__ import annotations
 import json
 import math
 import socket
-import subprocess
-import sys
 import threading
 import time
 from contextlib import contextmanager
@@ -21,6 +19,7 @@ import numpy as np
 import pandas as pd
 import pytest
 import yaml
+from cli_runs import wamctl_completed
 
 from wamctl.analysis.hmi_results import TRIAL_COLUMNS
 from wamctl.backends import make_backend
@@ -52,9 +51,9 @@ ROOT = Path(__file__).resolve().parents[2]
 CENTRE = (384.0, 288.0)
 
 
-def wamctl(*args, timeout=300):
-    return subprocess.run([sys.executable, "-m", "wamctl", *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, cwd=ROOT)
+def wamctl(*args):
+    """``wamctl ARGS`` in this process (tests/cli_runs.py), as ``subprocess.run`` returns it."""
+    return wamctl_completed(*args)
 
 
 @pytest.fixture(scope="module")

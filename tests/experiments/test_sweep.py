@@ -15,6 +15,7 @@ from pathlib import Path
 
 import pytest
 import yaml
+from cli_runs import wamctl_completed
 from conftest import Q0
 
 from wamctl.errors import SpecError
@@ -369,11 +370,9 @@ def test_cli_resume_refuses_another_spec(tmp_path, client):
     res = run_sweep(load_sweep(spec), tmp_path / "out", client=client)
     other = tmp_path / "o.yaml"
     other.write_text(yaml.safe_dump(tiny({"grid": {"seed": [0, 2]}, "reports": False})))
-    r = subprocess.run([sys.executable, "-m", "wamctl", "sweep", str(other), "--resume", str(res.sweep_dir)],
-                       capture_output=True, text=True, timeout=120)
+    r = wamctl_completed("sweep", other, "--resume", res.sweep_dir)
     assert r.returncode == 2 and "not the spec of the sweep" in r.stderr
-    r = subprocess.run([sys.executable, "-m", "wamctl", "sweep", str(spec), "--dry-run", "--json"],
-                       capture_output=True, text=True, timeout=120)
+    r = wamctl_completed("sweep", spec, "--dry-run", "--json")
     assert r.returncode == 0, r.stderr
     assert [p["seed"] for p in json.loads(r.stdout)["points"]] == [0, 1]
 

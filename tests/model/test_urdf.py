@@ -166,10 +166,8 @@ def test_identify_and_diagnose_take_a_urdf_as_the_declared_arm(tmp_path):
 
 
 def test_a_spec_declaring_a_non_wam_urdf_is_refused_in_one_line(tmp_path):
-    import subprocess
-    import sys
-
     import yaml
+    from cli_runs import wamctl_completed
 
     (tmp_path / "six.urdf").write_text(_barrett_style_urdf(n=6))
     (tmp_path / "good.urdf").write_text(wam_urdf())          # the datasheet arm
@@ -178,14 +176,12 @@ def test_a_spec_declaring_a_non_wam_urdf_is_refused_in_one_line(tmp_path):
     spec = yaml.safe_load((Path(__file__).resolve().parents[2] / "configs" / "rotation.yaml").read_text())
     spec.update(plant="good.urdf", controller=dict(spec.get("controller") or {}, declared_links="six.urdf"))
     (tmp_path / "spec.yaml").write_text(yaml.safe_dump(spec))
-    r = subprocess.run([sys.executable, "-m", "wamctl", "validate", str(tmp_path / "spec.yaml")],
-                       capture_output=True, text=True, timeout=120)
+    r = wamctl_completed("validate", tmp_path / "spec.yaml")
     assert r.returncode == 2 and "Traceback" not in r.stderr, r.stderr
     assert r.stderr.strip().count("\n") == 0 and "6 revolute joints; the WAM has 7" in r.stderr
     spec["controller"]["declared_links"] = "good.urdf"
     (tmp_path / "spec.yaml").write_text(yaml.safe_dump(spec))
-    r = subprocess.run([sys.executable, "-m", "wamctl", "validate", str(tmp_path / "spec.yaml")],
-                       capture_output=True, text=True, timeout=120)
+    r = wamctl_completed("validate", tmp_path / "spec.yaml")
     assert r.returncode == 0, r.stderr
 
 

@@ -75,16 +75,14 @@ def test_csv_row_numbers_count_data_rows_after_the_header(tmp_path):
 
 
 def test_an_error_after_dropped_nan_rows_is_the_only_line(tmp_path):
-    import subprocess
-    import sys
+    from cli_runs import wamctl_completed
 
     d, df = measured_dir(tmp_path, 3_000)
     df.loc[[9, 400], "q_2"] = np.nan
     df.loc[2000, "t"] = df.loc[1999, "t"]
     df.to_csv(d / "data.csv", index=False)
-    # a process of its own: the warning goes through logging, set up once per process
-    r = subprocess.run([sys.executable, "-m", "wamctl", "import", str(d), "--out", str(tmp_path / "runs")],
-                       capture_output=True, text=True, timeout=120)
+    # the warnings logged on stderr, as in a process of its own (logging is set up once per process)
+    r = wamctl_completed("import", d, "--out", tmp_path / "runs", log_to_err=True)
     lines = [ln for ln in r.stderr.splitlines() if ln.strip()]
     assert r.returncode == 2 and len(lines) == 1, r.stderr   # was a 'dropped 2 rows' warning, then the error
     assert "t is not strictly increasing at data row 2001 " in lines[0]
