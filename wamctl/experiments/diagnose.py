@@ -20,35 +20,60 @@ import numpy as np
 log = logging.getLogger(__name__)
 
 
-def declared_model(path: Path | None):
+def load_diagnosable(path: Path, pooled: bool = False):
+    """The run at ``path`` (:func:`wamctl.runs.measured.load_run_data`) when ``diagnose`` can take it: a run of any
+    registered robot (its joints count from the run's robot) with every joint logged, a reference, and tau the
+    total command; else DataFormatError in one line naming what. ``pooled``: the runs pooled know the wam7 only
+    so far."""
+    from wamctl.errors import DataFormatError
+    from wamctl.runs.measured import load_run_data, unsupported
+
+    data = load_run_data(path, partial_ok=True)
+    why = unsupported(data.meta, data.data.columns, any_robot=not pooled)
+    if why:
+        raise DataFormatError(f"{path}: {why}: not supported by diagnose{' of several runs' if pooled else ''} yet")
+    return data
+
+
+def declared_model(path: Path | None, robot: str = "wam7"):
     """The declared model from ``--model``: a friction file (wamctl-friction/1) or a model file
     (wamctl-model/1: friction, effects, sensors, links, e.g. from `wamctl identify`). None: classic friction
-    fitted from the data."""
+    fitted from the data. ``robot``: the run's arm; a model of another arm (a model file's ``robot``, a friction
+    file's joints) is refused in one line (SpecError)."""
     from pydantic import ValidationError
 
     from wamctl.analysis.diagnosis.estimator import DeclaredModel
-    from wamctl.errors import SpecError
+    from wamctl.errors import SpecError, WamctlError
     from wamctl.io import load_yaml
     from wamctl.model.dynamics import Payload
     from wamctl.model.friction import FRICTION_FILE_FORMAT, FrictionModel
     from wamctl.model.plant import resolve_friction
+    from wamctl.model.robots import get_robot
     from wamctl.specs import PlantSpec, format_validation_error, load_model_file
     from wamctl.specs.common import link_parameters
 
     if path is None:
         return None
+    n = get_robot(robot).n_joints
     raw = load_yaml(path)
     if isinstance(raw, dict) and (raw.get("format") == FRICTION_FILE_FORMAT or "joints" in raw):
-        return DeclaredModel(friction=FrictionModel.load(path), source=str(path))
+        try:
+            return DeclaredModel(friction=FrictionModel.load(path, n), source=str(path))
+        except WamctlError as exc:
+            if robot == "wam7":
+                raise
+            raise SpecError(f"{exc}; the run is of a {robot} (joints 1..{n})") from None
+    if isinstance(raw, dict) and raw.get("robot", "wam7") != robot:
+        raise SpecError(f"{path}: robot: {raw.get('robot', 'wam7')}; the run is of a {robot}")
     try:
         plant = PlantSpec.model_validate(load_model_file(path))
     except ValidationError as exc:
         raise SpecError(format_validation_error(exc, str(path))) from None
-    friction = resolve_friction(plant.friction, path.parent)
+    friction = resolve_friction(plant.friction, path.parent, n)
     effects = {k: v for k, v in plant.effects.model_dump(mode="json").items() if v is not None}
     payload = Payload(plant.effects.payload.mass_kg, tuple(plant.effects.payload.com_m)) \
         if plant.effects.payload else None
-    links = link_parameters(plant.links) if plant.links else None
+    links = link_parameters(plant.links, robot) if plant.links else None
     return DeclaredModel(friction=friction, payload=payload, effects=effects,
                          sensors=plant.sensors.model_dump(mode="json"), source=str(path), links=links)
 
@@ -63,11 +88,10 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
     from wamctl.analysis.diagnosis.augmented import model_file
     from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
     from wamctl.report import write_report
-    from wamctl.runs.measured import load_run_data
     from wamctl.runs.store import RunDir
 
-    data = load_run_data(data_path)
-    decl = declared_model(model)
+    data = load_diagnosable(data_path)
+    decl = declared_model(model, data.meta.robot)
     def fitting(fraction, label):
         if progress:
             progress(round(80 * fraction), 100, f"diagnose: {label}")
@@ -99,7 +123,7 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
         pc = diag.positions_
         if pc is not None:
             cols = {"t_s": pc["t_s"]}
-            for j in range(7):
+            for j in range(pc["q_meas"].shape[1]):
                 cols[f"q_{j + 1}_rad"] = pc["q_meas"][:, j]
                 cols[f"q_before_{j + 1}_rad"] = pc["q_before"][:, j]
                 cols[f"q_after_{j + 1}_rad"] = pc["q_after"][:, j]
@@ -201,21 +225,22 @@ def simulate_positions(plant: dict, meta, t_s: np.ndarray, q_ref: np.ndarray, q0
     from wamctl.control.trajectory import Reference
     from wamctl.errors import SafetyLimitError
     from wamctl.experiments.engine import LoopRecorder, run_loop
-    from wamctl.model import params as P
     from wamctl.model.dynamics import WamDynamics
     from wamctl.model.plant import Plant
+    from wamctl.model.robots import get_robot
     from wamctl.specs import PlantSpec
 
-    N7 = P.N_JOINTS
+    robot = get_robot(getattr(meta, "robot", None))     # the run's arm
+    N7 = robot.n_joints
 
     n = len(t_s)
     kp, kd = np.asarray(meta.controller.kp, float), np.asarray(meta.controller.kd, float)
     ki = np.asarray(meta.controller.ki, float) if (meta.controller.kind == "pid" and meta.controller.ki) \
         else np.zeros(N7)
     dt = 1.0 / float(meta.sample_rate_hz)
-    gravity = WamDynamics(payload).gravity_view if meta.gravity_compensation else None
+    gravity = WamDynamics(payload, robot=robot).gravity_view if meta.gravity_compensation else None
     ctl = JointController(kp, kd, ki, dt, gravity=gravity, feedforward_Nm=feedforward)
-    backend = SimBackend(Plant(PlantSpec.model_validate(plant)), q0, np.random.default_rng(seed), 2)
+    backend = SimBackend(Plant(PlantSpec.model_validate(plant), None, robot), q0, np.random.default_rng(seed), 2)
     if abs(dt - backend.control_period_s) > 1e-12:       # a log at another rate than the arm's 500 Hz
         backend.control_period_s = dt
         backend.h_s = dt / backend.substeps
@@ -223,7 +248,7 @@ def simulate_positions(plant: dict, meta, t_s: np.ndarray, q_ref: np.ndarray, q0
         backend.truth()[1][:] = qd0          # the true velocity, a view the backend updates in place
     backend._t = float(t0_s)                  # the plant's clock (a friction drift), the sim backend's own
     ref = Reference(np.arange(n) * dt, q_ref, np.zeros_like(q_ref), np.zeros_like(q_ref), [])
-    rec = LoopRecorder(n, False)
+    rec = LoopRecorder(n, False, n_joints=N7)
     try:
         with backend:
             run_loop(backend, ctl, ref, rec)
@@ -231,7 +256,7 @@ def simulate_positions(plant: dict, meta, t_s: np.ndarray, q_ref: np.ndarray, q0
         log.info("simulation of the model stopped at sample %d: %s", rec.n, exc)
     out = np.full((n, N7), np.nan)
     rows = rec.result()
-    out[: len(rows)] = rows[:, 8:15]
+    out[: len(rows)] = rows[:, 1 + N7:1 + 2 * N7]      # t, q_ref (n), q (n), ...
     return out
 
 
@@ -247,7 +272,6 @@ def diagnose_runs_to_run_dir(data_paths: list[Path], model: Path | None = None, 
     closed-loop position check. Returns (run path, diagnosis dict, report Document)."""
     from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
     from wamctl.analysis.diagnosis.pooled import PoolingError, different_arm
-    from wamctl.runs.measured import load_run_data
 
     paths = [Path(p) for p in data_paths]
     resolved = [p.resolve() for p in paths]
@@ -257,7 +281,7 @@ def diagnose_runs_to_run_dir(data_paths: list[Path], model: Path | None = None, 
     labels = [p.name for p in paths]
     if len(set(labels)) < len(labels):       # two runs of one name in different places: their place names them
         labels = [str(p) for p in paths]
-    datas = [load_run_data(p) for p in paths]
+    datas = [load_diagnosable(p, pooled=True) for p in paths]
     why = different_arm([d.meta for d in datas], [d.truth for d in datas], labels)
     if why:
         raise PoolingError(why)

@@ -39,7 +39,6 @@ from wamctl.specs import PlantSpec
 
 log = logging.getLogger(__name__)
 
-N7 = P.N_JOINTS
 WINDOW_SAMPLES = 20000           # a simulation of the position check runs this long at most, then restarts
 MAX_SIM_SAMPLES = 100000         # per model: runs up to this long are checked whole, longer ones in windows spread
 BOTH_HALVES_MAX = 20000          # up to this many samples checked both halves are scored (four simulations each)
@@ -96,9 +95,10 @@ def plant_dict(diag, which: str = "after", thetas: dict | None = None) -> dict:
     thetas : coefficients from :meth:`ModelDiagnosis.refit` (default: fitted on all data).
     """
     declared = diag.declared_
-    base = declared.friction if declared.friction is not None else FrictionModel.table_4_1()
+    nj = diag.dynamics_.n_joints          # the run's arm
+    base = declared.friction if declared.friction is not None else FrictionModel.table_4_1(nj)
     joints = {}
-    for j in range(N7):
+    for j in range(nj):
         d = levels_dict(model_levels(base, j))
         if j in diag.joints_:
             tb, ta = (thetas or {}).get(j, (None, None))
@@ -175,7 +175,8 @@ def _effects_after(diag, thetas, joints_friction) -> dict:
 def model_file(diag, data_path: str = "") -> dict:
     """The augmented model as a model file (``format: wamctl-model/1``) with the diagnosis summary."""
     plant = plant_dict(diag, "after")
-    return {"format": MODEL_FILE_FORMAT, **plant,
+    robot = diag.dynamics_.robot.name
+    return {"format": MODEL_FILE_FORMAT, **({"robot": robot} if robot != "wam7" else {}), **plant,
             "diagnosis": {"data": data_path, "effects_found": list(diag.effects_found_),
                           "declared_model": diag.to_dict(data_path)["declared_model"]}}
 
@@ -186,7 +187,7 @@ def feedforward_from_log(meta, t_s, q_ref, q, tau, gravity) -> np.ndarray | None
     if meta.controller.kind != "pd_g_ff":
         return None
     dt = float(np.median(np.diff(t_s)))
-    pd = pid_torque_series_Nm(q_ref, q, meta.controller.kp, meta.controller.kd, np.zeros(N7), dt)
+    pd = pid_torque_series_Nm(q_ref, q, meta.controller.kp, meta.controller.kd, np.zeros(q.shape[1]), dt)
     g = np.array([gravity(qi) for qi in q]) if gravity is not None else 0.0
     return tau - pd - g
 
@@ -251,11 +252,12 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
     meta = meta or diag.meta_    # the run's metadata, with the controller's gains the check uses
     mp = meta.payload            # what the controller's gravity compensation knew
     ctl_payload = Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None
-    dyn = WamDynamics(ctl_payload)
+    dyn = WamDynamics(ctl_payload, robot=diag.dynamics_.robot)
+    nj = dyn.n_joints
     gravity = dyn.gravity if meta.gravity_compensation else None
     ffs = [feedforward_from_log(meta, t_run[a:b], sig.q_ref_rad[a:b], sig.q_raw_rad[a:b], sig.tau_raw_Nm[a:b],
                                 gravity) for a, b in spans]
-    traces = {"before": np.full((m, N7), np.nan), "after": np.full((m, N7), np.nan)}
+    traces = {"before": np.full((m, nj), np.nan), "after": np.full((m, nj), np.nan)}
     same = not diag.effects_found_
     # up to BOTH_HALVES_MAX samples checked, both halves are scored (four simulations); above, one half (two)
     for h in ((0, 1) if m <= BOTH_HALVES_MAX else (1,)):
@@ -266,7 +268,7 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
             if which == "after" and same:
                 continue
             plant = plant_dict(diag, which, thetas)
-            q_sim = np.full((m, N7), np.nan)
+            q_sim = np.full((m, nj), np.nan)
             at = 0
             for (a, b), ff in zip(spans, ffs):
                 # the first window starts as the run does (at rest); later ones from the measured state
@@ -275,7 +277,7 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
                                                           sig.q_raw_rad[a], ff, ctl_payload, qd0=qd0,
                                                           t0_s=float(t_run[a] - t_run[0]))
                 at += b - a
-            for j in range(N7):
+            for j in range(nj):
                 sel = half_t[j] == h if j in half_t else np.ones(m, bool)
                 traces[which][sel, j] = q_sim[sel, j]
     if same:

@@ -85,7 +85,6 @@ from wamctl.analysis.diagnosis.signals import Signals, gap_warnings, prepare_sig
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
 from wamctl.analysis.diagnosis.sweeps import map_evidence
 from wamctl.analysis.diagnosis.unexplained import arm_unnamed, unexplained
-from wamctl.model import params as P
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel
 from wamctl.model.params import LinkParameters
@@ -119,15 +118,34 @@ class DeclaredModel:
         return declared_delay_s(self.effects)
 
 
-def torque_warnings(sig: Signals) -> list[str]:
-    """Torques beyond the model's limits are data (a real arm's log, another controller), not errors: said."""
+# the candidates an arm other than the wam7 is not tested for yet: the arm-wide rigid-body refit (a payload against
+# the arm's own link errors, :mod:`wamctl.analysis.diagnosis.rigid`) is built on the wam7's base parameters and
+# its wrist flange
+RIGID_BODY_CANDIDATES = ("payload", "link_parameters")
+
+
+def not_tested_on(robot: str, candidates) -> dict[str, str]:
+    """{candidate: why} of the candidates the diagnosis does not test on ``robot``'s runs (none on the wam7)."""
+    if robot == "wam7":
+        return {}
+    why = (f"not tested on the {robot} yet: the arm-wide rigid-body refit (a payload against the arm's own link "
+           "errors) knows the wam7 only")
+    return {c: why for c in RIGID_BODY_CANDIDATES if c in candidates}
+
+
+def torque_warnings(sig: Signals, robot=None) -> list[str]:
+    """Torques beyond the model's limits (``robot``'s, default the wam7's) are data (a real arm's log, another
+    controller), not errors: said."""
+    from wamctl.model.robots import get_robot
+
+    limit = get_robot(robot).tau_max_Nm
     out = []
-    for j in range(P.N_JOINTS):        # joint by joint: no temporary the size of the whole log
+    for j in range(sig.tau_raw_Nm.shape[1]):        # joint by joint: no temporary the size of the whole log
         tau = np.abs(sig.tau_raw_Nm[:, j])
-        over = int(np.count_nonzero(tau > P.TAU_MAX_NM[j] * (1 + 1e-6)))
+        over = int(np.count_nonzero(tau > limit[j] * (1 + 1e-6)))
         if over:
             out.append(f"joint {j + 1}: {over} samples with |tau| above the model's limit of "
-                       f"{P.TAU_MAX_NM[j]:g} N m (up to {tau.max():.3g} N m); kept as data")
+                       f"{limit[j]:g} N m (up to {tau.max():.3g} N m); kept as data")
     return out
 
 
@@ -213,13 +231,15 @@ class ModelDiagnosis:
         self.payload_dropped_ = None
         self.payload_cone_fit_ = None
         self.warnings_ = []
+        self.not_tested_ = {}
         self.gains_ = None
         self.position_skipped_ = None
         unknown = [c for c in self.candidates if c not in EFFECT_NAMES]
         if unknown:
             raise ValueError(f"unknown candidate effects {unknown}; known: {EFFECT_NAMES}")
         sig = self._signals(data)
-        self.warnings_ = gap_warnings(sig) + torque_warnings(sig)
+        self.not_tested_ = not_tested_on(self.dynamics_.robot.name, self.candidates)
+        self.warnings_ = gap_warnings(sig) + torque_warnings(sig, self.dynamics_.robot)
         for w in self.warnings_:
             log.warning(w)
         if not sig.joints:
@@ -230,7 +250,7 @@ class ModelDiagnosis:
             return self
         self.declared_effects_ = set(declared.effects or {})
         self._prepare(sig)
-        tests = [c for c in self.candidates if c not in self.declared_effects_]
+        tests = [c for c in self.candidates if c not in self.declared_effects_ and c not in self.not_tested_]
         # every test of the run: one per joint and candidate, and Stribeck three times (sliding data,
         # breakaways, friction map)
         n_tests = len(tests) + (2 if "stribeck" in tests else 0)
@@ -292,15 +312,18 @@ class ModelDiagnosis:
         if payload is None and meta.payload is not None and meta.payload.mass_kg > 0:
             payload = Payload(meta.payload.mass_kg, tuple(meta.payload.com_m))
         self.payload_declared_ = payload
-        self.dynamics_ = WamDynamics(payload, self.declared_.links)
+        robot = getattr(meta, "robot", None) or "wam7"        # the run's arm: its joints, its datasheet
+        self.dynamics_ = WamDynamics(payload, self.declared_.links, robot)
+        n = self.dynamics_.n_joints
         kw = {} if self.window_s is None else {"window_s": self.window_s}
         if self.gauss_s is not None:
             kw["gauss_s"] = self.gauss_s
         qd = None
-        if all(f"qd_{j}_rad_s" in data.data for j in range(1, 8)):
-            qd = data.col("qd")
+        if all(f"qd_{j}_rad_s" in data.data for j in range(1, n + 1)):
+            qd = data.col("qd")[:, :n]
             qd = qd if np.isfinite(qd).all() else None
-        self.signals_ = prepare_signals(data.t_s, data.col("q"), data.col("q_ref"), data.col("tau"),
+        self.signals_ = prepare_signals(data.t_s, data.col("q")[:, :n], data.col("q_ref")[:, :n],
+                                        data.col("tau")[:, :n],
                                         float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints],
                                         qd_rad_s=qd, **kw)
         return self.signals_
@@ -308,6 +331,7 @@ class ModelDiagnosis:
     def _prepare(self, sig: Signals) -> None:
         want_payload = ("payload" in self.candidates and "payload" not in self.declared_effects_) or \
             "link_parameters" in self.candidates
+        want_payload = want_payload and not self.not_tested_
         des, self.jd_ = prepare_design(sig, self.dynamics_, self.declared_.friction, self.declared_.effects,
                                        self.n_blocks, self.n_folds, want_payload)
         self.design_ = des
@@ -332,6 +356,8 @@ class ModelDiagnosis:
         from wamctl.analysis.diagnosis.links import rigid_body_r2
         from wamctl.analysis.diagnosis.rigid import plausible_link_map
 
+        if self.not_tested_:        # an arm whose rigid-body refit is not built yet (the wam4)
+            return -np.inf
         return rigid_body_r2(self.design_, self.jd_, list(self.joints_),
                              plausible_link_map(self.declared_.links, self.payload_declared_), PAYLOAD_COM_BOX_M)
 
@@ -594,7 +620,8 @@ class ModelDiagnosis:
         from wamctl.analysis.diagnosis.gains import controller_gains
 
         mp = self.meta_.payload
-        ctl = WamDynamics(Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None)
+        ctl = WamDynamics(Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None,
+                          robot=self.dynamics_.robot)
         self.gains_ = controller_gains(self.signals_, self.meta_, ctl.gravity_many)
         if self.gains_["kp"] is None:
             self.position_skipped_ = self.gains_["reason"]

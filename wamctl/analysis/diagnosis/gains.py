@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import numpy as np
 
-from wamctl.model import params as P
-
 MIN_R2 = 0.9                 # share of the torque beyond gravity the PD law must explain
 MAX_ROWS = 20000             # samples the gains are estimated on (spread over the run)
 
@@ -48,9 +46,13 @@ def controller_gains(sig, meta, gravity) -> dict:
     rows = np.unique(np.linspace(1, n - 1, min(n - 1, MAX_ROWS)).astype(int))
     rows = rows[sig.usable(rows) & sig.usable(rows - 1)]        # not across a gap of the log
     u, e, de = _pd_system(sig, gravity if meta.gravity_compensation else None, rows)
-    sat = np.abs(sig.tau_raw_Nm[rows]) >= 0.98 * P.TAU_MAX_NM
-    kp_log, kd_log, r2_log, r2_decl = np.full(7, np.nan), np.full(7, np.nan), np.full(7, np.nan), np.full(7, np.nan)
-    for j in range(7):
+    from wamctl.model.robots import get_robot
+
+    robot = get_robot(getattr(meta, "robot", None))          # the run's arm: its joints, limits, default gains
+    nj = robot.n_joints
+    sat = np.abs(sig.tau_raw_Nm[rows]) >= 0.98 * robot.tau_max_Nm
+    kp_log, kd_log, r2_log, r2_decl = (np.full(nj, np.nan) for _ in range(4))
+    for j in range(nj):
         m = ~sat[:, j]
         if m.sum() < 50 or np.std(e[m, j]) <= 0:
             continue
@@ -72,11 +74,11 @@ def controller_gains(sig, meta, gravity) -> dict:
     if declared and all(np.nan_to_num(r2_decl[j]) >= MIN_R2 for j in js):
         return dict(out, kp=list(c.kp), kd=list(c.kd), source="meta.yaml, consistent with the log")
     if all(np.nan_to_num(r2_log[j]) >= MIN_R2 and kp_log[j] > 0 for j in js):
-        fallback_kp = list(c.kp) if declared else list(P.KP)
-        fallback_kd = list(c.kd) if declared else list(P.KD)
+        fallback_kp = list(c.kp) if declared else list(robot.kp)
+        fallback_kd = list(c.kd) if declared else list(robot.kd)
         ok = np.nan_to_num(r2_log) >= MIN_R2
-        kp = [float(kp_log[j]) if ok[j] else fallback_kp[j] for j in range(7)]
-        kd = [float(kd_log[j]) if ok[j] else fallback_kd[j] for j in range(7)]
+        kp = [float(kp_log[j]) if ok[j] else fallback_kp[j] for j in range(nj)]
+        kd = [float(kd_log[j]) if ok[j] else fallback_kd[j] for j in range(nj)]
         if declared:
             bad = [j + 1 for j in js if np.nan_to_num(r2_decl[j]) < MIN_R2]
             why = f"meta.yaml's gains do not fit the log at joints {bad} (R^2 below {MIN_R2})"

@@ -15,16 +15,16 @@ import numpy as np
 from wamctl.analysis.diagnosis.candidates import payload_basis, ripple_columns
 from wamctl.analysis.diagnosis.design import Design, JointData
 from wamctl.analysis.diagnosis.signals import GridSignal, Signals
-from wamctl.model import params as P
 from wamctl.model.dynamics import WamDynamics
 from wamctl.model.effects import friction_drift_scale, ripple_series, ripple_torque_Nm
 from wamctl.model.friction import FrictionModel
 
-N7 = P.N_JOINTS
 MAX_SAMPLES_PER_JOINT = 8000      # decimation above this (smoothed signals: little information is lost)
 MAX_RNEA_GRID = 30000             # full-rate rigid-body torque: interpolated from at most this many samples
 MAX_STIFFNESS_GRID = 3000         # gravity stiffness: computed at about this many samples, interpolated
-PAYLOAD_REGRESSOR = slice(60, 70)   # the link-7 columns of the joint torque regressor (m, m c, inertia)
+# the last link's columns of the joint torque regressor (m, m c, inertia): link 7's (60:70) on the wam7, link 4's
+# on the wam4 (a payload sits on the last link)
+PAYLOAD_REGRESSOR = slice(-10, None)
 
 
 def declared_delay_s(effects: dict | None) -> float:
@@ -64,7 +64,7 @@ def prepare_design(sig: Signals, dyn: WamDynamics, friction_given: FrictionModel
         if want_payload:
             extra["payload"] = reg[u, j, PAYLOAD_REGRESSOR]
             extra["payload_basis"] = payload_basis(extra["payload"])
-            extra["links_base"] = link_base_rows(reg[u, j, :], qdd_j, j)
+            extra["links_base"] = link_base_rows(reg[u, j, :], qdd_j, j, dyn.robot.name)
         jds[j] = JointData(j, idx, sig.t_s[idx], sig.at("q", idx, joint=j), sig.qd_rad_s[idx, j], qdd_j, y,
                            block % n_folds, extra)
     if want_payload:
@@ -79,17 +79,18 @@ def _rigid_body_rows(dyn: WamDynamics, sig: Signals, rows: np.ndarray,
     return dyn.inverse_dynamics_many(q, qd, qdd), (dyn.torque_regressor(q, qd, qdd) if want_payload else None)
 
 
-def link_base_rows(inertial: np.ndarray, qdd_j: np.ndarray, j: int) -> np.ndarray:
+def link_base_rows(inertial: np.ndarray, qdd_j: np.ndarray, j: int, robot=None) -> np.ndarray:
     """(m, nb) the rigid-body base columns (links and armature; :mod:`wamctl.analysis.identification.base`) of
-    joint ``j``'s torque rows, from its inertial regressor rows (m, 70) and its acceleration (m,): what a refit
-    of the arm's own parameters can change in that joint's torque."""
-    from wamctl.analysis.identification.base import N_INERTIAL, N_STANDARD, base_parameters
+    joint ``j``'s torque rows, from its inertial regressor rows (m, 10 n) and its acceleration (m,): what a refit
+    of the arm's own parameters (``robot``'s, default the wam7) can change in that joint's torque."""
+    from wamctl.analysis.identification.base import base_parameters
 
-    base = base_parameters()
-    Y = np.zeros((len(inertial), N_STANDARD))
-    Y[:, :N_INERTIAL] = inertial
-    Y[:, N_INERTIAL + j] = qdd_j
-    cols = base.independent < N_INERTIAL + N7          # not the friction, which each joint's model fits
+    base = base_parameters(robot)
+    n_inertial, n = 10 * base.n_joints, base.n_joints
+    Y = np.zeros((len(inertial), base.n_standard))
+    Y[:, :n_inertial] = inertial
+    Y[:, n_inertial + j] = qdd_j
+    cols = base.independent < n_inertial + n          # not the friction, which each joint's model fits
     return base.regressor(Y)[:, cols]
 
 
@@ -107,7 +108,7 @@ def _gravity_stiffness(dyn: WamDynamics, sig: Signals, rows: np.ndarray, eps: fl
     """(r, 7) gravity stiffness ``dg_j / dq_j`` of the diagnosed joints at the samples ``rows`` (r,) (backlash:
     the link sits w/2 away from the encoder), by forward differences."""
     q = sig.at("q", rows)
-    out = np.zeros((len(rows), N7))
+    out = np.zeros((len(rows), q.shape[1]))
     g0 = dyn.gravity_many(q)
     for j in sig.joints:
         qj = q.copy()
@@ -121,16 +122,17 @@ def declared_torque(sig: Signals, friction: FrictionModel | None, effects: dict 
     """(n, 7) torque of the declared model beyond the rigid body when a model file gives it (friction,
     ripple; zero when friction is fitted from the data), and (n, 7) its part that is not friction (at rest,
     the friction is what the stall analysis estimates)."""
+    nj = sig.q_rad.shape[1]
     if friction is None:       # nothing declared beyond the rigid body: read-only zeros, no memory
-        zero = np.broadcast_to(0.0, (sig.n, N7))
+        zero = np.broadcast_to(0.0, (sig.n, nj))
         return zero, zero
-    out = np.zeros((sig.n, N7))
-    other = np.zeros((sig.n, N7))
+    out = np.zeros((sig.n, nj))
+    other = np.zeros((sig.n, nj))
     fx = effects or {}
     fr = friction
     if fx.get("stribeck"):
         s = fx["stribeck"]
-        m = np.zeros(N7, bool)
+        m = np.zeros(nj, bool)
         m[[j - 1 for j in s["joints"]]] = True
         r = float(s.get("breakaway_ratio", 1.6))
         fr = fr.with_stribeck(np.where(m, fr.fc_pos_Nm * r, np.nan), np.where(m, fr.fc_neg_Nm * r, np.nan),

@@ -59,13 +59,20 @@ def _joint_dict(diag, j: int, res) -> dict:
 def diagnosis_dict(diag, data_path: str = "") -> dict:
     """The ``diagnosis.json`` mapping of a fitted ``ModelDiagnosis`` (``data_path``: the data it was fitted on)."""
     joints = {str(j + 1): _joint_dict(diag, j, res) for j, res in sorted(diag.joints_.items())}
-    declared = DECLARED_MODEL if diag.declared_.fitted else \
-        f"{DECLARED_MODEL}, parameters from {diag.declared_.source}"
+    model = DECLARED_MODEL
+    dyn = getattr(diag, "dynamics_", None)
+    if dyn is not None and dyn.robot.name != "wam7":      # the run's arm
+        model = DECLARED_MODEL.replace("wam7", dyn.robot.name, 1)
+    declared = model if diag.declared_.fitted else f"{model}, parameters from {diag.declared_.source}"
     out = {"format": FORMAT, "data": data_path, "declared_model": declared,
            "effects_found": list(diag.effects_found_), "joints": joints,
            "ambiguous": [list(g) for g in getattr(diag, "ambiguous_", [])],
            "not_named": list(getattr(diag, "arm_unnamed_", None) or []),
            "conclusive": bool(diag.conclusive_), "reason": diag.reason_}
+    if dyn is not None and dyn.robot.name != "wam7":
+        out["robot"] = dyn.robot.name
+    if getattr(diag, "not_tested_", None):      # candidates this arm's runs are not tested for, with why
+        out["not_tested"] = dict(diag.not_tested_)
     if getattr(diag, "warnings_", None):
         out["warnings"] = list(diag.warnings_)
     check = getattr(diag, "against_declared_", None) if diag.conclusive_ else None

@@ -602,7 +602,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
 
     hint = set(joints_hint or [])
     joints, skipped = [], {}
-    for j in range(N7):
+    for j in range(q.shape[1]):
         travel = float(np.ptp(q[:, j]))
         n_mov = int(moving[:, j].sum())
         commanded = j in hint or np.ptp(q_ref[:, j]) > MIN_TRAVEL_RAD
