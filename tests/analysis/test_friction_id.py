@@ -297,7 +297,8 @@ def test_too_few_segments_in_one_direction_identify_nothing():
 # ================================================================================================ (a) the arm
 def test_table_4_1_recovered_on_the_simulated_arm(sweep_run):
     """Every Coulomb level and viscous coefficient within 1 %, every joint and direction, from the written model
-    file (README: "within 1 %"; measured 2026-11: at most 0.75 %, viscous of joint 2 in the negative direction)."""
+    file (README: "within 1 %"; measured 2026-11 on the compiled loop's run: at most 0.85 %, viscous of joint 2 in the
+    negative direction; 0.75 % on the Python loop's)."""
     model = FrictionModel.load(sweep_run / "friction_model.yaml")
     checks = {"fc_pos_Nm": 0.01, "fc_neg_Nm": 0.01, "viscous_pos_Nm_s_rad": 0.01, "viscous_neg_Nm_s_rad": 0.01}
     for name, tol in checks.items():
@@ -320,10 +321,13 @@ def test_table_4_1_recovered_on_the_simulated_arm(sweep_run):
 
 
 def test_standard_errors_hold_the_simulated_truth(sweep_run):
-    """Every Coulomb level and viscous coefficient within 3.5 of its standard error of the truth (28 parameters).
-    The fit's own standard errors (the points' scatter) put joint 1's viscous coefficients 8-10 of them off: the
-    fastest stage carries the slope and is off by a few mN m; the jackknife over the stages is in the ones
-    written now."""
+    """Every Coulomb level and viscous coefficient within 3.5 of its standard error of the truth (28 parameters;
+    2.5 measured, joint 7's negative Coulomb level). The fit's own standard errors (the points' scatter) put
+    joint 4's negative viscous coefficient 7.0 of them off (the rigid body's timing within the held torque's
+    period, :func:`test_the_rigid_body_timing_is_in_the_viscous_standard_errors`) and joint 1's 5-6 (the fastest
+    stage carries the slope and is off by a few mN m, within its own standard error); the jackknife, the stages'
+    own standard errors carried through the fit and the timing are in the ones written now (the old ones held
+    only by chance on the Python loop's run of this seed: 6.6 on seed 3)."""
     raw = yaml.safe_load((sweep_run / "friction_model.yaml").read_text())
     z = []
     for j in range(1, 8):
@@ -333,6 +337,48 @@ def test_standard_errors_hold_the_simulated_truth(sweep_run):
             z.append((j, key, (raw["joints"][j][name] - getattr(TRUE, name)[j - 1]) / std[key]))
     worst = max(z, key=lambda x: abs(x[2]))
     assert abs(worst[2]) <= 3.5, [(j, k, round(v, 1)) for j, k, v in z]
+
+
+def test_the_rigid_body_timing_is_in_the_viscous_standard_errors():
+    """The held torque balances the rigid body somewhere in the control period after its sample (a quarter
+    period on this simulator at 2 sub-steps), a shift a constant-velocity sweep cannot see: gravity's change
+    along the move times that shift is a viscous coefficient. Noise-free, unquantised sweeps of joints 2 and 4
+    (gravity stiffness about -21 to -25 and -3 N m/rad): the viscous coefficients are off by -0.011 to -0.018
+    (joint 2) and -0.0012 to -0.0017 N m s/rad (joint 4), up to 18 of the fit's and the jackknife's standard
+    errors (joint 4's negative direction; the standard errors before the timing was carried). Each stage's
+    ``timing_shift_Nm`` is its rigid body's change over half a period (gravity's, from the true positions,
+    within 5 %), and with it every parameter lies within 3.5 standard errors, the viscous errors at 0.3-0.9 of
+    the timing's part, with the sign of the quarter period's shift."""
+    travel = {2: 0.6, 4: 0.8}
+    rd = simulate(sweep_spec(plant={"sensors": {"encoder_counts_per_rev": 0, "position_noise_rad": 0.0}},
+                             sweep={"joints": [2, 4], "travel_rad": travel}))
+    ident = identify(rd)
+    dyn = WamDynamics()
+    q_true, t = rd.data[[f"q_true_{j}_rad" for j in range(1, 8)]].to_numpy(), rd.t_s
+    untimed = []      # |error| / the fit's and the jackknife's standard error (the larger)
+    for j in (2, 4):
+        m = ident.map[(ident.map["joint"] == j) & ident.map["accepted"]]
+        assert len(m) >= 14
+        # the column: the stage joint's gravity change over the stage, per second, times half a period
+        i0 = np.searchsorted(t, m["t_start_s"].to_numpy())
+        i1 = np.searchsorted(t, m["t_end_s"].to_numpy())
+        g0 = dyn.gravity_many(q_true[i0])[:, j - 1]
+        g1 = dyn.gravity_many(q_true[i1])[:, j - 1]
+        want = (g1 - g0) / (t[i1] - t[i0]) * DT / 2
+        np.testing.assert_allclose(m["timing_shift_Nm"], want, rtol=0.05, atol=2e-5)
+        est = ident.joints[j].fits["classic"]
+        for k, (attr, name) in enumerate((("fc_pos", "fc_pos_Nm"), ("sigma2_pos", "viscous_pos_Nm_s_rad"),
+                                          ("fc_neg", "fc_neg_Nm"), ("sigma2_neg", "viscous_neg_Nm_s_rad"))):
+            err = getattr(est, attr + "_") - getattr(TRUE, name)[j - 1]
+            assert abs(err) <= 3.5 * getattr(est, attr + "_std_"), (j, attr, err, getattr(est, attr + "_std_"))
+            if attr.startswith("sigma2"):
+                untimed.append(abs(err) / np.fmax(est.params_std_fit_[k], est.params_std_jackknife_[k]))
+                timing = est.params_std_timing_[k]
+                v = m["velocity_rad_s"].to_numpy()
+                side = v > 0 if k < 2 else v < 0
+                stiffening = np.mean(want[side] / v[side]) > 0       # the sign of the shift per unit velocity
+                assert 0.3 * timing < abs(err) < 0.9 * timing and (err > 0) == stiffening, (j, attr, err, timing)
+    assert max(untimed) > 8, untimed           # what the scatter about the line cannot show
 
 
 def test_report_shows_table_maps_selection_and_truth(sweep_run):

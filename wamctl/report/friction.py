@@ -214,9 +214,11 @@ def friction_document(rd, ident: FrictionIdentification, out_dir: Path, title: s
     doc.heading("Friction model parameters (Table 4.1 layout)")
     t41 = parameter_table(ident)
     doc.table("friction_parameters", t41, "chosen model per joint; Fc (N m) as magnitudes, sigma2 (N m s/rad); "
-              "*_std: standard errors (classic models: the larger of the fit's and the jackknife's over the segments, "
-              "which a single stage off by more than its scatter widens; Stribeck: the fit's). Written to "
-              "friction_model.yaml.")
+              "*_std: standard errors (classic models: the largest of the fit's, the jackknife's over the segments, "
+              "which a single stage off by more than its scatter widens, and the segments' own standard errors "
+              "carried through the fit; Stribeck: the fit's or the segments'; both with the rigid body's timing "
+              "within the held torque's period, half a period, which a constant-velocity sweep cannot tell from "
+              "viscous friction). Written to friction_model.yaml.")
     missing = ident.not_identified()
     if missing:
         doc.text("Not identified, so friction_model.yaml gives no friction for them (whatever reads it treats them "

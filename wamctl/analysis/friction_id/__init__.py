@@ -21,7 +21,10 @@ Pipeline (no I/O; the caller loads a :class:`~wamctl.runs.measured.RunData`)
    ``_``): :class:`.models.ClassicFriction` per direction (thesis eq. 4.1, Table 4.1 layout), symmetric, and
    :class:`.models.StribeckFriction` (eq. 2.8, per direction Fc, Fs, sigma2, shared vs and delta), by
    ``scipy.optimize.least_squares`` with an optional robust loss (``soft_l1``, ``huber``, ``cauchy``);
-   parameter standard errors from the Jacobian, ``cov = s^2 (J^T J)^-1``.
+   parameter standard errors from the Jacobian, ``cov = s^2 (J^T J)^-1`` (classic: or the jackknife's over the
+   stages, the larger), plus the one error every stage shares that their scatter cannot show: the instant
+   within the held torque's control period whose rigid body it balances (``timing_shift_Nm``: gravity's
+   change along the move times half a period, which at constant velocity is a viscous coefficient).
 5. **Selection** (:mod:`.selection`): k-fold over segments (stratified by direction and speed), the
    held-out residuals scored by an information criterion, ``BIC = n ln(SSE_cv / n) + k ln n`` (or AIC,
    ``+ 2k``); the smallest wins.

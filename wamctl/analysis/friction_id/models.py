@@ -112,6 +112,41 @@ class _LsqFriction:
         self.sigma_ = float(np.sqrt(self.rss_ / dof))
         return self
 
+    def _add_point_errors(self, jac, s, se_Nm=None, shift_Nm=None) -> None:
+        """What the scatter of the points about the fit cannot show, carried into the standard errors. The fit
+        moves the parameters by ``L df`` for a change ``df`` of the points (``L = J^+ / s``, ``J`` its weighted
+        Jacobian), so:
+
+        * ``se_Nm`` (n,), each point's own standard error (a stage's batch means): the parameters' standard
+          error is at least ``sqrt(diag(L diag(se^2) L^T))`` (``params_std_points_``). The weights' relative
+          floor and the reduced chi-square scale the fit's to the scatter about the line, which a point of high
+          leverage hides: the fastest stage of a sweep has the fewest samples and the largest error and carries
+          the viscous slope, and the line passes close to it whatever its error.
+        * ``shift_Nm`` (n,), each point's change for one standard error of an error every point shares (the
+          map's ``timing_shift_Nm``: the rigid body's timing, :data:`wamctl.analysis.friction_id.velocity_map.
+          TIMING_SE_PERIODS`): ``d = L shift`` is added in quadrature (``params_std_timing_``). A shift in
+          proportion to the velocity is a viscous coefficient: no scatter shows it.
+
+        ``cov_`` keeps the fit's correlations with the standard errors so found, plus ``d d^T``."""
+        n = len(s)
+        se = np.zeros(n) if se_Nm is None else np.asarray(se_Nm, float)
+        shift = np.zeros(n) if shift_Nm is None else np.asarray(shift_Nm, float)
+        for name, x in (("standard errors", se), ("systematic shift", shift)):
+            if x.shape != (n,) or not np.isfinite(x).all():
+                raise ValueError(f"the points' {name} must be a finite array of their length")
+        lin = np.linalg.pinv(np.asarray(jac, float)) / s[None, :]
+        self.params_std_points_ = np.sqrt((lin ** 2) @ se ** 2)
+        d = lin @ shift
+        self.params_std_timing_ = np.abs(d)
+        sd0 = np.sqrt(np.clip(np.diag(self.cov_), 0, None))
+        stat = np.fmax(self.params_std_, self.params_std_points_)
+        with np.errstate(invalid="ignore", divide="ignore"):
+            corr = np.where(np.outer(sd0, sd0) > 0, self.cov_ / np.outer(sd0, sd0), 0.0)
+        np.fill_diagonal(corr, 1.0)
+        scale = np.where(np.isfinite(stat), stat, sd0)
+        self.cov_ = corr * np.outer(scale, scale) + np.outer(d, d)
+        self.params_std_ = np.sqrt(stat ** 2 + d ** 2)
+
     def predict(self, v) -> np.ndarray:
         """F(v), N m, same shape as ``v``."""
         return self._predict(self.params_, np.asarray(v, float))
@@ -182,7 +217,7 @@ class ClassicFriction(_LsqFriction):
             return _Solution(x0, a)
         return self._solve(v, f, s, x0, (-np.inf, np.inf))
 
-    def fit(self, data) -> ClassicFriction:
+    def fit(self, data, se_Nm=None, shift_Nm=None) -> ClassicFriction:
         """Fit on a map (DataFrame with ``velocity_rad_s``, ``friction_Nm`` [, ``sigma_Nm``, ``accepted``]) or
         a ``(v, F[, sigma])`` tuple of (n,) arrays; returns self.
 
@@ -190,13 +225,17 @@ class ClassicFriction(_LsqFriction):
         reduced chi-square: the points' scatter) and the jackknife's over the points (``params_std_jackknife_``,
         each point left out in turn): it says when one stage is off by more than the scatter (the fastest stage
         of a sweep carries the viscous slope; a few mN m off there put the viscous coefficient 6-14 of the fit's
-        standard errors from the truth, on our simulator and on another generator)."""
+        standard errors from the truth, on our simulator and on another generator); at least what the points' own
+        standard errors ``se_Nm`` carry through the fit, and with ``shift_Nm`` (the map's ``timing_shift_Nm``)
+        the error all points share added in quadrature (:meth:`_add_point_errors`)."""
         v, f, s = as_vf(data)
         self._check(v, f, s)
-        self._finish(self._estimate(v, f, s), v, f, s)
+        sol = self._estimate(v, f, s)
+        self._finish(sol, v, f, s)
         self.params_std_fit_ = self.params_std_.copy()
         self.params_std_jackknife_ = self._jackknife_std(v, f, s)
         self.params_std_ = np.fmax(self.params_std_fit_, self.params_std_jackknife_)
+        self._add_point_errors(sol.jac, s, se_Nm, shift_Nm)
         p, s = self.params_, self.params_std_
         if self.symmetric:
             self.fc_pos_ = self.fc_neg_ = float(p[0])
@@ -315,9 +354,11 @@ class StribeckFriction(_LsqFriction):
         hi = [np.inf, np.inf, np.inf, np.inf, np.inf, np.inf, vs_hi] + ([4.0] if self.fit_delta else [])
         return lo, hi
 
-    def fit(self, data) -> StribeckFriction:
-        """As :meth:`ClassicFriction.fit`. Starts from the best point of a (vs, delta) grid where the rest of
-        the parameters are solved linearly, then refines all of them together."""
+    def fit(self, data, se_Nm=None, shift_Nm=None) -> StribeckFriction:
+        """As :meth:`ClassicFriction.fit` (standard errors: the fit's, at least the points' ``se_Nm`` carried
+        through it, with ``shift_Nm``'s shared error; no jackknife).
+        Starts from the best point of a (vs, delta) grid where the rest of the parameters are solved linearly,
+        then refines all of them together."""
         v, f, s = as_vf(data)
         self._check(v, f, s)
         lo, hi = self._bounds(v)
@@ -339,6 +380,7 @@ class StribeckFriction(_LsqFriction):
         if best is None:
             raise ValueError("stribeck: the fit did not converge")
         self._finish(best, v, f, s)
+        self._add_point_errors(best.jac, s, se_Nm, shift_Nm)
         p, sd, cov = self.params_, self.params_std_, self.cov_
         self.fc_pos_, self.sigma2_pos_, self.fc_neg_, self.sigma2_neg_, self.vs_ = map(float, p[[0, 2, 3, 5, 6]])
         self.fs_pos_, self.fs_neg_ = float(p[0] + p[1]), float(p[3] + p[4])

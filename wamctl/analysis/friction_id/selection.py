@@ -82,7 +82,10 @@ def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic
     ``weighting="none"`` (the thesis' unweighted least squares, eq. 4.2) sigma is unknown and the score is
     ``n ln(SSE_cv / n) + 2k`` (or ``+ k ln n``). k parameters, n points. The smallest score wins, except that
     a simpler model within ``margin`` of it is preferred (a difference below 2 is "not worth more than a bare
-    mention", Kass and Raftery 1995). Every model is refitted on all points.
+    mention", Kass and Raftery 1995). Every model is refitted on all points, its standard errors at least what
+    the points' own standard errors carry through it, with the error of the map's ``timing_shift_Nm`` (the
+    rigid body's timing, shared by every point) (:meth:`~wamctl.analysis.friction_id.models._LsqFriction.
+    _add_point_errors`).
 
     Parameters
     ----------
@@ -96,6 +99,9 @@ def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic
     fitted : model name -> estimator fitted on all points (models that cannot be fitted are left out).
     """
     v, f, se = _map_points(data)
+    shift = _map_shift(data, len(v))
+    good = np.isfinite(se) & (se > 0)        # a stage too short for batch means: three times the largest's
+    se_points = np.where(good, se, 3.0 * np.max(se[good]) if good.any() else 0.0)
     known = weighting == "se"
     richest = max(models, key=lambda m: make_estimator(m).n_params)
     sigma = segment_sigma(v, f, se, reference=richest) if known else np.ones(len(v))
@@ -103,7 +109,7 @@ def select_model(data, models=MODEL_NAMES, folds: int = 5, criterion: str = "bic
     rows, fitted = [], {}
     for name in models:
         try:
-            full = make_estimator(name, loss).fit((v, f, sigma))
+            full = make_estimator(name, loss).fit((v, f, sigma), se_Nm=se_points, shift_Nm=shift)
         except ValueError as exc:
             log.info("model %s not fitted: %s", name, exc)
             continue
@@ -127,6 +133,16 @@ def _map_points(data) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         se = d["friction_se_Nm"].to_numpy(float) if "friction_se_Nm" in d else np.full(len(d), np.nan)
         return v, f, se
     return as_vf(data)
+
+
+def _map_shift(data, n: int) -> np.ndarray:
+    """(n,) the accepted points' ``timing_shift_Nm`` (the systematic error of the rigid body's timing,
+    :data:`wamctl.analysis.friction_id.velocity_map.TIMING_SE_PERIODS`); zeros for a map without it or a
+    tuple."""
+    if isinstance(data, pd.DataFrame) and "timing_shift_Nm" in data:
+        d = data[data["accepted"].astype(bool)] if "accepted" in data else data
+        return np.nan_to_num(d["timing_shift_Nm"].to_numpy(float))
+    return np.zeros(n)
 
 
 def _held_out_prediction(name: str, loss: str, v: np.ndarray, f: np.ndarray, sigma: np.ndarray,

@@ -28,7 +28,18 @@ from wamctl.analysis.friction_id.signals import (
 
 MAP_COLUMNS = ["joint", "move", "direction", "v_cmd_rad_s", "t_start_s", "t_end_s", "n_samples",
                "velocity_rad_s", "velocity_std_rad_s", "velocity_ci95_rad_s", "friction_Nm", "friction_std_Nm",
-               "friction_se_Nm", "friction_ci95_Nm", "stick_fraction", "accepted", "reason"]
+               "friction_se_Nm", "friction_ci95_Nm", "timing_shift_Nm", "stick_fraction", "accepted", "reason"]
+
+# The instant whose rigid-body torque a logged torque balances, relative to its position sample: the torque is
+# held over the control period that follows the sample while the arm moves on, so that instant lies somewhere in
+# the period (a quarter period on the simulator at 2 physics sub-steps, whose steps take gravity at the period's
+# start and middle; half a period with continuous physics; later still with a read latency). A constant-velocity
+# sweep cannot tell it: shifting the rigid body by dt changes a stage's friction by its rate of change times dt,
+# which is v times the gravity stiffness along the move, a viscous coefficient. The map's friction takes the
+# rigid body at the sample; ``timing_shift_Nm`` is each stage's change for a shift of TIMING_SE_PERIODS control
+# periods (one standard error, the same unknown shift for every stage), which the fits carry into their
+# standard errors (:meth:`wamctl.analysis.friction_id.models._LsqFriction.fit`).
+TIMING_SE_PERIODS = 0.5
 
 
 @dataclass
@@ -114,7 +125,8 @@ def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndar
     if not len(df):
         return df
     if stage_rows:
-        _add_stage_friction(df, t_s, q, tau, np.concatenate(stage_rows), dynamics, o.derivative_window_s)
+        _add_stage_friction(df, t_s, q, tau, np.concatenate(stage_rows), dynamics, o.derivative_window_s,
+                            TIMING_SE_PERIODS * dt)
     df["accepted"] = df["accepted"].astype(bool)
     return df
 
@@ -155,18 +167,47 @@ def _stage_velocity(t_s: np.ndarray, x: np.ndarray, v_fine: np.ndarray, m: Move,
 
 
 def _add_stage_friction(df: pd.DataFrame, t_s: np.ndarray, q: np.ndarray, tau: np.ndarray,
-                        all_rows: np.ndarray, dynamics, window_s: float) -> None:
+                        all_rows: np.ndarray, dynamics, window_s: float, timing_se_s: float = 0.0) -> None:
     """Fill the friction columns of ``df`` in place: the friction torque of every stage, in one pass of inverse
-    dynamics over ``all_rows`` (the stages' samples, concatenated in the order of the map's rows)."""
+    dynamics over ``all_rows`` (the stages' samples, concatenated in the order of the map's rows), and its
+    ``timing_shift_Nm`` (:func:`_timing_shifts`)."""
     if not len(all_rows):
         return
     f = friction_samples(t_s, q, tau, all_rows, dynamics, window_s)
     pos = 0
     rows = df.index[(df["n_samples"] > 0) & df["velocity_rad_s"].notna()]
-    stats_ = []                 # (mean, std, se, ci95) per stage, written to the table at once
+    stats_, stages = [], []     # (mean, std, se, ci95) per stage, written to the table at once
     for n, joint in zip(df.loc[rows, "n_samples"].astype(int), df.loc[rows, "joint"].astype(int)):
         fj = f[pos:pos + n, joint - 1]
+        stages.append((all_rows[pos:pos + n], joint))
         pos += n
         stats_.append((float(fj.mean()), float(fj.std(ddof=1)), *batch_mean_se(fj)))
     if stats_:
         df.loc[rows, ["friction_Nm", "friction_std_Nm", "friction_se_Nm", "friction_ci95_Nm"]] = stats_
+        df.loc[rows, "timing_shift_Nm"] = _timing_shifts(t_s, q, stages, dynamics, window_s, timing_se_s)
+
+
+def _timing_shifts(t_s: np.ndarray, q: np.ndarray, stages: list, dynamics, window_s: float, timing_se_s: float,
+                   per_stage: int = 50) -> np.ndarray:
+    """Per stage ``(rows, joint)``: the change of its mean friction when the rigid body is taken ``timing_se_s``
+    later (:data:`TIMING_SE_PERIODS`), N m: the rate of change of the joint's quasi-static rigid-body torque
+    (gravity, Coriolis and centrifugal: inverse dynamics without acceleration, at ``per_stage`` samples spread
+    over the stage; a line through them) times ``timing_se_s``. The inertial term is left out: its mean over a
+    stage is zero and its rate is the ringing after a blend, noise that would only blur the estimate."""
+    if timing_se_s == 0.0 or not stages:
+        return np.zeros(len(stages))
+    picks = [rk[np.unique(np.linspace(0, len(rk) - 1, min(per_stage, len(rk))).round().astype(int))]
+             for rk, _ in stages]
+    sub = np.concatenate(picks)
+    dt = float(np.median(np.diff(t_s)))
+    qd = savgol_derivative(q, dt, window_s, 2, 1)[sub]
+    if hasattr(dynamics, "inverse_dynamics_many"):        # a WamDynamics: the batch helper
+        quasi = dynamics.inverse_dynamics_many(q[sub], qd, np.zeros_like(qd))
+    else:
+        quasi = np.array([dynamics.inverse_dynamics(q[i], qd[k], np.zeros(q.shape[1])) for k, i in enumerate(sub)])
+    out, pos = np.zeros(len(stages)), 0
+    for k, (rk_sub, (_, joint)) in enumerate(zip(picks, stages)):
+        n = len(rk_sub)
+        out[k] = fit_line(t_s[rk_sub], quasi[pos:pos + n, joint - 1])[1] * timing_se_s if n >= 2 else 0.0
+        pos += n
+    return out
