@@ -18,24 +18,7 @@ import pytest
 import yaml
 from cli_runs import run_cli
 
-SWEEP = """
-kind: excitation
-name: wrist-slow
-seed: 0
-q0_rad: [0.0, 0.0, 0.0, 1.9, 0.0, 0.0, 0.0]
-backend: {kind: sim}
-plant:
-  friction: table_4_1
-  effects: {delay: {delay_s: 0.004}}
-excitation:
-  joints: [7]
-  period_s: 6.0
-  harmonics: 2
-  periods: 3
-  settle_s: 1.0
-  coefficients:
-    7: {a_rad_s: [0.5, -0.5], b_rad_s: [0.0, 0.0]}
-"""
+SWEEP = Path(__file__).resolve().parents[2] / "configs" / "diagnose_loop_wrist.yaml"     # the README's spec
 TRUE_DELAY_S = 0.004
 
 pytestmark = pytest.mark.slow
@@ -62,8 +45,8 @@ def test_diagnose_run_then_the_designed_run_then_both_decides_the_delay(tmp_path
     the inertia errors' there. (Measured when written: RUN alone excess 0.80; separation
     0.75 -> 4.7 noise floors, joints 2, 4, 7; pooled excess RUN 0.81, NEXT 1.5; delay 4.0 ms [3.8, 4.2]; held out
     RUN 0.00319 -> 0.000649 N m (inertia errors 0.000847), NEXT 0.130 -> 0.0766 N m (inertia errors 0.126).)"""
-    (tmp_path / "sweep.yaml").write_text(SWEEP)
-    wamctl("run", tmp_path / "sweep.yaml", "--out", tmp_path / "runs")
+    assert yaml.safe_load(SWEEP.read_text())["plant"]["effects"]["delay"]["delay_s"] == TRUE_DELAY_S
+    wamctl("run", SWEEP, "--out", tmp_path / "runs")
     run = only_dir(tmp_path / "runs")
 
     out = wamctl("diagnose", run, "--out", tmp_path / "diag", "--quiet")

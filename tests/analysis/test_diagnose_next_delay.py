@@ -125,7 +125,8 @@ def test_the_loop_on_the_simulated_arm_decides(tmp_path, truth):
         assert "Next experiment: next_experiment.yaml" in (run_dir / "report.md").read_text()
     else:                       # the same steps without the report and the closed-loop position check
         run_dir = tmp_path
-        nxt = next_experiment_delay(*_diagnose(first), first, run_dir)
+        first_diag = _diagnose(first)
+        nxt = next_experiment_delay(*first_diag, first, run_dir)
     assert nxt["hypotheses"] == ["delay", "inertia"]
     assert nxt["decision"]["outcome"] == "ambiguous", nxt["decision"]
     assert nxt["separation_noise_floors"] > 2 > 1 > nxt["original_separation_noise_floors"]
@@ -138,3 +139,13 @@ def test_the_loop_on_the_simulated_arm_decides(tmp_path, truth):
     out = next_experiment_delay(diag, data, second, tmp_path / "second")
     assert out is not None and out["decision"]["outcome"] == truth, out and out["decision"]
     assert out["spec"] is None and out["decision"]["excess_noise_floors"] >= 1
+    if truth == "inertia":      # pooled (the delay case: tests/analysis/test_diagnose_loop.py, through the CLI)
+        from wamctl.analysis.diagnosis.pooled import PooledDiagnosis
+
+        pooled = PooledDiagnosis([first_diag[0], diag], ["sweep", "next"], [first_diag[1], data]).fit()
+        dec = next(f for f in pooled.findings_ if f.get("delay_or_inertia"))["delay_or_inertia"]
+        assert dec["outcome"] == "inertia" and dec["decided_by"] == ["next"], dec
+        lo, hi = dec["inertia_error_ci_kg_m2"][7]
+        assert lo <= 0.0043 <= hi, dec["inertia_error_ci_kg_m2"]      # the armature added: 0.0046 - 0.0003
+        h = dec["per_run"][1]["held_out_rms_Nm"]
+        assert h["inertia"] < 0.8 * h["delay"], h

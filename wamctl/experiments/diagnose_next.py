@@ -82,10 +82,11 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
 
 
 def delay_or_inertia_suspected(diag) -> bool:
-    """The diagnosis leaves room for a delay or an inertia error: a delay named, a delay in an ambiguous group, or
-    a structured residual left unexplained at a joint."""
-    return ("delay" in diag.effects_found_ or any("delay" in g for g in diag.ambiguous_)
-            or any(r.unexplained for r in diag.joints_.values()))
+    """The diagnosis leaves room for a delay or an inertia error
+    (:func:`wamctl.analysis.diagnosis.delay_inertia.leaves_room`)."""
+    from wamctl.analysis.diagnosis.delay_inertia import leaves_room
+
+    return leaves_room(diag)
 
 
 def _floors(dec: dict) -> str:

@@ -354,6 +354,14 @@ def decision_line(dec: dict) -> str:
             "noise floors)")
 
 
+def leaves_room(diag, unexplained: bool = True) -> bool:
+    """A fitted diagnosis leaves room for a delay or an inertia error: a delay named, a delay in an ambiguous
+    group, or (``unexplained``) a structured residual left unexplained at a joint. (A residual a payload or link
+    errors explain is none of these: the check's friction-only model would take it for an inertia error.)"""
+    return ("delay" in diag.effects_found_ or any("delay" in g for g in diag.ambiguous_)
+            or unexplained and any(r.unexplained for r in diag.joints_.values()))
+
+
 # ------------------------------------------------------------------------------------------------- runs pooled
 N_BOOT = 200                   # block-bootstrap replicates of the pooled estimates' intervals
 

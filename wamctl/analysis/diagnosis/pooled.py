@@ -415,11 +415,16 @@ class PooledDiagnosis:
     def _delay_or_inertia(self, runs: list[int]) -> None:
         """A measurement delay against joint inertia errors (:func:`~wamctl.analysis.diagnosis.delay_inertia.
         decide_pooled`): the delay one for all runs, each run's own friction and offset per joint; made when some
-        run's residual holds an effect either explains (by at least a noise floor beyond friction). The finding is
-        named ``delay`` or ``inertia`` when decided, ``delay_or_inertia`` (ambiguous) when not."""
+        run's own diagnosis named a delay or left it ambiguous (:func:`~wamctl.analysis.diagnosis.delay_inertia.
+        leaves_room`) and some run's residual holds an effect either explains (by at least a noise floor beyond
+        friction). The finding is named ``delay`` or ``inertia`` when decided, ``delay_or_inertia`` (ambiguous)
+        when not."""
         from wamctl.analysis.diagnosis import delay_inertia as DI
         from wamctl.model.dynamics import WamDynamics
 
+        if not any(DI.leaves_room(self.diags[r], unexplained=False) for r in runs):
+            return      # no run named a delay or left it ambiguous (a residual one run leaves unexplained may be
+                        # what another names: a payload moved by one joint looks like that joint's inertia)
         parts, suspected = [], False
         for r in runs:
             d = self.diags[r]
