@@ -5,10 +5,12 @@ The case of tests/analysis/test_payload_identification.py: the simulated arm, a 
 drifting between runs (Table 4.1 scaled by 1.0, 0.9, 0.8, 0.7 at schedule positions 0-3), one ABBA schedule per
 seed (loaded at positions 0 and 3, bare at 1 and 2; run seeds 1000 s + position). For each seed and method: the
 error of the mass, the centre of mass (link-7 frame) and the six inertias about the COM (truth: zero, a point
-mass), and whether each 95 % interval holds the truth. Methods:
+mass), and whether each 95 % interval holds the truth. Methods (both with the arm's friction fitted on the bare
+runs, :func:`payload.bare_friction`):
 
-* ``fitted``: the arm's friction fitted on the bare runs (the default, :func:`payload.bare_friction`);
-* ``declared``: the declared Table 4.1 friction (before the fix).
+* ``timing``: the torque's timing offset estimated with the payload (the default, :func:`payload.timing_column`);
+* ``zoh``: the zero-order hold's timing assumed (before the fix; the simulated arm's positions lead it by half a
+  physics step, 0.5 ms, and the loaded-minus-bare torque's derivative times that leaked into I_xy).
 
 Summary per method and quantity: intervals holding the truth (with the Clopper-Pearson 95 % interval of that
 share: 20 seeds cannot tell 95 % from 85 %), the mean error in standard errors (a bias) and the spread of those
@@ -16,10 +18,10 @@ z values (1 when the intervals' width is right). The runs and their rows are cac
 payload_rows.pkl in each run), so a second call only re-fits. Nothing is asserted (the fast pin is
 test_payload_identification.py::test_bare_fitted_friction_removes_the_drift_bias).
 
-    python benchmarks/bench_payload_coverage.py [--seeds 40] [--first 0] [--out benchmarks/out/payload_coverage]
+    python benchmarks/bench_payload_coverage.py [--seeds 60] [--first 0] [--out benchmarks/out/payload_coverage]
 
-About 15 s per seed on an idle core (4 simulated runs of 33 s and their rows); re-fitting cached runs, a few
-seconds per seed.
+About 15 s per seed on an idle core (4 simulated runs of 33 s and their rows; 25-50 s on a shared, loaded
+machine); re-fitting cached runs, about 3 s per seed.
 """
 
 from __future__ import annotations
@@ -44,7 +46,7 @@ from wamctl.runs.measured import load_run_data  # noqa: E402
 
 SCHEDULE = (("L0", True, 0), ("B1", False, 1), ("B2", False, 2), ("L3", True, 3))
 QUANTITIES = ("mass_kg", "com_x_m", "com_y_m", "com_z_m") + tuple(f"{k}_kg_m2" for k in INERTIA_NAMES)
-METHODS = {"fitted": True, "declared": False}
+METHODS = {"timing": True, "zoh": False}      # fit_timing
 ROWS_FILE = "payload_rows.pkl"   # the run's identification rows (data.run_rows), cached beside it
 
 
@@ -64,7 +66,7 @@ def quantities(est) -> list[tuple[float, tuple]]:
 
 def main(argv=None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--seeds", type=int, default=40)
+    ap.add_argument("--seeds", type=int, default=60)
     ap.add_argument("--first", type=int, default=0)
     ap.add_argument("--out", type=Path, default=ROOT / "benchmarks" / "out" / "payload_coverage")
     a = ap.parse_args(argv)
@@ -72,7 +74,7 @@ def main(argv=None) -> int:
     index_path = a.out / "index.json"
     index = json.loads(index_path.read_text()) if index_path.exists() else {}
     truth = [TRUTH["mass_kg"], *TRUTH["com_m"]] + [0.0] * len(INERTIA_NAMES)
-    rows = []
+    rows, offsets = [], []
     for seed in range(a.first, a.first + a.seeds):
         paths = schedule_runs(a.out, seed, index)
         data = {k: load_run_data(p) for k, p in paths.items()}
@@ -80,7 +82,9 @@ def main(argv=None) -> int:
                  for k, d in data.items() if (Path(paths[k]) / ROWS_FILE).exists()}
         for method, fit in METHODS.items():
             est = identify_payload([data["L0"], data["L3"]], [data["B1"], data["B2"]], rows_cache=cache,
-                                   fit_friction=fit)
+                                   fit_timing=fit)
+            if fit:
+                offsets.append(est.timing["offset_s"])
             for name, (v, ci), t in zip(QUANTITIES, quantities(est), truth):
                 if v is None:
                     rows.append({"seed": seed, "method": method, "quantity": name, "status": "not identified"})
@@ -92,9 +96,9 @@ def main(argv=None) -> int:
         for k, d in data.items():       # the runs' rows beside them: a second call only re-fits
             if not (Path(paths[k]) / ROWS_FILE).exists():
                 (Path(paths[k]) / ROWS_FILE).write_bytes(pickle.dumps(cache[str(d.source)]))
-        z = {r["method"]: r.get("z", float("nan")) for r in rows[-2 * len(QUANTITIES)::len(QUANTITIES)]}
-        print(f"seed {seed}: mass error in standard errors, fitted {z['fitted']:+.2f}, declared "
-              f"{z['declared']:+.2f}", flush=True)
+        z = {r["method"]: r.get("z", float("nan")) for r in rows[-2 * len(QUANTITIES) + 7::len(QUANTITIES)]}
+        print(f"seed {seed}: I_xy error in standard errors, timing estimated {z['timing']:+.2f}, zero-order hold "
+              f"{z['zoh']:+.2f}; timing offset {1e3 * offsets[-1]:.3f} ms", flush=True)
     with open(a.out / "coverage.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=["seed", "method", "quantity", "status", "value", "ci95_low", "ci95_high",
                                           "error", "z", "covers"])
@@ -102,6 +106,8 @@ def main(argv=None) -> int:
         w.writerows(rows)
     print(f"\n{a.seeds} seeds ({a.first}..{a.first + a.seeds - 1}), ABBA under the friction drift "
           f"(runs and rows: {a.out})")
+    print(f"timing offset estimated: mean {1e3 * np.mean(offsets):.3f} ms, sd {1e3 * np.std(offsets, ddof=1):.3f} ms "
+          "(the simulator's half physics step: 0.5 ms)")
     print(f"{'method':9} {'quantity':14} {'held the truth':>15} {'(95 % CI of the share)':>24} {'mean z':>7} "
           f"{'sd z':>5} {'mean |error|':>13}")
     for method in METHODS:

@@ -162,20 +162,24 @@ def test_a_final_model_worse_than_the_declared_one_is_said_everywhere(late, tmp_
     assert any("joint 1: the model written (model.yaml) predicts the held-out torque worse" in ln for ln in first)
 
 
-def test_the_arm_payload_is_counted_at_a_joint_whose_own_model_did_not_keep_it(tmp_path):
+def test_the_arm_payload_is_counted_at_a_joint_whose_own_model_did_not_keep_it(tmp_path_factory):
     """model.yaml hangs the arm's payload on every joint: at a joint whose own model did not keep it, the figure
     compared with the declared model is that joint's model with the arm's payload (it was the joint's own model
     without it). A payload run (1.2 kg): with the payload taken out of joint 4's own model, the model-file figure
     is the own payload model's within 1 % (seen 0.2 %), 1/70 of the declared model's; a payload 10 times too heavy
     makes joint 4 worse than the declared model (its friction refitted), and it is said."""
+    import copy
     from dataclasses import replace
 
-    from diagnosis_gen import generate_run
+    from test_diagnose import Generated
 
     from wamctl.analysis.diagnosis.honesty import against_declared, worse_warnings
 
-    g = generate_run(tmp_path, "payload", 13)
-    diag = ModelDiagnosis().fit(load_run_data(g.path))
+    # test_diagnose's payload run (seed 13) and its diagnosis, made once for both files (tests/once.py); a
+    # shallow copy with its own joints dict (the test replaces joint 4 and the payload): the shared value stays
+    _, shared = Generated(tmp_path_factory)["payload"]
+    diag = copy.copy(shared)
+    diag.joints_ = dict(shared.joints_)
     assert diag.effects_found_ == ["payload"] and diag.against_declared_[3]["note"] is None
     res = diag.joints_[3]
     diag.joints_[3] = replace(res, kept=[t for t in res.kept if t["name"] != "payload"])

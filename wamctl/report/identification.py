@@ -121,7 +121,9 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     doc.heading("Base parameters")
     doc.table("parameters", parameter_table(result), "estimate: the physically consistent estimate; interval: "
               f"{100 * (1 - spec.get('options', {}).get('alpha', 0.05)):.0f} % (posterior: data with HAC "
-              "errors + a prior at the declared arm, 30 % of each declared value); moved_se: (estimate - declared) "
+              "errors + a prior at the declared arm, 30 % of each declared value; Student's t with the "
+              "variance's degrees of freedom; they assume the declared arm within that prior: a truth further "
+              "off biases the estimate toward it, not included); moved_se: (estimate - declared) "
               "/ standard error; data_share: the data's share of the information. Expressions in parameters.csv.",
               digits=5)
     _moved_figure(result, out_dir, doc)
@@ -237,7 +239,7 @@ def _moved_figure(result: dict, out_dir: Path, doc: Document) -> None:
         return
     scale = np.maximum(np.abs(df["declared"].to_numpy(float)), 1e-12)
     rel = (df["estimate"].to_numpy(float) - df["declared"].to_numpy(float)) / scale
-    err = 1.96 * df["se"].to_numpy(float) / scale
+    err = 0.5 * (df["ci_high"].to_numpy(float) - df["ci_low"].to_numpy(float)) / scale
     fig, ax = plt.subplots(figsize=(11, max(4.0, 0.16 * len(df))))
     y = np.arange(len(df))
     ax.errorbar(np.clip(rel, -2, 2), y, xerr=np.minimum(err, 2), fmt="o", ms=3, lw=0.8)
@@ -263,6 +265,13 @@ def payload_report(run_path: Path, manifest: dict) -> Document:
              + (f"not identified: {', '.join(r['not_identified'])}" if r["not_identified"]
                 else "every quantity identified") + ". Payload file: payload.yaml (plant.effects.payload, "
              "controller.declared_payload, diagnose --payload).")
+    timing = r.get("torque_timing") or {}
+    if timing.get("offset_s") is not None:
+        lo, hi = timing["offset_ci95_s"]
+        doc.text(f"Torque timing, estimated with the payload: the motion answers the logged torque "
+                 f"{1e3 * timing['offset_s']:.3f} ms (95 % interval {1e3 * lo:.3f} to {1e3 * hi:.3f} ms) later than "
+                 "the zero-order hold's half control period (bus latency on a real arm; 0.5 ms on the simulator, "
+                 "its half physics step): assumed instead, it biases the inertia (docs/payload.md).")
     tab = pd.read_csv(run_path / "payload.csv")
     doc.table("payload", tab, caption="mass, centre of mass (link-7 frame) and inertia about the centre of mass "
                                       "(link-7 axes), 95 % intervals (HAC for the dynamic variant: the noise's "
@@ -272,5 +281,5 @@ def payload_report(run_path: Path, manifest: dict) -> Document:
     sig = pd.DataFrame({"joint": range(1, P.N_JOINTS + 1), "residual_rms_Nm": r["sigma_Nm"]})
     doc.table("payload residual", sig, caption="RMS of the loaded-minus-bare residual per joint", digits=4)
     doc.data["payload"] = {k: r.get(k) for k in ("method", "mass_kg", "mass_ci95_kg", "com_m", "com_ci95_m",
-                                                 "not_identified", "order")}
+                                                 "not_identified", "order", "torque_timing")}
     return doc
