@@ -74,6 +74,7 @@ PRIOR_WEIGHT = 1.0       # the declared arm as a prior, of standard deviation pr
 N_NULL_DRAWS = 4000      # draws of the held-out check's null with the fit's uncertainty (held_out_comparison)
 NULL_SEED = 20261127
 PRECISE_SHARE = 0.1      # the fit's expected excess at most this share of the nominal's held-out mean square
+SHRINK = True
 LEVERAGE_FLOOR = 1e-2    # a block's leverage counted at most 1 - this (leverage_adjusted)
 PD_MARGIN = 1e-7         # each pseudo-inertia >= this share of the declared one's largest eigenvalue
 
@@ -144,6 +145,23 @@ def leverage_adjusted(Q: np.ndarray, e: np.ndarray, sample: np.ndarray, block: i
         gain = 1.0 / np.sqrt(np.maximum(1.0 - sv ** 2, LEVERAGE_FLOOR)) - 1.0
         out[idx] += U @ (gain * (U.T @ e[idx]))
     return out
+
+
+def shrinkage_intensity(X: np.ndarray) -> float:
+    """Ledoit and Wolf's (2004) optimal shrinkage intensity of the covariance of the rows of ``X`` (samples of
+    mean zero, e.g. the scores summed over blocks) toward the scaled identity: ``min(beta^2, delta^2) /
+    delta^2`` with ``delta^2 = ||S - mu I||_F^2`` and ``beta^2 = sum_g ||x_g x_g^T - S||_F^2 / G^2``."""
+    G, p = X.shape
+    if G < 2:
+        return 1.0
+    S = X.T @ X / G
+    mu = np.trace(S) / p
+    delta2 = float(np.sum((S - mu * np.eye(p)) ** 2))
+    if delta2 <= 0:
+        return 0.0
+    # sum_g ||x x^T - S||_F^2 = sum_g ||x_g||^4 - G ||S||_F^2
+    beta2 = float(np.sum(np.sum(X ** 2, axis=1) ** 2) - G * np.sum(S ** 2)) / G ** 2
+    return float(min(max(beta2, 0.0), delta2) / delta2)
 
 
 def effective_blocks(influence: np.ndarray, block_id: np.ndarray) -> np.ndarray:
@@ -268,15 +286,29 @@ class InertialIdentification:
         lags = []
         e_adj = np.empty_like(e)
         block_id = np.zeros(len(e), int)
+        sums = []
         for r_i in np.unique(groups[:, 0]):
             sel = np.flatnonzero(groups[:, 0] == r_i)
             nlags = hac_lags(len(np.unique(groups[sel, 1])), reach_rows)
             k = groups[sel, 1] - groups[sel, 1].min()
             block_id[sel] = block_id.max() + 1 + k // max(1, int(round(2 * nlags / 3)))
             e_adj[sel] = leverage_adjusted(Q[sel], e[sel], groups[sel, 1], nlags + 1)
-            S_run, nlags = hac_score_covariance(Q[sel] * e_adj[sel, None], groups[sel, 1], reach_rows)
+            sc = Q[sel] * e_adj[sel, None]
+            S_run, nlags = hac_score_covariance(sc, groups[sel, 1], reach_rows)
             lags.append(nlags)
             S += S_run
+            blk = k // (nlags + 1)
+            b_sum = np.zeros((int(blk.max()) + 1, sc.shape[1]))
+            np.add.at(b_sum, blk, sc)
+            sums.append(b_sum)
+        # the sandwich's middle is estimated from few independent stretches (some 30 blocks of the lag window on
+        # a 24 s run for 40 parameters): its small eigenvalues are too small and the posterior, which inverts it,
+        # trusted those directions (the consistent estimate's errors 1.35x its posterior's on the wam4's
+        # declared arm, its data-only marginals right): Ledoit and Wolf's shrinkage toward the scaled identity
+        # (the covariance of white, equal-variance scores in these orthonormal coordinates), its intensity from
+        # the blocks' score sums
+        self.shrinkage_ = shrinkage_intensity(np.vstack(sums)) if SHRINK else 0.0
+        S = (1.0 - self.shrinkage_) * S + self.shrinkage_ * np.trace(S) / len(S) * np.eye(len(S))
         ev, V = np.linalg.eigh(0.5 * (S + S.T))
         ev = np.maximum(ev, max(ev.max(), 1e-300) * 1e-12)
         # precision of gamma = R^T S^-1 R = W^T W; the data term ||W gamma - c||^2 with c = W gamma_hat
@@ -455,11 +487,14 @@ class InertialIdentification:
         square (``M`` the mean outer product of the joint's held-out base-regressor rows), so the null
         distribution of the mean loss difference is that weighted chi-square plus the held-out noise above
         (``N_NULL_DRAWS`` seeded draws); on a declared arm that is the truth, the identified model is then no worse
-        within what the fit and the held-out data can tell, not "worse" by its own noise. The allowance is made only
-        for a precise fit: where the expected excess ``E[Q] = tr(cov_post_ M)`` is at most ``PRECISE_SHARE`` of the
-        nominal model's held-out mean square (the estimation noise adds at most about 5 % to the RMS); an imprecise
-        fit's excess is its failure, not an excuse (on the rotation run of joints 6-7 at 0.083 rad/s the identified
-        model is 2.95x the declared arm's RMS on joint 7, and its posterior would have covered that). The nominal
+        within what the fit and the held-out data can tell, not "worse" by its own noise. The allowance is at most
+        ``PRECISE_SHARE`` of the nominal model's held-out mean square (each draw of ``Q`` capped there: the
+        estimation noise may add at most about 5 % to the RMS); an imprecise fit's excess beyond that is its
+        failure, not an excuse (on the rotation run of joints 6-7 at 0.083 rad/s the identified model is 2.95x the
+        declared arm's RMS on joint 7, and its posterior would have covered that). Until issue 27 item 3 a fit whose
+        expected excess ``E[Q] = tr(cov_post_ M)`` was above the cap got no allowance at all: with the honest
+        covariance the declared wam4's joint 4 expects 11-16 % and was called worse at an excess of 2-3 %. The
+        fit's covariance is itself estimated, so ``delta`` is drawn as Student's t (:meth:`check_dof`). The nominal
         model's friction fit is taken as exact (its estimation error is the smaller: 4 parameters a joint).
 
         Returns ``{0-based joint: {"p_worse": one-sided p of E[d] <= 0, "p_worse_given_fit" (``p_worse`` where no
@@ -492,11 +527,24 @@ class InertialIdentification:
             lam = self._fit_noise(XtX / n)
             share = float(lam.sum() / (nom_sq / n)) if nom_sq > 0 and lam is not None else float("nan")
             p_fit = p
-            if ok and lam is not None and share <= PRECISE_SHARE:
-                z = np.random.default_rng(NULL_SEED).standard_normal((N_NULL_DRAWS, len(lam)))
-                p_fit = float(np.mean(norm.sf((dsum / n - (z ** 2) @ lam) / se)))
+            if ok and lam is not None and nom_sq > 0:
+                rng = np.random.default_rng(NULL_SEED)
+                z = rng.standard_normal((N_NULL_DRAWS, len(lam)))
+                # the fit's covariance is itself estimated (its degrees of freedom: the median over the determined
+                # parameters of :func:`effective_blocks` less one): delta is Student's t, not normal
+                nu = self.check_dof()
+                scale = rng.chisquare(nu, N_NULL_DRAWS) / nu if np.isfinite(nu) else np.ones(N_NULL_DRAWS)
+                allowed = np.minimum(((z ** 2) @ lam) / scale, PRECISE_SHARE * nom_sq / n)
+                p_fit = float(np.mean(norm.sf((dsum / n - allowed) / se)))
             out[jj] = {"p_worse": p, "p_worse_given_fit": p_fit, "fit_noise_share": share, "n": int(n)}
         return out
+
+    def check_dof(self) -> float:
+        """Degrees of freedom of the fit's covariance in the held-out check's null: the median over the determined
+        base parameters of :attr:`dof_` less one (NaN: none, the null is then Gaussian)."""
+        d = self.dof_[self.identified_] - 1.0
+        d = d[np.isfinite(d)]
+        return float(max(np.median(d), 1.0)) if len(d) else float("nan")
 
     def _fit_noise(self, M: np.ndarray) -> np.ndarray | None:
         """Eigenvalues of ``cov_post_^1/2 M cov_post_^1/2``: ``Q = delta^T M delta`` with ``delta ~ N(0,
@@ -516,12 +564,14 @@ class InertialIdentification:
 
     def table(self) -> pd.DataFrame:
         """One row per base parameter: expression, unit, declared value, consistent estimate with its posterior
-        standard error and interval, the data-only (IV) estimate and its standard error, how far the estimate
+        standard error, interval and degrees of freedom, the data-only (IV) estimate with its standard error and
+        interval (which does not lean on the declared arm), how far the estimate
         moved from the declared value (in standard errors), the data's share of the information, status.
         Numbers are NaN where the data do not determine the parameter."""
         base = self.base_
         beta_decl = base.of(self.pi_declared_)
         lo, hi = self.intervals()
+        lo_d, hi_d = self.intervals("wls")
         ident = self.identified_
         with np.errstate(invalid="ignore", divide="ignore"):
             moved = (self.beta_ - beta_decl) / self.se_post_
@@ -531,6 +581,7 @@ class InertialIdentification:
             "estimate": np.where(ident, self.beta_, np.nan), "se": np.where(ident, self.se_post_, np.nan),
             "ci_low": lo, "ci_high": hi, "moved_se": np.where(ident, moved, np.nan),
             "data_only": np.where(ident, self.beta_wls_, np.nan), "data_only_se": np.where(ident, self.se_, np.nan),
+            "data_only_ci_low": lo_d, "data_only_ci_high": hi_d, "dof": np.where(ident, self.dof_post_, np.nan),
             "data_share": np.where(ident, self.data_share_, np.nan), "status": self.status()})
 
     def instruments_detail(self) -> dict:
