@@ -86,3 +86,55 @@ def rotation_spec(**overrides) -> dict:
         else:
             spec[k] = v
     return spec
+
+
+# ------------------------------------------------------------------------------ sharing the cores (pytest-xdist)
+# `--dist loadgroup` (pyproject's addopts): the tests that share a module-scoped fixture of their own test file
+# (a tuning, a set of diagnosed runs, a finished run) form one group, run by one worker, so that the fixture is
+# made once. Under `--dist load` the tests of a module were dealt to both workers and each made the module's
+# fixtures again (test_ift's seven-joint tuning, test_diagnose_v2's seven diagnosed runs, ...). Tests that
+# share two such fixtures join their groups (a module fixture that shares its value through tests/once.py too:
+# its tests then run one after the other, and its values are read once). Session fixtures are shared through
+# tests/once.py; every other test is dealt on its own, and xdist hands out the largest groups first.
+@pytest.hookimpl(tryfirst=True)        # before xdist's worker appends each item's group to its node id
+def pytest_collection_modifyitems(config, items):
+    parent: dict[str, str] = {}
+
+    def find(k: str) -> str:
+        while parent.setdefault(k, k) != k:
+            parent[k] = parent[parent[k]]
+            k = parent[k]
+        return k
+
+    shared: dict[int, list[str]] = {}
+    for i, item in enumerate(items):
+        info = getattr(item, "_fixtureinfo", None)
+        if info is None or item.get_closest_marker("xdist_group") is not None:
+            continue
+        module = item.nodeid.split("::", 1)[0]
+        stem = module.rsplit("/", 1)[-1].removesuffix(".py")          # the group: test_ift.tuned
+        keys = [f"{stem}.{name}" for name, defs in info.name2fixturedefs.items()
+                if defs and defs[-1].scope in ("module", "class") and defs[-1].baseid == module]
+        if keys:
+            shared[i] = keys
+            for k in keys[1:]:
+                parent[find(k)] = find(keys[0])
+    for i, keys in shared.items():
+        items[i].add_marker(pytest.mark.xdist_group(find(keys[0]).replace("@", "_")))
+    if getattr(config.option, "loadgroup", False):       # an xdist worker under --dist loadgroup
+        _group_node_ids(items)
+
+
+def _group_node_ids(items) -> None:
+    """Each grouped item's node id ends in ``@group``: what xdist's scheduler groups by. xdist 3.8 writes it to
+    ``item._nodeid``, which pytest 9 no longer reads (a node id is ``item._id``), so every test was dealt on its
+    own; done here, as xdist does it, where the node id is pytest 9's."""
+    try:
+        from _pytest.nodeid import NodeId
+    except ImportError:          # pytest < 9: xdist's own hook does it
+        return
+    for item in items:
+        names = {str(m.args[0] if m.args else m.kwargs.get("name", "default"))
+                 for m in item.iter_markers("xdist_group")}
+        if names and isinstance(getattr(item, "_id", None), NodeId):
+            item._id = NodeId.parse(f"{item.nodeid}@{'_'.join(sorted(names))}")
