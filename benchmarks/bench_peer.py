@@ -5,7 +5,7 @@ The task is bench_sim's: the seven-joint rotation (0.5 rad at 0.083 rad/s, all j
 (zero-order hold), two physics steps per period. Both simulators run inside the same engine
 (:func:`wamctl.experiments.engine.run_loop`: safety checks, the same ``JointController`` with pinocchio
 gravity compensation, the same recorder and the same encoder model), so only the physics differs; wamctl's
-simulator runs that engine compiled whole (:mod:`wamctl.backends.sim_fused`, ``run_loop(..., fused=True)``), the
+simulator runs that engine compiled whole (:mod:`wamctl.backends.sim_fused`, ``run_loop``'s default), the
 MuJoCo peer (a subclass with its own physics) through its Python path, and a row gives wamctl's Python path too:
 
 * wamctl: semi-implicit Euler on pinocchio's ABA + implicit, coupled stick/slip friction (Table 4.1, one

@@ -28,7 +28,8 @@ Q0 = np.array([0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0])
 
 
 def closed_loop(reference, substeps: int, fused: bool = True, plant: PlantSpec | None = None) -> float:
-    """Seconds of one closed-loop run: compiled (``fused``) or the Python path (what ``wamctl run`` does today)."""
+    """Seconds of one closed-loop run: compiled (``fused``, ``run_loop``'s default, what ``wamctl run`` does) or
+    the Python path (``fused=False``)."""
     backend = SimBackend(Plant(plant or PlantSpec()), Q0, np.random.default_rng(0), substeps)
     ctl = JointController(P.KP, P.KD, np.zeros(7), 1 / P.CONTROL_RATE_HZ, gravity=WamDynamics().gravity_view)
     rec = LoopRecorder(len(reference), with_truth=True)

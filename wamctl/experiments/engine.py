@@ -61,19 +61,22 @@ class LoopRecorder:
 
 
 def run_loop(backend: ArmBackend, controller: JointController, reference: Reference,
-             recorder: LoopRecorder, progress=None, chunk_ticks: int = 2500, *, fused: bool = False) -> None:
+             recorder: LoopRecorder, progress=None, chunk_ticks: int = 2500, *, fused: bool = True) -> None:
     """Execute ``reference`` tick by tick. Raises whatever the backend raises (safety faults, Ctrl-C);
     the caller flushes ``recorder`` and records the status.
 
-    ``fused=True``: on the simulator with a plain joint controller (:func:`wamctl.backends.sim_fused.
-    fused_supported`) the ticks run compiled, in chunks that end where this loop flushes the recorder or reports
-    progress, equal to the Python path within ~1e-15 rad per step. That rounding difference (the numba rigid body
-    vs pinocchio's) can move a true position held still by stiction across an encoder count's rounding boundary,
-    after which a long run with stick-slip is another realisation (tests/analysis/test_diagnose.py's seed-11
-    Stribeck run: one count at tick 7582 of 16447). The diagnosis' breakaway estimate no longer depends on such a
-    count (tests/analysis/test_diagnose_stribeck_stability.py), but it is not the default yet: on the compiled
-    loop's realisation of tests/analysis/test_friction_id.py's sweep one friction parameter lies 7.0 of its
-    standard errors from the truth (the test allows 3.5)."""
+    ``fused=True`` (the default): on the simulator with a plain joint controller (:func:`wamctl.backends.sim_fused.
+    fused_supported`; elsewhere, e.g. a wam4, the CAN arm or another controller, the Python path) the ticks run
+    compiled, in chunks that end where this loop flushes the recorder or reports progress, equal to the Python
+    path within ~1e-15 rad per step; ``fused=False`` keeps the Python path. That rounding difference (the numba
+    rigid body vs pinocchio's) can move a true position held still by stiction across an encoder count's
+    rounding boundary, after which a long run with stick-slip is another realisation of the same noise model
+    (tests/analysis/test_diagnose.py's seed-11 Stribeck run: one count at tick 7582 of 16447). The diagnosis'
+    breakaway estimate no longer depends on such a count (tests/analysis/test_diagnose_stribeck_stability.py);
+    friction-id's standard errors hold the truth on either path's realisations since they carry the rigid
+    body's timing within the held torque's period (:data:`wamctl.analysis.friction_id.velocity_map.
+    TIMING_SE_PERIODS`: without it a viscous coefficient was 5-7 of its standard errors off on some seeds of
+    both paths)."""
     if fused and fused_supported(backend, controller):
         _run_fused(backend, controller, reference, recorder, progress, chunk_ticks)
         return
