@@ -9,8 +9,9 @@ Arms (``--arm``):
   (``--scale 0``: only the friction is off, which the nominal model fits too) or links 2-4 25-35 % heavier with
   their COMs 1.5 cm off (``--scale 1``). About 6 s a seed.
 * ``wam7``: tests/analysis/test_identification.py's case on the project's simulator (shipped excitation and
-  validation trajectories; links of seed ``18 + i`` scaled in U(0.8, 1.2), or the datasheet arm with
-  ``--scale 0``; friction Table 4.1 scaled in U(0.85, 1.15)). About 60 s a seed.
+  validation trajectories; links of seed ``18 + i`` scaled in U(0.8, 1.2), armature in U(0.9, 1.1), friction
+  Table 4.1 scaled in U(0.85, 1.15); or with ``--scale 0`` the declared arm itself, datasheet links and armature
+  and Table 4.1 friction, simulator seeds ``100 + i`` and ``200 + i``). About 60 s a seed.
 
 Truth: the base parameters of the plant's standard parameters in the estimator's own base. Per path, the share
 of the determined base parameters whose 95 % interval holds the truth, with its Clopper-Pearson 95 % interval
@@ -64,10 +65,21 @@ def wam4_seed(i: int, scale: float, out: Path):
 def wam7_seed(i: int, scale: float, out: Path):
     from test_identification import perturbed_plant, run_config, true_standard
 
-    plant = perturbed_plant(18 + i, share=0.2 if scale else 0.0)
-    fit = run_config("excitation.yaml", plant, out)
-    held = run_config("excitation_validation.yaml", plant, out)
-    return fit, held, true_standard(plant)
+    from wamctl.model import params as P
+    from wamctl.model.friction import FrictionModel
+
+    if scale:
+        plant = perturbed_plant(18 + i)
+        return (run_config("excitation.yaml", plant, out), run_config("excitation_validation.yaml", plant, out),
+                true_standard(plant))
+    # the declared arm itself (datasheet links and armature, Table 4.1 friction); the simulator's seeds vary
+    plant = perturbed_plant(18 + i, share=0.0)
+    arm = P.LinkParameters.datasheet().armature_kg_m2
+    for j in range(P.N_JOINTS):
+        plant["links"][j + 1]["armature_kg_m2"] = float(arm[j])
+    plant["friction"] = {"joints": FrictionModel.table_4_1().to_dict()["joints"]}
+    return (run_config("excitation.yaml", plant, out, seed=100 + i),
+            run_config("excitation_validation.yaml", plant, out, seed=200 + i), true_standard(plant))
 
 
 def errors(est, truth_beta: np.ndarray) -> dict:
