@@ -637,6 +637,7 @@ class InertialIdentification:
         return {"robot": getattr(getattr(self.dynamics_, "robot", None), "name", "wam7"),
                 "n_joints": int(self.n_joints_), "n_rows": int(self.n_rows_), "sigma_Nm": _floats(self.sigma_Nm_),
                 "identifiability": self.identifiability_.to_dict(), "hac_lags": [int(x) for x in self.hac_lags_],
+                "sandwich_shrinkage": float(self.shrinkage_),
                 "instruments": self.instruments_statement(), "instruments_detail": self.instruments_detail(),
                 "row_accounting": [dict(rr.accounting, source=rr.source) for rr in self.rows_ if rr.accounting],
                 "consistent": bool((self.margin_ > 0).all()), "pseudo_inertia_margin": _floats(self.margin_),
