@@ -128,14 +128,20 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
                 cols[f"q_before_{j + 1}_rad"] = pc["q_before"][:, j]
                 cols[f"q_after_{j + 1}_rad"] = pc["q_after"][:, j]
             pd.DataFrame(cols).to_parquet(run.path / "positions.parquet", index=False)
-    if diag.conclusive_:
+    nxt = None
+    if diag.conclusive_ and data.meta.robot != "wam7":
+        # the designs of a next run (payload against links, delay against inertia, backlash) know the wam7 only
+        if diag.ambiguous_ or diag.arm_unnamed_:
+            nxt = {"spec": None, "why": f"no next run designed: the design of the run that would tell them apart "
+                                        f"knows the wam7 only, not the {data.meta.robot}"}
+    elif diag.conclusive_:
         nxt = next_experiment(diag, data, Path(data_path), run.path)
         if nxt is None:       # a delay against inertia errors, backlash (wamctl/experiments/diagnose_next.py)
             from wamctl.experiments.diagnose_next import next_experiment_more
             nxt = next_experiment_more(diag, data, Path(data_path), run.path)
-        if nxt is not None:
-            result["next_experiment"] = nxt
-            run.write_json("diagnosis.json", result)
+    if nxt is not None:
+        result["next_experiment"] = nxt
+        run.write_json("diagnosis.json", result)
     run.finish("completed", None if diag.conclusive_ else diag.reason_,
                effects_found=result["effects_found"])
     doc = write_report(run.path, formats=formats)

@@ -132,10 +132,6 @@ def not_named_lines(result: dict) -> list[str]:
             what = ("follows " + ", ".join(u["correlates_with"]) if u["correlates_with"] else
                     f"is not white (Ljung-Box p {_p(u.get('whiteness_p'))}) and follows no signal tested")
             lines.append(f"unexplained residual at joint {j}: {_g(u['torque_rms_Nm'])} N m RMS held out, {what}")
-    not_tested: dict[str, list[str]] = {}
-    for name, why in (result.get("not_tested") or {}).items():     # an arm some candidates are not built for
-        not_tested.setdefault(why, []).append(name)
-    lines += [f"not tested: {', '.join(names)} ({why})" for why, names in not_tested.items()]
     return lines
 
 

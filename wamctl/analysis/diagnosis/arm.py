@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from wamctl.analysis.diagnosis.candidates import payload_from_pi
+from wamctl.analysis.diagnosis.candidates import payload_from_pi, robot_of
 from wamctl.analysis.diagnosis.design import Design, target_and_design
 from wamctl.analysis.diagnosis.stats import finite_ss, lstsq
 
@@ -47,8 +47,8 @@ def payload_fit(des: Design, joints: dict, jds: dict, rows_of=None) -> dict | No
     X, y, w, _, with_p = system
     theta = lstsq(X * w[:, None], y * w)
     n_own = X.shape[1] - N_PAYLOAD
-    pi = theta[n_own:n_own + N_PAYLOAD]    # mass, first moment, inertia of the link-7 addition
-    return {**payload_from_pi(pi), "joints_fitted": [j + 1 for j in with_p], "pi": pi}
+    pi = theta[n_own:n_own + N_PAYLOAD]    # mass, first moment, inertia of the last link's addition
+    return {**payload_from_pi(pi, robot_of(des)), "joints_fitted": [j + 1 for j in with_p], "pi": pi}
 
 
 def payload_system(des: Design, joints: dict, jds: dict, rows_of=None):
@@ -90,8 +90,8 @@ def payload_uncertainty(des: Design, joints: dict, jds: dict) -> tuple[dict, lis
     ok = estimable(X * w[:, None], [n_own + k for k in range(4)])
     reps = group_bootstrap(X, y, groups, rng=np.random.default_rng(4000), w=w)
     pis = reps[:, n_own:n_own + N_PAYLOAD]
-    ests = [payload_from_pi(pi) for pi in pis]
-    est = payload_from_pi(lstsq(X * w[:, None], y * w)[n_own:n_own + N_PAYLOAD])
+    ests = [payload_from_pi(pi, robot_of(des)) for pi in pis]
+    est = payload_from_pi(lstsq(X * w[:, None], y * w)[n_own:n_own + N_PAYLOAD], robot_of(des))
     return payload_intervals(est, ests, len({tuple(g) for g in groups}), ok)
 
 

@@ -24,6 +24,8 @@ backlash           (at onsets, :mod:`wamctl.analysis.diagnosis.backlash`, either
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from wamctl.analysis.diagnosis.signals import savgol_gain
@@ -120,9 +122,41 @@ def payload_basis(P: np.ndarray) -> np.ndarray:
     return out
 
 
-def payload_from_pi(pi: np.ndarray) -> dict:
+def payload_from_pi(pi: np.ndarray, robot: str = "wam7") -> dict:
     """Mass (kg) and centre of mass (m, flange frame) of a payload from the first four of its ten inertial
-    parameters ``pi`` (link-7 frame: ``m``, ``m c``); the centre is zero for a mass that is not positive."""
+    parameters ``pi`` (the last link's frame: ``m``, ``m c``; on the wam7 link 7's, the flange ``D7_M`` along its
+    z; on another arm :func:`flange_frame`); the centre is zero for a mass that is not positive."""
     m = float(pi[0])
-    com = pi[1:4] / m - np.array([0.0, 0.0, D7_M]) if m > 0 else np.zeros(3)
+    if m <= 0:
+        return {"mass_kg": m, "com_m": [0.0, 0.0, 0.0]}
+    if robot == "wam7":
+        com = pi[1:4] / m - np.array([0.0, 0.0, D7_M])
+    else:
+        origin, rot = flange_frame(robot)
+        com = rot.T @ (pi[1:4] / m - origin)
     return {"mass_kg": m, "com_m": [float(x) for x in com]}
+
+
+def robot_of(des) -> str:
+    """The arm of a run's :class:`~wamctl.analysis.diagnosis.design.Design` (set by
+    :func:`wamctl.analysis.diagnosis.prepare.prepare_design`; the wam7 when not said)."""
+    return getattr(des, "robot", "wam7")
+
+
+@lru_cache(maxsize=4)
+def flange_frame(robot: str = "wam7") -> tuple[np.ndarray, np.ndarray]:
+    """(origin (3,), rotation (3, 3)) of ``robot``'s flange frame (where a payload's centre of mass is given,
+    :mod:`wamctl.model.dynamics`) in the frame of its last link's inertial parameters: a point ``c`` of the
+    flange frame is ``origin + rotation @ c`` there. Read from the model itself (a unit mass at the flange's
+    origin and one along each of its axes): on the wam7 ``(0, 0, d7)`` and the identity; on the wam4 the tool
+    plate 0.36 m along z4 and link 4's twist."""
+    from wamctl.model.dynamics import Payload, WamDynamics
+
+    bare = WamDynamics(robot=robot).standard_parameters()[-10:]
+
+    def moment(c) -> np.ndarray:
+        return (WamDynamics(Payload(1.0, tuple(c)), robot=robot).standard_parameters()[-10:] - bare)[1:4]
+
+    origin = moment([0.0, 0.0, 0.0])
+    rot = np.column_stack([moment(e) - origin for e in np.eye(3)])
+    return origin, rot

@@ -84,6 +84,7 @@ from wamctl.analysis.diagnosis.serialise import diagnosis_dict
 from wamctl.analysis.diagnosis.signals import Signals, gap_warnings, prepare_signals
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
 from wamctl.analysis.diagnosis.sweeps import map_evidence
+from wamctl.analysis.diagnosis.timing import rigid_body_shift_s, shift_rigid_body
 from wamctl.analysis.diagnosis.unexplained import arm_unnamed, unexplained
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel
@@ -116,21 +117,6 @@ class DeclaredModel:
     def delay_s(self) -> float:
         """The declared measurement delay, s (0 without one)."""
         return declared_delay_s(self.effects)
-
-
-# the candidates an arm other than the wam7 is not tested for yet: the arm-wide rigid-body refit (a payload against
-# the arm's own link errors, :mod:`wamctl.analysis.diagnosis.rigid`) is built on the wam7's base parameters and
-# its wrist flange
-RIGID_BODY_CANDIDATES = ("payload", "link_parameters")
-
-
-def not_tested_on(robot: str, candidates) -> dict[str, str]:
-    """{candidate: why} of the candidates the diagnosis does not test on ``robot``'s runs (none on the wam7)."""
-    if robot == "wam7":
-        return {}
-    why = (f"not tested on the {robot} yet: the arm-wide rigid-body refit (a payload against the arm's own link "
-           "errors) knows the wam7 only")
-    return {c: why for c in RIGID_BODY_CANDIDATES if c in candidates}
 
 
 def torque_warnings(sig: Signals, robot=None) -> list[str]:
@@ -222,6 +208,7 @@ class ModelDiagnosis:
         declared = self.declared or DeclaredModel()
         self.declared_ = declared
         self.meta_ = data.meta
+        self.source_ = getattr(data, "source", None)      # the run directory (its physics' timing: diagnosis.timing)
         self.conclusive_ = False
         self.reason_ = None
         self.joints_ = {}
@@ -231,14 +218,12 @@ class ModelDiagnosis:
         self.payload_dropped_ = None
         self.payload_cone_fit_ = None
         self.warnings_ = []
-        self.not_tested_ = {}
         self.gains_ = None
         self.position_skipped_ = None
         unknown = [c for c in self.candidates if c not in EFFECT_NAMES]
         if unknown:
             raise ValueError(f"unknown candidate effects {unknown}; known: {EFFECT_NAMES}")
         sig = self._signals(data)
-        self.not_tested_ = not_tested_on(self.dynamics_.robot.name, self.candidates)
         self.warnings_ = gap_warnings(sig) + torque_warnings(sig, self.dynamics_.robot)
         for w in self.warnings_:
             log.warning(w)
@@ -250,7 +235,7 @@ class ModelDiagnosis:
             return self
         self.declared_effects_ = set(declared.effects or {})
         self._prepare(sig)
-        tests = [c for c in self.candidates if c not in self.declared_effects_ and c not in self.not_tested_]
+        tests = [c for c in self.candidates if c not in self.declared_effects_]
         # every test of the run: one per joint and candidate, and Stribeck three times (sliding data,
         # breakaways, friction map)
         n_tests = len(tests) + (2 if "stribeck" in tests else 0)
@@ -331,14 +316,19 @@ class ModelDiagnosis:
     def _prepare(self, sig: Signals) -> None:
         want_payload = ("payload" in self.candidates and "payload" not in self.declared_effects_) or \
             "link_parameters" in self.candidates
-        want_payload = want_payload and not self.not_tested_
         des, self.jd_ = prepare_design(sig, self.dynamics_, self.declared_.friction, self.declared_.effects,
                                        self.n_blocks, self.n_folds, want_payload)
+        shift_rigid_body(des, self.jd_, self.dynamics_, rigid_body_shift_s(self.source_))
         self.design_ = des
         self.decimation_ = des.decimation
         self.union_ = des.union
         self.rnea_full_ = des.rnea_Nm
         self.known_, self.known_other_ = des.known_Nm, des.known_other_Nm
+
+    @property
+    def _robot(self) -> str:
+        """The run's arm (the declared rigid body's)."""
+        return self.dynamics_.robot.name
 
     def _declared_r2(self) -> float:
         """Share of the moving joints' torque variance the fitted declared model explains (held-out)."""
@@ -356,10 +346,9 @@ class ModelDiagnosis:
         from wamctl.analysis.diagnosis.links import rigid_body_r2
         from wamctl.analysis.diagnosis.rigid import plausible_link_map
 
-        if self.not_tested_:        # an arm whose rigid-body refit is not built yet (the wam4)
-            return -np.inf
         return rigid_body_r2(self.design_, self.jd_, list(self.joints_),
-                             plausible_link_map(self.declared_.links, self.payload_declared_), PAYLOAD_COM_BOX_M)
+                             plausible_link_map(self.declared_.links, self.payload_declared_, self._robot),
+                             PAYLOAD_COM_BOX_M)
 
     def _diagnose_joint(self, jd: JointData, tests: list[str], rejected: dict | None = None) -> JointResult:
         """Forward selection of the torque-domain candidates ``tests`` at one joint (``rejected``: candidates
@@ -431,7 +420,8 @@ class ModelDiagnosis:
         if fit is None:
             return
         dec = payload_or_links(self.design_, self.joints_, self.jd_, self.threshold_,
-                               plausible_link_map(self.declared_.links, self.payload_declared_), PAYLOAD_COM_BOX_M)
+                               plausible_link_map(self.declared_.links, self.payload_declared_, self._robot),
+                             PAYLOAD_COM_BOX_M)
         self.payload_vs_links_ = payload_links_summary(dec)
         self.payload_cone_fit_ = None if dec is None else dec["cone_fit"]     # H_P of the next run's design
         why = payload_links_reason(dec)
@@ -560,7 +550,7 @@ class ModelDiagnosis:
         if getattr(self, "links_skip_", False):
             return
         plausible = getattr(self, "links_plausible_", False)
-        link_map = plausible_link_map(self.declared_.links, self.payload_declared_) if plausible else None
+        link_map = plausible_link_map(self.declared_.links, self.payload_declared_, self._robot) if plausible else None
         t = links_test(self.design_, self.joints_, self.jd_, self.threshold_, link_map, 1 if plausible else 2)
         self.links_test_ = None if t is None else {k: v for k, v in t.items() if k not in ("e", "e0", "betas")}
         if t is None:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from wamctl.analysis.diagnosis.candidates import robot_of
 from wamctl.analysis.diagnosis.design import Design, target_and_design
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss, lstsq, nested_test
 
@@ -43,12 +44,12 @@ def _own_terms(res, with_payload: bool = False) -> list[dict]:
     return [t for t in res.kept if t["name"] not in drop]
 
 
-def base_names(cols: np.ndarray) -> list[str]:
-    """Names of the rigid-body base columns ``cols``."""
-    from wamctl.analysis.identification.base import N7, N_INERTIAL, base_parameters
+def base_names(cols: np.ndarray, robot: str = "wam7") -> list[str]:
+    """Names of the rigid-body base columns ``cols`` (of ``robot``'s base parameters)."""
+    from wamctl.analysis.identification.base import base_parameters
 
-    base = base_parameters()
-    names = [n for n, i in zip(base.names, base.independent) if i < N_INERTIAL + N7]
+    base = base_parameters(robot)
+    names = [n for n, i in zip(base.names, base.independent) if i < 11 * base.n_joints]
     return [names[k] for k in cols]
 
 
@@ -66,7 +67,7 @@ def links_uncertainty(des: Design, joints: dict, jds: dict, test: dict) -> tuple
     groups = np.vstack([np.column_stack([np.full(jds[j].n, j), jds[j].extra["block"]]) for j in js])
     reps = group_bootstrap(X, y, groups, rng=np.random.default_rng(5000))[:, -len(cols):]
     beta = lstsq(X, y)[-len(cols):]
-    names = [f"d_{n}" for n in base_names(cols)]
+    names = [f"d_{n}" for n in base_names(cols, robot_of(des))]
     ng = len({tuple(g) for g in groups})
     params = {n: float(b) for n, b in zip(names, beta)}
     ci = {n: percentile_ci(reps[:, k], center=beta[k], n_groups=ng) for k, n in enumerate(names)}
@@ -139,12 +140,13 @@ def links_test(des: Design, joints: dict, jds: dict, threshold: float, link_map:
     has_payload = any(t["name"] == "payload" for j in js for t in joints[j].kept)
     sys_, e0 = arm_links(des, joints, jds, js, has_payload)
     ok, rank = determined_parameters(sys_, SHARE_TOL)
-    cols, undetermined = np.flatnonzero(ok), [n for n, k in zip(base_names(np.arange(len(ok))), ok) if not k]
+    cols, undetermined = np.flatnonzero(ok), [n for n, k in zip(base_names(np.arange(len(ok)), robot_of(des)), ok)
+                                              if not k]
     if rank == 0:
         return None
     if link_map is None:
         A, bounds = np.eye(sys_.n_base), None
-        p_extra = max(rank - (_excited_rank(jds, js, payload_map()) if has_payload else 0), 1)
+        p_extra = max(rank - (_excited_rank(jds, js, payload_map(robot_of(des))) if has_payload else 0), 1)
     else:
         A, bounds = link_map, (-np.ones(link_map.shape[1]), np.ones(link_map.shape[1]))
         p_extra = rank
@@ -185,10 +187,11 @@ def payload_or_links(des: Design, joints: dict, jds: dict, threshold: float, lin
     if not js:
         return None
     sys_, e_own = arm_links(des, joints, jds, js)
-    cone, rays = payload_cone(com_box_m)
+    robot = robot_of(des)
+    cone, rays = payload_cone(com_box_m, robot)
     nl, nc = link_map.shape[1], cone.shape[1]
     pos = (np.zeros(nc), np.full(nc, np.inf))
-    p_pay = max(_excited_rank(jds, js, payload_map()[:, :4]), 1)
+    p_pay = max(_excited_rank(jds, js, payload_map(robot)[:, :4]), 1)
     fits, tests, ok = {}, {}, {}
     for name, scale in (("links", 1.0), ("wide_links", WIDE_PRIOR)):
         lim = np.full(nl, scale)
@@ -204,7 +207,7 @@ def payload_or_links(des: Design, joints: dict, jds: dict, threshold: float, lin
     ss0 = sum(finite_ss(e_own[j]) * sys_.w[j] ** 2 for j in js)
     mh = rays @ arm_cv(sys_, jds, cone, pos, folds=False)[2][None]
     return {"outcome": outcome, "tests": tests, "passes": ok, "joints": js, "payload_seen": p_pay,
-            "cone_fit": payload_from_pi(mh) if mh[0] > 0 else None,
+            "cone_fit": payload_from_pi(mh, robot) if mh[0] > 0 else None,
             "ssr_ratio": {k: sum(finite_ss(v[0][j]) * sys_.w[j] ** 2 for j in js) / max(ss0, 1e-300)
                           for k, v in fits.items()}}
 
@@ -232,7 +235,7 @@ def rigid_body_r2(des: Design, jds: dict, js: list[int], link_map: np.ndarray, c
     if not js:
         return float("-inf")
     sys_ = arm_system(des, jds, {j: target_and_design(des, jds[j], [], None) for j in js}, dict.fromkeys(js, 1.0))
-    cone, _ = payload_cone(com_box_m)
+    cone, _ = payload_cone(com_box_m, robot_of(des))
     nc, lim = cone.shape[1], np.full(link_map.shape[1], WIDE_PRIOR)
     bounds = (np.r_[np.zeros(nc), -lim], np.r_[np.full(nc, np.inf), lim])
     e, _, _ = arm_cv(sys_, jds, np.hstack([cone, link_map]), bounds)

@@ -64,13 +64,14 @@ def stribeck_ratio(p: dict) -> tuple[float, float]:
     return p["Fs_pos_Nm"] / ref[0], p["Fs_neg_Nm"] / ref[1]
 
 
-def payload_dynamics(declared: Payload | None, found: dict) -> WamDynamics:
-    """The rigid body carrying the declared payload and the one found (``mass_kg``, ``com_m``) together."""
+def payload_dynamics(declared: Payload | None, found: dict, robot=None) -> WamDynamics:
+    """The rigid body of ``robot`` (default the wam7) carrying the declared payload and the one found
+    (``mass_kg``, ``com_m``) together."""
     if declared is None:
-        return WamDynamics(Payload(found["mass_kg"], tuple(found["com_m"])))
+        return WamDynamics(Payload(found["mass_kg"], tuple(found["com_m"])), robot=robot)
     m = declared.mass_kg + found["mass_kg"]
     com = (declared.mass_kg * np.asarray(declared.com_m) + found["mass_kg"] * np.asarray(found["com_m"])) / m
-    return WamDynamics(Payload(m, tuple(com)))
+    return WamDynamics(Payload(m, tuple(com)), robot=robot)
 
 
 def onset_model(diag, j: int, declared: bool = False, exclude: tuple[str, ...] = ()) -> OnsetModel:
@@ -89,7 +90,7 @@ def onset_model(diag, j: int, declared: bool = False, exclude: tuple[str, ...] =
     stri = params("stribeck")
     dyn = diag.dynamics_
     if "payload" in kept and diag.payload_ is not None:
-        dyn = payload_dynamics(diag.payload_declared_, diag.payload_)
+        dyn = payload_dynamics(diag.payload_declared_, diag.payload_, diag.dynamics_.robot)
     delay_decl = diag.declared_.delay_s
     delay = delay_decl + (params("delay")["delay_s"] if "delay" in kept else 0.0)
     des = diag.design_

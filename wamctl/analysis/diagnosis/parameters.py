@@ -54,7 +54,7 @@ def kept_effect_params(diag, j: int, name: str, theta: np.ndarray | None = None)
         if diag.payload_ is not None and (theta is None or len(coef) == 1):
             return dict(diag.payload_)
         basis = diag.jd_[j].extra.get("payload_basis")        # the joint's candidate: coefficients in its basis
-        return payload_from_pi(coef if basis is None else basis @ coef)
+        return payload_from_pi(coef if basis is None else basis @ coef, getattr(diag.design_, "robot", "wam7"))
     if name == "delay":
         return {"delay_s": float(h)}
     if name == "friction_drift":

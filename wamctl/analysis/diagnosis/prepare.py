@@ -51,6 +51,7 @@ def prepare_design(sig: Signals, dyn: WamDynamics, friction_given: FrictionModel
     known, known_other = declared_torque(sig, friction_given, effects)
     delay = declared_delay_s(effects)
     des = Design(sig, _rigid_body_full(dyn, sig), known, known_other, None, friction_given, n_folds, dec, union)
+    des.robot = dyn.robot.name        # the run's arm (its payload frame, base parameters: arm.robot_of)
     jds = {}
     for j in sig.joints:
         idx = np.flatnonzero(keep & sig.moving[:, j])
@@ -122,7 +123,7 @@ def declared_torque(sig: Signals, friction: FrictionModel | None, effects: dict 
     """(n, 7) torque of the declared model beyond the rigid body when a model file gives it (friction,
     ripple; zero when friction is fitted from the data), and (n, 7) its part that is not friction (at rest,
     the friction is what the stall analysis estimates)."""
-    nj = sig.q_rad.shape[1]
+    nj = sig.q_raw_rad.shape[1]      # (q_rad would compute the full-rate smoothed position: other numbers)
     if friction is None:       # nothing declared beyond the rigid body: read-only zeros, no memory
         zero = np.broadcast_to(0.0, (sig.n, nj))
         return zero, zero

@@ -36,7 +36,7 @@ from wamctl.analysis.diagnosis.design import Design
 LINK_PRIOR_SHARE = 0.10
 LINK_PRIOR_COM_M = 0.005
 MAX_GRAM_ROWS = 20000        # rows per joint in the normal equations (evenly spaced): the refit has <= 77 unknowns
-PAYLOAD_BASE = slice(60, 70)  # link 7's standard parameters: a payload is part of link 7
+PAYLOAD_BASE = slice(60, 70)  # link 7's on the wam7 (payload_map: the last link of any arm)
 # a refit changes only the combinations of base parameters the training folds determine (columns equilibrated,
 # singular values at least this share of the largest): moving what the data do not show would mispredict a
 # held-out fold that shows it
@@ -185,34 +185,49 @@ def arm_cv(sys_: ArmSystem, jds: dict, A: np.ndarray | None, bounds: tuple | Non
     return e, betas, vs
 
 
-def payload_map() -> np.ndarray:
-    """(nb, 10) change of the rigid-body base parameters per inertial parameter of a payload on link 7."""
-    return _base_map()[:, PAYLOAD_BASE]
+def payload_map(robot: str = "wam7") -> np.ndarray:
+    """(nb, 10) change of the rigid-body base parameters per inertial parameter of a payload on the last link
+    (link 7 on the wam7, link 4 on the wam4)."""
+    n = _n_joints(robot)
+    return _base_map(robot)[:, 10 * (n - 1):10 * n]
 
 
-def payload_cone(max_com_m: float) -> tuple[np.ndarray, np.ndarray]:
+def _n_joints(robot: str) -> int:
+    from wamctl.model.robots import get_robot
+
+    return get_robot(robot).n_joints
+
+
+def payload_cone(max_com_m: float, robot: str = "wam7") -> tuple[np.ndarray, np.ndarray]:
     """(nb, 8) the wrist payloads as a cone: a positive mass whose centre lies within ``max_com_m`` of the flange
     (in each coordinate of the flange frame), its own inertia left out (small beside the mass's at the levers of
     the joints). Mass and first moment ``(m, m (c + d7 z))`` are the non-negative combinations of the eight
     rays ``(1, d7 z + max_com_m (+-1, +-1, +-1))``: coefficients in [0, inf). Returns the cone's base map
-    (nb, 8) and the rays as (4, 8) columns (``(m, m c7) = rays @ coefficients``)."""
-    from wamctl.analysis.diagnosis.candidates import D7_M
+    (nb, 8) and the rays as (4, 8) columns (``(m, m c7) = rays @ coefficients``). On another arm than the wam7
+    the flange is its own (:func:`~wamctl.analysis.diagnosis.candidates.flange_frame`: the wam4's tool plate)."""
+    from wamctl.analysis.diagnosis.candidates import D7_M, flange_frame
 
     corners = np.array([[sx, sy, sz] for sx in (-1, 1) for sy in (-1, 1) for sz in (-1, 1)], float)
-    rays = np.column_stack([np.ones(8), corners * max_com_m + np.array([0.0, 0.0, D7_M])])   # (8, 4)
-    return payload_map()[:, :4] @ rays.T, rays.T
+    if robot == "wam7":
+        rays = np.column_stack([np.ones(8), corners * max_com_m + np.array([0.0, 0.0, D7_M])])   # (8, 4)
+    else:       # the flange box in the last link's frame (a rotation permutes the corners)
+        origin, rot = flange_frame(robot)
+        rays = np.column_stack([np.ones(8), origin + corners * max_com_m @ rot.T])
+    return payload_map(robot)[:, :4] @ rays.T, rays.T
 
 
-@lru_cache(maxsize=1)
-def _base_map() -> np.ndarray:
-    """(nb, 77) the base map restricted to the rigid body: ``delta_beta = K delta_pi`` (links and armature)."""
-    from wamctl.analysis.identification.base import N7, N_INERTIAL, base_parameters
+@lru_cache(maxsize=4)
+def _base_map(robot: str = "wam7") -> np.ndarray:
+    """(nb, 11 n) the base map restricted to the rigid body: ``delta_beta = K delta_pi`` (links and armature;
+    77 columns on the wam7)."""
+    from wamctl.analysis.identification.base import base_parameters
 
-    base = base_parameters()
-    return base.matrix[base.independent < N_INERTIAL + N7][:, :N_INERTIAL + N7]
+    base = base_parameters(robot)
+    n_rigid = 11 * base.n_joints
+    return base.matrix[base.independent < n_rigid][:, :n_rigid]
 
 
-def plausible_link_map(links=None, payload=None) -> np.ndarray:
+def plausible_link_map(links=None, payload=None, robot: str | None = None) -> np.ndarray:
     """(nb, 77) change of the rigid-body base parameters when one physical parameter of the declared arm moves
     to the bound of its declared accuracy (``LINK_PRIOR_SHARE``, ``LINK_PRIOR_COM_M``; coefficients in [-1, 1]):
     per link its mass, the three coordinates of its centre of mass (DH frame; the share of its distance from the
@@ -224,25 +239,26 @@ def plausible_link_map(links=None, payload=None) -> np.ndarray:
     :class:`~wamctl.model.dynamics.Payload`, kept as it is."""
     from wamctl.model.params import LinkParameters
 
-    return _plausible_link_map(links if links is not None else LinkParameters.datasheet(), payload)
+    return _plausible_link_map(links if links is not None else LinkParameters.datasheet(robot or "wam7"), payload)
 
 
 @lru_cache(maxsize=4)
 def _plausible_link_map(links, payload) -> np.ndarray:
     from wamctl.model.dynamics import WamDynamics
-    from wamctl.model.params import N_JOINTS, LinkParameters
+    from wamctl.model.params import LinkParameters
 
-    K = _base_map()
+    robot = links.robot
+    K = _base_map(robot)
     arrays = [np.array(links.mass_kg), np.array(links.com_m), np.array(links.inertia_kg_m2),
               np.array(links.armature_kg_m2)]
 
     def standard(a: list) -> np.ndarray:
-        dyn = WamDynamics(payload, LinkParameters(*a))
+        dyn = WamDynamics(payload, LinkParameters(*a, robot=robot))
         return np.concatenate([dyn.standard_parameters(), dyn.armature_kg_m2])
 
     s = LINK_PRIOR_SHARE
     out = []
-    for i in range(N_JOINTS):
+    for i in range(len(arrays[0])):
         moves = [(0, (i,), s * arrays[0][i])]
         moves += [(1, (i, k), s * np.linalg.norm(arrays[1][i]) + LINK_PRIOR_COM_M) for k in range(3)]
         moves += [(2, (i, k), s * arrays[2][i, :3].max()) for k in range(6)]

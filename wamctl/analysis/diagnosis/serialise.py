@@ -71,8 +71,6 @@ def diagnosis_dict(diag, data_path: str = "") -> dict:
            "conclusive": bool(diag.conclusive_), "reason": diag.reason_}
     if dyn is not None and dyn.robot.name != "wam7":
         out["robot"] = dyn.robot.name
-    if getattr(diag, "not_tested_", None):      # candidates this arm's runs are not tested for, with why
-        out["not_tested"] = dict(diag.not_tested_)
     if getattr(diag, "warnings_", None):
         out["warnings"] = list(diag.warnings_)
     check = getattr(diag, "against_declared_", None) if diag.conclusive_ else None
