@@ -151,6 +151,7 @@ def test_the_loop_on_the_simulated_arm_decides(tmp_path, truth):
         pooled = PooledDiagnosis([first_diag[0], diag], ["sweep", "next"], [first_diag[1], data]).fit()
         dec = next(f for f in pooled.findings_ if f.get("delay_or_inertia"))["delay_or_inertia"]
         assert dec["outcome"] == "inertia" and dec["decided_by"] == ["next"], dec
+        assert "link_parameters" not in [f["name"] for f in pooled.findings_], pooled.findings_
         lo, hi = dec["inertia_error_ci_kg_m2"][7]
         assert lo <= 0.0043 <= hi, dec["inertia_error_ci_kg_m2"]      # the armature added: 0.0046 - 0.0003
         h = dec["per_run"][1]["held_out_rms_Nm"]

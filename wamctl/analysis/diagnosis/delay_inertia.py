@@ -47,6 +47,7 @@ class StateSource:
     states: object
     joints: list
     sliding: dict | None = None
+    rigid_states: object = None       # states(shift_s) of the rigid body when not ``states`` (None: the same)
 
 
 def fourier_source(traj, t_s: np.ndarray) -> StateSource:
@@ -55,19 +56,22 @@ def fourier_source(traj, t_s: np.ndarray) -> StateSource:
     return StateSource(lambda s: traj.evaluate(t_s + s), list(traj.moving))
 
 
-def signals_source(sig, idx: np.ndarray, joints: list) -> StateSource:
+def signals_source(sig, idx: np.ndarray, joints: list, rigid_shift_s: float = 0.0) -> StateSource:
     """:class:`StateSource` of a run's smoothed signals (:class:`~wamctl.analysis.diagnosis.signals.Signals`) at
     the samples ``idx`` (a shift between samples interpolated). Each joint's rows are its sliding samples
     (``sig.moving``, as every other fit of the diagnosis): where a joint sticks, reverses or has just broken away
     its friction is static and unknown, and the smoothed Coulomb switch is not the model's sign; counted there
     (every sample of the run where another joint moves), that torque was the largest part of the residual on a
     fast run (joint 2 of the loop's designed run on an exact plant: a floor of 0.085 N m, 0.042 on its sliding
-    samples) and fitted as an inertia error of 0.013 kg m^2 (0.002 on its sliding samples)."""
+    samples) and fitted as an inertia error of 0.013 kg m^2 (0.002 on its sliding samples). ``rigid_shift_s``: the
+    rigid body's states are taken this much later (the run's zero-order hold, :mod:`~wamctl.analysis.diagnosis.
+    timing`), the speeds of the friction at the samples."""
     def states(s):
         k = s / sig.dt_s
         return sig.at("q", idx, k), sig.at("qd", idx, k), sig.at("qdd", idx, k)
 
-    return StateSource(states, sorted(joints), {j: sig.moving[idx, j] for j in joints})
+    rigid = None if not rigid_shift_s else (lambda s: states(s + rigid_shift_s))
+    return StateSource(states, sorted(joints), {j: sig.moving[idx, j] for j in joints}, rigid)
 
 
 @dataclass
@@ -94,7 +98,8 @@ def rows_of(dynamics, src: StateSource) -> Rows:
     R, QD = [], []
     for d in DELAY_GRID_S:
         q, qd, qdd = (q0, qd0, qdd0) if d == 0 else src.states(float(d))
-        tau = dynamics.inverse_dynamics_many(q, qd, qdd)
+        tau = dynamics.inverse_dynamics_many(*((q, qd, qdd) if src.rigid_states is None else
+                                              src.rigid_states(float(d))))
         R.append({j: tau[mask[j], j] for j in moving})
         QD.append({j: qd[mask[j], j] for j in moving})
     return Rows(R, QD, {j: qdd0[mask[j], j] for j in moving}, moving, mask)
@@ -340,7 +345,8 @@ def check_run(diag, dynamics, rate_hz: float = DESIGN_RATE_HZ) -> RunCheck:
     sig = diag.signals_
     idx = np.unique(np.concatenate([diag.jd_[j].idx for j in diag.joints_]))
     idx = idx[:: max(1, int(round(1.0 / (sig.dt_s * rate_hz))), -(-len(idx) // MAX_ROWS))]
-    rows = rows_of(dynamics, signals_source(sig, idx, list(diag.joints_)))
+    shift = float(getattr(getattr(diag, "design_", None), "rigid_shift_s", 0.0))
+    rows = rows_of(dynamics, signals_source(sig, idx, list(diag.joints_), shift))
     tau = sig.at("tau", idx)
     y = {j: tau[rows.mask[j], j] - rows.R[0][j] for j in rows.joints}
     dec = decide(rows, y)

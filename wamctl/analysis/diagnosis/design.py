@@ -72,6 +72,8 @@ class Design:
         that fold}, once a payload is kept.
     links_beta, links_cols : {fold: the arm's link refit fitted without it} and the base columns it changes, once
         ``link_parameters`` is named (:mod:`wamctl.analysis.diagnosis.links`).
+    rigid_shift_s : the rigid body is taken at the states this much later than the samples (the zero-order hold
+        of the run's physics, :mod:`wamctl.analysis.diagnosis.timing`; 0 for continuous physics).
     """
 
     sig: Signals
@@ -86,6 +88,7 @@ class Design:
     payload_pi: dict = field(default_factory=dict)
     links_beta: dict = field(default_factory=dict)
     links_cols: np.ndarray | None = None
+    rigid_shift_s: float = 0.0
 
     @property
     def bounded(self) -> bool:
