@@ -41,10 +41,13 @@ def test_diagnose_run_then_the_designed_run_then_both_decides_the_delay(tmp_path
     predicted separation above 2 noise floors where RUN's is below 1. RUN + NEXT pooled: ``delay``, decided by
     NEXT (its excess at least 1 noise floor, RUN's below), the delay within 0.5 ms of the truth with a 95 %
     interval that holds it, found first; held-out torque RMS with the delay at most a third of friction only's on
-    RUN, at most 0.7 of it on NEXT (joints 2 and 4 keep a residual the delay does not explain) and below 0.8 of
+    RUN, at most 0.4 of it on NEXT (joints 2, 4, 7) and below 0.8 of
     the inertia errors' there. (Measured when written: RUN alone excess 0.80; separation
     0.75 -> 4.7 noise floors, joints 2, 4, 7; pooled excess RUN 0.81, NEXT 1.5; delay 4.0 ms [3.8, 4.2]; held out
-    RUN 0.00319 -> 0.000649 N m (inertia errors 0.000847), NEXT 0.130 -> 0.0766 N m (inertia errors 0.126).)"""
+    RUN 0.00319 -> 0.000649 N m (inertia errors 0.000847), NEXT 0.130 -> 0.0766 N m (inertia errors 0.126). With
+    the simulated rigid body half a physics step early, diagnosis/timing.py: NEXT 0.114 -> 0.0318 N m, inertia
+    errors 0.113, pooled excess on NEXT 2.9; link_parameters is still named pooled, not asserted: see
+    docs/diagnosis-pooled.md.)"""
     assert yaml.safe_load(SWEEP.read_text())["plant"]["effects"]["delay"]["delay_s"] == TRUE_DELAY_S
     wamctl("run", SWEEP, "--out", tmp_path / "runs")
     run = only_dir(tmp_path / "runs")
@@ -77,5 +80,5 @@ def test_diagnose_run_then_the_designed_run_then_both_decides_the_delay(tmp_path
     assert lo <= TRUE_DELAY_S <= hi and hi - lo <= 2e-3
     h1, h2 = first["held_out_rms_Nm"], new["held_out_rms_Nm"]
     assert h1["delay"] <= h1["neither"] / 3, h1                 # the sweep: joint 7 alone
-    assert h2["delay"] <= 0.7 * h2["neither"], h2               # joints 2, 4, 7: what is left is not the delay's
+    assert h2["delay"] <= 0.4 * h2["neither"], h2               # joints 2, 4, 7 (0.59 before diagnosis/timing.py)
     assert h2["delay"] < 0.8 * h2["inertia"], h2

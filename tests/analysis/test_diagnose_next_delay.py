@@ -111,9 +111,10 @@ def test_the_loop_on_the_simulated_arm_decides(tmp_path, truth):
     the 0.0043 kg m^2 added, and inertia errors' held-out torque RMS on the designed run below 0.8 of a delay's.
     (Measured when written: excess 0.80 / 0.64 on the sweep; 1.5 / 2.0 on the designed run, joints 2, 4, 7, period
     2 s; pooled: excess sweep 0.95, next 2.0; joint 7 0.00431 [0.00427, 0.00434] kg m^2; held out on the designed
-    run 0.0448 -> 0.0437 N m, a delay 0.105. Joints 2 and 4 get inertia errors of 0.011 [0.006, 0.017] and 0.0026
-    [0.0009, 0.0038] kg m^2 where the plant has none: a residual the diagnosis leaves on that fast run with no
-    effect in the plant at all, named link_parameters there, not asserted.)"""
+    run 0.0448 -> 0.0437 N m, a delay 0.105. After the check took each joint's sliding samples and the simulated
+    rigid body half a physics step early: no link_parameters pooled (asserted); joint 2's inertia error -0.0008
+    [-0.0021, 0.0016] kg m^2, joint 4's +0.0036 [0.0004, 0.0052] where the plant has none (the torque and the
+    acceleration smoothed by different Savitzky-Golay filters: docs/diagnosis-pooled.md), not asserted.)"""
     from wamctl.experiments.diagnose import diagnose_to_run_dir
     from wamctl.specs import PlantSpec
 
