@@ -27,6 +27,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wamctl.analysis.blas import single_threaded_blas
 from wamctl.model.friction import classic_friction_columns
 
 MAX_DELAY_S = 0.02                # a longer delay makes libbarrett's PD loop unstable
@@ -267,19 +268,8 @@ class NextRun:
     limit_use: object
 
 
+@single_threaded_blas()     # small dense products: threads only contend on a shared machine
 def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float, rows_run: Rows, limits,
-                    joint_sets: list[list[int]], harmonics: int = 5, per_set: int = 2, fill: float = 0.95,
-                    seed: int = 0, periods_s=PERIODS_S) -> NextRun:
-    """:func:`_design_next_run` with one BLAS thread (small dense products: threads only contend on a shared
-    machine)."""
-    from wamctl.analysis.identification.excitation import _single_threaded_blas
-
-    with _single_threaded_blas():
-        return _design_next_run(dynamics, friction, q0_rad, hyp, noise_Nm, rows_run, limits, joint_sets,
-                                harmonics=harmonics, per_set=per_set, fill=fill, seed=seed, periods_s=periods_s)
-
-
-def _design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float, rows_run: Rows, limits,
                     joint_sets: list[list[int]], harmonics: int = 5, per_set: int = 2, fill: float = 0.95,
                     seed: int = 0, periods_s=PERIODS_S) -> NextRun:
     """T-optimal choice among Fourier candidates (excite's parametrisation): ``per_set`` random series (seeded)

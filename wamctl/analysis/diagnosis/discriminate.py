@@ -26,6 +26,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import lsq_linear
 
+from wamctl.analysis.blas import single_threaded_blas
 from wamctl.analysis.diagnosis.candidates import D7_M
 from wamctl.analysis.diagnosis.prepare import link_base_rows
 from wamctl.analysis.diagnosis.rigid import payload_cone, payload_map
@@ -237,19 +238,8 @@ def best_within_limits(candidates: list, score, limits, dynamics, friction, fill
 LIMIT_CHECK_RATE_HZ = 50.0     # the candidates' scaling checked on this grid, the winner's at the control rate
 
 
+@single_threaded_blas()     # small dense products: threads only contend on a shared machine
 def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float, rows_run: Rows, limits,
-                    joint_sets: list[list[int]], period_s: float = 8.0, harmonics: int = 5, per_set: int = 2,
-                    fill: float = 0.95, seed: int = 0) -> NextRun:
-    """:func:`_design_next_run` with one BLAS thread (small dense products: threads only contend on a shared
-    machine)."""
-    from wamctl.analysis.identification.excitation import _single_threaded_blas
-
-    with _single_threaded_blas():
-        return _design_next_run(dynamics, friction, q0_rad, hyp, noise_Nm, rows_run, limits, joint_sets,
-                                period_s=period_s, harmonics=harmonics, per_set=per_set, fill=fill, seed=seed)
-
-
-def _design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float, rows_run: Rows, limits,
                     joint_sets: list[list[int]], period_s: float = 8.0, harmonics: int = 5, per_set: int = 2,
                     fill: float = 0.95, seed: int = 0) -> NextRun:
     """T-optimal choice among Fourier candidates (excite's parametrisation, :class:`~wamctl.analysis.

@@ -49,11 +49,11 @@ and the model file in :mod:`wamctl.analysis.diagnosis.augmented`. This module ru
 from __future__ import annotations
 
 import logging
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
 
+from wamctl.analysis.blas import single_threaded_blas
 from wamctl.analysis.diagnosis.arm import (
     PAYLOAD_COM_BOX_M,
     delay_disagreements,
@@ -135,18 +135,6 @@ def torque_warnings(sig: Signals, robot=None) -> list[str]:
     return out
 
 
-@contextmanager
-def _single_threaded_blas():
-    """The diagnosis multiplies tall, thin matrices: one BLAS thread is fastest, and several threads on a
-    shared machine are ten times slower (OpenBLAS spin-waits). threadpoolctl is optional."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        yield
-        return
-    with threadpool_limits(limits=1, user_api="blas"):
-        yield
-
 
 class ModelDiagnosis:
     """Find what the declared model of the WAM lacks in a measured run.
@@ -200,7 +188,7 @@ class ModelDiagnosis:
         """Diagnose a :class:`wamctl.runs.measured.RunData` (a run directory or a measured run, loaded).
         ``progress(fraction, label)``, when given, is told how far the diagnosis is (0..1) and what it does."""
         self._progress = progress or (lambda fraction, label: None)
-        with _single_threaded_blas():
+        with single_threaded_blas():
             return self._fit(data)
 
     def _fit(self, data) -> ModelDiagnosis:

@@ -194,12 +194,12 @@ class PooledDiagnosis:
         self.datas = datas
 
     def fit(self) -> PooledDiagnosis:
-        from wamctl.analysis.diagnosis.estimator import _single_threaded_blas
+        from wamctl.analysis.blas import single_threaded_blas
 
         why = different_arm([d.meta for d in self.datas], [d.truth for d in self.datas], self.labels)
         if why:
             raise PoolingError(why)
-        with _single_threaded_blas():
+        with single_threaded_blas():
             return self._fit()
 
     def _fit(self) -> PooledDiagnosis:

@@ -58,12 +58,12 @@ from __future__ import annotations
 
 import logging
 import warnings
-from contextlib import contextmanager
 
 import numpy as np
 import pandas as pd
 from statsmodels.stats.sandwich_covariance import S_hac_simple
 
+from wamctl.analysis.blas import single_threaded_blas
 from wamctl.analysis.identification.base import (
     base_parameters,
     identifiability,
@@ -243,7 +243,7 @@ class InertialIdentification:
                                   f"at least {MIN_ROWS}: did any joint move?")
         self.base_ = base = base_parameters(getattr(dyn, "robot", None))
         self.pi_declared_ = standard_vector(dyn, friction)
-        with _single_threaded_blas():
+        with single_threaded_blas():
             Xb = base.regressor(Y)
             self.sigma_Nm_ = self._noise(Xb, y, jrow)
             w = 1.0 / self.sigma_Nm_[jrow]
@@ -689,12 +689,3 @@ def _independent_subset(X: np.ndarray, idx: np.ndarray, rel_tol: float = 1e-8) -
     return np.sort(idx[ok][piv[:r]])
 
 
-@contextmanager
-def _single_threaded_blas():
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        yield
-        return
-    with threadpool_limits(limits=1, user_api="blas"):
-        yield

@@ -33,12 +33,12 @@ between grid points.
 from __future__ import annotations
 
 import logging
-from contextlib import contextmanager
 from dataclasses import dataclass, field
 
 import numpy as np
 from scipy.optimize import minimize
 
+from wamctl.analysis.blas import single_threaded_blas
 from wamctl.analysis.identification.base import (
     BaseParameters,
     base_parameters,
@@ -419,7 +419,7 @@ def design_excitation(q0_rad, joints: list[int], period_s: float, harmonics: int
     crit = Criterion(q0_rad, period_s, joints, harmonics, limits, dynamics, friction, criterion, n_grid)
     rng = np.random.default_rng(seed)
     best, tried = None, []
-    with _single_threaded_blas():
+    with single_threaded_blas():
         for s in range(starts):
             x0 = _feasible_start(crit, crit.joint_kinematic_scale(rng.normal(0.0, 1.0, crit.n_free)))
             if x0 is None:
@@ -518,18 +518,6 @@ def _feasible_start(crit: Criterion, direction: np.ndarray) -> np.ndarray | None
         mid = 0.5 * (lo + hi)
         lo, hi = (mid, hi) if crit.margins(mid * direction).min() >= 0 else (lo, mid)
     return 0.9 * lo * direction if lo > 0 else None
-
-
-@contextmanager
-def _single_threaded_blas():
-    """Small dense products: one BLAS thread is fastest on a shared machine (threadpoolctl is optional)."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:
-        yield
-        return
-    with threadpool_limits(limits=1, user_api="blas"):
-        yield
 
 
 def sampled_limit_use(traj: FourierTrajectory, limits: ExcitationLimits, dynamics, friction,
