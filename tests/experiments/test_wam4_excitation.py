@@ -76,6 +76,7 @@ def test_excite_designs_a_wam4_trajectory_within_the_wam4s_limits(designed):
     np.testing.assert_allclose(design["limits_used"]["torque"], use.used["torque"], rtol=1e-9)
     md = (designed["dir"] / "report.md").read_text()
     assert "joints [1, 2, 3, 4]" in md
+    assert "end-point speed (the tool plate) peak" in md and "wrist" not in md     # a wam4 has no wrist
     # its world is the wam4's: shoulder and forearm (to the tool plate) kept apart, no wrist capsule
     smallest = design["world"]["smallest"]["self"]
     assert smallest["between"] == "links 1-2 (shoulder) / link 4 (forearm)" and design["world"]["respected"]

@@ -38,13 +38,12 @@ from wamctl.model import collision as C
 from wamctl.model import params as P
 from wamctl.model.plant import resolve_friction
 from wamctl.model.robots import get_robot
+from wamctl.report.excitation import LABELS as LIMIT_LABELS
 from wamctl.runs.store import RunDir
 from wamctl.specs.excitation import ExcitationSpec
 
 log = logging.getLogger(__name__)
 
-LIMIT_LABELS = {"position": "joint range (with margin)", "speed": "speed", "acceleration": "acceleration",
-                "torque": "torque (declared model, with margin)", "cartesian_speed": "wrist speed"}
 
 
 def limits_of(spec: ExcitationSpec) -> ExcitationLimits:

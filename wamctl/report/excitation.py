@@ -13,8 +13,11 @@ from wamctl.report.document import Document
 from wamctl.report.figures import joint_grid, save
 from wamctl.runs.store import read_table
 
+# the limits' names in reports, summaries and refusals; the end point is the wrist's centre on a wam7 and the tool
+# plate on a wam4 (wamctl.model.collision)
 LABELS = {"position": "joint range (with margin)", "speed": "speed", "acceleration": "acceleration",
-          "torque": "torque (declared model, with margin)", "cartesian_speed": "wrist speed"}
+          "torque": "torque (declared model, with margin)", "cartesian_speed": "end-point speed"}
+END_POINT = {"wam7": "the wrist", "wam4": "the tool plate"}
 PEAK_COLUMNS = {"position": "position_peak_rad", "speed": "speed_peak_rad_s",
                 "acceleration": "acceleration_peak_rad_s2", "torque": "torque_peak_Nm"}
 
@@ -42,7 +45,8 @@ def design_document(spec, design, use, limits, out_dir: Path, outlook: dict | No
              f"over one period: {design.condition_number:.4g}.")
     worst = use.worst
     doc.text(f"Closest limit: {LABELS[worst[0]]}" + (f" of joint {worst[1]}" if worst[1] else "")
-             + f", {worst[2]:.0%} used; wrist speed peak {use.peak['cartesian_speed']:.3f} m/s of "
+             + f", {worst[2]:.0%} used; end-point speed ({END_POINT.get(spec.robot, 'the last link')}) peak "
+               f"{use.peak['cartesian_speed']:.3f} m/s of "
                f"{limits.cartesian_speed_m_s:g} m/s. All limits checked at {P.CONTROL_RATE_HZ:.0f} Hz over the "
                "whole period.")
     if outlook:
@@ -98,7 +102,9 @@ def world_section(doc: Document, clearance, spec, scaled_back: float = 1.0) -> N
     said = [f"self-collision {'checked' if w.self_collision else 'not checked'}",
             f"table plane at z = {w.table_z_m:g} m" if w.table_z_m is not None else "no table",
             f"workspace box {w.box.min_m} to {w.box.max_m} m" if w.box is not None else "no workspace box"]
-    doc.text("Capsules along the arm (shoulder, upper arm, forearm, wrist and hand"
+    capsules = ("shoulder, upper arm, forearm to the tool plate" if spec.robot == "wam4"
+                else "shoulder, upper arm, forearm, wrist and hand")
+    doc.text(f"Capsules along the arm ({capsules}"
              + (f" with a tool of {w.tool_length_m:g} m" if w.tool_length_m else "") + "); " + ", ".join(said)
              + f"; clearance {clearance.clearance_m:g} m. Sampled every {1e3 * clearance.dt_s:.1f} ms over the whole "
              f"period; between samples no distance can shrink by more than {1e3 * clearance.sampling_bound_m:.1f} mm "
