@@ -216,6 +216,11 @@ def separation(rows: Rows, hyp: Hypotheses, noise_Nm: dict) -> dict:
     out["separation"] = min(out.values())
     return out
 
+def excess_floors(worse: float, better: float) -> float:
+    """What the worse of two weighted fits leaves beyond the better one, in noise floors: ``sqrt(worse^2 -
+    better^2) / better`` (0 when it leaves nothing more)."""
+    return float(np.sqrt(max(worse ** 2 - better ** 2, 0.0)) / max(better, 1e-12))
+
 
 def decide(rows: Rows, y: dict) -> dict:
     """Which of the two a run's measured residual ``y`` ({j: (m_j,)}, ``tau - rnea(q)`` at the rows' samples)
@@ -234,7 +239,7 @@ def decide(rows: Rows, y: dict) -> dict:
     r_d, d, per_d = fit_delay(rows, y, w)
     r_0 = fit_none(rows, y, w)
     best, other = (r_d, r_i) if r_d <= r_i else (r_i, r_d)
-    excess = float(np.sqrt(max(other ** 2 - best ** 2, 0.0)) / max(best, 1e-12))
+    excess = excess_floors(other, best)
     outcome = ("delay" if r_d <= r_i else "inertia") if excess >= DECIDED_FLOORS else "ambiguous"
 
     def pooled(per):
@@ -245,7 +250,7 @@ def decide(rows: Rows, y: dict) -> dict:
             "rms_delay_noise_floors": r_d, "rms_inertia_noise_floors": r_i, "rms_neither_noise_floors": r_0,
             "delay_s": d, "inertia_error_kg_m2": {int(j) + 1: float(v) for j, v in da.items()},
             "excess_noise_floors": excess, "floor_Nm": {int(j) + 1: float(floor[j]) for j in rows.joints},
-            "effect_noise_floors": float(np.sqrt(max(r_0 ** 2 - best ** 2, 0.0)) / max(best, 1e-12))}
+            "effect_noise_floors": excess_floors(r_0, best)}
 
 
 # ------------------------------------------------------------------------------------------------- the design
@@ -537,8 +542,7 @@ def decide_pooled(parts: list[RunPart], n_blocks: int = 10, n_folds: int = 5, n_
     for r, p in enumerate(parts):
         keys = [k for k in pool.keys if k[0] == r]
         rr = {h: wrms(h, keys) for h in hyps}
-        excess = float(np.sqrt(max(rr[lose] ** 2 - rr[win] ** 2, 0.0)) / max(rr[win], 1e-12))
-        against = float(np.sqrt(max(rr[win] ** 2 - rr[lose] ** 2, 0.0)) / max(rr[lose], 1e-12))
+        excess, against = excess_floors(rr[lose], rr[win]), excess_floors(rr[win], rr[lose])
         per_run.append({
             "label": p.label, "joints": [j + 1 for _, j in keys],
             "rms_noise_floors": rr, "excess_noise_floors": excess, "against_noise_floors": against,
@@ -573,8 +577,7 @@ def decide_pooled(parts: list[RunPart], n_blocks: int = 10, n_folds: int = 5, n_
     p_extra = 1 if win == "delay" else len(da_all)
     test = nested_test(e0, e1, p_extra, 5 * len(pool.keys) + p_extra, groups=groups)
     return {"outcome": outcome, "winner": win, "rms_noise_floors": pooled_rms,
-            "excess_noise_floors": float(np.sqrt(max(pooled_rms[lose] ** 2 - pooled_rms[win] ** 2, 0.0))
-                                         / max(pooled_rms[win], 1e-12)),
+            "excess_noise_floors": excess_floors(pooled_rms[lose], pooled_rms[win]),
             "per_run": per_run, "decided_by": decided if outcome != "ambiguous" else [],
             "contradicted_by": contra, "added_nothing": [p["label"] for p in per_run if p["label"] not in decided],
             "held_out_rms_Nm": {h: held_rms(h, pool.keys) for h in hyps},
