@@ -237,12 +237,12 @@ def simulate_positions(plant: dict, meta, t_s: np.ndarray, q_ref: np.ndarray, q0
     from wamctl.specs import PlantSpec
 
     robot = get_robot(getattr(meta, "robot", None))     # the run's arm
-    N7 = robot.n_joints
+    n_joints = robot.n_joints
 
     n = len(t_s)
     kp, kd = np.asarray(meta.controller.kp, float), np.asarray(meta.controller.kd, float)
     ki = np.asarray(meta.controller.ki, float) if (meta.controller.kind == "pid" and meta.controller.ki) \
-        else np.zeros(N7)
+        else np.zeros(n_joints)
     dt = 1.0 / float(meta.sample_rate_hz)
     gravity = WamDynamics(payload, robot=robot).gravity_view if meta.gravity_compensation else None
     ctl = JointController(kp, kd, ki, dt, gravity=gravity, feedforward_Nm=feedforward)
@@ -254,15 +254,15 @@ def simulate_positions(plant: dict, meta, t_s: np.ndarray, q_ref: np.ndarray, q0
         backend.truth()[1][:] = qd0          # the true velocity, a view the backend updates in place
     backend._t = float(t0_s)                  # the plant's clock (a friction drift), the sim backend's own
     ref = Reference(np.arange(n) * dt, q_ref, np.zeros_like(q_ref), np.zeros_like(q_ref), [])
-    rec = LoopRecorder(n, False, n_joints=N7)
+    rec = LoopRecorder(n, False, n_joints=n_joints)
     try:
         with backend:
             run_loop(backend, ctl, ref, rec)
     except SafetyLimitError as exc:
         log.info("simulation of the model stopped at sample %d: %s", rec.n, exc)
-    out = np.full((n, N7), np.nan)
+    out = np.full((n, n_joints), np.nan)
     rows = rec.result()
-    out[: len(rows)] = rows[:, 1 + N7:1 + 2 * N7]      # t, q_ref (n), q (n), ...
+    out[: len(rows)] = rows[:, 1 + n_joints:1 + 2 * n_joints]      # t, q_ref (n), q (n), ...
     return out
 
 

@@ -87,7 +87,7 @@ PRIOR_WEIGHT = 1.0       # the declared arm as a prior, of standard deviation pr
 N_NULL_DRAWS = 4000      # draws of the held-out check's null with the fit's uncertainty (held_out_comparison)
 NULL_SEED = 20261127
 PRECISE_SHARE = 0.1      # the fit's expected excess at most this share of the nominal's held-out mean square
-SHRINK = True
+SHRINK = True            # the sandwich's middle shrunk (Ledoit-Wolf); False: the raw one (docs/real-data.md compares)
 LEVERAGE_FLOOR = 1e-2    # a block's leverage counted at most 1 - this (leverage_adjusted)
 PD_MARGIN = 1e-7         # each pseudo-inertia >= this share of the declared one's largest eigenvalue
 
