@@ -29,7 +29,9 @@ REASON = "process ended without closing the run"
 
 def _start(tmp_path: Path, n_points: int) -> tuple[subprocess.Popen, Path]:
     spec = tmp_path / "s.yaml"
-    spec.write_text(yaml.safe_dump(tiny({"grid": {"seed": {"range": [n_points]}}, "reports": False}, hold_s=4.0)))
+    # long points (120 s of arm time, 24 chunks each): on the compiled loop a 4 s point (2200 ticks, less than a
+    # chunk) wrote its one chunk just before it consolidated and ended, and the kill could land after that
+    spec.write_text(yaml.safe_dump(tiny({"grid": {"seed": {"range": [n_points]}}, "reports": False}, hold_s=120.0)))
     out = tmp_path / "out"
     proc = subprocess.Popen([sys.executable, "-m", "wamctl", "sweep", str(spec), "--out", str(out), "--workers", "2",
                              "--quiet"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
@@ -43,7 +45,7 @@ def _wait_for_a_chunk(proc: subprocess.Popen, out: Path) -> None:
     while time.monotonic() < deadline and proc.poll() is None:
         if list(out.glob("*-sweep/runs/*/*/data/part-*.parquet")):
             return
-        time.sleep(0.05)
+        time.sleep(0.01)
     raise AssertionError(f"no point wrote a chunk (exit {proc.poll()})")
 
 
