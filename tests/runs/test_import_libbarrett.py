@@ -133,10 +133,12 @@ def test_the_analyses_on_a_wam4_controller_log_and_the_report_reads_it(tmp_path)
     src = tmp_path / "wam4.csv"
     wam4_log(src)
     run = json.loads(imp(src, tmp_path, "--json").out)["run_dir"]
-    line = one_error_line(run_cli("diagnose", run, "--out", tmp_path / "diagnose"))
-    # diagnose takes a wam4 (tests/analysis/test_diagnose_wam4.py), not yet a controller torque: one line, the reason
-    assert line.endswith("torque controller (the controller's output, gravity compensation added downstream and not "
-                         "logged): not supported by diagnose yet"), line
+    # diagnose takes a wam4 (tests/analysis/test_diagnose_wam4.py) and, of the controller's torque, the joints whose
+    # gravity torque is constant (tests/analysis/test_diagnose_controller_torque.py): joints 2-4 named with why
+    r = run_cli("diagnose", run, "--out", tmp_path / "diagnose", columns=400)
+    assert r.code == 0, r.err
+    for j in (2, 3, 4):
+        assert f"joint {j} not diagnosed: torque controller: gravity compensation not logged" in r.out, r.out
     # identify takes a wam4 (tests/analysis/test_identification_wam4.py) and, of the controller's torque, the joints
     # whose gravity torque is constant: joint 1 here; joints 2-4 moved and are refused with the reason
     r = run_cli("identify", run, "--out", tmp_path / "identify", "--json")

@@ -297,6 +297,10 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     for w in worse:     # first: a model written that predicts worse than the declared one is never quiet
         doc.warning(w)
     doc.text(f"Data: {result.get('data') or spec.get('data')}. Declared model: {result.get('declared_model')}.")
+    if result.get("torque") == "controller":
+        doc.text("Torque: the controller's output, libbarrett's gravity compensation added downstream and not logged; "
+                 "only the joints whose gravity torque is constant over the run are diagnosed (the declared gravity "
+                 "added back), the others are named below with why.")
     m = result.get("method") or {}
     if m:
         doc.text(f"{m.get('samples')} samples at {m.get('sample_rate_hz', 0):.0f} Hz; derivatives by a Gaussian "

@@ -86,6 +86,8 @@ from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
 from wamctl.analysis.diagnosis.sweeps import map_evidence
 from wamctl.analysis.diagnosis.timing import rigid_body_shift_s, shift_rigid_body
 from wamctl.analysis.diagnosis.unexplained import arm_unnamed, unexplained
+from wamctl.errors import DataFormatError
+from wamctl.model.controller_torque import constant_gravity
 from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.friction import FrictionModel
 from wamctl.model.params import LinkParameters
@@ -295,11 +297,28 @@ class ModelDiagnosis:
         if all(f"qd_{j}_rad_s" in data.data for j in range(1, n + 1)):
             qd = data.col("qd")[:, :n]
             qd = qd if np.isfinite(qd).all() else None
-        self.signals_ = prepare_signals(data.t_s, data.col("q")[:, :n], data.col("q_ref")[:, :n],
-                                        data.col("tau")[:, :n],
-                                        float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints],
-                                        qd_rad_s=qd, **kw)
-        return self.signals_
+        q, tau = data.col("q")[:, :n], data.col("tau")[:, :n]
+        refused = {}
+        if getattr(meta, "torque_kind", "total") == "controller":
+            # the controller's output, libbarrett's gravity compensation added downstream and not logged: the
+            # declared gravity added back to every joint, exact (a constant) at the joints whose gravity torque is
+            # constant over the run, which alone are diagnosed; at the others the declared arm's guess, which only
+            # the controller's gains read (the closed-loop check)
+            g, refused = constant_gravity(self.dynamics_, q)
+            tau = tau + g
+        sig = self.signals_ = prepare_signals(data.t_s, q, data.col("q_ref")[:, :n], tau,
+                                              float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints],
+                                              qd_rad_s=qd, **kw)
+        # refused: the joints that move (or were commanded to) whose gravity torque varies
+        refused = {j: why for j, why in refused.items() if j in sig.joints or j in sig.skipped}
+        if refused:
+            sig.joints = [j for j in sig.joints if j not in refused]
+            skipped = {**sig.skipped, **refused}
+            sig.skipped = {j: skipped[j] for j in sorted(skipped)}
+            if not sig.joints:
+                raise DataFormatError(f"{self.source_}: no joint left to diagnose (" + "; ".join(
+                    f"joint {j + 1}: {why}" for j, why in sig.skipped.items()) + ")")
+        return sig
 
     def _prepare(self, sig: Signals) -> None:
         want_payload = ("payload" in self.candidates and "payload" not in self.declared_effects_) or \

@@ -71,6 +71,9 @@ def diagnosis_dict(diag, data_path: str = "") -> dict:
            "conclusive": bool(diag.conclusive_), "reason": diag.reason_}
     if dyn is not None and dyn.robot.name != "wam7":
         out["robot"] = dyn.robot.name
+    torque = getattr(getattr(diag, "meta_", None), "torque_kind", "total")
+    if torque != "total":       # the controller's output: only the joints of constant gravity torque diagnosed
+        out["torque"] = torque
     if getattr(diag, "warnings_", None):
         out["warnings"] = list(diag.warnings_)
     check = getattr(diag, "against_declared_", None) if diag.conclusive_ else None

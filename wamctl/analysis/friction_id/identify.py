@@ -15,12 +15,10 @@ from wamctl.analysis.friction_id.selection import select_model
 from wamctl.analysis.friction_id.velocity_map import MapOptions, friction_map
 from wamctl.errors import DataFormatError
 from wamctl.model import params as P
+from wamctl.model.controller_torque import constant_gravity
 from wamctl.model.friction import FrictionModel
 
 log = logging.getLogger(__name__)
-# a joint's gravity torque this small over a whole run is zero (a vertical axis: 1e-15 N m), so a log of the
-# controller's output without the gravity compensation added downstream still holds that joint's whole torque
-GRAVITY_ZERO_NM = 1e-6
 
 
 @dataclass
@@ -187,20 +185,18 @@ def identify(run, options: dict | None = None, map_options: MapOptions | None = 
     q, tau = run.col("q")[:, :n], run.col("tau")[:, :n]
     refused: dict[int, str] = {}
     if getattr(meta, "torque_kind", "total") == "controller":
-        # gravity compensation was added downstream and not logged: only a joint whose gravity torque is zero
-        # over the whole run (a vertical axis) has its whole torque in the log
-        g = np.abs(dyn.gravity_many(q)).max(axis=0)
-        for j in joints:
-            if g[j - 1] > GRAVITY_ZERO_NM:
-                refused[j] = (f"torque controller: gravity compensation not logged and joint {j}'s gravity torque "
-                              f"reaches {g[j - 1]:.2f} N m over the run")
+        # gravity compensation was added downstream and not logged: only a joint whose gravity torque is constant
+        # over the whole run (a vertical axis; wamctl.model.controller_torque) has its whole torque in the log,
+        # once the declared gravity is added back
+        g, varies = constant_gravity(dyn, q)
+        refused = {j: varies[j - 1] for j in joints if j - 1 in varies}
         joints = [j for j in joints if j not in refused]
         if not joints:
             raise DataFormatError(f"{run.source}: no joint left to identify ("
                                   + "; ".join(f"joint {j}: {why}" for j, why in refused.items()) + ")")
         for j, why in refused.items():
             log.warning("joint %d not identified: %s", j, why)
-        tau = tau + dyn.gravity_many(q)     # zero on the joints kept; the others are not read
+        tau = tau + g     # constant on the joints kept; the others are not read
     fmap = friction_map(run.t_s, q, tau, q_ref, joints, dyn, map_options)
     if not len(fmap) or not fmap["accepted"].any():
         raise DataFormatError(f"{run.source}: no constant-velocity stage found in the data of joints {joints}; "

@@ -29,9 +29,10 @@ Arms and torques
 Any arm of :mod:`wamctl.model.robots`: the rows have the joints of the model (``dynamics``), which must be the
 arm the run names (``robot:``). A run whose torque is the controller's output (``torque: controller``: gravity
 compensation added downstream and not logged) keeps only the joints whose gravity torque under the declared arm
-is constant over the run (:data:`GRAVITY_CONSTANT_NM`: zero on a vertical axis, or held constant because the
-joints beyond it keep still), the declared gravity added back to their torque; the others are left out with the
-reason (:attr:`RunRows.skipped`), and no joint left is an error naming each joint's reason.
+is constant over the run (:func:`wamctl.model.controller_torque.constant_gravity`: zero on a vertical axis, or
+held constant because the joints beyond it keep still), the declared gravity added back to their torque; the
+others are left out with the reason (:attr:`RunRows.skipped`), and no joint left is an error naming each joint's
+reason.
 
 Instruments
 -----------
@@ -65,9 +66,9 @@ from wamctl.analysis.diagnosis.signals import (
 from wamctl.analysis.identification.base import standard_regressor
 from wamctl.errors import DataFormatError
 from wamctl.model import params as P
+from wamctl.model.controller_torque import constant_gravity
 
 N7 = P.N_JOINTS
-GRAVITY_CONSTANT_NM = 1e-6      # a joint's gravity torque varying less over a run counts as constant
 ROW_RATE_HZ = 100.0
 SIGNAL_SHARE = 0.99     # of the reference's acceleration energy that sets the signal band
 BAND_MARGIN = 3.0       # the second filter's cut-off at least this many times the signal band
@@ -310,12 +311,8 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
 
 def _add_constant_gravity(dynamics, q_rad: np.ndarray, tau_Nm: np.ndarray) -> tuple[np.ndarray, dict]:
     """A ``torque: controller`` run: the declared gravity added to the joints whose gravity torque is constant over
-    the run (``GRAVITY_CONSTANT_NM``), the others refused ``{0-based joint: why}``."""
-    g = dynamics.gravity_many(q_rad)
-    span = np.ptp(g, axis=0)
-    refused = {j: (f"torque controller: gravity compensation not logged and joint {j + 1}'s gravity torque varies "
-                   f"by {span[j]:.3g} N m over the run (at most {GRAVITY_CONSTANT_NM:g} N m is usable)")
-               for j in range(q_rad.shape[1]) if span[j] > GRAVITY_CONSTANT_NM}
+    the run, the others refused ``{0-based joint: why}`` (:func:`wamctl.model.controller_torque.constant_gravity`)."""
+    g, refused = constant_gravity(dynamics, q_rad)
     tau = tau_Nm.copy()
     for j in range(q_rad.shape[1]):
         if j not in refused:
