@@ -122,3 +122,14 @@ def test_no_joint_of_constant_gravity_torque_is_one_line_and_exit_2(tmp_path):
     assert "; joint 4: " + REASON.format(j=4) in lines[0], lines[0]
     assert not (tmp_path / "out").exists() or not any((tmp_path / "out").iterdir())
     assert np.ptp(pd.read_parquet(ctrl / "data.parquet")["q_1"]) < 0.01      # joint 1 held indeed
+
+
+def test_pooling_controller_torque_runs_is_refused_in_one_line(ripple, tmp_path):
+    """The pooled diagnosis knows the total command only so far: two controller-torque runs, one line, exit 2."""
+    _, ctrl, _ = ripple
+    other = shutil.copytree(ctrl, tmp_path / "ctrl2")
+    r = run_cli("diagnose", ctrl, other, "--out", tmp_path / "out", columns=400)
+    assert r.exc is None, r.tb
+    assert r.code == 2 and r.err.strip().splitlines() == [
+        f"error: {ctrl}: torque controller (the controller's output, gravity compensation added downstream and not "
+        "logged): not supported by diagnose of several runs yet"], r.err

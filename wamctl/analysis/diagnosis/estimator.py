@@ -6,7 +6,10 @@ Method
    is aligned (zero-order hold) and smoothed by the same filter (:mod:`wamctl.analysis.diagnosis.signals`).
    ``y = tau - rnea(q, qd, qdd)`` with the declared rigid body (+ armature, + a declared payload) is what
    friction and any missing effect must supply. Samples where a joint sticks, and the filter's reach around
-   them, are left out: there the friction torque is static and unknown.
+   them, are left out: there the friction torque is static and unknown. A log of the controller's output
+   (``torque: controller``: gravity compensation added downstream, not logged) is diagnosed at the joints whose
+   gravity torque is constant over the run, the declared gravity added back
+   (:mod:`wamctl.model.controller_torque`); the others are skipped with the reason, none left is an error.
 2. **Declared model.** Per joint, classic friction per direction (Coulomb + viscous) is linear in its four
    parameters; it is fitted by least squares (unless a model file gives it).
 3. **Held-out data.** Each joint's sliding samples (in time order) are cut into ``n_blocks`` contiguous
