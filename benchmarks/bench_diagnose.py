@@ -1,4 +1,4 @@
-"""Acceptance study and speed of ``wamctl diagnose`` (issues 5 and 15).
+"""Acceptance study and speed of ``wamctl diagnose`` (issues 5, 15 and 28).
 
 Two generators of measured runs, written apart from each other:
 
@@ -13,7 +13,15 @@ Seeds: the method was developed on the ``dev`` split and is reported on the ``re
 looked at while tuning): ``--split dev`` for development, ``--split report`` (default) for the study written to
 docs/diagnosis-validation.md.
 
-Parts: (a) the acceptance study per generator (confusion table, rates); (b) the false-alarm rate on clean runs with
+Parts: (a) the acceptance study per generator (confusion table, rates), with issue 28's loop on every run: the
+next experiment ``wamctl diagnose`` designs for it (payload or links, delay or inertia, a gap behind the encoder),
+and where it writes ``next_experiment.yaml``, that run made by the independent generator with the same truth
+(``gen_independent.follow_up``: the spec's Fourier reference evaluated by the generator, its own physics, noise
+and jitter drawn anew) and the two runs diagnosed pooled (``wamctl diagnose RUN NEXT``); the first generator's
+designs are recorded, not run. Issue 28's rates (right effect first over observable and identifiable runs, after
+at most one proposed run, ambiguous outcomes resolved, the pooled payload's mass and centre of mass, two effects
+at two different joints: ``--two-joint`` extra runs) against its targets, with Clopper-Pearson intervals;
+(b) the false-alarm rate on clean runs with
 perturbed links (independent generator, ``--fa-runs``, with its 95 % Clopper-Pearson interval); (c) speed: one hour
 of 500 Hz seven-joint data diagnosed, timed (``--long-s``).
 
@@ -67,6 +75,31 @@ def independent_jobs(split: str, runs_per_effect: int, clean: int, pairs: int | 
 
     plan = cases(runs_per_effect, clean, INDEPENDENT_SEED[split], pairs)
     return [{"generator": "independent", "case": c, "id": f"ind-{split}-{c['id']}"} for c in plan]
+
+
+TWO_JOINT_PAIRS = (("position_ripple", "friction_drift"), ("stribeck", "position_ripple"),
+                   ("stribeck", "friction_drift"), ("position_ripple", "position_ripple"))
+
+
+def two_joint_jobs(split: str, n: int) -> list[dict]:
+    """``n`` runs of the independent generator with two joint-own effects at two different joints (issue 28's
+    "two effects at different joints"; the plan's pairs put them on two joints in one run of 14 only): free motion
+    of 3-5 joints including both, the pairs of :data:`TWO_JOINT_PAIRS` in turn, the joints two apart in the
+    plan's joint cycle, sizes, rate, noise and jitter crossed; seeds ``SeedSequence([split seed, 5, i])``."""
+    from gen_independent import SIZES
+    from gen_independent.plan import JOINT_CYCLE, _seed
+
+    jobs = []
+    for i in range(int(n)):
+        a, b = TWO_JOINT_PAIRS[i % len(TWO_JOINT_PAIRS)]
+        ja, jb = JOINT_CYCLE[i % 7], JOINT_CYCLE[(i + 2) % 7]
+        c = dict(id=f"two-{a}+{b}-{i:03d}", seed=_seed(INDEPENDENT_SEED[split], 5, i),
+                 effects=[dict(name=a, joint=ja, size=SIZES[(i + 1) % 3]),
+                          dict(name=b, joint=jb, size=SIZES[(i // 3 + 2) % 3])],
+                 links="nominal", excitation="free", joint=ja, rate_hz=(500, 250)[i % 2],
+                 noise=("quiet", "noisy")[(i // 2) % 2], jitter=("stamp", "stamp", "loop")[(i // 3) % 3])
+        jobs.append({"generator": "independent", "case": c, "id": f"ind-{split}-{c['id']}"})
+    return jobs
 
 
 def false_alarm_jobs(split: str, n: int) -> list[dict]:
@@ -180,8 +213,10 @@ def one_run(args) -> dict:
            "rate_hz": truth["rate_hz"],
            "excitation": truth["excitation"], "links": truth["links"], "size": truth["size"], "snr": truth["snr"],
            "hard": "; ".join(truth["hard"])}
+    diag = data = None
     try:
-        diag = ModelDiagnosis().fit(load_run_data(path))
+        data = load_run_data(path)
+        diag = ModelDiagnosis().fit(data)
         result = diag.to_dict(str(path))
         row.update(criteria(result, truth))
         row["error"] = ""
@@ -189,7 +224,118 @@ def one_run(args) -> dict:
         row.update(criteria({}, truth))
         row["error"] = f"{type(exc).__name__}: {exc}"[:200]
     row.update(sim_s=t1 - t0, diagnose_s=time.perf_counter() - t1)
+    row["two_joints"] = _two_joints(truth)
+    row.update(follow(job, path, truth, data, diag, row, Path(root)))
     return row
+
+
+def _two_joints(truth: dict) -> str:
+    """For a run with two effects: ``"two joints"`` (two joint-own effects at two different joints), ``"joint and
+    arm"`` (a joint-own effect and an arm-wide one: payload or delay, felt at every moving joint), ``"one joint"``
+    (two joint-own effects at one joint) or ``"two arm-wide"``; empty for other runs."""
+    if len(truth["expected"]) != 2 or len(truth["joints"]) != 2:
+        return ""
+    ja, jb = truth["joints"]
+    if ja is None and jb is None:
+        return "two arm-wide"
+    if ja is None or jb is None:
+        return "joint and arm"
+    return "two joints" if ja != jb else "one joint"
+
+
+# ---------------------------------------------------------------------------------------------- the next run
+def _next_kind(nxt: dict) -> str:
+    hyp = nxt.get("hypotheses") or ["payload", "link_parameters"]
+    return {"delay": "delay_or_inertia", "backlash": "backlash"}.get(hyp[0], "payload_or_links")
+
+
+def follow(job: dict, path: Path, truth: dict, data, diag, row: dict, root: Path) -> dict:
+    """Issue 28's loop on one run: the next experiment ``wamctl diagnose`` designs for it (as
+    :func:`wamctl.experiments.diagnose.diagnose_to_run_dir` does: the payload-or-links design, else the
+    delay-or-inertia one, else the backlash crossing), and where it writes ``next_experiment.yaml``, that run made
+    by the generator of the first run with the SAME truth (independent generator: :func:`gen_independent.follow_up`,
+    the noise and jitter drawn anew) and both runs diagnosed pooled (:class:`~wamctl.analysis.diagnosis.pooled.
+    PooledDiagnosis`, as ``wamctl diagnose RUN NEXT``). The row's ``after_*`` fields are the pooled result's, or the
+    run's own where no run was proposed (``after at most one proposed run``)."""
+    out = {"next": "", "next_sep": np.nan, "next_orig_sep": np.nan, "next_why": "", "next_status": "",
+           "after_found": row.get("found", "-"), "after_first": row.get("first", "none"),
+           "after_ambiguous": row.get("ambiguous", ""), "after_correct": row.get("correct", False),
+           "after_wrong_first": row.get("wrong_first", False), "after_all_found": row.get("all_found", np.nan),
+           "payload_mass_rel_err": np.nan, "payload_com_err_m": np.nan, "payload_com_identified": "",
+           "follow_s": 0.0, "follow_error": ""}
+    if diag is None or not getattr(diag, "conclusive_", False):
+        return out
+    t0 = time.perf_counter()
+    from wamctl.experiments.diagnose import next_experiment
+    from wamctl.experiments.diagnose_next import next_experiment_more
+
+    d = root / job["id"] / "next"
+    d.mkdir(parents=True, exist_ok=True)
+    try:
+        if data.meta.robot != "wam7":
+            return out
+        nxt = next_experiment(diag, data, Path(path), d)
+        if nxt is None:
+            nxt = next_experiment_more(diag, data, Path(path), d)
+    except Exception as exc:
+        out["follow_error"] = f"design: {type(exc).__name__}: {exc}"[:200]
+        return out
+    if nxt is None:
+        return out
+    out.update(next=_next_kind(nxt), next_why=str(nxt.get("why", ""))[:300],
+               next_sep=float(nxt.get("separation_noise_floors", np.nan) or np.nan),
+               next_orig_sep=float(nxt.get("original_separation_noise_floors", np.nan) or np.nan))
+    if not nxt.get("spec"):
+        out["next"] += " (none designed)" if nxt.get("decision") is None else " (decided)"
+        return out
+    if job["generator"] != "independent":
+        out["next_status"] = "not run (first generator)"
+        return out
+    try:
+        from gen_independent import follow_up
+
+        from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
+        from wamctl.analysis.diagnosis.pooled import PooledDiagnosis
+        from wamctl.runs.measured import load_run_data
+
+        nd = d / "run"
+        if not (nd / "truth.yaml").is_file():
+            follow_up(Path(path), d / nxt["spec"], nd)
+        t_next = yaml.safe_load((nd / "truth.yaml").read_text())
+        out["next_status"] = t_next["status"]
+        data2 = load_run_data(nd)
+        diag2 = ModelDiagnosis().fit(data2)
+        pooled = PooledDiagnosis([diag, diag2], ["run", "next"], [data, data2]).fit().to_dict([str(path), str(nd)])
+    except Exception as exc:  # a crash is a result of the study
+        out["follow_error"] = f"{type(exc).__name__}: {exc}"[:200]
+        out["follow_s"] = time.perf_counter() - t0
+        return out
+    after = criteria(pooled, truth)
+    out.update(after_found=after["found"], after_first=after["first"], after_ambiguous=after["ambiguous"],
+               after_correct=after["correct"], after_wrong_first=after["wrong_first"],
+               after_all_found=after.get("all_found", np.nan))
+    out.update(_payload_error(pooled, truth, path))
+    out["follow_s"] = time.perf_counter() - t0
+    return out
+
+
+def _payload_error(pooled: dict, truth: dict, path: Path) -> dict:
+    """The pooled payload against the truth (the generator's payload: mass, centre of mass in frame 7): relative
+    mass error and the largest centre-of-mass coordinate error over the coordinates the runs determine
+    (``payload_com_identified``: which; a coordinate the runs cannot determine has no number)."""
+    out = {}
+    p = pooled.get("payload") or {}
+    if "payload" not in truth["expected"] or not p.get("params") or p["params"].get("mass_kg") is None:
+        return out
+    t = yaml.safe_load((Path(path) / "truth.yaml").read_text())
+    tp = next(e for e in t["effects"] if e["name"] == "payload")["params"]
+    est = p["params"]
+    out["payload_mass_rel_err"] = abs(est["mass_kg"] - tp["mass_kg"]) / tp["mass_kg"]
+    errs = {k: abs(est[f"com_{k}_m"] - c) for k, c in zip("xyz", tp["com_m"]) if est.get(f"com_{k}_m") is not None}
+    out["payload_com_identified"] = "".join(errs)
+    if errs:
+        out["payload_com_err_m"] = max(errs.values())
+    return out
 
 
 def run_jobs(jobs: list[dict], workers: int, root: Path) -> pd.DataFrame:
@@ -253,6 +399,91 @@ def rates(df: pd.DataFrame) -> dict:
             frac(ident["torque_ok"].dropna().astype(bool)) if "torque_ok" in ident else float("nan"),
         "median diagnose time (s)": float(df["diagnose_s"].median()),
     }
+
+
+def _count(mask) -> tuple[int, int]:
+    m = pd.Series(mask).dropna().astype(bool)
+    return int(m.sum()), len(m)
+
+
+def _cp_line(label: str, k: int, n: int, target: str = "") -> str:
+    if n == 0:
+        return f"- {label}: no runs"
+    lo, hi = clopper_pearson(k, n)
+    return f"- {label}: {k} of {n} = {k / n:.3f} [{lo:.3f}, {hi:.3f}]" + (f" (target {target})" if target else "")
+
+
+def issue28(df: pd.DataFrame, fa: pd.DataFrame | None) -> tuple[list[str], list[dict]]:
+    """Issue 28's Done-when rates (one run; after at most one proposed run; two effects at different joints) with
+    95 % Clopper-Pearson intervals: the lines and the table of rates against the targets."""
+    if "two_joints" not in df:
+        df = df.assign(two_joints="")
+    eff = df[df["expected"] != "none"]
+    obs = eff[eff["observable"].astype(bool)]
+    ident = obs[obs["identifiable"].astype(bool)]
+    cln = df[df["expected"] == "none"]
+    targets = []
+
+    def add(label, k, n, target, ok):
+        targets.append({"criterion": label, "measured": f"{k} / {n} = {k / n:.3f}" if n else "no runs",
+                        "95 % interval": "[{:.3f}, {:.3f}]".format(*clopper_pearson(k, n)) if n else "",
+                        "target": target, "met": ("met" if ok(k, n) else "not met") if n else "not measured"})
+
+    k, n = _count(ident["correct"])
+    add("one run: right effect first (observable and identifiable)", k, n, ">= 0.90", lambda k, n: k / n >= 0.9)
+    k, n = _count(df["wrong_first"])
+    add("one run: a wrong name first (all runs)", k, n, "<= 0.01", lambda k, n: k / n <= 0.01)
+    k, n = _count(cln[cln["links"] == "nominal"]["correct"])
+    add("one run: clean runs with the declared links reporting none", k, n, "= 1", lambda k, n: k == n)
+    if fa is not None and len(fa):
+        k, n = _count(fa["wrong_first"])
+        add("false alarms, clean runs with perturbed links (95 % upper bound)", k, n, "upper bound <= 0.03",
+            lambda k, n: clopper_pearson(k, n)[1] <= 0.03)
+    k, n = _count(obs["after_correct"])
+    add("after at most one proposed run: right effect first (observable)", k, n, ">= 0.95",
+        lambda k, n: k / n >= 0.95)
+    for name in ("payload", "backlash"):
+        sub = obs[obs["expected"] == name]
+        k, n = _count(sub["after_correct"])
+        add(f"  of which {name} alone", k, n, "(included)", lambda k, n: k / n >= 0.95)
+    amb = df[df["first"] == "ambiguous"]
+    k, n = _count((amb["after_first"] != "ambiguous") & (amb["after_first"] != "none"))
+    add("ambiguous outcomes resolved (a name first after the proposed run)", k, n, ">= 0.90",
+        lambda k, n: k / n >= 0.9)
+    pl = obs[obs["payload_mass_rel_err"].notna()] if "payload_mass_rel_err" in obs else obs.iloc[:0]
+    k, n = _count(pl["payload_mass_rel_err"] <= 0.10)
+    add("payload mass within 10 % (pooled payload estimated)", k, n, "all", lambda k, n: k == n)
+    plc = pl[pl["payload_com_err_m"].notna()]
+    k, n = _count(plc["payload_com_err_m"] <= 0.02)
+    add("payload centre of mass within 2 cm (coordinates the runs determine)", k, n, "all", lambda k, n: k == n)
+    two = eff[eff["two_joints"] == "two joints"]
+    k, n = _count(two["all_found"])
+    add("two effects at two different joints: both named (one run)", k, n, ">= 0.90", lambda k, n: k / n >= 0.9)
+    k, n = _count(two["after_all_found"])
+    add("two effects at two different joints: both named (after the proposed run)", k, n, ">= 0.90",
+        lambda k, n: k / n >= 0.9)
+    wide = eff[eff["two_joints"].isin(["two joints", "joint and arm"])]
+    k, n = _count(wide["all_found"])
+    add("two effects not at one joint (two joints, or a joint and an arm-wide one): both named (one run)", k, n,
+        "(>= 0.90)", lambda k, n: k / n >= 0.9)
+    k, n = _count(wide["after_all_found"])
+    add("  the same after the proposed run", k, n, "(>= 0.90)", lambda k, n: k / n >= 0.9)
+    lines = []
+    proposed = df[df["next"].astype(str).str.len() > 0] if "next" in df else df.iloc[:0]
+    ran = df[df["next_status"].astype(str).isin(["ok", "safety_trip", "diverged"])] if "next_status" in df else \
+        df.iloc[:0]
+    lines.append(f"- runs with a next experiment considered: {len(proposed)}; a run designed and made by the "
+                 f"generator: {len(ran)} ({', '.join(f'{k} {v}' for k, v in ran['next'].value_counts().items())})")
+    if len(ran):
+        st = ran["next_status"].value_counts().items()
+        lines.append(f"- the designed runs' loop: {', '.join(f'{k} {v}' for k, v in st)}")
+    k, n = _count(obs["after_wrong_first"])
+    lines.append(_cp_line("after the proposed run: a wrong name first (observable effect runs)", k, n))
+    k, n = _count(df["after_wrong_first"])
+    lines.append(_cp_line("after the proposed run: a wrong name first (all runs)", k, n))
+    k, n = _count(amb["after_correct"])
+    lines.append(_cp_line("ambiguous outcomes resolved to the right effect", k, n))
+    return lines, targets
 
 
 def per_effect(df: pd.DataFrame) -> pd.DataFrame:
@@ -454,6 +685,8 @@ def markdown(studies: dict, fa: pd.DataFrame | None, speed: dict | None, split: 
                   markdown_table(confusion(df).rename_axis(index="true \\ named")), "",
                   "### Acceptance rates", ""] + _rates_lines(rates(df)) + [
                   "", "### Per effect", "", markdown_table(per_effect(df), 3), ""]
+        if "after_first" in df:
+            lines += issue28_section(name, df, fa)
         bad = df[(~df["correct"].astype(bool)) | df["wrong_first"].astype(bool)]
         if len(bad):
             cols = ["id", "expected", "found", "ambiguous", "observable", "rate_hz", "excitation", "hard", "error"]
@@ -485,6 +718,37 @@ def markdown(studies: dict, fa: pd.DataFrame | None, speed: dict | None, split: 
                   f"{speed.get('diagnose_without_position_check_cpu_s', float('nan')):.1f} s; loading the parquet "
                   f"file is not counted: {speed['load_s']:.1f} s).", ""]
     return "\n".join(lines)
+
+
+def issue28_section(name: str, df: pd.DataFrame, fa: pd.DataFrame | None) -> list[str]:
+    """Issue 28's Done-when for one generator: the rates against the targets, then every run for which a next
+    experiment was considered."""
+    from wamctl.report.document import markdown_table
+
+    lines_, targets = issue28(df, fa if name == "independent" else None)
+    lines = [f"### Issue 28: one run, after at most one proposed run, two effects (generator `{name}`)", "",
+             "Rates with their 95 % Clopper-Pearson intervals. *After at most one proposed run*: where the run's "
+             "diagnosis wrote `next_experiment.yaml`, that run was made "
+             + ("by the independent generator with the same truth (plant, friction, links, effects and their "
+                "parameters; noise and jitter drawn anew) and the two runs diagnosed pooled (as `wamctl diagnose "
+                "RUN NEXT`); elsewhere the run's own result stands. " if name == "independent" else
+                "by no generator here (this generator's follow-up is not run: the study's issue 28 figures are the "
+                "independent generator's); the run's own result stands. ")
+             + "*Resolved*: an ambiguous first outcome followed by a name first. *Two effects at two different "
+             "joints*: two joint-own effects (Stribeck, ripple, drift) at two joints that both move; *not at one "
+             "joint* adds the plan's pairs of a joint effect with a payload or a delay (felt at every moving joint).",
+             "", markdown_table(pd.DataFrame(targets)), ""] + lines_ + [""]
+    nx = df[df["next"].astype(str).str.len() > 0]
+    if len(nx):
+        cols = ["id", "expected", "first", "ambiguous", "next", "next_orig_sep", "next_sep", "next_status",
+                "after_first", "after_found", "after_ambiguous", "payload_mass_rel_err", "payload_com_err_m",
+                "follow_error"]
+        tab = nx[cols].rename(columns={"next_orig_sep": "run's separation", "next_sep": "designed separation"})
+        lines += ["#### Runs for which a next experiment was considered", "",
+                  "Separations in noise floors (the design's prediction). `(decided)`: the check decided on the "
+                  "run itself; `(none designed)`: no run within the limits.", "",
+                  markdown_table(tab.reset_index(drop=True), 3), ""]
+    return lines
 
 
 def shortfalls(studies: dict) -> list[str]:
@@ -531,6 +795,8 @@ def main(argv=None) -> None:
     ap.add_argument("--runs-per-effect", type=int, default=10)
     ap.add_argument("--clean", type=int, default=20)
     ap.add_argument("--pairs", type=int, default=None, help="two-effect runs (independent; default runs-per-effect)")
+    ap.add_argument("--two-joint", type=int, default=None,
+                    help="runs with two joint effects at two different joints (independent; default runs-per-effect)")
     ap.add_argument("--fa-runs", type=int, default=200)
     ap.add_argument("--workers", type=int, default=2)
     ap.add_argument("--long-s", type=float, default=3600.0)
@@ -553,7 +819,11 @@ def main(argv=None) -> None:
                   "correct_or_acceptable"):
             if c in df:
                 df[c] = df[c].map(lambda v: str(v) == "True")
-        for c in ("ambiguous", "found", "first", "expected", "size"):
+        for c in ("after_correct", "after_wrong_first", "after_all_found"):
+            if c in df:
+                df[c] = df[c].map(lambda v: {"True": True, "False": False}.get(str(v), np.nan))
+        for c in ("ambiguous", "found", "first", "expected", "size", "next", "next_status", "two_joints",
+                  "after_first", "after_found", "after_ambiguous", "follow_error", "payload_com_identified"):
             df[c] = df[c].fillna("").astype(str) if c in df else ""
         if "snr" not in df:
             df["snr"] = np.nan
@@ -573,9 +843,10 @@ def main(argv=None) -> None:
     root.mkdir(parents=True, exist_ok=True)
     studies, fa, speed = {}, None, None
     if not a.only_timing:
-        for g in a.generators.split(","):
+        for g in [g for g in a.generators.split(",") if g]:
             jobs = sim_jobs(a.split, a.runs_per_effect, a.clean) if g == "sim" else \
-                independent_jobs(a.split, a.runs_per_effect, a.clean, a.pairs)
+                independent_jobs(a.split, a.runs_per_effect, a.clean, a.pairs) + two_joint_jobs(
+                    a.split, a.runs_per_effect if a.two_joint is None else a.two_joint)
             df = run_jobs(jobs, a.workers, root)
             studies[g] = df
             print(f"\n== {g} ==\n{confusion(df).to_string()}\n")

@@ -150,3 +150,42 @@ def test_identifiable_means_beyond_what_the_declared_link_accuracy_can_produce(s
         assert max(left.values()) > 2.0, left
     else:
         assert max(left.values()) < 0.05, left
+
+
+def test_a_designed_run_follows_the_spec_reference_with_the_same_truth(clean_sweep, tmp_path):
+    """A further run of the clean sweep's arm along an excitation spec (as ``wamctl diagnose`` writes
+    next_experiment.yaml: Fourier coefficients of joint 3, one 2 s period between holds of 0.25 s): the logged
+    reference is the spec's documented series (summed term by term here, 1e-12 rad), the loop tracks it (within
+    0.02 rad), the arm's truth (friction, links) is the first run's, the noise is drawn anew, and meta.yaml
+    calls the run free motion of joint 3 (a kind diagnose takes)."""
+    from gen_independent import follow_up
+
+    q0 = yaml.safe_load((clean_sweep.path / "meta.yaml").read_text())["q0"]
+    a = [0.2, -0.05, -0.15]                          # rad/s; sum a_l = 0
+    b = [0.1, 0.1, -0.1]                             # sum l b_l = 0
+    spec = {"kind": "excitation", "name": "next-run", "q0_rad": q0,
+            "excitation": {"joints": [3], "period_s": 2.0, "harmonics": 3, "periods": 1, "settle_s": 0.25,
+                           "coefficients": {3: {"a_rad_s": a, "b_rad_s": b}}}}
+    (tmp_path / "next_experiment.yaml").write_text(yaml.safe_dump(spec))
+    r = follow_up(clean_sweep.path, tmp_path / "next_experiment.yaml", tmp_path / "next")
+    assert r.status == "ok" and r.case_id.endswith("-next")
+    df = pd.read_parquet(tmp_path / "next" / "data.parquet")
+    t = np.arange(len(df)) * A.T_CTRL                # the reference advances by T per tick
+    w = 2 * math.pi / 2.0
+    u = np.clip(t - 0.25, 0.0, 2.0)
+    want = q0[2] + sum(a[k] / (w * (k + 1)) * np.sin(w * (k + 1) * u)
+                       - b[k] / (w * (k + 1)) * (np.cos(w * (k + 1) * u) - 1) for k in range(3))
+    assert np.abs(df["q_ref_3"].to_numpy() - want).max() < 1e-12
+    assert np.ptp(want) > 0.1
+    for j in (1, 2, 4, 5, 6, 7):
+        assert np.all(df[f"q_ref_{j}"] == q0[j - 1])
+    assert np.abs(df["q_3"] - df["q_ref_3"]).max() < 0.02
+    first = yaml.safe_load((clean_sweep.path / "truth.yaml").read_text())
+    again = yaml.safe_load((tmp_path / "next" / "truth.yaml").read_text())
+    assert again["friction_truth_classic"] == first["friction_truth_classic"]
+    assert again["link_perturbation"] == first["link_perturbation"]
+    assert again["excitation"]["kind"] == "designed" and again["excitation"]["moving_joints"] == [3]
+    meta = yaml.safe_load((tmp_path / "next" / "meta.yaml").read_text())
+    assert meta["experiment"] == {"kind": "free", "joints": [3]}
+    first_df = pd.read_parquet(clean_sweep.path / "data.parquet")
+    assert not np.allclose(df["t"].to_numpy()[1:50], first_df["t"].to_numpy()[1:50])   # stamps' jitter anew

@@ -106,17 +106,25 @@ Cases the loop cannot hold (joint beyond its hard stop, |qd| > 5 rad/s, Cartesia
 safety module, non-finite state) end the run there; the rows up to the trip are written and truth.yaml /
 GeneratedRun.status say ``safety_trip`` (or ``diverged``).  They are never redrawn.
 
+Designed runs: ``excitation: designed`` with ``reference`` an excitation spec mapping (wamctl's ``kind:
+excitation``, e.g. ``next_experiment.yaml`` written by ``wamctl diagnose``): its Fourier series between two holds is
+evaluated here (:class:`.excitation.DesignedRef`, the formula the spec documents; wamctl's own trajectory code is not
+used) and followed by the same closed loop; ``follow_up(first_dir, spec_path, out_dir)`` simulates it on the arm of
+an earlier run with the same truth (:mod:`.follow`), the noise and jitter drawn anew (``noise_seed``).
+
 API: ``cases(n_effect_runs_per_effect, n_clean, seed)`` (a fixed, deterministic study plan),
 ``generate(case, out_dir) -> GeneratedRun``; CLI ``python -m gen_independent OUT_DIR --n N`` (from tests/analysis).
 
 Modules: :mod:`.arm` (the WAM's numbers and the pinocchio model), :mod:`.physics` (the 4 kHz kernel and the encoder
 kernel), :mod:`.excitation`, :mod:`.effects`, :mod:`.simulate` (the closed loop and the run's files), :mod:`.truth`,
-:mod:`.plan` (the study plan and the command line).  Nothing here imports ``wamctl``.
+:mod:`.plan` (the study plan and the command line), :mod:`.follow` (a designed further run of the same arm).
+Nothing here imports ``wamctl``.
 """
 
 from .arm import EFFECTS, GENERATOR_VERSION, JOINT_EFFECTS, LINK_MODES, PAIRS, SIZES
+from .follow import follow_up, follow_up_case
 from .plan import cases, main
 from .simulate import GeneratedRun, generate
 
 __all__ = ["EFFECTS", "GENERATOR_VERSION", "JOINT_EFFECTS", "LINK_MODES", "PAIRS", "SIZES", "GeneratedRun", "cases",
-           "generate", "main"]
+           "follow_up", "follow_up_case", "generate", "main"]

@@ -256,3 +256,65 @@ def design_free(rng, joints, checker, fric_mean):
     raise RuntimeError("free design failed")
 
 
+
+
+# ----------------------------------------------------------------------------------------------------------------
+# A designed run (``next_experiment.yaml``): the reference the spec describes, evaluated here.
+
+class DesignedRef:
+    """The reference of an excitation spec (wamctl's ``kind: excitation``, as ``wamctl diagnose`` writes
+    ``next_experiment.yaml``): hold ``settle_s`` at ``q0``, ``periods`` periods of the finite Fourier series
+    ``q_j(t) = q0_j + sum_l a_jl / (w l) sin(w l t) - b_jl / (w l) (cos(w l t) - 1)``, ``w = 2 pi / period_s``,
+    then hold ``settle_s`` at ``q0`` again (the series starts and ends at rest at ``q0``: sum_l a_jl = 0 and
+    sum_l l b_jl = 0). The formula is the spec's own documentation of its trajectory (wamctl/specs/excitation.py,
+    ``ExcitationSection``), evaluated here with this module's numpy, not with wamctl's code. ``a``, ``b``: (7, L),
+    rad/s, zero rows for the joints that hold."""
+
+    def __init__(self, q0, period_s, a, b, periods, settle_s):
+        self.q0 = np.asarray(q0, float)
+        self.period = float(period_s)
+        self.a, self.b = np.asarray(a, float), np.asarray(b, float)
+        self.periods, self.settle = int(periods), float(settle_s)
+        self.duration = 2 * self.settle + self.periods * self.period
+        self.joints = [j for j in range(N) if np.any(self.a[j]) or np.any(self.b[j])]
+
+    def __call__(self, t):
+        t = np.atleast_1d(np.asarray(t, float))
+        u = t - self.settle
+        on = (u >= 0) & (u < self.periods * self.period)    # the series; holds before and after
+        w = 2 * np.pi / self.period
+        wl = w * np.arange(1, self.a.shape[1] + 1)
+        ph = np.outer(np.where(on, u, 0.0), wl)
+        s, c = np.sin(ph), np.cos(ph)
+        q = self.q0 + s @ (self.a / wl).T - (c - 1.0) @ (self.b / wl).T
+        qd = c @ self.a.T + s @ self.b.T
+        qdd = -s @ (self.a * wl).T + c @ (self.b * wl).T
+        q[~on], qd[~on], qdd[~on] = self.q0, 0.0, 0.0
+        return q, qd, qdd
+
+
+def designed_reference(spec: dict) -> DesignedRef:
+    """The :class:`DesignedRef` of an excitation spec mapping (``yaml.safe_load`` of ``next_experiment.yaml``):
+    ``q0_rad`` and ``excitation.{period_s, harmonics, periods, settle_s, coefficients}``; absent keys take the
+    spec's defaults (period 10 s, 5 harmonics, 2 periods, 1 s settle). ValueError naming the field when the spec
+    is not of that form (a spec without designed coefficients, another kind, another arm)."""
+    if spec.get("kind") != "excitation":
+        raise ValueError(f"kind: {spec.get('kind')!r}; a designed run follows an excitation spec")
+    if spec.get("robot", "wam7") != "wam7":
+        raise ValueError(f"robot: {spec.get('robot')!r}; this generator simulates the wam7")
+    ex = spec.get("excitation") or {}
+    coef = ex.get("coefficients")
+    if not coef:
+        raise ValueError("excitation.coefficients: absent (the spec is not designed)")
+    q0 = spec.get("q0_rad")
+    if q0 is None or len(q0) != N:
+        raise ValueError(f"q0_rad: expected {N} values")
+    L = int(ex.get("harmonics", 5))
+    a, b = np.zeros((N, L)), np.zeros((N, L))
+    for j, c in coef.items():
+        j = int(j)
+        if not 1 <= j <= N or len(c["a_rad_s"]) != L or len(c["b_rad_s"]) != L:
+            raise ValueError(f"excitation.coefficients.{j}: joint 1..{N} with {L} values of a_rad_s and b_rad_s")
+        a[j - 1], b[j - 1] = c["a_rad_s"], c["b_rad_s"]
+    return DesignedRef(q0, float(ex.get("period_s", 10.0)), a, b, int(ex.get("periods", 2)),
+                       float(ex.get("settle_s", 1.0)))

@@ -36,7 +36,7 @@ from .arm import (
     build_model,
 )
 from .effects import _friction_truth, draw_effect, perturb_links
-from .excitation import _Checker, design_free, design_sweep
+from .excitation import _Checker, design_free, design_sweep, designed_reference
 from .physics import _limits_code, _measure, phys_step
 from .truth import _plain, _truth, _truth_states
 
@@ -92,6 +92,8 @@ def generate(case: dict, out_dir: Path) -> GeneratedRun:
     seed = int(case["seed"])
     ss = np.random.SeedSequence(seed)
     r_design, r_effect, r_noise, r_fric, r_links, r_time = [np.random.default_rng(s) for s in ss.spawn(6)]
+    if case.get("noise_seed") is not None:   # a further run of the same arm: the same truth, other noise and jitter
+        r_noise, r_time = [np.random.default_rng(s) for s in np.random.SeedSequence(int(case["noise_seed"])).spawn(2)]
     noise = case.get("noise", "quiet")
     rate = int(case.get("rate_hz", 500))
     jitter_mode = case.get("jitter", "loop")
@@ -110,7 +112,7 @@ def generate(case: dict, out_dir: Path) -> GeneratedRun:
         p = draw_effect(name, ej, e.get("size", "medium"), r_effect, fric, noise)
         p.update(e.get("params", {}) or {})
         eff_list.append(dict(name=name, joint=None if ej is None else ej + 1, size=e.get("size", "medium"),
-                             params=p))
+                             params=p, **({"params_given": dict(e["params"])} if e.get("params") else {})))
     by_name = {e["name"]: e for e in eff_list}
 
     # -- friction table per DOF (7 joints + rotor)
@@ -158,6 +160,15 @@ def generate(case: dict, out_dir: Path) -> GeneratedRun:
         ref, ex_info = design_free(r_design, fj, checker, fric_mean)
         moving = fj
         kind = "free"
+    elif excitation == "designed":      # the reference of an excitation spec (next_experiment.yaml)
+        ref = designed_reference(case["reference"])
+        ev = checker.evaluate(ref, ref.duration, fric=fric_mean)
+        ex_info = dict(q0=ref.q0, duration=ref.duration, period_s=ref.period, periods=ref.periods,
+                       settle_s=ref.settle, harmonics=int(ref.a.shape[1]),
+                       design=dict(check_failed=ev["fail"], tau_ratio=ev["tau_ratio"], vcart=ev["vcart"],
+                                   zmin=ev["zmin"]))
+        moving = list(ref.joints)
+        kind = "designed"
     else:
         raise ValueError(excitation)
     q0 = ex_info["q0"]
@@ -186,6 +197,9 @@ def generate(case: dict, out_dir: Path) -> GeneratedRun:
         Jeff = Jr * Jl / (Jr + Jl)
         k = Jeff * (2 * np.pi * p["resonance_hz"]) ** 2
         c = 2 * p["zeta"] * math.sqrt(k * Jeff)
+        given = e.get("params_given") or {}
+        if "stiffness_Nm_rad" in given:  # a further run of the same drive: its contact as in the first run
+            k, c, Jl = float(given["stiffness_Nm_rad"]), float(given["damping_Nms_rad"]), given["link_inertia_at_q0"]
         bkl[:] = [j, 0.5 * p["gap_rad"], k, c, Jr]
         rho = p["link_friction_share"]
         fr[7] = fr[j]
@@ -218,7 +232,7 @@ def generate(case: dict, out_dir: Path) -> GeneratedRun:
         "sample_rate_hz": rate,
         "gravity_compensation": True,
         "controller": {"kind": "pd_g", "kp": KP.tolist(), "kd": KD.tolist()},
-        "experiment": {"kind": kind, "joints": [m + 1 for m in moving]},
+        "experiment": {"kind": "free" if kind == "designed" else kind, "joints": [m + 1 for m in moving]},
         "q0": [round(float(x), 6) for x in q0],
         "payload": None,
         "notes": f"{run_name}; simulated WAM run (independent generator)",
@@ -227,6 +241,8 @@ def generate(case: dict, out_dir: Path) -> GeneratedRun:
         yaml.safe_dump(_plain(meta), fh, sort_keys=False)
 
     # -- truth
+    for e in eff_list:
+        e.pop("params_given", None)
     truth = _truth(case, eff_list, link_rec, fric, ex_info, kind, moving, sim, model_true, model_nom, mass, com,
                    inertia, armature, payload, noise, rate, jitter_mode, T_run, rip, dri, fr, bkl)
     with open(out_dir / "truth.yaml", "w") as fh:
