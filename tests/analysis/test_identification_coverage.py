@@ -41,7 +41,8 @@ def _fit(root, i: int, scale: float):
     crit = {"data": est.critical_values("wls")[ok], "consistent": est.critical_values()[ok]}
     lo, hi = est.intervals()
     inside = ((truth >= lo) & (truth <= hi))[ok]
-    return {"z": z, "crit": crit, "inside": inside, "verdict": check["verdict"], "ratio": check["ratio"]}
+    return {"z": z, "crit": crit, "inside": inside, "verdict": check["verdict"], "ratio": check["ratio"],
+            "widths": est.prior_widths_}
 
 
 @pytest.fixture(scope="module")
@@ -70,9 +71,30 @@ def test_held_out_check_does_not_call_the_declared_arm_worse(declared_arm):
     assert all(v in ("no_worse", "better") for v in verdicts), verdicts
 
 
-def test_held_out_check_says_better_for_a_perturbed_arm(tmp_path):
-    verdicts = [_fit(tmp_path, i, 1.0)["verdict"] for i in range(3)]
-    assert verdicts == ["better"] * 3, verdicts
+def test_the_declared_arm_keeps_its_prior(declared_arm):
+    """The data agree with the declared links: no joint's prior is widened (prior_widths, type-II maximum
+    likelihood floored at the declared accuracy)."""
+    widths = np.array([f["widths"] for f in declared_arm])
+    print(np.round(widths, 3))
+    assert widths.max() <= 1.2, widths
+
+
+def test_a_perturbed_arm_widens_its_prior_and_its_intervals_hold_the_truth(tmp_path):
+    """Links 2-4 25-35 % heavier, their COMs 1.5 cm off (seeds 0-3): the held-out check says `better` on every
+    seed, and the data widen the prior of the perturbed links, so that the consistent intervals hold the truth
+    for >= 90 % of the 160 determined base parameters, errors' RMS <= 1.2 standard errors. (Measured when written:
+    147/160 = 0.919, widths of joints 2-4 up to x3; with the prior fixed at the declared 30 %: 131/160 = 0.819,
+    the errors' RMS 1.58 SE: a prior 30 % wide that a link's truth lies outside biases the estimate toward the
+    declared arm; over 20 seeds, benchmarks/bench_identify_coverage.py --scale 1: 95.0 % against 86.9 %.)"""
+    fits = [_fit(tmp_path, i, 1.0) for i in range(4)]
+    assert [f["verdict"] for f in fits] == ["better"] * 4, [f["verdict"] for f in fits]
+    widths = np.array([f["widths"] for f in fits])
+    z = np.concatenate([f["z"]["consistent"] for f in fits])
+    crit = np.concatenate([f["crit"]["consistent"] for f in fits])
+    cover, rms = float(np.mean(np.abs(z) <= crit)), float(np.sqrt(np.mean(z ** 2)))
+    print(np.round(widths, 2), "coverage", round(cover, 3), "of", len(z), "RMS error / SE", round(rms, 3))
+    assert np.all(widths[:, 1:].max(axis=1) > 1.5), widths
+    assert cover >= 0.90 and rms <= 1.2, (cover, rms)
 
 
 def test_leverage_adjusted_residuals_restore_the_error_variance():

@@ -109,6 +109,13 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     weak = [r["parameter"] for r in result["base"] if r["status"] == "weak"]
     if weak:
         text += (f" Weakly identified (the declared arm weighs more than the data): {', '.join(weak)}.")
+    widened = {j + 1: w for j, w in enumerate(result.get("prior_widths") or []) if w is not None and w > 1.5}
+    if widened:
+        text += (" The data contradict the declared arm at joint(s) " + ", ".join(
+            f"{j} (prior widened x{w:.1f})" for j, w in widened.items()) + ": their link, armature and friction "
+            "were given a wider prior than the declared 30 % (type-II maximum likelihood); an undeclared tool or "
+            "a link off its datasheet looks like this.")
+        doc.data["prior_widened"] = {str(j): w for j, w in widened.items()}
     doc.text(text)
     doc.heading("Held-out validation")
     vt = validation_table(result)

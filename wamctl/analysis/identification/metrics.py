@@ -100,8 +100,10 @@ def relative_errors(est, held_rows: list, held_masks: list) -> dict:
 
 
 def prior_sd(est) -> np.ndarray:
-    """(nb,) the prior's standard deviation of each base parameter (the declared arm's, as the consistent
-    estimate uses it: precision ``PRIOR_WEIGHT`` along the standard directions that move a base parameter)."""
+    """(nb,) the declared prior's standard deviation of each base parameter (the declared arm's accuracy, before
+    the data widen it, :attr:`.estimator.InertialIdentification.prior_widths_`: a move is measured in the
+    datasheet's own accuracy; precision ``PRIOR_WEIGHT`` along the standard directions that move a base
+    parameter)."""
     from wamctl.analysis.identification.estimator import PRIOR_WEIGHT, prior_scale
 
     K = est.base_.matrix
