@@ -52,7 +52,7 @@ Method (``InertialIdentification(...).fit(runs)``)
    the widths stay 1 and nothing changes; on the wam4 with links 2-4 25-35 % heavier the consistent intervals
    hold the truth for 95.0 % of the base parameters instead of 86.9 % (RMS error 1.01 standard errors instead of
    1.38); on the real logs the widened links are where the tool is (zeus's link 4 x8.4, the 7-DOF's links 5-6
-   x6-9) and the held-out relative errors drop (docs/real-data.md). Intervals are
+   x5.8-8.7) and the held-out relative errors drop (docs/real-data.md). Intervals are
    the Gaussian posterior's (data + prior, constraints inactive), Student's t with ``dof_post_`` (Satterthwaite:
    the data's degrees of freedom over the data share squared); ``data_share_`` is the data's share of each
    base parameter's posterior information (below one half: status ``weak``). The solver is given the objective
