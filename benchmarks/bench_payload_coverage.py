@@ -46,8 +46,12 @@ from wamctl.runs.measured import load_run_data  # noqa: E402
 
 SCHEDULE = (("L0", True, 0), ("B1", False, 1), ("B2", False, 2), ("L3", True, 3))
 QUANTITIES = ("mass_kg", "com_x_m", "com_y_m", "com_z_m") + tuple(f"{k}_kg_m2" for k in INERTIA_NAMES)
-METHODS = {"timing": True, "zoh": False}      # fit_timing
+# identify_payload's options: the default, and before the issue-29 fixes of the rows (their filter-kernel
+# derivatives), of the friction (the bare runs' mean, no drift over the schedule: no start times) and least squares
+METHODS = {"default": {"with_starts": True},
+           "before": {"with_starts": False, "consistent": False, "instruments": False}}
 ROWS_FILE = "payload_rows.pkl"   # the run's identification rows (data.run_rows), cached beside it
+DOF_KEYS = ("mass", "com_x", "com_y", "com_z") + INERTIA_NAMES     # PayloadEstimate.dof's keys, QUANTITIES' order
 
 
 def schedule_runs(out: Path, seed: int, index: dict) -> dict:
@@ -56,6 +60,10 @@ def schedule_runs(out: Path, seed: int, index: dict) -> dict:
         index[key] = {name: str(_run(out, loaded, pos, 1000 * seed + pos)) for name, loaded, pos in SCHEDULE}
         (out / "index.json").write_text(json.dumps(index, indent=1))
     return index[key]
+
+
+def start_utc(path) -> str | None:
+    return json.loads((Path(path) / "manifest.json").read_text()).get("start_utc")
 
 
 def quantities(est) -> list[tuple[float, tuple]]:
@@ -80,25 +88,30 @@ def main(argv=None) -> int:
         data = {k: load_run_data(p) for k, p in paths.items()}
         cache = {str(d.source): pickle.loads((Path(paths[k]) / ROWS_FILE).read_bytes())
                  for k, d in data.items() if (Path(paths[k]) / ROWS_FILE).exists()}
-        for method, fit in METHODS.items():
+        starts = [("loaded", start_utc(paths["L0"])), ("loaded", start_utc(paths["L3"])),
+                  ("bare", start_utc(paths["B1"])), ("bare", start_utc(paths["B2"]))]
+        for method, opts in METHODS.items():
+            kw = {k: v for k, v in opts.items() if k != "with_starts"}
             est = identify_payload([data["L0"], data["L3"]], [data["B1"], data["B2"]], rows_cache=cache,
-                                   fit_timing=fit)
-            if fit:
+                                   starts=starts if opts["with_starts"] else None, **kw)
+            if method == "default":
                 offsets.append(est.timing["offset_s"])
-            for name, (v, ci), t in zip(QUANTITIES, quantities(est), truth):
+            for name, (v, ci), t, key in zip(QUANTITIES, quantities(est), truth, DOF_KEYS):
                 if v is None:
                     rows.append({"seed": seed, "method": method, "quantity": name, "status": "not identified"})
                     continue
-                se = (ci[1] - ci[0]) / (2 * stats.norm.ppf(0.975))
+                se = (ci[1] - ci[0]) / (2 * stats.t.ppf(0.975, max(est.dof.get(key, np.inf), 1.0)))
                 rows.append({"seed": seed, "method": method, "quantity": name, "status": "identified",
                              "value": v, "ci95_low": ci[0], "ci95_high": ci[1], "error": v - t,
                              "z": (v - t) / se if se > 0 else float("nan"), "covers": bool(ci[0] <= t <= ci[1])})
         for k, d in data.items():       # the runs' rows beside them: a second call only re-fits
             if not (Path(paths[k]) / ROWS_FILE).exists():
                 (Path(paths[k]) / ROWS_FILE).write_bytes(pickle.dumps(cache[str(d.source)]))
-        z = {r["method"]: r.get("z", float("nan")) for r in rows[-2 * len(QUANTITIES) + 7::len(QUANTITIES)]}
-        print(f"seed {seed}: I_xy error in standard errors, timing estimated {z['timing']:+.2f}, zero-order hold "
-              f"{z['zoh']:+.2f}; timing offset {1e3 * offsets[-1]:.3f} ms", flush=True)
+        z = {(r["method"], r["quantity"]): r.get("z", float("nan")) for r in rows[-len(METHODS) * len(QUANTITIES):]}
+        print(f"seed {seed}: errors in standard errors, default (before): " + ", ".join(
+            f"{q.removesuffix('_kg_m2').removesuffix('_m').removesuffix('_kg')} {z['default', q]:+.2f} "
+            f"({z['before', q]:+.2f})" for q in QUANTITIES) + f"; timing offset {1e3 * offsets[-1]:.3f} ms",
+              flush=True)
     with open(a.out / "coverage.csv", "w", newline="") as f:
         w = csv.DictWriter(f, fieldnames=["seed", "method", "quantity", "status", "value", "ci95_low", "ci95_high",
                                           "error", "z", "covers"])
@@ -122,6 +135,16 @@ def main(argv=None) -> int:
             err = np.mean([abs(r["error"]) for r in sel])
             print(f"{method:9} {name:14} {k:>8}/{n:<6} {f'{lo:.0%}-{hi:.0%}':>24} {z.mean():+7.2f} "
                   f"{z.std(ddof=1) if n > 1 else float('nan'):5.2f} {err:13.3g}")
+    for method in METHODS:
+        by = {}
+        for r in rows:
+            if r["method"] == method and r["status"] == "identified":
+                by.setdefault(r["seed"], {})[r["quantity"]] = r["error"]
+        mass = [abs(e["mass_kg"]) / TRUTH["mass_kg"] for e in by.values() if "mass_kg" in e]
+        com = [np.linalg.norm([e[f"com_{a}_m"] for a in "xyz"]) for e in by.values()
+               if all(f"com_{a}_m" in e for a in "xyz")]
+        print(f"{method}: mass within 3 % in {sum(m < 0.03 for m in mass)}/{len(by)} seeds (largest {max(mass):.3%}), "
+              f"centre of mass within 1 cm in {sum(c < 0.01 for c in com)}/{len(by)} (largest {1e3 * max(com):.3f} mm)")
     return 0
 
 

@@ -11,6 +11,7 @@ within its intervals).
 
 from __future__ import annotations
 
+import json
 import os
 import subprocess
 import sys
@@ -19,6 +20,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import yaml
+from scipy import stats
 
 from wamctl.analysis.identification.payload import identify_payload, identify_payload_static
 from wamctl.experiments.runner import run_spec
@@ -65,6 +67,13 @@ def _com_error_m(est) -> float:
     return float(np.linalg.norm(np.array(est.com_m) - TRUTH["com_m"]))
 
 
+def _starts(loaded, bare) -> list[tuple[str, str]]:
+    """[(role, start time)], loaded runs first, from the runs' manifests (as `wamctl identify --payload` passes
+    them)."""
+    return [(role, json.loads((Path(d.source) / "manifest.json").read_text())["start_utc"])
+            for role, ds in (("loaded", loaded), ("bare", bare)) for d in ds]
+
+
 def test_abba_recovers_mass_and_com_within_their_intervals(estimates):
     est, _ = estimates
     m = TRUTH["mass_kg"]
@@ -72,12 +81,16 @@ def test_abba_recovers_mass_and_com_within_their_intervals(estimates):
     assert est.mass_ci_kg[0] <= m <= est.mass_ci_kg[1]
     assert _com_error_m(est) < 0.003
     # these runs are seed 0 of benchmarks/bench_payload_coverage.py; with the zero-order hold's timing assumed
-    # (before the torque's timing was estimated) its COM z was 2.17 standard errors off (held here to 2.5) and
-    # the I_xy and I_xz intervals missed zero; now COM z is 1.86 standard errors off, inside its interval
-    for c, ci, truth in zip(est.com_m, est.com_ci_m, TRUTH["com_m"]):
-        assert ci[0] <= truth <= ci[1], (c, ci, truth)
-    # a point mass: no inertia about its COM; I_xy's interval holds zero (+2.45e-4 +- 2.98e-4 kg m^2; it was
-    # +4.53e-4 +- 2.89e-4 with the timing assumed); I_xz and I_yz are 1.9-2.0 standard errors off in this seed
+    # (before the torque's timing was estimated) its COM z was 2.17 standard errors off and the I_xy and I_xz
+    # intervals missed zero. With the rows' and the friction drift's biases removed (issue 29 item 1: COM x had
+    # been +0.66 standard errors off on average) this seed's COM x is -2.08 standard errors off (-5.8e-5 m), just
+    # outside its interval (by 1.4e-7 m), COM y -2.00, COM z +1.69: whether 95 % intervals hold the truth is a share
+    # over seeds (the benchmark: report seeds 30-89), not a property of one; each coordinate within 2.5 here
+    for c, ci, truth, axis in zip(est.com_m, est.com_ci_m, TRUTH["com_m"], "xyz"):
+        se = (ci[1] - ci[0]) / 2 / stats.t.ppf(0.975, est.dof[f"com_{axis}"])
+        assert abs(c - truth) < 2.5 * se, (c, ci, truth)
+    # a point mass: no inertia about its COM; I_xy's interval holds zero (+2.76e-4 +- 3.17e-4 kg m^2; it was
+    # +4.53e-4 +- 2.89e-4 with the timing assumed)
     lo, hi = est.inertia_ci_kg_m2["I_xy"]
     assert lo <= 0.0 <= hi, (lo, hi)
     assert all(hi - lo < 5e-3 for lo, hi in est.inertia_ci_kg_m2.values())
@@ -141,16 +154,57 @@ def test_torque_timing_is_estimated_and_removes_the_I_xy_bias(clean_abba):
     what it was (over many seeds: benchmarks/bench_payload_coverage.py, docs/payload.md)."""
     L0, B1, B2, L3 = clean_abba
     cache: dict = {}
-    est = identify_payload([L0, L3], [B1, B2], rows_cache=cache)
-    zoh = identify_payload([L0, L3], [B1, B2], rows_cache=cache, fit_timing=False)
+    starts = _starts([L0, L3], [B1, B2])        # the friction's drift modelled (figures before it: in brackets)
+    est = identify_payload([L0, L3], [B1, B2], rows_cache=cache, starts=starts)
+    zoh = identify_payload([L0, L3], [B1, B2], rows_cache=cache, fit_timing=False, starts=starts)
     lo, hi = est.timing["offset_ci95_s"]
-    assert abs(est.timing["offset_s"] - 0.5e-3) < 0.05e-3 and lo < 0.5e-3 < hi    # measured 0.496 ms (0.466-0.527)
+    assert abs(est.timing["offset_s"] - 0.5e-3) < 0.05e-3 and lo < 0.5e-3 < hi    # measured 0.496 ms (0.470-0.521)
     assert "offset_s" not in zoh.timing and zoh.timing["source"].startswith("assumed")
-    assert zoh.inertia_kg_m2["I_xy"] > 9e-5              # measured +1.14e-4 kg m^2 (noisy runs' standard error 1.5e-4)
-    assert abs(est.inertia_kg_m2["I_xy"]) < 6e-5          # measured +3.4e-5 kg m^2
+    # measured +8.1e-5 kg m^2 (noisy runs' standard error 1.5e-4); +1.14e-4 before the rows' and the drift's fixes
+    assert zoh.inertia_kg_m2["I_xy"] > 6e-5
+    assert abs(est.inertia_kg_m2["I_xy"]) < 3e-5          # measured +1.8e-5 kg m^2 (+3.4e-5)
     m = TRUTH["mass_kg"]
-    assert zoh.mass_kg - m < -3e-5 and abs(est.mass_kg - m) < 2e-5     # measured -4.4e-5 and -6.6e-6 kg
+    # measured -2.5e-5 and -1.7e-6 kg (-4.4e-5, -6.6e-6)
+    assert zoh.mass_kg - m < -2e-5 and abs(est.mass_kg - m) < 5e-6
     assert est.to_dict()["torque_timing"]["offset_s"] == est.timing["offset_s"]
+
+
+def test_consistent_rows_and_the_drifting_friction_remove_the_inertia_bias(clean_abba):
+    """Issue 29 item 1: I_yy +1.06 and COM x +0.66 standard errors of bias over 60 seeds (I_yy's interval held the
+    truth in 51/60). Noise-free (these runs) the bias was +1.14e-4 kg m^2 (I_yy), +8.2e-5 (I_xx) and +1.47e-5 m (COM
+    x), two causes: (1) the rows' acceleration is the Savitzky-Golay second-derivative kernel's, which attenuates
+    the motion more than the smoothing kernel the torque went through (payload.consistent_rows builds the
+    regressor from the smoothed position's own derivatives); (2) the loaded runs (friction 1.0 and 0.7 of Table
+    4.1) were given the bare runs' mean friction (0.85), and what each run's friction predicts differently for its
+    slightly different motion leaked (payload.bare_friction now fits the drift over the schedule from the bare
+    runs, each run's friction at its position: the start times)."""
+    L0, B1, B2, L3 = clean_abba
+    cache: dict = {}
+    starts = _starts([L0, L3], [B1, B2])
+    est = identify_payload([L0, L3], [B1, B2], rows_cache=cache, starts=starts)
+    assert abs(est.inertia_kg_m2["I_yy"]) < 4e-5                 # measured +2.3e-5 kg m^2 (was +1.14e-4)
+    assert abs(est.inertia_kg_m2["I_xx"]) < 7e-5                 # measured -4.7e-5 (was +8.2e-5)
+    assert abs(est.inertia_kg_m2["I_xy"]) < 3e-5                 # measured +1.8e-5 (was +3.4e-5)
+    assert abs(est.com_m[0] - TRUTH["com_m"][0]) < 3e-6          # measured +4.3e-7 m (was +1.47e-5)
+    assert _com_error_m(est) < 4e-6                              # measured 1.3e-6 m (was 1.6e-5)
+    # each interval's Student's t: the effective number of independent stretches less one (measured 4.7-6.6 on
+    # these 8 s runs; 20-30 on the benchmark's 32 s)
+    assert sorted(est.dof) == sorted(["mass", "com_x", "com_y", "com_z", "I_xx", "I_yy", "I_zz", "I_xy", "I_xz",
+                                      "I_yz"]) and all(3 < v < 12 for v in est.dof.values())
+    # each cause alone: the rows' kernel derivatives (the drift modelled) and the bare runs' mean friction (the rows
+    # consistent)
+    kernel = identify_payload([L0, L3], [B1, B2], rows_cache=cache, starts=starts, consistent=False)
+    mean = identify_payload([L0, L3], [B1, B2], rows_cache=cache)
+    assert kernel.inertia_kg_m2["I_yy"] > 1.2e-4 and kernel.inertia_kg_m2["I_xx"] > 6e-5    # +1.57e-4, +9.1e-5
+    assert mean.inertia_kg_m2["I_xx"] < -1e-4 and mean.inertia_kg_m2["I_xy"] > 4.5e-5      # -1.25e-4, +6.1e-5
+    assert "drifting linearly" in est.arm_friction["source"] and "unknown" in mean.arm_friction["source"]
+    # the drift recovered: -0.1 of Table 4.1 per schedule position (measured within 0.3 %), 0.85 at the centre
+    table = FrictionModel.table_4_1().to_dict()["joints"]
+    for j, fitted in est.arm_friction["joints"].items():
+        for name, key in (("fc_pos", "fc_pos_Nm"), ("fc_neg", "fc_neg_Nm"), ("b_pos", "viscous_pos_Nm_s_rad"),
+                          ("b_neg", "viscous_neg_Nm_s_rad")):
+            assert fitted[f"{name}_per_run"] == pytest.approx(-0.1 * table[int(j)][key], rel=0.02), (j, name)
+            assert fitted[name] == pytest.approx(0.85 * table[int(j)][key], rel=0.02), (j, name)
 
 
 def test_order_statement_from_start_times():
