@@ -83,8 +83,8 @@ def test_abba_recovers_mass_and_com_within_their_intervals(estimates):
     # these runs are seed 0 of benchmarks/bench_payload_coverage.py; with the zero-order hold's timing assumed
     # (before the torque's timing was estimated) its COM z was 2.17 standard errors off and the I_xy and I_xz
     # intervals missed zero. With the rows' and the friction drift's biases removed (issue 29 item 1: COM x had
-    # been +0.66 standard errors off on average) this seed's COM x is -2.08 standard errors off (-5.8e-5 m), just
-    # outside its interval (by 1.4e-7 m), COM y -2.00, COM z +1.69: whether 95 % intervals hold the truth is a share
+    # been +0.66 standard errors off on average) this seed's COM x is -2.05 standard errors off (-5.8e-5 m), just
+    # outside its interval (by 1.4e-7 m), COM y -1.60, COM z +1.90: whether 95 % intervals hold the truth is a share
     # over seeds (the benchmark: report seeds 30-89), not a property of one; each coordinate within 2.5 here
     for c, ci, truth, axis in zip(est.com_m, est.com_ci_m, TRUTH["com_m"], "xyz"):
         se = (ci[1] - ci[0]) / 2 / stats.t.ppf(0.975, est.dof[f"com_{axis}"])
