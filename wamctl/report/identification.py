@@ -284,8 +284,8 @@ def payload_report(run_path: Path, manifest: dict) -> Document:
     tab = pd.read_csv(run_path / "payload.csv")
     doc.table("payload", tab, caption="mass, centre of mass (link-7 frame) and inertia about the centre of mass "
                                       "(link-7 axes), 95 % intervals (HAC for the dynamic variant: the noise's "
-                                      "share; on the simulator each quantity's held the truth in 51-58 of 60 "
-                                      "seeds, I_yy's biased +1.1 standard errors, docs/payload.md); 'not "
+                                      "share; on the simulator each quantity's held the truth in 54-59 of 60 "
+                                      "seeds, biases within 0.3 standard errors, docs/payload.md); 'not "
                                       "identified': the runs do not determine it", digits=5)
     sig = pd.DataFrame({"joint": range(1, P.N_JOINTS + 1), "residual_rms_Nm": r["sigma_Nm"]})
     doc.table("payload residual", sig, caption="RMS of the loaded-minus-bare residual per joint", digits=4)
