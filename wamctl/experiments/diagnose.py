@@ -22,18 +22,19 @@ log = logging.getLogger(__name__)
 
 def load_diagnosable(path: Path, pooled: bool = False):
     """The run at ``path`` (:func:`wamctl.runs.measured.load_run_data`) when ``diagnose`` can take it: a run of any
-    registered robot (its joints count from the run's robot) with every joint logged, a reference, and tau the
+    registered robot (its joints count from the run's robot) with every joint logged (without a logged reference
+    the measurement stands in for it, :func:`wamctl.runs.measured.with_reference`), and tau the
     total command or the controller's output (``torque: controller``: the diagnosis then takes the joints whose
     gravity torque is constant over the run, :mod:`wamctl.model.controller_torque`); else DataFormatError in one
     line naming what. ``pooled``: the runs pooled know the wam7 and the total command only so far."""
     from wamctl.errors import DataFormatError
-    from wamctl.runs.measured import load_run_data, unsupported
+    from wamctl.runs.measured import load_run_data, unsupported, with_reference
 
     data = load_run_data(path, partial_ok=True)
     why = unsupported(data.meta, data.data.columns, any_robot=not pooled, controller_ok=not pooled)
     if why:
         raise DataFormatError(f"{path}: {why}: not supported by diagnose{' of several runs' if pooled else ''} yet")
-    return data
+    return with_reference(data)
 
 
 def declared_model(path: Path | None, robot: str = "wam7"):

@@ -186,7 +186,7 @@ def _load(paths: list[Path]):
     """The runs (:func:`wamctl.runs.measured.load_run_data`) of any registered robot and torque ``total`` or
     ``controller``; the other runs refused in one line (:func:`wamctl.runs.measured.unsupported`); all of one
     robot."""
-    from wamctl.runs.measured import load_run_data, unsupported
+    from wamctl.runs.measured import load_run_data, unsupported, with_reference
 
     datas = []
     for p in paths:
@@ -194,7 +194,7 @@ def _load(paths: list[Path]):
         why = unsupported(d.meta, d.data.columns, any_robot=True, controller_ok=True)
         if why:
             raise DataFormatError(f"{p}: {why}: not supported by identify yet")
-        datas.append(d)
+        datas.append(with_reference(d))
     return datas
 
 

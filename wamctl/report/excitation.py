@@ -123,7 +123,7 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     from wamctl.errors import DataFormatError
     from wamctl.model.dynamics import WamDynamics
     from wamctl.model.robots import get_robot
-    from wamctl.runs.measured import load_run_data, unsupported
+    from wamctl.runs.measured import load_run_data, unsupported, with_reference
 
     out_dir = Path(out_dir or run_path)
     robot = get_robot((spec or {}).get("robot"))
@@ -158,7 +158,7 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
         why = unsupported(rd.meta, rd.data.columns, any_robot=True)
         if why:
             raise DataFormatError(f"{run_path}: {why}")
-        rr = run_rows(rd, WamDynamics(robot=robot.name))
+        rr = run_rows(with_reference(rd), WamDynamics(robot=robot.name))
         Y, _, _, _ = rr.stacked()
         base = base_parameters(robot.name)
         ident = identifiability(base.regressor(Y), base)

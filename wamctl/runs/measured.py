@@ -352,9 +352,39 @@ def unsupported(meta: MeasuredMeta, columns, any_robot: bool = False, controller
         what = {"controller": "the controller's output, gravity compensation added downstream and not logged",
                 "measured": "a torque sensor's reading"}[meta.torque_kind]
         return f"torque {meta.torque_kind} ({what})"
-    if not any(str(c).startswith("q_ref_") for c in columns):
-        return "no reference (q_ref) logged"
     return None
+
+
+# what stands in for a reference a log does not hold (lab logs rarely do: wam_node's JointState, a recorder's table)
+NO_REFERENCE = ("no reference (q_ref) logged: the measured positions stand in for it (identify fits by least "
+                "squares, diagnose skips the closed-loop position check, friction-id finds the moves in the "
+                "measured motion)")
+
+
+def has_reference(columns) -> bool:
+    return any(str(c).startswith("q_ref_") for c in columns)
+
+
+def with_reference(rd: RunData) -> RunData:
+    """``rd`` as it is when it logged a reference, else with the measurement standing in for it (said on the
+    terminal: :data:`NO_REFERENCE`)."""
+    if has_reference(rd.data.columns):
+        return rd
+    log.warning("%s: %s", rd.source, NO_REFERENCE)
+    return reference_from_measurement(rd)
+
+
+def reference_from_measurement(rd: RunData) -> RunData:
+    """A run without a logged reference, its measured positions (and velocities, where logged) standing in for
+    the reference; ``meta.reference`` says so (``"measured"``) for the analyses that use the reference for more
+    than the motion: identify's instruments (least squares instead), diagnose's closed-loop position check
+    (skipped)."""
+    df = rd.data.copy()
+    for j in rd.meta.logged_joints:
+        df[internal_name("q_ref", j)] = df[internal_name("q", j)]
+        if internal_name("qd", j) in df and internal_name("qd_ref", j) not in df:
+            df[internal_name("qd_ref", j)] = df[internal_name("qd", j)]
+    return RunData(rd.meta.model_copy(update={"reference": "measured"}), df, rd.source, rd.truth)
 
 
 # who calls load_run_data, as the command a user ran (for the one line that refuses a run); the report of an
@@ -395,9 +425,11 @@ def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
         rd = RunData(meta, data, path, truth)
     caller = _caller_module()
     why = unsupported(rd.meta, rd.data.columns, any_robot=caller in _ANY_ROBOT, controller_ok=caller in _ANY_ROBOT)
-    if why and not (partial_ok or caller in PARTIAL_READERS):
+    if partial_ok or caller in PARTIAL_READERS:
+        return rd           # what was logged, as it was logged
+    if why:
         raise DataFormatError(f"{path}: {why}: not supported by {_CALLERS.get(caller, 'this analysis')} yet")
-    return rd
+    return with_reference(rd)
 
 
 def export_run(run_path: str | Path, to: str | Path, fmt: str = "parquet") -> Path:

@@ -619,6 +619,12 @@ class ModelDiagnosis:
         """The closed-loop position check, with the controller's gains the log shows (or skipped, said why)."""
         from wamctl.analysis.diagnosis.gains import controller_gains
 
+        if getattr(self.meta_, "reference", None) == "measured":
+            self.gains_ = {"kp": None, "kd": None, "source": None, "reason": "no reference logged (the measured "
+                           "positions stand in for it): a closed loop has nothing to follow"}
+            self.position_skipped_ = self.gains_["reason"]
+            log.warning("closed-loop position check skipped: %s", self.position_skipped_)
+            return
         mp = self.meta_.payload
         ctl = WamDynamics(Payload(mp.mass_kg, tuple(mp.com_m)) if mp is not None and mp.mass_kg > 0 else None,
                           robot=self.dynamics_.robot)

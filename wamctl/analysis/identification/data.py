@@ -117,6 +117,7 @@ class RunRows:
     tracking_share: np.ndarray | None = None
     accounting: dict | None = None
     torque_kind: str = "total"
+    reference_logged: bool = True   # False: the log held none, the measurement stood in (no instruments then)
 
     @property
     def n_joints(self) -> int:
@@ -302,11 +303,14 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
     if reach2:
         usable[:reach2] = usable[-reach2:] = False
     joints = [j for j in sig.joints if usable[:, j].any()]
+    # a reference that is the measurement itself (none logged) is no instrument: least squares on every joint
+    logged = getattr(meta, "reference", None) != "measured"
+    shares = tracking_shares(sig.q_raw_rad, sig.q_ref_rad, joints) if logged else np.full(nj, np.nan)
     accounting = row_accounting(sig.moving[keep], np.abs(sig.qd_rad_s[keep]) >= MIN_SPEED_RAD_S, usable,
                                 list(sig.joints), reach2 * dt)
     return RunRows(str(data.source), sig.t_s[keep], sig.q_rad[keep], sig.qd_rad_s[keep], tau, usable, Y, Z,
                    joints, dict(sig.skipped), dt, sig.reach * sig.dt_s + reach2 * dt, window_s, gauss_s,
-                   tracking_shares(sig.q_raw_rad, sig.q_ref_rad, joints), accounting, torque_kind)
+                   shares, accounting, torque_kind, logged)
 
 
 def _add_constant_gravity(dynamics, q_rad: np.ndarray, tau_Nm: np.ndarray) -> tuple[np.ndarray, dict]:

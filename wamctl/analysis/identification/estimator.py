@@ -655,6 +655,9 @@ class InertialIdentification:
         (the tracking error's share of the joint's motion, against the threshold)."""
         d = self.instruments_detail()
         iv = sorted({j for r in d["runs"] for j in r["instrumented_joints"]})
+        if not any(rr.reference_logged for rr in self.rows_):
+            return ("least squares on every joint (no instrumental variables): no reference was logged, and the "
+                    "measured positions that stand in for it would instrument the measurement by itself")
         worst: dict[int, float] = {}
         for r in d["runs"]:
             for j in r["least_squares_joints"]:
