@@ -17,8 +17,9 @@ per moving joint (range above 0.1 rad): the held-out torque RMS, and over the mo
 
 The datasheet reference needs the whole arm's torque: it is computed only where the log's torque is ``total``
 (libbarrett's jtSum, wam_node's effort), with the datasheet arm of the robot the recording names (wam7, wam4).
-Logs without a reference (JointState records, a recorder's table) are also imported with the reference set to
-the measurement, split in a training and a held-out part, and every model is checked on the held-out part.
+Logs without a reference (JointState records, a recorder's table; the analyses let the measured positions stand
+in for it) are also split in a training and a held-out part, each imported in the recording's own format, and
+every model fitted on the first is checked on the second.
 Nothing is asserted.
 """
 
@@ -84,6 +85,19 @@ def first_error(text: str) -> str:
         if line.lower().startswith("error"):
             return line
     return text.splitlines()[-1] if text else ""
+
+
+def summary_line(command: str, code: int, text: str) -> str:
+    """What a command's --json output says in one line: identify's held-out check, diagnose's effects, or the
+    first error."""
+    if code != 0:
+        return first_error(text)
+    out = json.loads(text[text.index("{"):])
+    if command == "identify":
+        return out["held_out_check"]["statement"]
+    if command == "diagnose":
+        return f"effects found: {out['effects_found']}"
+    return f"run directory {out.get('run_dir')}"
 
 
 def joint_columns(frame: pd.DataFrame, prefix: str, unit: str) -> list[str]:
@@ -214,73 +228,49 @@ def held_out_models(test_run: Path, models: dict[str, Path | tuple | None], robo
     return out
 
 
-def import_json(records: list[dict], path: Path, out: Path, name: str) -> Path:
-    """JointState records as a CSV whose reference is the measured position and velocity (the workaround a user
-    has while the analyses want a reference), imported with ``--format csv``."""
-    pd.DataFrame({"time": [r["time"] for r in records],
-                  **{f"pos{j + 1}": [r["position"][j] for r in records] for j in range(7)},
-                  **{f"vel{j + 1}": [r["velocity"][j] for r in records] for j in range(7)},
-                  **{f"eff{j + 1}": [r["effort"][j] for r in records] for j in range(7)}}
-                 ).to_csv(path, index=False, float_format="%.17g")
-    code, text = run(["import", str(path), "--format", "csv", "--robot", "wam7", "--torque", "total",
-                      "--columns", "t=time,q=pos{j},qd=vel{j},tau=eff{j},q_ref=pos{j},qd_ref=vel{j}",
+def import_part(rec: Recording, path: Path, out: Path, name: str) -> Path:
+    """A part of a recording written to ``path`` in its own format, imported as the recording is (no reference:
+    the analyses let the measurement stand in for it)."""
+    code, text = run(["import", str(path), *rec.import_args, "--robot", rec.robot, "--torque", rec.torque,
                       "--out", str(out), "--name", name, "--json"])
     if code != 0:
         raise SystemExit(f"import of {path}: {first_error(text)}")
     return Path(json.loads(text[text.index("{"):])["run_dir"])
 
 
-def import_table(lines: list[str], rec: Recording, path: Path, out: Path, name: str) -> Path:
-    """A recorder's table lines with the measured positions appended as the reference (``q_ref``), imported
-    with ``--format table``."""
-    layout = rec.import_args[rec.import_args.index("--layout") + 1]
-    q_item = next(it for it in layout.split(",") if it.startswith("q["))
-    width = sum(int(it[it.index("[") + 1:-1]) if "[" in it else 1 for it in layout.split(","))
-    first = sum(int(it[it.index("[") + 1:-1]) if "[" in it else 1 for it in layout.split(",")[:layout.split(",")
-                                                                                             .index(q_item)])
-    n = int(q_item[2:-1])
-    path.write_text("".join(ln + " " + " ".join(ln.split()[first:first + n]) + "\n" for ln in lines
-                            if len(ln.split()) == width))
-    code, text = run(["import", str(path), "--format", "table", "--layout", f"{layout},q_ref[{n}]", "--robot",
-                      rec.robot, "--torque", rec.torque, "--out", str(out), "--name", name, "--json"])
-    if code != 0:
-        raise SystemExit(f"import of {path}: {first_error(text)}")
-    return Path(json.loads(text[text.index("{"):])["run_dir"])
-
-
-def reference_is_measurement(source: Path, out: Path, holdout: float, rec: Recording) -> None:
-    """identify and diagnose on the first part of a log without a reference, its reference set to the
-    measurement, every model then checked on the last part, which no fit has seen; friction-id on the whole."""
+def split_parts(source: Path, out: Path, holdout: float, rec: Recording) -> None:
+    """identify and diagnose on the first part of a log without a reference (the analyses let the measured
+    positions stand in for it), every model then checked on the last part, which no fit has seen; friction-id on
+    the whole."""
     out.mkdir(parents=True, exist_ok=True)
     if source.suffix == ".json":
         records = json.loads(source.read_text())
         n_train = int(round(len(records) * (1.0 - holdout)))
-        train = import_json(records[:n_train], out / "train.csv", out / "runs", "train")
-        test = import_json(records[n_train:], out / "test.csv", out / "runs", "held-out")
+        (out / "train.json").write_text(json.dumps(records[:n_train]))
+        (out / "test.json").write_text(json.dumps(records[n_train:]))
+        train = import_part(rec, out / "train.json", out / "runs", "train")
+        test = import_part(rec, out / "test.json", out / "runs", "held-out")
         whole = None
     else:
         records = [ln for ln in source.read_text().splitlines() if ln.strip() and not ln.startswith("#")]
         n_train = int(round(len(records) * (1.0 - holdout)))
-        train = import_table(records[:n_train], rec, out / "train.dat", out / "runs", "train")
-        test = import_table(records[n_train:], rec, out / "test.dat", out / "runs", "held-out")
-        whole = import_table(records, rec, out / "whole.dat", out / "runs", "whole")
+        for name, part in (("train", records[:n_train]), ("test", records[n_train:]), ("whole", records)):
+            (out / f"{name}.dat").write_text("\n".join(part) + "\n")
+        train = import_part(rec, out / "train.dat", out / "runs", "train")
+        test = import_part(rec, out / "test.dat", out / "runs", "held-out")
+        whole = import_part(rec, out / "whole.dat", out / "runs", "whole")
     if whole is not None:
         code, text = run(["friction-id", "--data", str(whole), "--out", str(out / "analyses")])
         tail = first_error(text) if code != 0 else text.splitlines()[-1] if text else ""
-        print(f"  wamctl friction-id --data (reference = measurement, whole excerpt): exit {code}: {tail}")
+        print(f"  wamctl friction-id --data (whole excerpt): exit {code}: {tail}")
     models: dict[str, Path | tuple | None] = {"datasheet arm + Table 4.1 friction": None}
     if rec.held_wrist_rad is not None:
         models["wam7 datasheet arm, wrist held, + Table 4.1 friction"] = rec.held_wrist_rad
     for command in (["identify", str(train), "--validate", str(test)], ["diagnose", str(train)]):
         code, text = run([*command, "--out", str(out / "analyses"), "--json"])
-        if code != 0:
-            print(f"  wamctl {command[0]} (reference = measurement): exit {code}: {first_error(text)}")
-            continue
-        summary = json.loads(text[text.index("{"):])
-        print(f"  wamctl {command[0]} (reference = measurement): exit 0; "
-              + (summary["held_out_check"]["statement"] if command[0] == "identify"
-                 else f"effects found: {summary['effects_found']}"))
-        models[f"{command[0]}'s model.yaml"] = Path(summary["run_dir"]) / "model.yaml"
+        print(f"  wamctl {command[0]} (first part): exit {code}: {summary_line(command[0], code, text)}")
+        if code == 0:
+            models[f"{command[0]}'s model.yaml"] = Path(json.loads(text[text.index("{"):])["run_dir"]) / "model.yaml"
     print(f"  on the last {holdout:.0%} ({len(records) - n_train} records): "
           f"{json.dumps(held_out_models(test, models, rec.robot))}")
 
@@ -311,11 +301,10 @@ def main() -> None:
             print(f"  joint 1 alone, inertia + friction fitted, last {args.holdout:.0%} held out: "
                   f"{json.dumps(joint1_reference(run_dir, args.holdout))}")
         for command in (["identify"], ["friction-id", "--data"], ["diagnose"]):
-            code, text = run([*command, str(run_dir), "--out", str(args.out / "analyses")])
-            tail = first_error(text) if code != 0 else text.splitlines()[-1] if text else ""
-            print(f"  wamctl {' '.join(command)}: exit {code}: {tail}")
+            code, text = run([*command, str(run_dir), "--out", str(args.out / "analyses"), "--json"])
+            print(f"  wamctl {' '.join(command)}: exit {code}: {summary_line(command[0], code, text)}")
         if rec.file.endswith((".json", ".dat")):
-            reference_is_measurement(source, args.out / rec.name, args.holdout, rec)
+            split_parts(source, args.out / rec.name, args.holdout, rec)
 
 
 if __name__ == "__main__":
