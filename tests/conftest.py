@@ -24,6 +24,21 @@ if _WORKER and "NUMBA_CACHE_DIR" not in os.environ:
                                       if b"@njit" in p.read_bytes())).hexdigest()[:12]
     os.environ["NUMBA_CACHE_DIR"] = str(_SRC.parent / ".pytest_cache" / "numba" / _DIGEST / _WORKER)
 
+# One BLAS thread in every test process and the processes it starts (the CLI's subprocesses inherit the setting),
+# unless the user chose a number. The tests' linear algebra is small dense products (the analyses' fits, the
+# independent generator's 4 kHz physics), where a second OpenBLAS thread only spin-waits: with two xdist workers
+# on two cores, four BLAS threads contend, and one generated run of tests/analysis/gen_independent took 23 s of
+# CPU against 2.5 s with one thread (benchmarks/bench_suite.py, issue 31). The environment variable reaches a
+# numpy imported after this file; threadpoolctl limits one already imported (a plugin's).
+if "OPENBLAS_NUM_THREADS" not in os.environ and "OMP_NUM_THREADS" not in os.environ:
+    os.environ["OPENBLAS_NUM_THREADS"] = "1"
+    try:
+        from threadpoolctl import threadpool_limits
+
+        threadpool_limits(limits=1, user_api="blas")
+    except ImportError:      # threadpoolctl is optional (wamctl/analysis/blas.py): the variable alone then
+        pass
+
 # A shell that runs the suite in the background (`nohup make test &`, some CI runners) hands it SIGINT ignored, and
 # the workers inherit that; the tests of Ctrl-C send SIGINT to their own process and need Python's handler, as a
 # terminal gives it. (Tests of a child process set the child's own: tests/commands/test_cli.py.)

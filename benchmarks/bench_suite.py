@@ -1,0 +1,133 @@
+"""The test suite's time on the same tests, before and after (issue 31: "wall time on two cores down by at least a
+third with the same tests").
+
+Given two checkouts, each with its own venv (``make setup`` in it), collects the node ids of each
+(``pytest --collect-only -q``), keeps those present in BOTH, and runs exactly those in each checkout with
+``make test``'s pytest options (``-q -n auto``) under ``/usr/bin/time -v``: wall time and the CPU time (user +
+sys, of pytest and its xdist workers, what the tests cost whatever else runs on the machine). The load average
+is printed before and after each run (wall time is only comparable at similar loads; CPU time much less
+sensitive). Both sides start cold, as a fresh clone does (no pytest or numba cache). Each run's slowest 40 tests
+are printed (``--durations=40``) and every test's time is kept in a JUnit XML file beside the summary, for
+finding where the time goes.
+
+    python benchmarks/bench_suite.py --old /tmp/old_clone --new /tmp/new_clone [--out DIR] [--only new]
+
+``--only old|new`` runs one side (the other's figures read back from ``DIR/summary.json`` of an earlier call
+with the same ``--out``), so that a change to the new side can be measured again without running the old one.
+Run without ``--old`` / ``--new`` (as ``make bench`` does), it says what it needs and does nothing: two full runs
+of the suite take 15-20 minutes of both cores.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import re
+import subprocess
+import sys
+import xml.etree.ElementTree as ET
+from pathlib import Path
+
+PYTEST_OPTS = ["-q", "-n", "auto"]          # Makefile, target test
+
+
+def node_ids(checkout: Path) -> list[str]:
+    """The test node ids pytest collects in ``checkout`` (with its own venv)."""
+    out = subprocess.run([str(checkout / ".venv/bin/python"), "-m", "pytest", "--collect-only", "-q", "-p",
+                          "no:cacheprovider"], cwd=checkout, capture_output=True, text=True, check=False)
+    ids = [ln.strip() for ln in out.stdout.splitlines() if "::" in ln and not ln.startswith(" ")]
+    if out.returncode not in (0, 5) or not ids:
+        sys.exit(f"collecting the tests of {checkout} failed (exit {out.returncode}): {out.stdout[-500:]}")
+    return ids
+
+
+def load() -> str:
+    return " ".join(f"{x:.2f}" for x in os.getloadavg())
+
+
+def parse_time_v(text: str) -> dict:
+    """Wall, user and sys seconds from GNU time's ``-v`` report."""
+    def field(name):
+        m = re.search(rf"{re.escape(name)}: (.+)", text)
+        if m is None:
+            raise ValueError(f"/usr/bin/time -v gave no '{name}'")
+        return m.group(1).strip()
+
+    parts = [float(p) for p in field("Elapsed (wall clock) time (h:mm:ss or m:ss)").split(":")]
+    wall = sum(p * 60 ** i for i, p in enumerate(reversed(parts)))
+    user, sys_ = float(field("User time (seconds)")), float(field("System time (seconds)"))
+    return {"wall_s": wall, "user_s": user, "sys_s": sys_, "cpu_s": user + sys_}
+
+
+def cold(checkout: Path) -> None:
+    """Both sides start as a fresh clone does: no pytest cache, no numba cache (the workers' kernels are compiled
+    in the run, as in a fresh clone's ``make test``)."""
+    subprocess.run(["rm", "-rf", str(checkout / ".pytest_cache")], check=True)
+    for f in [*(checkout / "wamctl").rglob("*.nbi"), *(checkout / "wamctl").rglob("*.nbc")]:
+        f.unlink()
+
+
+def run_side(checkout: Path, ids: list[str], out: Path, name: str) -> dict:
+    cold(checkout)
+    argfile = out / f"{name}_ids.txt"
+    argfile.write_text("\n".join(ids) + "\n")
+    junit = out / f"{name}_junit.xml"
+    log = out / f"{name}.log"
+    timing = out / f"{name}_time.txt"
+    before = load()
+    print(f"== {name}: {checkout} ({len(ids)} tests), load {before}", flush=True)
+    with open(log, "w") as fh:
+        rc = subprocess.run(["/usr/bin/time", "-v", "-o", str(timing), str(checkout / ".venv/bin/python"), "-m",
+                             "pytest", *PYTEST_OPTS, "--durations=40", f"--junitxml={junit}", f"@{argfile}"],
+                            cwd=checkout, stdout=fh, stderr=subprocess.STDOUT, check=False).returncode
+    after = load()
+    res = {**parse_time_v(timing.read_text()), "exit": rc, "load_before": before, "load_after": after,
+           "tests": len(ids), "summary": log.read_text().strip().splitlines()[-1]}
+    print(f"   wall {res['wall_s']:.0f} s, cpu {res['cpu_s']:.0f} s (user {res['user_s']:.0f}, sys "
+          f"{res['sys_s']:.0f}), load after {after}: {res['summary']}", flush=True)
+    return res
+
+
+def slowest(junit: Path, n: int = 15) -> list[tuple[float, str]]:
+    cases = ET.parse(junit).getroot().iter("testcase")
+    return sorted(((float(c.get("time", 0)), f"{c.get('classname')}::{c.get('name')}") for c in cases),
+                  reverse=True)[:n]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--old", type=Path, help="the checkout before (with its .venv)")
+    ap.add_argument("--new", type=Path, help="the checkout after (with its .venv)")
+    ap.add_argument("--out", type=Path, default=Path("benchmarks/out/suite"), help="where logs and figures go")
+    ap.add_argument("--only", choices=("old", "new"), help="run one side; the other's figures from --out")
+    a = ap.parse_args()
+    if a.old is None or a.new is None:
+        print("bench_suite: needs --old and --new checkouts, each with its .venv (see its docstring); not run")
+        return
+    a.out.mkdir(parents=True, exist_ok=True)
+    summary_file = a.out / "summary.json"
+    summary = json.loads(summary_file.read_text()) if summary_file.exists() and a.only else {}
+    old_ids = node_ids(a.old)
+    new_ids = set(node_ids(a.new))
+    common = [i for i in old_ids if i in new_ids]
+    print(f"tests: {len(old_ids)} before, {len(new_ids)} now, {len(common)} in both", flush=True)
+    summary["common_tests"] = len(common)
+    for name, checkout in (("old", a.old), ("new", a.new)):
+        if a.only in (None, name):
+            summary[name] = {**run_side(checkout, common, a.out, name), "checkout": str(checkout),
+                             "commit": subprocess.run(["git", "-C", str(checkout), "rev-parse", "--short", "HEAD"],
+                                                      capture_output=True, text=True).stdout.strip()}
+            summary_file.write_text(json.dumps(summary, indent=1))
+    if "old" in summary and "new" in summary:
+        o, n = summary["old"], summary["new"]
+        for k in ("wall_s", "cpu_s"):
+            print(f"{k}: {o[k]:.0f} -> {n[k]:.0f} ({n[k] / o[k]:.2f} of before; a third faster means <= 0.67)")
+        for name in ("old", "new"):
+            print(f"slowest tests, {name}:")
+            for t, nid in slowest(a.out / f"{name}_junit.xml"):
+                print(f"  {t:7.1f} s  {nid}")
+
+
+if __name__ == "__main__":
+    main()
