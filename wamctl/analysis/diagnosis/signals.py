@@ -611,8 +611,8 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
                 why = (f"moved {travel:.4f} rad with {n_mov} sliding samples; at least {MIN_TRAVEL_RAD} rad and "
                        f"{MIN_MOVING_SAMPLES} samples are needed")
                 if travel >= MIN_TRAVEL_RAD:
-                    why += (f" (it stuck again within {4 * reach * dt * 1e3:.0f} ms every time it moved: "
-                            "stick-slip throughout, whose friction at rest the torque residual cannot use)")
+                    why += (f" (it stopped again within {4 * reach * dt * 1e3:.0f} ms every time it moved: "
+                            "steps, or stick-slip throughout; too short for a sliding residual)")
                 skipped[j] = why
             continue
         joints.append(j)

@@ -272,7 +272,7 @@ class InertialIdentification:
         self.instrumented_ = any(rr.reference_tracks.any() for rr in self.rows_)
         if len(y) < MIN_ROWS:
             raise DataFormatError(f"only {len(y)} usable (sliding) rows in the data; the identification needs "
-                                  f"at least {MIN_ROWS}: did any joint move?")
+                                  f"at least {MIN_ROWS}: {_where_rows_went(self.rows_)}")
         self.base_ = base = base_parameters(getattr(dyn, "robot", None))
         self.pi_declared_ = standard_vector(dyn, friction)
         with single_threaded_blas():
@@ -682,6 +682,20 @@ class InertialIdentification:
                 "consistent": bool((self.margin_ > 0).all()), "pseudo_inertia_margin": _floats(self.margin_),
                 "optimiser": self.opt_, "links": self.links_.to_mapping(),
                 "base": self.table().replace({np.nan: None}).to_dict("records")}
+
+
+def _where_rows_went(rows: list[RunRows]) -> str:
+    """Why so few rows, from the runs' row accounting: what the candidate samples of the moving joints were."""
+    acc = [rr.accounting for rr in rows if rr.accounting]
+    tot = {k: sum(a[k] for a in acc) for k in ("candidates", "near_stop", "slow", "filter_reach")}
+    if not tot["candidates"]:
+        why = {j: w for rr in rows for j, w in rr.skipped.items()}
+        return ("; ".join(f"joint {j + 1}: {w}" for j, w in sorted(why.items())) if why else
+                "no joint moved (or was commanded to)")
+    return (f"of {tot['candidates']} candidate samples of the joints that move, {tot['near_stop']} are near a stop "
+            f"or the record's ends, {tot['slow']} slower than {acc[0]['min_speed_rad_s']} rad/s, "
+            f"{tot['filter_reach']} within the second filter's reach of those (the rigid-body fit needs the joints "
+            "sliding: an excitation, not a regulation or a step)")
 
 
 def _both(a, b):
