@@ -7,13 +7,31 @@ Filtering (two stages, one filter: :func:`wamctl.analysis.diagnosis.signals.smoo
    ``(tau[k-1] + tau[k]) / 2``), ``q, qd, qdd`` and the torque smoothed alike. Any sample rate the diagnosis
    accepts (>= 50 Hz; jittered time stamps are resampled) works here. The result is decimated to about
    ``rate_hz`` (100 Hz; the signals hold nothing above the filter's band) and the standard regressor ``Y`` is
-   built there.
+   built there (its velocity and acceleration: see "Derivatives").
 2. A second, narrower pass of the same filter over the torque *and every column of* ``Y`` (parallel
    filtering): ``S[tau] = S[Y] pi`` holds exactly because ``tau = Y pi`` is linear in ``pi``, so the filter
    distorts nothing (not the gravity's curvature, not the friction's jump at a reversal) while it averages the
    noise away. Its band follows the commanded motion (:func:`auto_filter`: three times the band holding 99 % of
    the reference's acceleration energy). ``window_s=None`` skips it (the residuals then compare with
    ``wamctl diagnose``'s).
+
+Derivatives
+-----------
+The torque is the smoothing kernel's output. ``derivatives="kernel"`` (identify's default) takes the rows' velocity
+and acceleration from the filter's own derivative kernels (Savitzky-Golay, cubic), which are not the smoothing
+kernel differentiated: the second-derivative kernel attenuates the acceleration more than the smoothing kernel the
+torque (the relative error growing with the frequency squared), so the rows' inertial torque falls short of the
+torque's and an identification makes up for it with inertia (noise-free, a wam4 on harmonics of 0.5-2.5 Hz: an
+apparent armature of +2.7e-4 to +2.3e-3 kg m^2, tests/analysis/test_identification_rows.py).
+``derivatives="smoothed"`` takes the smoothed position's own derivatives (:func:`smoothed_derivatives`: a quintic
+spline interpolating it at the kept samples, differentiated; a measured velocity, when logged, smoothed alike is
+the velocity and its spline gives the acceleration): where the torque is linear in the motion the filtered torque
+is exactly what they predict (apparent armature within 5e-5 there). ``identify --payload`` uses these (its inertia
+bias, docs/payload.md). ``identify`` does not, by measurement (docs/identify.md, "The rows' derivatives"): on the
+simulated wam7 (every seed's joints 2-4) and on the real 7-DOF log at 40 % held out the held-out RMS got worse
+and two identification tests failed (cause not established; a suspect: the derivative kernels also attenuate the
+position noise's high frequencies more). The reference's regressor (the instruments) is built the same way as the
+rows'. The diagnosis keeps its own signals.
 
 Rows
 ----
@@ -52,6 +70,7 @@ from __future__ import annotations
 from dataclasses import dataclass, replace
 
 import numpy as np
+from scipy.interpolate import make_interp_spline
 from scipy.ndimage import binary_dilation
 
 from wamctl.analysis.diagnosis.signals import (
@@ -225,15 +244,31 @@ def _dilate(mask: np.ndarray, reach: int) -> np.ndarray:
     return binary_dilation(mask, structure=np.ones((2 * reach + 1, 1), bool)) if reach > 0 else mask
 
 
+def smoothed_derivatives(t_s: np.ndarray, q_rad: np.ndarray,
+                         qd_rad_s: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """``(qd (m, n), qdd (m, n))`` at the samples ``t_s`` (m,): the derivatives of the smoothed position ``q_rad``
+    itself, those of the quintic spline interpolating it (see "Derivatives" in the module doc). ``qd_rad_s``: the
+    smoothed *measured* velocity, when the log has one: it is the velocity, and the spline through it gives the
+    acceleration."""
+    if qd_rad_s is None:
+        spline = make_interp_spline(t_s, q_rad, k=5, axis=0)
+        return spline.derivative(1)(t_s), spline.derivative(2)(t_s)
+    qd = np.array(qd_rad_s, float)
+    return qd, make_interp_spline(t_s, qd, k=5, axis=0).derivative(1)(t_s)
+
+
 def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str | None = "auto",
-             gauss_s: float | None = None) -> RunRows:
+             gauss_s: float | None = None, derivatives: str = "kernel") -> RunRows:
     """The identification rows of one run (:class:`wamctl.runs.measured.RunData`).
 
     ``dynamics`` (a WamDynamics) supplies the kinematics of the regressor. ``window_s``: ``"auto"``
     (:func:`auto_filter`), None (no second filter: residuals comparable with ``wamctl diagnose``'s), or seconds
-    (with ``gauss_s``, default a quarter of it). Raises DataFormatError (from the diagnosis' signal
-    preparation) for data that cannot be differentiated, for a run of another arm than ``dynamics``', and for a
-    ``torque: controller`` run without a joint whose gravity torque is constant (see the module doc)."""
+    (with ``gauss_s``, default a quarter of it). ``derivatives``: the regressor's velocity and acceleration from
+    the first filter's derivative kernels (``"kernel"``, identify's) or the smoothed position's own
+    (``"smoothed"``, the payload's; see "Derivatives" in the module doc). Raises DataFormatError (from the
+    diagnosis' signal preparation) for data that cannot be differentiated, for a run of another arm than
+    ``dynamics``', and for a ``torque: controller`` run without a joint whose gravity torque is constant (see the
+    module doc)."""
     meta = data.meta
     nj = int(getattr(dynamics, "n_joints", N7))
     robot = getattr(meta, "robot", "wam7")
@@ -277,8 +312,16 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
     # joints); at rest in both regressors, what only it could show stays undetermined, at the declared arm
     held = ~sliding.any(axis=0) & ((np.abs(sig.qd_rad_s[keep]).max(axis=0) < MIN_SPEED_RAD_S)
                                    | (np.ptp(sig.q_rad, axis=0) < HELD_RANGE_RAD))
-    q, qd, qdd = sig.q_rad[keep].copy(), sig.qd_rad_s[keep].copy(), sig.qdd_rad_s2[keep].copy()
-    q_ref, qd_ref, qdd_ref = (sig.smooth(sig.q_ref_rad, d)[keep] for d in (0, 1, 2))
+    t = sig.t_s[keep]
+    q, q_ref = sig.q_rad[keep].copy(), sig.smooth(sig.q_ref_rad)[keep]
+    if derivatives not in ("kernel", "smoothed"):
+        raise ValueError(f"derivatives: {derivatives!r}, not 'kernel' or 'smoothed'")
+    if derivatives == "kernel":
+        qd, qdd = sig.qd_rad_s[keep].copy(), sig.qdd_rad_s2[keep].copy()
+        qd_ref, qdd_ref = (sig.smooth(sig.q_ref_rad, d)[keep] for d in (1, 2))
+    else:
+        qd, qdd = smoothed_derivatives(t, q, None if sig.qd_raw_rad_s is None else sig.qd_rad_s[keep])
+        qd_ref, qdd_ref = smoothed_derivatives(t, q_ref)
     for a in (qd, qdd, qd_ref, qdd_ref):
         a[:, held] = 0.0
     for a in (q, q_ref):        # at its median position (its noise would separate columns that rest joins)

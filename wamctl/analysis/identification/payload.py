@@ -4,10 +4,10 @@ Dynamic variant (:func:`identify_payload`)
 ------------------------------------------
 One designed trajectory is run loaded and bare in the order loaded-bare-bare-loaded (ABBA, ``wamctl excite
 SPEC --payload-schedule``). Each run goes through the identification's rows (:func:`.data.run_rows`: the
-diagnosis' filter, the second, parallel filter over the torque and every regressor column alike), the regressor
-built again from the smoothed position's own derivatives (:func:`consistent_rows`: the rows' acceleration, the
-filter's second-derivative kernel, was short of the smoothed torque's and the payload's inertia made up for it:
-I_xx, I_yy +0.55 standard errors without noise). At every
+diagnosis' filter, the second, parallel filter over the torque and every regressor column alike; the regressor
+from the smoothed position's own derivatives, :func:`.data.smoothed_derivatives`: with the filter's
+second-derivative kernel the rows' acceleration was short of the smoothed torque's and the payload's inertia made
+up for it, I_xx, I_yy +0.55 standard errors without noise). At every
 kept sample the *mean over the loaded runs* minus the *mean over the bare runs* of the torque residual
 ``tau - Y pi_declared`` (the declared arm without payload: links, armature, friction) is
 
@@ -91,20 +91,17 @@ No I/O.
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 
 import numpy as np
 from scipy import stats
-from scipy.interpolate import make_interp_spline
 
-from wamctl.analysis.diagnosis.signals import smooth, window_samples
 from wamctl.analysis.identification.base import (
     FRICTION_PARAMETER_NAMES,
     FRICTION_SLICE,
-    standard_regressor,
     standard_vector,
 )
-from wamctl.analysis.identification.data import HELD_RANGE_RAD, MIN_SPEED_RAD_S, RunRows, run_rows
+from wamctl.analysis.identification.data import RunRows, run_rows
 from wamctl.analysis.identification.estimator import (
     effective_blocks,
     hac_lags,
@@ -129,7 +126,7 @@ MIN_ROWS = 50
 TIMING_PASSES = 2           # the timing column built from the payload estimated before it (it converges in one)
 MIN_HOLD_S = 1.0            # static variant: a rest of the reference at least this long is a held pose
 HOLD_SPEED_RAD_S = 1e-9     # the reference at rest
-CONSISTENT_KEY = "#consistent"   # rows_cache: a run's rows with the regressor of consistent_rows
+KERNEL_KEY = "#kernel"   # rows_cache: a run's rows with the filter-kernel derivatives (consistent=False)
 
 
 @dataclass
@@ -362,36 +359,6 @@ def _weights(X, d, jrow, determined):
 
 
 # ------------------------------------------------------------------------------------------- dynamic
-def consistent_rows(rows: RunRows, dynamics) -> RunRows:
-    """``rows`` with the regressor ``Y`` built again from the derivatives of its own smoothed position: the
-    velocity and acceleration of an interpolating quintic spline through ``q_rad`` (the first filter's position at
-    the kept samples), then the second filter, as :func:`.data.run_rows` does. Why: the rows' torque is the
-    logged torque through the first filter's smoothing kernel, but their ``qd`` and ``qdd`` are that filter's
-    first- and second-derivative kernels (Savitzky-Golay's, cubic), which are not the smoothing kernel
-    differentiated: the second-derivative kernel attenuates the motion's acceleration more than the smoothing
-    kernel attenuates the torque (relative error growing with the frequency squared), so the inertial torque the
-    rows predict was short of the torque's, and the payload's inertia made up for it (noise-free ABBA runs of the
-    tests' case without the drift: I_xx, I_yy +0.55, +0.57, COM x +0.25 standard errors of the noisy case; with
-    these rows 0.02-0.08). The derivatives of the smoothed position are what the smoothed torque answers (exactly
-    where the dynamics is linear in the motion, to second order in the filter's width elsewhere); the spline at
-    the kept rate (100 Hz) is exact to a few 1e-4 in the signal band (central differences there were not: I_yy
-    +1.16). Joints held at rest keep zero speed and acceleration at their median position, as in the rows. ``Z``
-    is left as it was (the payload does not use it)."""
-    q = np.array(rows.q_rad, float)
-    spline = make_interp_spline(rows.t_s, q, k=5, axis=0)
-    qd, qdd = spline.derivative(1)(rows.t_s), spline.derivative(2)(rows.t_s)
-    held = ~rows.usable.any(axis=0) & ((np.abs(rows.qd_rad_s).max(axis=0) < MIN_SPEED_RAD_S)
-                                       | (np.ptp(q, axis=0) < HELD_RANGE_RAD))
-    qd[:, held] = qdd[:, held] = 0.0
-    q[:, held] = np.median(q[:, held], axis=0)
-    Y = standard_regressor(dynamics, q, qd, qdd)
-    if rows.window_s is not None:
-        m = len(q)
-        Y = smooth(Y.reshape(m, -1), window_samples(1.0 / rows.dt_s, rows.window_s),
-                   rows.gauss_s / rows.dt_s).reshape(Y.shape)
-    return replace(rows, Y=Y)
-
-
 def schedule_positions(starts, n_loaded: int, n_bare: int) -> np.ndarray | None:
     """(n_loaded + n_bare,) each run's position in the schedule (0, 1, ...: rank of its start time), loaded runs
     first, from ``starts`` [(role, start time)] in that order (as ``identify_payload`` takes them); None when a
@@ -480,7 +447,7 @@ def identify_payload(loaded, bare, dynamics=None, friction=None, alpha: float = 
     the arm's friction fitted on the bare runs (False: the declared friction, biased when it is not the arm's);
     ``fit_timing``: the torque's timing offset estimated with the payload (False: the zero-order hold's timing
     assumed, biased when the arm's differs); ``consistent``: the regressor built from the smoothed position's
-    own derivatives (:func:`consistent_rows`; False: the rows' filter-kernel derivatives, the comparison);
+    own derivatives (:func:`.data.smoothed_derivatives`; False: the filter's derivative kernels, the comparison);
     ``instruments``: the reference's regressor instruments the rows of joints that track it (two-stage least
     squares, :func:`instrument_rows`; tried, not the default: see there).
     Raises DataFormatError for runs of different trajectories or too few rows."""
@@ -498,14 +465,10 @@ def identify_payload(loaded, bare, dynamics=None, friction=None, alpha: float = 
     cache = rows_cache if rows_cache is not None else {}
 
     def rows_of(d):
-        key = str(d.source)
+        key = str(d.source) + ("" if consistent else KERNEL_KEY)
         if key not in cache:
-            cache[key] = run_rows(d, dyn)
-        if not consistent:
-            return cache[key]
-        if key + CONSISTENT_KEY not in cache:
-            cache[key + CONSISTENT_KEY] = consistent_rows(cache[key], dyn)
-        return cache[key + CONSISTENT_KEY]
+            cache[key] = run_rows(d, dyn, derivatives="smoothed" if consistent else "kernel")
+        return cache[key]
 
     lrows = [rows_of(d) for d in loaded]
     brows = [rows_of(d) for d in bare]
