@@ -430,7 +430,15 @@ def issue28(df: pd.DataFrame, fa: pd.DataFrame | None) -> tuple[list[str], list[
     cln = df[df["expected"] == "none"]
     targets = []
 
+    made = df["next_status"].astype(str).isin(["ok", "safety_trip", "diverged"]).any() if "next_status" in df \
+        else False
+
     def add(label, k, n, target, ok):
+        if not made and ("after" in label or "resolved" in label or "the same" in label or "of which" in label
+                         or "payload" in label):
+            targets.append({"criterion": label, "measured": "", "95 % interval": "", "target": target,
+                            "met": "not measured (no designed run made by this generator)"})
+            return
         targets.append({"criterion": label, "measured": f"{k} / {n} = {k / n:.3f}" if n else "no runs",
                         "95 % interval": "[{:.3f}, {:.3f}]".format(*clopper_pearson(k, n)) if n else "",
                         "target": target, "met": ("met" if ok(k, n) else "not met") if n else "not measured"})
