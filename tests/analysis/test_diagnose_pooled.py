@@ -197,3 +197,16 @@ def test_friction_that_changed_between_runs_is_each_run_own(runs, tmp_path):
     for d in ("pos", "neg"):
         assert at[d]["change_Nm"] == pytest.approx(0.3, abs=0.05), at
         assert at[d]["change_ci_Nm"][0] > 0, at
+
+
+def test_a_finding_named_without_a_pooled_test_is_ordered_not_a_crash():
+    """An effect seen at the onsets only is named from the runs that named it, with no pooled p-value (None):
+    the effects are ordered by p with those after the tested ones (sorting crashed with a TypeError on the
+    independent generator's pair-stribeck+payload-007 and its designed run, `wamctl diagnose RUN NEXT`)."""
+    from wamctl.analysis.diagnosis.pooled import effects_in_order
+
+    findings = [{"name": "backlash", "pooled": {"named": True, "p_value": None}},
+                {"name": "stribeck", "pooled": {"named": True, "p_value": 1e-5}},
+                {"name": "ripple", "pooled": {"named": False, "p_value": 0.5}},
+                {"name": "payload", "pooled": {"named": True, "p_value": 1e-40}}]
+    assert effects_in_order(findings) == ["payload", "stribeck", "backlash"]

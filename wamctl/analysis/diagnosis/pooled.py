@@ -180,6 +180,14 @@ def without_key(label: str) -> str:
 
 
 # ------------------------------------------------------------------------------------------------ the estimator
+def effects_in_order(findings: list[dict]) -> list[str]:
+    """The names of the findings named pooled, smallest pooled p-value first; a finding with no pooled test (an
+    effect seen at the onsets only, named from the runs that named it: p-value None) after those tested."""
+    found = [f for f in findings if f["pooled"]["named"]]
+    found.sort(key=lambda f: (f["pooled"]["p_value"] is None, f["pooled"]["p_value"] or 0.0))
+    return list(dict.fromkeys(f["name"] for f in found))
+
+
 class PooledDiagnosis:
     """Diagnose several runs of one arm together.
 
@@ -225,9 +233,7 @@ class PooledDiagnosis:
         self._arm(ms, runs)
         self._joint_effects(ms, runs)
         self._friction(ms, runs)
-        found = [f for f in self.findings_ if f["pooled"]["named"]]
-        found.sort(key=lambda f: np.log10(max(f["pooled"]["p_value"], 1e-300)))     # smallest p first
-        self.effects_found_ = list(dict.fromkeys(f["name"] for f in found))
+        self.effects_found_ = effects_in_order(self.findings_)
         return self
 
     # -------------------------------------------------------------------------------- runs
