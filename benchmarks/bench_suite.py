@@ -79,7 +79,8 @@ def run_side(checkout: Path, ids: list[str], out: Path, name: str) -> dict:
     print(f"== {name}: {checkout} ({len(ids)} tests), load {before}", flush=True)
     with open(log, "w") as fh:
         rc = subprocess.run(["/usr/bin/time", "-v", "-o", str(timing), str(checkout / ".venv/bin/python"), "-m",
-                             "pytest", *PYTEST_OPTS, "--durations=40", f"--junitxml={junit}", f"@{argfile}"],
+                             "pytest", *PYTEST_OPTS, "--durations=40", f"--junitxml={junit}",
+                             f"--basetemp={out / ('basetemp_' + name)}", f"@{argfile}"],
                             cwd=checkout, stdout=fh, stderr=subprocess.STDOUT, check=False).returncode
     after = load()
     res = {**parse_time_v(timing.read_text()), "exit": rc, "load_before": before, "load_after": after,
@@ -124,8 +125,13 @@ def main() -> None:
         for k in ("wall_s", "cpu_s"):
             print(f"{k}: {o[k]:.0f} -> {n[k]:.0f} ({n[k] / o[k]:.2f} of before; a third faster means <= 0.67)")
         for name in ("old", "new"):
+            try:
+                top = slowest(a.out / f"{name}_junit.xml")
+            except (OSError, ET.ParseError) as e:      # a run cut short (a full disk) writes none
+                print(f"slowest tests, {name}: no JUnit file ({e})")
+                continue
             print(f"slowest tests, {name}:")
-            for t, nid in slowest(a.out / f"{name}_junit.xml"):
+            for t, nid in top:
                 print(f"  {t:7.1f} s  {nid}")
 
 

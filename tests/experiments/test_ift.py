@@ -11,6 +11,7 @@ import pandas as pd
 import pytest
 import yaml
 from conftest import Q0
+from once import make_once
 from scipy.signal import lfilter
 
 from wamctl.analysis import ift as A
@@ -197,14 +198,18 @@ def test_ift_gradient_against_finite_differences_of_J_on_the_plant(tmp_path):
 
 
 # ------------------------------------------------------------------------------------------------ (b) tuning
-@pytest.fixture(scope="module")
-def tuned(tmp_path_factory):
-    """All seven joints tuned on the plant with the undeclared payload; then the strategy comparison."""
-    runs = tmp_path_factory.mktemp("ift_runs")
+def _tune_all_joints(runs: Path) -> Path:
     spec = parse_spec(ift_spec(max_iterations=7, comparison={"enabled": True}))
     outcome = run_spec(spec, None, runs, make_report=False)
     assert outcome.status == "completed", outcome.reason
     return outcome.path
+
+
+@pytest.fixture(scope="module")
+def tuned(tmp_path_factory):
+    """All seven joints tuned on the plant with the undeclared payload; then the strategy comparison. Made once
+    per session for every xdist worker (tests/once.py): the tests read the run, never change it."""
+    return make_once(tmp_path_factory, "ift_tuned", _tune_all_joints)
 
 
 def test_tuning_lowers_J_by_two_orders_of_magnitude_on_a_plant_the_model_does_not_describe(tuned):
@@ -285,11 +290,14 @@ def warning_lines(doc, width=80) -> list[list[str]]:
 def example_interrupted(tmp_path_factory):
     """The README's example (configs/ift.yaml) on joints 1 and 7, Ctrl-C after iteration 2 was saved; then the
     same run resumed to max_iterations 4. Returns (spec dict, run path, report of the interrupted run,
-    report of the completed one)."""
+    report of the completed one). Made once per session for every xdist worker (tests/once.py)."""
+    return make_once(tmp_path_factory, "ift_example_interrupted", _interrupt_and_resume_the_example)
+
+
+def _interrupt_and_resume_the_example(runs: Path):
     d = yaml.safe_load((Path(__file__).parents[2] / "configs" / "ift.yaml").read_text())
     d["ift"].update(joints=[1, 7], max_iterations=3, comparison={"enabled": False})
     spec = parse_spec(d)
-    runs = tmp_path_factory.mktemp("example")
     orig = IftTuner._after_iteration
 
     def stop(self, k):
@@ -447,8 +455,11 @@ RESUME_SPEC = ift_spec(joints=[5, 7], max_iterations=3)
 
 @pytest.fixture(scope="module")
 def uninterrupted(tmp_path_factory):
-    out = run_spec(parse_spec(RESUME_SPEC), None, tmp_path_factory.mktemp("ref"), make_report=False)
-    return json.loads((out.path / STATE_FILE).read_text())
+    """The state of RESUME_SPEC's tuning run without a stop; made once per session for every xdist worker."""
+    def tune(folder: Path) -> dict:
+        out = run_spec(parse_spec(RESUME_SPEC), None, folder, make_report=False)
+        return json.loads((out.path / STATE_FILE).read_text())
+    return make_once(tmp_path_factory, "ift_uninterrupted", tune)
 
 
 @pytest.mark.parametrize("where", ["between_iterations", "mid_experiment"])
