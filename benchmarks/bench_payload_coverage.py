@@ -10,7 +10,7 @@ runs and the torque's timing estimated):
 
 * ``default``: :func:`payload.identify_payload` as the CLI calls it, with the runs' start times (the friction
   drifting over the schedule, :func:`payload.bare_friction`) and the regressor from the smoothed position's own
-  derivatives (:func:`payload.consistent_rows`);
+  derivatives (``run_rows(derivatives="smoothed")``, :func:`.data.smoothed_derivatives`);
 * ``before``: without either (the bare runs' mean friction; the rows' filter-kernel derivatives), the intervals
   alike (leverage-adjusted HAC, Student's t with each quantity's effective blocks).
 

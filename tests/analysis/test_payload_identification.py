@@ -173,7 +173,7 @@ def test_consistent_rows_and_the_drifting_friction_remove_the_inertia_bias(clean
     """Issue 29 item 1: I_yy +1.06 and COM x +0.66 standard errors of bias over 60 seeds (I_yy's interval held the
     truth in 51/60). Noise-free (these runs) the bias was +1.14e-4 kg m^2 (I_yy), +8.2e-5 (I_xx) and +1.47e-5 m (COM
     x), two causes: (1) the rows' acceleration is the Savitzky-Golay second-derivative kernel's, which attenuates
-    the motion more than the smoothing kernel the torque went through (payload.consistent_rows builds the
+    the motion more than the smoothing kernel the torque went through (run_rows(derivatives="smoothed") builds the
     regressor from the smoothed position's own derivatives); (2) the loaded runs (friction 1.0 and 0.7 of Table
     4.1) were given the bare runs' mean friction (0.85), and what each run's friction predicts differently for its
     slightly different motion leaked (payload.bare_friction now fits the drift over the schedule from the bare

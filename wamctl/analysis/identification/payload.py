@@ -126,7 +126,9 @@ MIN_ROWS = 50
 TIMING_PASSES = 2           # the timing column built from the payload estimated before it (it converges in one)
 MIN_HOLD_S = 1.0            # static variant: a rest of the reference at least this long is a held pose
 HOLD_SPEED_RAD_S = 1e-9     # the reference at rest
-KERNEL_KEY = "#kernel"   # rows_cache: a run's rows with the filter-kernel derivatives (consistent=False)
+# rows_cache keys: a run's source and how its rows' derivatives were taken (``run_rows(derivatives=...)``), so that
+# a cache written by another version (benchmarks/bench_payload_coverage.py keeps one on disk) is never misread
+ROWS_KEY = {True: "#smoothed", False: "#kernel"}
 
 
 @dataclass
@@ -465,7 +467,7 @@ def identify_payload(loaded, bare, dynamics=None, friction=None, alpha: float = 
     cache = rows_cache if rows_cache is not None else {}
 
     def rows_of(d):
-        key = str(d.source) + ("" if consistent else KERNEL_KEY)
+        key = str(d.source) + ROWS_KEY[bool(consistent)]
         if key not in cache:
             cache[key] = run_rows(d, dyn, derivatives="smoothed" if consistent else "kernel")
         return cache[key]
