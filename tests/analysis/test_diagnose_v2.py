@@ -22,6 +22,7 @@ import pandas as pd
 import pytest
 import yaml
 from diagnosis_gen import DT_S, generate_run, simulate, write_measured
+from once import make_once
 
 from wamctl.analysis.diagnosis import headtohead
 from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
@@ -247,10 +248,14 @@ INDEPENDENT_SUBSET = ("stribeck-001", "position_ripple-000", "payload-002", "del
 @pytest.fixture(scope="module")
 def independent(tmp_path_factory):
     """A fixed subset of the independent generator's plan (seed 7, neither the benchmark's dev nor its report
-    split), each run diagnosed once."""
+    split), each run diagnosed once; made once per session for every xdist worker (tests/once.py: each worker that
+    got one of its tests had made them)."""
+    return make_once(tmp_path_factory, "diagnose_v2_independent", _diagnose_the_independent_subset)
+
+
+def _diagnose_the_independent_subset(root) -> dict:
     from gen_independent import cases, generate
 
-    root = tmp_path_factory.mktemp("ind")
     plan = {c["id"]: c for c in cases(3, 3, seed=7, n_pairs=0)}
     out = {}
     for cid in INDEPENDENT_SUBSET:
