@@ -99,16 +99,17 @@ BACKLASH_GAP_RAD = 0.008        # the total gap the crossing run is designed to 
 
 
 def backlash_suspects(diag) -> list[int]:
-    """0-based joints where a gap behind a motor-side encoder cannot be excluded and the diagnosis left it open:
-    backlash in an ambiguous group at a joint whose gravity torque kept one sign over the run (the drive never let
-    the link fall through a gap). (A structured residual left unexplained is not enough: a gap is one of many
-    things it could be.)"""
+    """0-based joints where a gap behind a motor-side encoder cannot be excluded and the diagnosis left it open, at a
+    joint whose gravity torque kept one sign over the run (the drive never let the link fall through a gap): backlash
+    in an ambiguous group, or a residual left structured and unexplained with nothing named at the joint (issue 28:
+    "a structured residual stays unexplained"; a gap is one of the things it could be, and the only one a one-sign
+    run cannot show: the designed crossing tests it, and names nothing when it is something else)."""
     from wamctl.model.dynamics import WamDynamics
 
     dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
     out = []
     for j, res in diag.joints_.items():
-        if not any("backlash" in g["names"] for g in res.ambiguous):
+        if not (any("backlash" in g["names"] for g in res.ambiguous) or (res.unexplained and not res.kept)):
             continue
         jd = diag.jd_[j]
         g = dyn.gravity_many(diag.signals_.at("q", jd.idx[:: max(1, len(jd.idx) // 400)]))[:, j]
