@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import json
 
+import numpy as np
 import pandas as pd
 import pytest
 import test_identification_wam4 as W4
@@ -70,3 +71,26 @@ def test_the_import_itself_makes_up_no_reference(runs):
     df = pd.read_parquet(runs["fit_noref"] / "data.parquet")
     assert not any(c.startswith("q_ref_") for c in df)
     assert "reference" not in yaml.safe_load((runs["fit_noref"] / "meta.yaml").read_text())
+
+
+def test_a_reader_whose_analysis_needs_the_reference_still_refuses_it(tmp_path):
+    """The stand-in is for identify, diagnose and friction-id (and their reports); any other reader (tune-ift: its
+    objective is the tracking error, which a stand-in would make zero) refuses such a log in one line."""
+    from wamctl.errors import DataFormatError
+    from wamctl.runs.measured import STAND_IN_READERS, load_run_data
+
+    assert "wamctl.experiments.ift.experiments" not in STAND_IN_READERS
+    run = tmp_path / "wam7"
+    run.mkdir()
+    t = np.arange(0.0, 2.0, 0.002)
+    df = pd.DataFrame({"t": t, **{f"q_{j}": 0.1 * np.sin(t + j) for j in range(1, 8)},
+                       **{f"tau_{j}": np.cos(t + j) for j in range(1, 8)}})
+    df.to_parquet(run / "data.parquet", index=False)
+    (run / "meta.yaml").write_text(yaml.safe_dump({
+        "format": "wamctl-measured/1", "robot": "wam7", "sample_rate_hz": 500.0, "gravity_compensation": True,
+        "controller": {"kind": "unknown"}, "experiment": {"kind": "free", "joints": list(range(1, 8))},
+        "q0": [float(df[f"q_{j}"].iloc[0]) for j in range(1, 8)]}))
+    with pytest.raises(DataFormatError, match=r"no reference \(q_ref\) logged: not supported by this analysis"):
+        load_run_data(run)
+    df.assign(**{f"q_ref_{j}": df[f"q_{j}"] for j in range(1, 8)}).to_parquet(run / "data.parquet", index=False)
+    assert load_run_data(run).meta.robot == "wam7"       # with a reference: read as before

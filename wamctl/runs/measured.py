@@ -339,8 +339,10 @@ def meta_from_run(manifest: dict, spec: dict, data: pd.DataFrame) -> MeasuredMet
 
 def unsupported(meta: MeasuredMeta, columns, any_robot: bool = False, controller_ok: bool = False) -> str | None:
     """Why the analyses cannot take a run yet (None: they can): they know the wam7 (``any_robot``: every
-    registered robot) with all its joints, a reference, and tau the total command (``controller_ok``: also the
-    controller's output, the caller using only the joints whose gravity torque is zero over the run)."""
+    registered robot) with all its joints, and tau the total command (``controller_ok``: also the controller's
+    output, the caller using only the joints whose gravity torque is constant over the run). A log without a
+    reference is taken with the measurement standing in for it (:func:`with_reference`) by the callers of
+    :data:`STAND_IN_READERS`."""
     if meta.robot != "wam7" and not any_robot:
         return f"robot {meta.robot}"
     n = ROBOT_JOINTS[meta.robot]
@@ -393,6 +395,10 @@ _CALLERS = {"wamctl.experiments.diagnose": "diagnose", "wamctl.experiments.ident
             "wamctl.experiments.friction_sweep": "friction-id", "wamctl.experiments.ift.experiments": "tune-ift",
             "wamctl.report.friction": "report", "wamctl.report.excitation": "report"}
 PARTIAL_READERS = ("wamctl.report.measured",)
+# the callers for which the measured positions may stand in for a reference the log does not hold
+# (:func:`with_reference`); the others (tune-ift: its objective is the tracking error) refuse such a log
+STAND_IN_READERS = ("wamctl.experiments.diagnose", "wamctl.experiments.identify", "wamctl.experiments.friction_sweep",
+                    "wamctl.report.friction", "wamctl.report.excitation")
 # the callers that take a run of any registered robot (wamctl.model.robots), not only the wam7, and a torque that
 # is the controller's output (on the joints whose gravity torque is zero over the run)
 _ANY_ROBOT = ("wamctl.experiments.friction_sweep", "wamctl.report.friction")
@@ -407,8 +413,10 @@ def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
     """Either a run directory (ours) or a measured-run directory, as :class:`RunData`.
 
     A run the analyses cannot take yet (:func:`unsupported`: a wam4, joints not logged, tau not the total
-    command, no reference) is refused in one line naming the command, except with ``partial_ok`` and for the
-    report of an imported run (``report.measured``), which shows what was logged."""
+    command; no reference, for a caller not in :data:`STAND_IN_READERS`) is refused in one line naming the
+    command, except with ``partial_ok`` and for the report of an imported run (``report.measured``), which shows
+    what was logged; a log without a reference is returned with the measurement standing in for it
+    (:func:`with_reference`)."""
     path = Path(path)
     if (path / "meta.yaml").is_file():
         rd = read_measured(path)
@@ -427,6 +435,8 @@ def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
     why = unsupported(rd.meta, rd.data.columns, any_robot=caller in _ANY_ROBOT, controller_ok=caller in _ANY_ROBOT)
     if partial_ok or caller in PARTIAL_READERS:
         return rd           # what was logged, as it was logged
+    if why is None and not has_reference(rd.data.columns) and caller not in STAND_IN_READERS:
+        why = "no reference (q_ref) logged"      # e.g. tune-ift: its objective is the tracking error
     if why:
         raise DataFormatError(f"{path}: {why}: not supported by {_CALLERS.get(caller, 'this analysis')} yet")
     return with_reference(rd)
