@@ -11,6 +11,7 @@ from __future__ import annotations
 import logging
 
 import numpy as np
+import pytest
 import yaml
 
 from wamctl.analysis.diagnosis.backlash_design import design_crossing, gravity_and_slope, separation
@@ -68,29 +69,38 @@ def test_the_gap_signature_is_an_offset_where_gravity_keeps_its_sign():
     assert separation(dyn, q, qd, 3, 0.008, 0.01) < 0.05 * 0.008 * 5.2 / 0.01
 
 
-def test_an_independent_elbow_sweep_with_motor_side_backlash_gets_a_crossing_run(tmp_path):
+@pytest.fixture(scope="module")
+def elbow_sweep(tmp_path_factory):
     """The independent generator's elbow sweep with a medium motor-side gap (seed fixed before the run was looked
-    at): diagnose does not name backlash (the elbow's gravity torque keeps one sign); asked for the elbow, the
-    designed run crosses its zero-gravity pose, passes excite's plan and limit checks, and separates a gap of the
-    design's 8 mrad by more than 2 noise floors where the run's separation is below 1. (Measured when written:
-    link_parameters named; 0.39 -> 3.2 noise floors of 6.4 mN m.)"""
+    at): the run, its data and its diagnosis."""
     from gen_independent import generate
 
     from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
-    from wamctl.experiments.diagnose_next import next_experiment_backlash
-    from wamctl.experiments.excitation import plan
     from wamctl.runs.measured import load_run_data
-    from wamctl.specs import load_spec
 
     case = {"id": "bkl-sweep-4", "seed": 42, "links": "nominal", "rate_hz": 500, "noise": "quiet",
             "jitter": "stamp", "excitation": "sweep", "joint": 4, "effects": [{"name": "backlash", "size": "medium"}]}
-    r = generate(case, tmp_path / case["id"])
+    r = generate(case, tmp_path_factory.mktemp("bkl") / case["id"])
     data = load_run_data(r.path)
     logging.disable(logging.WARNING)
     try:
         diag = ModelDiagnosis().fit(data)
     finally:
         logging.disable(logging.NOTSET)
+    return r, data, diag
+
+
+def test_an_independent_elbow_sweep_with_motor_side_backlash_gets_a_crossing_run(elbow_sweep, tmp_path):
+    """The independent generator's elbow sweep with a medium motor-side gap (seed fixed before the run was looked
+    at): diagnose does not name backlash (the elbow's gravity torque keeps one sign); asked for the elbow, the
+    designed run crosses its zero-gravity pose, passes excite's plan and limit checks, and separates a gap of the
+    design's 8 mrad by more than 2 noise floors where the run's separation is below 1. (Measured when written:
+    link_parameters named; 0.39 -> 3.2 noise floors of 6.4 mN m.)"""
+    from wamctl.experiments.diagnose_next import next_experiment_backlash
+    from wamctl.experiments.excitation import plan
+    from wamctl.specs import load_spec
+
+    r, data, diag = elbow_sweep
     assert "backlash" not in diag.to_dict()["effects_found"]
     out = next_experiment_backlash(diag, data, r.path, tmp_path, joints=[3])
     assert out["spec"] == "next_experiment.yaml" and out["joint"] == 4
@@ -105,32 +115,24 @@ def test_an_independent_elbow_sweep_with_motor_side_backlash_gets_a_crossing_run
     assert abs(g[0]) < 0.05                                   # the run starts at the crossing
 
 
-def test_an_unexplained_residual_with_nothing_named_makes_the_joint_a_suspect(tmp_path):
+def test_an_unexplained_residual_with_nothing_named_makes_the_joint_a_suspect(elbow_sweep):
     """Issue 28: "a structured residual stays unexplained" is a reason to design the next run. The elbow sweep
     above, its diagnosis as it came (link_parameters kept at the elbow: not a suspect), then as if nothing had been
     named there and the residual had stayed structured (what the issue-28 study saw on backlash runs: none named,
     far from white): the elbow, whose gravity torque kept one sign, is a suspect; with an effect named it is not.
     (Measured on the study's runs where this fires: two misses turned right after the designed run, a Stribeck
     and a backlash; no clean run got a design from it: docs/diagnosis-validation.md.)"""
-    from gen_independent import generate
-
-    from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
     from wamctl.experiments.diagnose_next import backlash_suspects
-    from wamctl.runs.measured import load_run_data
 
-    case = {"id": "bkl-sweep-4", "seed": 42, "links": "nominal", "rate_hz": 500, "noise": "quiet",
-            "jitter": "stamp", "excitation": "sweep", "joint": 4, "effects": [{"name": "backlash", "size": "medium"}]}
-    r = generate(case, tmp_path / case["id"])
-    logging.disable(logging.WARNING)
-    try:
-        diag = ModelDiagnosis().fit(load_run_data(r.path))
-    finally:
-        logging.disable(logging.NOTSET)
+    diag = elbow_sweep[2]
     res = diag.joints_[3]
     assert res.kept and backlash_suspects(diag) == []
-    kept = res.kept
-    res.kept, res.unexplained = [], {"correlates_with": [], "torque_rms_Nm": 0.05, "p_values": {},
-                                     "whiteness_p": 1e-30}
-    assert backlash_suspects(diag) == [3]
-    res.kept = kept
-    assert backlash_suspects(diag) == []
+    kept, unexplained = res.kept, res.unexplained
+    try:
+        res.kept, res.unexplained = [], {"correlates_with": [], "torque_rms_Nm": 0.05, "p_values": {},
+                                         "whiteness_p": 1e-30}
+        assert backlash_suspects(diag) == [3]
+        res.kept = kept
+        assert backlash_suspects(diag) == []
+    finally:        # the diagnosis is the module's: left as it came
+        res.kept, res.unexplained = kept, unexplained
