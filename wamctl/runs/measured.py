@@ -395,10 +395,11 @@ _CALLERS = {"wamctl.experiments.diagnose": "diagnose", "wamctl.experiments.ident
             "wamctl.experiments.friction_sweep": "friction-id", "wamctl.experiments.ift.experiments": "tune-ift",
             "wamctl.report.friction": "report", "wamctl.report.excitation": "report"}
 PARTIAL_READERS = ("wamctl.report.measured",)
-# the callers for which the measured positions may stand in for a reference the log does not hold
-# (:func:`with_reference`); the others (tune-ift: its objective is the tracking error) refuse such a log
-STAND_IN_READERS = ("wamctl.experiments.diagnose", "wamctl.experiments.identify", "wamctl.experiments.friction_sweep",
-                    "wamctl.report.friction", "wamctl.report.excitation")
+# the callers of load_run_data for which the measured positions may stand in for a reference the log does not hold
+# (:func:`with_reference`); the others (tune-ift: its objective is the tracking error) refuse such a log. identify,
+# diagnose and the excitation report read with ``partial_ok`` and call with_reference themselves after their own
+# checks (wamctl.experiments.identify._load, wamctl.experiments.diagnose.load_diagnosable)
+STAND_IN_READERS = ("wamctl.experiments.friction_sweep", "wamctl.report.friction")
 # the callers that take a run of any registered robot (wamctl.model.robots), not only the wam7, and a torque that
 # is the controller's output (on the joints whose gravity torque is zero over the run)
 _ANY_ROBOT = ("wamctl.experiments.friction_sweep", "wamctl.report.friction")

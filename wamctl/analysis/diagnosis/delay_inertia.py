@@ -216,6 +216,7 @@ def separation(rows: Rows, hyp: Hypotheses, noise_Nm: dict) -> dict:
     out["separation"] = min(out.values())
     return out
 
+
 def excess_floors(worse: float, better: float) -> float:
     """What the worse of two weighted fits leaves beyond the better one, in noise floors: ``sqrt(worse^2 -
     better^2) / better`` (0 when it leaves nothing more)."""

@@ -84,7 +84,7 @@ from wamctl.analysis.diagnosis.parameters import (
 )
 from wamctl.analysis.diagnosis.prepare import declared_delay_s, prepare_design
 from wamctl.analysis.diagnosis.serialise import diagnosis_dict
-from wamctl.analysis.diagnosis.signals import Signals, gap_warnings, prepare_signals
+from wamctl.analysis.diagnosis.signals import Signals, gap_warnings, prepare_signals, refuse_joints
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
 from wamctl.analysis.diagnosis.sweeps import map_evidence
 from wamctl.analysis.diagnosis.timing import rigid_body_shift_s, shift_rigid_body
@@ -138,7 +138,6 @@ def torque_warnings(sig: Signals, robot=None) -> list[str]:
             out.append(f"joint {j + 1}: {over} samples with |tau| above the model's limit of "
                        f"{limit[j]:g} N m (up to {tau.max():.3g} N m); kept as data")
     return out
-
 
 
 class ModelDiagnosis:
@@ -313,14 +312,9 @@ class ModelDiagnosis:
                                               float(meta.sample_rate_hz), [j - 1 for j in meta.experiment.joints],
                                               qd_rad_s=qd, **kw)
         # refused: the joints that move (or were commanded to) whose gravity torque varies
-        refused = {j: why for j, why in refused.items() if j in sig.joints or j in sig.skipped}
-        if refused:
-            sig.joints = [j for j in sig.joints if j not in refused]
-            skipped = {**sig.skipped, **refused}
-            sig.skipped = {j: skipped[j] for j in sorted(skipped)}
-            if not sig.joints:
-                raise DataFormatError(f"{self.source_}: no joint left to diagnose (" + "; ".join(
-                    f"joint {j + 1}: {why}" for j, why in sig.skipped.items()) + ")")
+        if refuse_joints(sig, refused) and not sig.joints:
+            raise DataFormatError(f"{self.source_}: no joint left to diagnose (" + "; ".join(
+                f"joint {j + 1}: {why}" for j, why in sig.skipped.items()) + ")")
         return sig
 
     def _prepare(self, sig: Signals) -> None:

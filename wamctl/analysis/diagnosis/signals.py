@@ -618,3 +618,15 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
         joints.append(j)
     return Signals(t, dt, w, gs, qd, tau_c, q, q_ref, tau, moving, joints, skipped, v_stick,
                    time_base == TIME_RESAMPLED, q_noise, time_base, qd_meas, valid=valid, gaps_s=gaps)
+
+
+def refuse_joints(sig: Signals, refused: dict[int, str]) -> dict[int, str]:
+    """Leave out of ``sig``, in place, the joints of ``refused`` ({0-based joint: why}, e.g. a controller-torque
+    log's joints whose gravity torque varies, :func:`wamctl.model.controller_torque.constant_gravity`) that move or
+    were commanded to: off ``sig.joints``, into ``sig.skipped`` with the reason (joint order). Returns those."""
+    refused = {j: why for j, why in refused.items() if j in sig.joints or j in sig.skipped}
+    if refused:
+        sig.joints = [j for j in sig.joints if j not in refused]
+        skipped = {**sig.skipped, **refused}
+        sig.skipped = {j: skipped[j] for j in sorted(skipped)}
+    return refused

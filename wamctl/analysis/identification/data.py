@@ -78,6 +78,7 @@ from wamctl.analysis.diagnosis.signals import (
     DEFAULT_WINDOW_S,
     filter_reach,
     prepare_signals,
+    refuse_joints,
     savgol_gain,
     smooth,
     window_samples,
@@ -290,13 +291,10 @@ def run_rows(data, dynamics, rate_hz: float = ROW_RATE_HZ, window_s: float | str
     if pad > 0:
         sig = _cut(sig, nj)
     # refused: the joints that move (or were commanded to) whose gravity torque varies
-    gravity_refused = {j: why for j, why in gravity_refused.items() if j in sig.joints or j in sig.skipped}
-    if gravity_refused:
-        sig.joints = [j for j in sig.joints if j not in gravity_refused]
-        sig.skipped = {**sig.skipped, **gravity_refused}
-        if not sig.joints:
-            raise DataFormatError(f"{data.source}: no joint left to identify (" + "; ".join(
-                f"joint {j + 1}: {why}" for j, why in sorted(gravity_refused.items())) + ")")
+    gravity_refused = refuse_joints(sig, gravity_refused)
+    if gravity_refused and not sig.joints:
+        raise DataFormatError(f"{data.source}: no joint left to identify (" + "; ".join(
+            f"joint {j + 1}: {why}" for j, why in sorted(gravity_refused.items())) + ")")
     step = max(1, int(round(1.0 / (sig.dt_s * rate_hz))))
     keep = np.arange(0, sig.n, step)
     dt = sig.dt_s * step
