@@ -38,6 +38,7 @@ from __future__ import annotations
 import argparse
 import json
 import logging
+import shutil
 import sys
 import tempfile
 import time
@@ -303,6 +304,10 @@ def follow(job: dict, path: Path, truth: dict, data, diag, row: dict, root: Path
         from wamctl.runs.measured import load_run_data
 
         nd = d / "run"
+        if (nd / "truth.yaml").is_file():     # a run made from an earlier design is made again
+            made_from = (yaml.safe_load((nd / "truth.yaml").read_text()) or {}).get("case", {}).get("reference")
+            if made_from != yaml.safe_load((d / nxt["spec"]).read_text()):
+                shutil.rmtree(nd)
         if not (nd / "truth.yaml").is_file():
             follow_up(Path(path), d / nxt["spec"], nd)
         t_next = yaml.safe_load((nd / "truth.yaml").read_text())
