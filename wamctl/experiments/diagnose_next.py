@@ -98,38 +98,63 @@ DESIGN_TARGET_FLOORS = 2.0      # the predicted separation a designed run is ask
 BACKLASH_GAP_RAD = 0.008        # the total gap the crossing run is designed to show (the generator's medium: 4-8 mrad)
 
 
+SUSPECT_P = 0.05                # a motor-side gap's onset test below this level, though not kept: suspected
+
+
 def backlash_suspects(diag) -> list[int]:
-    """0-based joints where a gap behind a motor-side encoder cannot be excluded and the diagnosis left it open, at a
-    joint whose gravity torque kept one sign over the run (the drive never let the link fall through a gap): backlash
-    in an ambiguous group, or a residual left structured and unexplained with nothing named at the joint (issue 28:
-    "a structured residual stays unexplained"; a gap is one of the things it could be, and the only one a one-sign
-    run cannot show: the designed crossing tests it, and names nothing when it is something else)."""
+    """0-based joints where a gap behind a motor-side encoder cannot be excluded and the diagnosis left it open,
+    most suspect first:
+
+    * the backlash onset test saw the measurement lead the link at reversals by at least the test's resolution
+      (``MIN_BAND_TOLERANCES`` detection tolerances) with a p-value below ``SUSPECT_P`` but not below the
+      diagnosis' threshold (issue 28: "an effect is suspected but its parameters are not identified"; a run with
+      few reversals cannot decide it, a run with more can), smallest p-value first;
+    * backlash in an ambiguous group, or a residual left structured and unexplained with nothing named at a joint
+      whose gravity torque kept one sign over the run (the drive never let the link fall through a gap; issue 28:
+      "a structured residual stays unexplained"; a gap is one of the things it could be, and the only one a
+      one-sign run cannot show: the designed run tests it, and names nothing when it is something else)."""
+    from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES, band_width
     from wamctl.model.dynamics import WamDynamics
 
     dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
-    out = []
+    leads, out = [], []
     for j, res in diag.joints_.items():
+        if any(t["name"] == "backlash" for t in res.kept):
+            continue
+        c = res.candidates.get("backlash") or {}
+        ons = (getattr(diag, "onsets_", None) or {}).get(j) or {}
+        p = c.get("p_value")
+        if c.get("encoder_side") == "motor" and p is not None and p < SUSPECT_P and ons.get("tol_rad"):
+            ok = np.isfinite(ons["travel_rad"])
+            w = band_width(ons["travel_rad"][ok], ons["reversal"][ok]) if ons["reversal"][ok].any() else 0.0
+            if -w >= MIN_BAND_TOLERANCES * ons["tol_rad"]:
+                leads.append((float(p), j))
+                continue
         if not (any("backlash" in g["names"] for g in res.ambiguous) or (res.unexplained and not res.kept)):
             continue
         jd = diag.jd_[j]
         g = dyn.gravity_many(diag.signals_.at("q", jd.idx[:: max(1, len(jd.idx) // 400)]))[:, j]
         if len(g) and (g.min() > 0 or g.max() < 0):
             out.append(j)
-    return out
+    return [j for _, j in sorted(leads)] + out
 
 
 def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints: list[int] | None = None,
                              gap_rad: float = BACKLASH_GAP_RAD, seed: int = 0) -> dict | None:
     """A gap behind a motor-side encoder against nothing (:mod:`wamctl.analysis.diagnosis.backlash_design`): for
-    the suspected ``joints`` (0-based; default :func:`backlash_suspects`) the slow crossing of the pose where the
-    joint's gravity torque changes sign that shows a gap of ``gap_rad`` best, written as
-    ``out_dir/next_experiment.yaml``; ``{"spec", "hypotheses", "joint", "gap_rad", "separation_noise_floors",
-    "original_separation_noise_floors", "joints", "period_s", "crossing_pose_rad", "gravity_slope_Nm_rad",
-    "noise_floor_Nm", "why"}``. None when no joint is suspected; ``spec`` None with ``why`` when no crossing keeps
-    within the limits."""
+    the suspected ``joints`` (0-based; default :func:`backlash_suspects`, most suspect first) the slow
+    back-and-forth of the joint alone that shows a gap of ``gap_rad`` best, about the pose where its gravity
+    torque changes sign (the link falls through the gap: a torque step) or where it rests on its own friction at
+    the reversals (the measurement leads the link by the gap), written as ``out_dir/next_experiment.yaml``; the
+    first suspect whose design reaches ``DESIGN_TARGET_FLOORS`` (else the best). ``{"spec", "hypotheses",
+    "joint", "gap_rad", "separation_noise_floors", "original_separation_noise_floors", "seen_by", "reversals",
+    "joints", "period_s", "crossing_pose_rad", "gravity_slope_Nm_rad", "noise_floor_Nm", "why"}``. None when no
+    joint is suspected; ``spec`` None with ``why`` when no crossing keeps within the limits."""
     import yaml
 
-    from wamctl.analysis.diagnosis.backlash_design import design_crossing
+    from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES
+    from wamctl.analysis.diagnosis.backlash_design import CROSSING_PERIODS, LINK_FRICTION_SHARE, design_crossing
+    from wamctl.analysis.diagnosis.onsets import detection_tolerance
     from wamctl.analysis.identification.excitation import ExcitationLimits
     from wamctl.experiments.excitation import designed_spec
     from wamctl.model.dynamics import WamDynamics
@@ -153,18 +178,24 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
         if not np.isfinite(noise) or noise <= 0:
             why_not.append(f"joint {j + 1}: no noise floor (held-out torque RMS) to design against")
             continue
+        tol = (getattr(diag, "onsets_", {}).get(j) or {}).get("tol_rad") or detection_tolerance(sig, j)[1]
+        f = diag.friction_after(j)
+        fc = min(f["fc_pos_Nm"], f["fc_neg_Nm"])
         try:
-            cr = design_crossing(dyn, friction, q0, j, gap_rad, noise, limits, sig.at("q", idx), sig.at("qd", idx))
+            cr = design_crossing(dyn, friction, q0, j, gap_rad, noise, limits, sig.at("q", idx), sig.at("qd", idx),
+                                 tol_rad=float(tol), fc_Nm=max(float(fc), 0.0), run_qdd=sig.at("qdd", idx))
         except ValueError as exc:
             why_not.append(f"joint {j + 1}: {exc}")
             continue
         if best is None or cr.separation > best[1].separation:
             g = dyn.gravity_many(sig.at("q", idx))[:, j]
-            best = (j, cr, noise, bool(g.min() > 0 or g.max() < 0))
+            best = (j, cr, noise, bool(g.min() > 0 or g.max() < 0), float(tol), float(fc))
+        if cr.separation >= DESIGN_TARGET_FLOORS:       # the most suspect joint that the design can show
+            break
     base = {"hypotheses": ["backlash", "none"], "gap_rad": gap_rad}
     if best is None:
         return dict(base, spec=None, why="no run designed to show a gap behind the encoder: " + "; ".join(why_not))
-    j, cr, noise, one_sign = best
+    j, cr, noise, one_sign, tol, fc = best
     tr = cr.trajectory
     raw = {"kind": "excitation", "name": f"next-{Path(data_path).name}", "seed": seed,
            "q0_rad": [float(x) for x in tr.q0_rad]}
@@ -173,31 +204,134 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
         orig = yaml.safe_load(src.read_text()) or {}
         raw.update({k: orig[k] for k in ("backend", "plant", "controller") if k in orig})
     raw["excitation"] = {"joints": [j + 1], "period_s": float(tr.period_s), "harmonics": int(tr.harmonics),
-                         "periods": 3, "settle_s": 1.0}
+                         "periods": CROSSING_PERIODS, "settle_s": 1.0}
     spec = designed_spec(raw, tr)
     seen = ("kept one sign over the run, so a gap behind a motor-side encoder was never crossed" if one_sign else
             "changed sign over the run")
-    why = (f"joint {j + 1}'s gravity torque {seen} (a {gap_rad * 1e3:g} mrad gap: separation {cr.original:.2g} "
-           f"noise floors of {noise:.3g} N m); moving joint {j + 1} slowly ({tr.period_s:g} s period) about "
-           f"{tr.q0_rad[j]:.3f} rad, where its "
-           f"gravity torque changes sign ({cr.slope_Nm_rad:.3g} N m/rad), the link falls through the gap at each "
-           f"crossing: the residual steps by {gap_rad * cr.slope_Nm_rad:.2g} N m, {cr.separation:.2g} noise floors "
-           "RMS after friction and an offset are refitted (the run starts at the crossing pose: move the arm there "
-           "first)" + ("" if cr.separation > DESIGN_TARGET_FLOORS else
-                       f"; still below {DESIGN_TARGET_FLOORS:g}: only a larger gap would show on this joint"))
+    rv, rv0 = cr.reversals, cr.reversals_original
+    if cr.seen_by == "reversals":
+        run_part = (f"the run's {rv0[2]} reversals, {rv0[1]} of them where the link rests on its own friction, "
+                    f"{cr.original:.2g} noise floors" if rv0 else "")
+        how = (f"moving joint {j + 1} alone slowly ({tr.period_s:g} s period, {CROSSING_PERIODS} periods) about "
+               f"{tr.q0_rad[j]:.3f} rad, the link comes to rest on its own friction at {rv[1]} of its {rv[2]} "
+               f"reversals (the torque the rigid link needs there below {LINK_FRICTION_SHARE:g} of the joint's "
+               f"{fc:.3g} N m Coulomb level, the share assumed on the link side) and the motor crosses the gap "
+               f"before it drives the link back: the measurement leads the link by the gap, {cr.separation:.2g} "
+               f"noise floors RMS per reversal (the floor: the backlash test's resolution, {MIN_BAND_TOLERANCES:g} "
+               f"detection tolerances of {tol:.2g} rad); the gravity step there {cr.torque_separation:.2g} noise "
+               "floors")
+        why = (f"joint {j + 1}'s measurement may lead the link at reversals and the run cannot decide it "
+               f"({run_part}; a {gap_rad * 1e3:g} mrad gap); {how} (the run starts at that pose: move the arm "
+               "there first)")
+    else:
+        why = (f"joint {j + 1}'s gravity torque {seen} (a {gap_rad * 1e3:g} mrad gap: separation {cr.original:.2g} "
+               f"noise floors of {noise:.3g} N m); moving joint {j + 1} slowly ({tr.period_s:g} s period) about "
+               f"{tr.q0_rad[j]:.3f} rad, where its "
+               f"gravity torque changes sign ({cr.slope_Nm_rad:.3g} N m/rad), the link falls through the gap at each "
+               f"crossing: the residual steps by {gap_rad * cr.slope_Nm_rad:.2g} N m, {cr.separation:.2g} noise "
+               "floors RMS after friction and an offset are refitted (the run starts at the crossing pose: move the "
+               "arm there first)")
+    if cr.separation <= DESIGN_TARGET_FLOORS:
+        why += f"; still below {DESIGN_TARGET_FLOORS:g}: only a larger gap would show on this joint"
     (Path(out_dir) / "next_experiment.yaml").write_text(
         f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
     return dict(base, spec="next_experiment.yaml", joint=j + 1, joints=[j + 1],
                 separation_noise_floors=float(cr.separation), original_separation_noise_floors=float(cr.original),
+                seen_by=cr.seen_by, reversals=None if rv is None else {"crossing": rv[1], "all": rv[2]},
                 period_s=float(tr.period_s), crossing_pose_rad=[float(x) for x in tr.q0_rad],
                 gravity_slope_Nm_rad=float(cr.slope_Nm_rad), noise_floor_Nm=noise, why=why)
 
 
+def next_experiment_friction(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -> dict | None:
+    """A friction drift against a Stribeck effect (:mod:`wamctl.analysis.diagnosis.friction_design`): for the
+    joints whose diagnosis left the two in one ambiguous group, the motion of that joint alone whose two fitted
+    models' torques differ most (each refitting its own parameters, friction and an offset), written as
+    ``out_dir/next_experiment.yaml``; ``{"spec", "hypotheses", "joint", "joints", "separation_noise_floors",
+    "original_separation_noise_floors", "period_s", "periods", "noise_floor_Nm", "fitted", "why", "candidates"}``.
+    None when no joint is ambiguous between them; ``spec`` None with ``why`` when no run could be designed."""
+    import yaml
+
+    from wamctl.analysis.diagnosis import friction_design as FD
+    from wamctl.analysis.identification.excitation import ExcitationLimits
+    from wamctl.experiments.excitation import designed_spec
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.friction import FrictionModel
+    from wamctl.specs.excitation import ExcitationLimitsSpec
+
+    joints = FD.ambiguous_joints(diag) if diag.joints_ else []
+    if not joints:
+        return None
+    dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
+    lim = ExcitationLimitsSpec()
+    limits = ExcitationLimits(*lim.arrays(), 1 - lim.torque_margin, lim.max_cartesian_speed_m_s)
+    q0 = np.array([0.0 if v is None else float(v) for v in data.meta.q0])
+    friction = diag.declared_.friction or FrictionModel.table_4_1()
+    settle_s = 1.0
+    best, why_not = None, []
+    for j in joints:
+        res, jd = diag.joints_[j], diag.jd_[j]
+        noise = float(res.torque_rms_after_Nm)
+        if not np.isfinite(noise) or noise <= 0:
+            why_not.append(f"joint {j + 1}: no noise floor (held-out torque RMS) to design against")
+            continue
+        hyp = FD.fitted_hypotheses(diag.design_, jd, res)
+        try:
+            nr = FD.design_next_run(dyn, friction, q0, hyp, noise, jd.qd_rad_s, jd.extra["t_rel"], limits,
+                                    settle_s=settle_s, seed=seed)
+        except ValueError as exc:
+            why_not.append(f"joint {j + 1}: {exc} at the run's q0")
+            continue
+        if best is None or nr.separation["separation"] > best[1].separation["separation"]:
+            best = (j, nr, noise, hyp)
+    base = {"hypotheses": list(FD.NAMES)}
+    if best is None:
+        return dict(base, spec=None, why="friction drift or Stribeck: ambiguous; no run designed to tell them: "
+                                         + "; ".join(why_not))
+    j, nr, noise, hyp = best
+    tr = nr.trajectory
+    raw = {"kind": "excitation", "name": f"next-{Path(data_path).name}", "seed": seed,
+           "q0_rad": [float(x) for x in tr.q0_rad]}
+    src = Path(data_path) / "spec.yaml"
+    if src.is_file():       # our own run: the same arm, backend and (simulated) plant
+        orig = yaml.safe_load(src.read_text()) or {}
+        raw.update({k: orig[k] for k in ("backend", "plant", "controller") if k in orig})
+    raw["excitation"] = {"joints": [j + 1], "period_s": float(tr.period_s), "harmonics": int(tr.harmonics),
+                         "periods": int(nr.periods), "settle_s": settle_s}
+    spec = designed_spec(raw, tr)
+    sep, orig_sep = float(nr.separation["separation"]), float(nr.original["separation"])
+    t = np.arange(int(tr.period_s * FD.DESIGN_RATE_HZ)) / FD.DESIGN_RATE_HZ
+    peak = float(np.abs(tr.evaluate(t)[1][:, j]).max())
+    ratio = (hyp.lev_s[:2] + hyp.c_s) / np.maximum(hyp.lev_s[:2], 1e-9)
+    why = (f"joint {j + 1}'s run cannot tell a friction drift (Coulomb and viscous x (1 {hyp.c_d[0]:+.2g} (1 - "
+           f"exp(-t / {hyp.T_s:.3g} s))) from a Stribeck effect (breakaway {ratio[0]:.2f} / {ratio[1]:.2f} x "
+           f"Coulomb, vs {hyp.vs_rad_s:.2g} rad/s): separation {orig_sep:.2g} noise floors of {noise:.3g} N m; "
+           f"moving joint {j + 1} alone through the same slow and fast speeds (up to {peak:.2g} rad/s) "
+           f"{nr.periods} times ({tr.period_s:g} s period; a Stribeck effect gives the same torque at the same "
+           "speed whenever, a drift one that changes with time at every speed; the drift assumed to start again "
+           f"with the run) their predicted torques differ by {sep:.2g} noise floors (RMS per sliding sample, after "
+           "each refits its own parameters, friction and an offset)"
+           + ("" if sep > DESIGN_TARGET_FLOORS else
+              f": still below {DESIGN_TARGET_FLOORS:g}, this run alone cannot decide it"))
+    (Path(out_dir) / "next_experiment.yaml").write_text(
+        f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
+    return dict(base, spec="next_experiment.yaml", joint=j + 1, joints=[j + 1], separation_noise_floors=sep,
+                original_separation_noise_floors=orig_sep, period_s=float(tr.period_s), periods=int(nr.periods),
+                decisive=sep > DESIGN_TARGET_FLOORS, noise_floor_Nm=noise, why=why,
+                fitted={"stribeck": {"breakaway_ratio": [float(x) for x in ratio], "vs_rad_s": hyp.vs_rad_s},
+                        "friction_drift": {"coefficients": [float(x) for x in hyp.c_d], "T_s": hyp.T_s}},
+                candidates=[{"period_s": p, "scale": k, "peak_speed_rad_s": v, "separation_noise_floors": s}
+                            for p, k, v, s in nr.scored])
+
+
 def next_experiment_more(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -> dict | None:
     """The next experiments beyond the payload against link errors, in turn: a delay against inertia errors
-    (:func:`next_experiment_delay`), then a gap behind a motor-side encoder (:func:`next_experiment_backlash`)."""
+    (:func:`next_experiment_delay`), a friction drift against a Stribeck effect (:func:`next_experiment_friction`),
+    then a gap behind a motor-side encoder (:func:`next_experiment_backlash`)."""
     out = next_experiment_delay(diag, data, data_path, out_dir, seed)
     if out is not None and out.get("spec"):
         return out
+    fr = next_experiment_friction(diag, data, data_path, out_dir, seed)
+    if fr is not None and fr.get("spec"):
+        return fr
     more = next_experiment_backlash(diag, data, data_path, out_dir, seed=seed)
-    return more if (more is not None and more.get("spec")) else (out or more)
+    return more if (more is not None and more.get("spec")) else (out or fr or more)

@@ -232,6 +232,7 @@ class PooledDiagnosis:
         self._delay_or_inertia(runs)        # first: a delay decided is every run's own model's in what follows
         self._arm(ms, runs)
         self._joint_effects(ms, runs)
+        self._joint_ambiguities(ms, runs)
         self._friction(ms, runs)
         self.effects_found_ = effects_in_order(self.findings_)
         return self
@@ -416,6 +417,98 @@ class PooledDiagnosis:
                     "the sliding samples pooled do not show it on their own"))
             finding["decided_by"], finding["added_nothing"] = self._who_decided(finding, runs)
             self.findings_.append(finding)
+
+    # -------------------------------------------------------------------------------- ambiguous joint-own groups
+    def _joint_ambiguities(self, ms: list[_Member], runs: list[int]) -> None:
+        """A group of joint-own effects some run left ambiguous at a joint (neither explained its residual clearly
+        better than the other, e.g. a friction drift and a Stribeck effect) decided again on every run that
+        diagnosed the joint, stacked: the same head to head as one run's (:mod:`~wamctl.analysis.diagnosis.
+        headtohead`), each member's columns shared by the runs (a drift starting again with each run), each (run,
+        joint) its own friction and other effects. ``a`` wins when it adds to the model with ``b`` and ``b`` does
+        not add to the model with ``a``: ``b``'s finding is then not named (and ``a``'s named, with a finding of
+        its own when no run kept it); neither adding beyond the other keeps the group ambiguous (neither named);
+        both adding leaves each member's own finding. The record goes to ``head_to_head`` of the findings."""
+        groups = {}
+        for m in ms:
+            for g in m.res.ambiguous:
+                names = tuple(sorted(g["names"]))
+                if len(names) == 2 and all(n in JOINT_OWN for n in names):
+                    groups.setdefault((m.j, names), m)
+        for (j, (a, b)), m0 in sorted(groups.items(), key=lambda x: (x[0][0], x[0][1])):
+            sub = [m for m in ms if m.j == j]
+            terms = {n: self._group_term(sub, m0, n, (a, b)) for n in (a, b)}
+            if any(t is None or (ncols(t) == 0 and not (n == "stribeck" and isinstance(t.get("fixed_h"), tuple)))
+                   for n, t in terms.items()):
+                continue        # a member seen at the onsets only: no sliding-sample head to head
+            systems = {}
+            for key, names in (("own", ()), ("a", (a,)), ("b", (b,)), ("ab", (a, b))):
+                own, shared = {}, {}
+                for m in sub:
+                    base = _own_terms(m.res, ("payload", "link_parameters", a, b), self.delay_term_)
+                    shaped = [terms[n] for n in names if ncols(terms[n]) == 0]
+                    own[m.key] = target_and_design(m.des, m.jd, base + shaped, None)
+                    cols = [columns(m.des, n, m.jd, terms[n]["h_all"]) for n in names if ncols(terms[n]) > 0]
+                    if cols:
+                        shared[m.key] = np.hstack(cols)
+                e, _, _ = _stack_cv(sub, own, shared, self.w_, self.n_folds)
+                k = sum(own[m.key][1].shape[1] for m in sub) + (next(iter(shared.values())).shape[1] if shared else 0)
+                systems[key] = (e, k)
+            from wamctl.analysis.diagnosis.headtohead import p_extra
+            from wamctl.analysis.diagnosis.stats import finite_ss
+
+            def ss(e, sub=sub):
+                return sum(finite_ss(e[m.key] * self.w_[m.key]) for m in sub)
+
+            e_own, e_ab, k_ab = systems["own"][0], *systems["ab"]
+            tests = {}
+            for x, y in ((a, b), (b, a)):       # does x add to the model with y?
+                e_y = systems["b" if y == b else "a"][0]
+                share = ss(e_own) / max(ss(e_y), 1e-300)
+                t = _test(sub, e_y, e_ab, self.w_, p_extra(x, terms[x]), k_ab, min(MIN_EFFECT * share, 0.9))
+                tests[x] = dict(t, named=_passes(t, self.threshold_))
+            a_adds, b_adds = tests[a]["named"], tests[b]["named"]
+            outcome = {(True, False): a, (False, True): b, (True, True): "both",
+                       (False, False): "ambiguous"}[(a_adds, b_adds)]
+            record = {"vs": [a, b], "outcome": outcome, f"{a}_beyond_{b}": tests[a], f"{b}_beyond_{a}": tests[b],
+                      "left_ambiguous_by": sorted({self.labels[m.r] for m in sub
+                                                   if any(sorted(g["names"]) == [a, b] for g in m.res.ambiguous)})}
+            found = {f["name"]: f for f in self.findings_ if f["joint"] == j + 1 and f["name"] in (a, b)}
+            if outcome == "ambiguous":
+                self.ambiguous_.append([a, b])
+                for f in found.values():
+                    f["pooled"] = dict(f["pooled"], named=False, basis=(
+                        f"ambiguous with {b if f['name'] == a else a} on the runs pooled: neither adds to the model "
+                        "with the other"))
+            elif outcome in (a, b):
+                loser = b if outcome == a else a
+                if loser in found:
+                    found[loser]["pooled"] = dict(found[loser]["pooled"], named=False, basis=(
+                        f"{outcome} explains it on the runs pooled: {loser} adds nothing beyond {outcome}"))
+                if outcome not in found:
+                    t_w, _ = systems[("a" if outcome == a else "b")], None
+                    t = _test(sub, e_own, t_w[0], self.w_, p_extra(outcome, terms[outcome]), t_w[1])
+                    found[outcome] = {"name": outcome, "joint": j + 1,
+                                      "what": f"joint {j + 1}: {outcome} (left ambiguous with {loser} by "
+                                              f"{', '.join(record['left_ambiguous_by'])}; decided pooled)",
+                                      "pooled": dict(t, named=_passes(t, self.threshold_)), "per_stack": {},
+                                      "decided_by": [self.labels[r] for r in runs], "added_nothing": []}
+                    self.findings_.append(found[outcome])
+            for f in found.values():
+                f["head_to_head"] = record
+
+    def _group_term(self, sub: list[_Member], m0: _Member, name: str, group: tuple) -> dict | None:
+        """The term of effect ``name`` at a joint: as kept by the run with the strongest evidence for it, else
+        fitted on the run ``m0`` that left it ambiguous (its shape chosen as the diagnosis chooses it, beside that
+        run's other kept effects)."""
+        from wamctl.analysis.diagnosis.crossval import cv_residual, fit_all
+
+        kept = [(float(t["evidence"].get("p_value", 1.0)), t) for m in sub for t in m.res.kept if t["name"] == name]
+        if kept:
+            return min(kept, key=lambda x: x[0])[1]
+        others = _own_terms(m0.res, ("payload", "link_parameters") + group, self.delay_term_)
+        _, h_fold = cv_residual(m0.des, m0.jd, others, name)
+        fitted, _ = fit_all(m0.des, m0.jd, others + [{"name": name, "h_fold": h_fold}])
+        return next(t for t in fitted if t["name"] == name)
 
     # -------------------------------------------------------------------------------- a delay or inertia errors
     def _delay_or_inertia(self, runs: list[int]) -> None:
