@@ -77,9 +77,7 @@ def test_a_reader_whose_analysis_needs_the_reference_still_refuses_it(tmp_path):
     """The stand-in is for identify, diagnose and friction-id (and their reports); any other reader (tune-ift: its
     objective is the tracking error, which a stand-in would make zero) refuses such a log in one line."""
     from wamctl.errors import DataFormatError
-    from wamctl.runs.measured import STAND_IN_READERS, load_run_data
-
-    assert "wamctl.experiments.ift.experiments" not in STAND_IN_READERS
+    from wamctl.runs.measured import load_run_data
     run = tmp_path / "wam7"
     run.mkdir()
     t = np.arange(0.0, 2.0, 0.002)
@@ -92,5 +90,8 @@ def test_a_reader_whose_analysis_needs_the_reference_still_refuses_it(tmp_path):
         "q0": [float(df[f"q_{j}"].iloc[0]) for j in range(1, 8)]}))
     with pytest.raises(DataFormatError, match=r"no reference \(q_ref\) logged: not supported by this analysis"):
         load_run_data(run)
+    with pytest.raises(DataFormatError, match=r"no reference \(q_ref\) logged: not supported by tune-ift yet"):
+        load_run_data(run, reader="tune-ift")
+    assert load_run_data(run, reader="identify", stand_in=True).meta.reference == "measured"
     df.assign(**{f"q_ref_{j}": df[f"q_{j}"] for j in range(1, 8)}).to_parquet(run / "data.parquet", index=False)
     assert load_run_data(run).meta.robot == "wam7"       # with a reference: read as before

@@ -27,14 +27,10 @@ def load_diagnosable(path: Path, pooled: bool = False):
     total command or the controller's output (``torque: controller``: the diagnosis then takes the joints whose
     gravity torque is constant over the run, :mod:`wamctl.model.controller_torque`); else DataFormatError in one
     line naming what. ``pooled``: the runs pooled know the wam7 and the total command only so far."""
-    from wamctl.errors import DataFormatError
-    from wamctl.runs.measured import load_run_data, unsupported, with_reference
+    from wamctl.runs.measured import load_run_data
 
-    data = load_run_data(path, partial_ok=True)
-    why = unsupported(data.meta, data.data.columns, any_robot=not pooled, controller_ok=not pooled)
-    if why:
-        raise DataFormatError(f"{path}: {why}: not supported by diagnose{' of several runs' if pooled else ''} yet")
-    return with_reference(data)
+    return load_run_data(path, reader="diagnose of several runs" if pooled else "diagnose", any_robot=not pooled,
+                         controller_ok=not pooled, stand_in=True)
 
 
 def declared_model(path: Path | None, robot: str = "wam7"):

@@ -35,6 +35,10 @@ from wamctl.runs.store import RunDir, json_default
 from wamctl.specs.friction_sweep import DEFAULT_VELOCITIES_RAD_S, FrictionSweepSpec  # noqa: F401
 from wamctl.specs.rotation import RotationSpec
 
+# what friction-id reads (wamctl.runs.measured.load_run_data): any registered robot, a controller-only torque on the
+# joints whose gravity torque is constant, and a log without a reference (the measured motion stands in for it)
+READER = {"reader": "friction-id", "any_robot": True, "controller_ok": True, "stand_in": True}
+
 log = logging.getLogger(__name__)
 
 MODEL_FILE = "friction_model.yaml"
@@ -122,7 +126,7 @@ def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, bas
     controller = make_joint_controller(spec, plan.feedforward_Nm)  # built before the arm is live
     with make_backend(spec, base_dir) as backend:
         closed_loop_stage(backend, controller, ref, run, sub_progress(0, "friction sweep"))
-    result = identify(load_run_data(run.path), spec.identification.model_dump(),
+    result = identify(load_run_data(run.path, **READER), spec.identification.model_dump(),
                       dynamics=declared_dynamics(spec, base_dir))
     write_identification(run.path, result)
     offset = n_total
@@ -199,7 +203,7 @@ def analyse_recorded(source: Path, out: Path | None = None, name: str | None = N
     from wamctl.runs.store import open_run
 
     source = Path(source)
-    rd = load_run_data(source)   # DataFormatError naming the file, key, column or row
+    rd = load_run_data(source, **READER)   # DataFormatError naming the file, key, column or row
     ident = identify(rd, options, dynamics=_model_dynamics(model, rd) if model is not None else None)
     src_spec: dict = {}
     src_backend = "measured"

@@ -186,16 +186,9 @@ def _load(paths: list[Path]):
     """The runs (:func:`wamctl.runs.measured.load_run_data`) of any registered robot and torque ``total`` or
     ``controller``; the other runs refused in one line (:func:`wamctl.runs.measured.unsupported`); all of one
     robot."""
-    from wamctl.runs.measured import load_run_data, unsupported, with_reference
+    from wamctl.runs.measured import load_run_data
 
-    datas = []
-    for p in paths:
-        d = load_run_data(p, partial_ok=True)
-        why = unsupported(d.meta, d.data.columns, any_robot=True, controller_ok=True)
-        if why:
-            raise DataFormatError(f"{p}: {why}: not supported by identify yet")
-        datas.append(with_reference(d))
-    return datas
+    return [load_run_data(p, reader="identify", any_robot=True, controller_ok=True, stand_in=True) for p in paths]
 
 
 def _robot(datas) -> str:
@@ -403,8 +396,8 @@ def identify_payload_to_run_dir(loaded: list[Path], bare: list[Path], model: Pat
 
     if not loaded or not bare:
         raise SpecError("identify --payload: give at least one --loaded and one --bare run")
-    ld = [load_run_data(p) for p in loaded]
-    bd = [load_run_data(p) for p in bare]
+    ld = [load_run_data(p, reader="identify --payload") for p in loaded]
+    bd = [load_run_data(p, reader="identify --payload") for p in bare]
     labels = {"loaded": [str(Path(p).resolve()) for p in loaded], "bare": [str(Path(p).resolve()) for p in bare]}
     if static:
         est = identify_payload_static(ld, bd, labels=labels)

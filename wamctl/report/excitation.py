@@ -123,7 +123,7 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     from wamctl.errors import DataFormatError
     from wamctl.model.dynamics import WamDynamics
     from wamctl.model.robots import get_robot
-    from wamctl.runs.measured import load_run_data, unsupported, with_reference
+    from wamctl.runs.measured import load_run_data
 
     out_dir = Path(out_dir or run_path)
     robot = get_robot((spec or {}).get("robot"))
@@ -154,11 +154,9 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
               f"positions (with encoder noise); torque: the commanded torque against the {robot.name}'s limits")
     doc.data["measured_limits"] = measured.reset_index().to_dict("records")
     try:
-        rd = load_run_data(run_path, partial_ok=True)      # a run of any robot (identify takes them all)
-        why = unsupported(rd.meta, rd.data.columns, any_robot=True)
-        if why:
-            raise DataFormatError(f"{run_path}: {why}")
-        rr = run_rows(with_reference(rd), WamDynamics(robot=robot.name))
+        # a run of any robot (identify takes them all)
+        rd = load_run_data(run_path, reader="report", any_robot=True, stand_in=True)
+        rr = run_rows(rd, WamDynamics(robot=robot.name))
         Y, _, _, _ = rr.stacked()
         base = base_parameters(robot.name)
         ident = identifiability(base.regressor(Y), base)

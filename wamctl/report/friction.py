@@ -281,7 +281,7 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     from wamctl.runs.store import read_table
 
     run_path = Path(run_path)
-    rd = load_run_data(run_path)
+    rd = load_run_data(run_path, reader="report", any_robot=True, controller_ok=True, stand_in=True)
     opts = dict(spec.get("identification") or {})
     ident = None
     map_file = run_path / "friction_map.csv"
@@ -315,7 +315,8 @@ def comparison_document(pd_run: Path, ff_run: Path, out_dir: Path) -> Document:
     from wamctl.errors import DataFormatError
     from wamctl.runs.measured import load_run_data
 
-    a, b = load_run_data(pd_run), load_run_data(ff_run)
+    a, b = (load_run_data(p, reader="report", any_robot=True, controller_ok=True, stand_in=True)
+            for p in (pd_run, ff_run))
     for rd, want in ((a, "pd_g"), (b, "pd_g_ff")):
         if rd.meta.controller.kind != want:
             raise DataFormatError(f"{rd.source}: controller is {rd.meta.controller.kind}, expected {want} "

@@ -15,7 +15,7 @@ from wamctl.runs.measured import load_run_data
 
 def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = None) -> Document:
     out_dir = Path(out_dir or run_path)
-    rd = load_run_data(run_path)
+    rd = load_run_data(run_path, partial_ok=True)    # whatever was logged, NaN where nothing was
     t = rd.t_s
     err = rd.col("q_ref") - rd.col("q")
     moved = [j for j in range(1, 8) if np.ptp(rd.col("q_ref")[:, j - 1]) > 1e-6]

@@ -14,7 +14,6 @@ report of an imported run reads what was logged.
 from __future__ import annotations
 
 import logging
-import sys
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Literal
@@ -341,8 +340,8 @@ def unsupported(meta: MeasuredMeta, columns, any_robot: bool = False, controller
     """Why the analyses cannot take a run yet (None: they can): they know the wam7 (``any_robot``: every
     registered robot) with all its joints, and tau the total command (``controller_ok``: also the controller's
     output, the caller using only the joints whose gravity torque is constant over the run). A log without a
-    reference is taken with the measurement standing in for it (:func:`with_reference`) by the callers of
-    :data:`STAND_IN_READERS`."""
+    reference is taken with the measurement standing in for it (:func:`with_reference`) by the readers that say
+    so (:func:`load_run_data`'s ``stand_in``)."""
     if meta.robot != "wam7" and not any_robot:
         return f"robot {meta.robot}"
     n = ROBOT_JOINTS[meta.robot]
@@ -389,35 +388,17 @@ def reference_from_measurement(rd: RunData) -> RunData:
     return RunData(rd.meta.model_copy(update={"reference": "measured"}), df, rd.source, rd.truth)
 
 
-# who calls load_run_data, as the command a user ran (for the one line that refuses a run); the report of an
-# imported run (report.measured) is the one reader that shows whatever was logged, NaN where nothing was
-_CALLERS = {"wamctl.experiments.diagnose": "diagnose", "wamctl.experiments.identify": "identify",
-            "wamctl.experiments.friction_sweep": "friction-id", "wamctl.experiments.ift.experiments": "tune-ift",
-            "wamctl.report.friction": "report", "wamctl.report.excitation": "report"}
-PARTIAL_READERS = ("wamctl.report.measured",)
-# the callers of load_run_data for which the measured positions may stand in for a reference the log does not hold
-# (:func:`with_reference`); the others (tune-ift: its objective is the tracking error) refuse such a log. identify,
-# diagnose and the excitation report read with ``partial_ok`` and call with_reference themselves after their own
-# checks (wamctl.experiments.identify._load, wamctl.experiments.diagnose.load_diagnosable)
-STAND_IN_READERS = ("wamctl.experiments.friction_sweep", "wamctl.report.friction")
-# the callers that take a run of any registered robot (wamctl.model.robots), not only the wam7, and a torque that
-# is the controller's output (on the joints whose gravity torque is zero over the run)
-_ANY_ROBOT = ("wamctl.experiments.friction_sweep", "wamctl.report.friction")
+def load_run_data(path: str | Path, partial_ok: bool = False, *, reader: str = "this analysis",
+                  any_robot: bool = False, controller_ok: bool = False, stand_in: bool = False) -> RunData:
+    """Either a run directory (ours) or a measured-run directory, as :class:`RunData`, for the command ``reader``
+    (the name a user typed, for the one line that refuses a run).
 
-
-def _caller_module() -> str:
-    frame = sys._getframe(2)          # 0: here, 1: load_run_data, 2: its caller
-    return frame.f_globals.get("__name__", "")
-
-
-def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
-    """Either a run directory (ours) or a measured-run directory, as :class:`RunData`.
-
-    A run the analyses cannot take yet (:func:`unsupported`: a wam4, joints not logged, tau not the total
-    command; no reference, for a caller not in :data:`STAND_IN_READERS`) is refused in one line naming the
-    command, except with ``partial_ok`` and for the report of an imported run (``report.measured``), which shows
-    what was logged; a log without a reference is returned with the measurement standing in for it
-    (:func:`with_reference`)."""
+    What the reader can take is its own to say: ``any_robot`` and ``controller_ok`` as :func:`unsupported`;
+    ``stand_in``: a log without a reference is taken with the measurement standing in for it
+    (:func:`with_reference`: identify, diagnose, friction-id and their reports; tune-ift's objective is the
+    tracking error, which a stand-in would make zero). A run the reader cannot take is refused in one line naming
+    ``reader``. ``partial_ok``: what was logged, as it was logged, nothing checked (the report of an imported run,
+    export)."""
     path = Path(path)
     if (path / "meta.yaml").is_file():
         rd = read_measured(path)
@@ -432,14 +413,13 @@ def load_run_data(path: str | Path, partial_ok: bool = False) -> RunData:
             meta = meta_from_run(manifest, spec, data)
         truth = spec.get("plant") if (manifest.get("backend") or {}).get("name") == "sim" else None
         rd = RunData(meta, data, path, truth)
-    caller = _caller_module()
-    why = unsupported(rd.meta, rd.data.columns, any_robot=caller in _ANY_ROBOT, controller_ok=caller in _ANY_ROBOT)
-    if partial_ok or caller in PARTIAL_READERS:
-        return rd           # what was logged, as it was logged
-    if why is None and not has_reference(rd.data.columns) and caller not in STAND_IN_READERS:
-        why = "no reference (q_ref) logged"      # e.g. tune-ift: its objective is the tracking error
+    if partial_ok:
+        return rd
+    why = unsupported(rd.meta, rd.data.columns, any_robot=any_robot, controller_ok=controller_ok)
+    if why is None and not stand_in and not has_reference(rd.data.columns):
+        why = "no reference (q_ref) logged"
     if why:
-        raise DataFormatError(f"{path}: {why}: not supported by {_CALLERS.get(caller, 'this analysis')} yet")
+        raise DataFormatError(f"{path}: {why}: not supported by {reader} yet")
     return with_reference(rd)
 
 

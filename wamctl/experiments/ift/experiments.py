@@ -179,7 +179,7 @@ class IftExperiments:
         path = resolve_path(runs[k], self.base_dir)
         rd = self._measured_cache.get(k)
         if rd is None:
-            rd = self._measured_cache[k] = load_run_data(path)
+            rd = self._measured_cache[k] = load_run_data(path, reader="tune-ift")
         data = rd.data
         rot = [r for r in find_rotations(data) if r.joint == joint]
         if not rot:
