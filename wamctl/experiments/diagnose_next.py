@@ -75,7 +75,8 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
     (Path(out_dir) / "next_experiment.yaml").write_text(
         f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
     return dict(base, spec="next_experiment.yaml", separation_noise_floors=sep,
-                original_separation_noise_floors=orig_sep, joints=[j + 1 for j in tr.moving],
+                original_separation_noise_floors=orig_sep, decisive=sep > DI.DESIGN_TARGET_FLOORS,
+                joints=[j + 1 for j in tr.moving],
                 period_s=float(tr.period_s), noise_floor_Nm={j + 1: v for j, v in noise.items()}, why=why,
                 candidates=[{"joints": js, "period_s": p, "separation_noise_floors": float(v)}
                             for js, p, v in nr.scored])

@@ -389,6 +389,7 @@ class RunPart:
     rows: Rows
     y: dict
     decision: dict
+    named: str | None = None        # "delay" (or "inertia") when the run's own diagnosis named it, else None
 
 
 def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
@@ -493,7 +494,11 @@ def decide_pooled(parts: list[RunPart], n_blocks: int = 10, n_folds: int = 5, n_
     runs, each run's excess (the loser's weighted RMS beyond the winner's, ``sqrt(rms_lose^2 - rms_win^2) /
     rms_win``, in noise floors, as :func:`decide`): ``outcome`` is the winner when some run's excess is at least
     :data:`DECIDED_FLOORS` and no run prefers the loser by as much, else ``"ambiguous"``; ``decided_by`` are the
-    runs whose excess reaches it, ``added_nothing`` the others. Held-out torque RMS (N m) per run and pooled:
+    runs whose excess reaches it, ``added_nothing`` the others. A name a run's own diagnosis made (``RunPart.named``)
+    is not lost to the pooling unless the evidence contradicts it: when the pooled winner is that name and no run
+    prefers the loser by :data:`DECIDED_FLOORS`, the outcome is the winner even where no run's excess reaches it
+    (a run added below its design's target, or one that does not excite the effect, weighs its own evidence and no
+    more; ``named_by`` lists those runs, counted among ``decided_by``). Held-out torque RMS (N m) per run and pooled:
     friction and offset only (before), each hypothesis (after), fitted without each fold of every run's time
     blocks at once. The winner's estimate with its 95 % interval (a bootstrap of each run's time blocks): the
     delay (s, on :data:`DELAY_GRID_S`) or the inertia errors (kg m^2 per 1-based joint). ``test``: the winner's
@@ -553,7 +558,8 @@ def decide_pooled(parts: list[RunPart], n_blocks: int = 10, n_folds: int = 5, n_
                       "delay_s": p.decision["delay_s"]}})
     decided = [p["label"] for p in per_run if p["excess_noise_floors"] >= DECIDED_FLOORS]
     contra = [p["label"] for p in per_run if p["against_noise_floors"] >= DECIDED_FLOORS]
-    outcome = win if decided and not contra else "ambiguous"
+    named_by = [p.label for p in parts if p.named == win]
+    outcome = win if (decided or named_by) and not contra else "ambiguous"
 
     # the winner's estimate, 95 % interval by a bootstrap of each run's time blocks
     rng = np.random.default_rng(seed)
@@ -579,8 +585,10 @@ def decide_pooled(parts: list[RunPart], n_blocks: int = 10, n_folds: int = 5, n_
     test = nested_test(e0, e1, p_extra, 5 * len(pool.keys) + p_extra, groups=groups)
     return {"outcome": outcome, "winner": win, "rms_noise_floors": pooled_rms,
             "excess_noise_floors": excess_floors(pooled_rms[lose], pooled_rms[win]),
-            "per_run": per_run, "decided_by": decided if outcome != "ambiguous" else [],
-            "contradicted_by": contra, "added_nothing": [p["label"] for p in per_run if p["label"] not in decided],
+            "per_run": per_run, "named_by": named_by,
+            "decided_by": decided + [x for x in named_by if x not in decided] if outcome != "ambiguous" else [],
+            "contradicted_by": contra,
+            "added_nothing": [p["label"] for p in per_run if p["label"] not in decided + named_by],
             "held_out_rms_Nm": {h: held_rms(h, pool.keys) for h in hyps},
             "fitted_delay_s": delay_s, **est,
             "test": {k: float(test[k]) for k in ("p_value", "delta_bic", "F", "n", "n_eff", "ssr_ratio")}}

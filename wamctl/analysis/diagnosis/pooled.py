@@ -531,7 +531,8 @@ class PooledDiagnosis:
             if not chk.rows.joints:
                 continue
             suspected |= chk.suspected
-            parts.append(DI.RunPart(self.labels[r], chk.rows, chk.y, chk.decision))
+            parts.append(DI.RunPart(self.labels[r], chk.rows, chk.y, chk.decision,
+                                    named="delay" if "delay" in d.effects_found_ else None))
         if not suspected:
             return
         d0 = self.diags[runs[0]]
