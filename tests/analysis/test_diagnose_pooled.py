@@ -210,3 +210,54 @@ def test_a_finding_named_without_a_pooled_test_is_ordered_not_a_crash():
                 {"name": "ripple", "pooled": {"named": False, "p_value": 0.5}},
                 {"name": "payload", "pooled": {"named": True, "p_value": 1e-40}}]
     assert effects_in_order(findings) == ["payload", "stribeck", "backlash"]
+
+
+def _di_part(label, y_kind, size, named, seed):
+    """One run's share of the pooled delay-or-inertia check, made by hand: joint 1 only, a rigid body that is an
+    inertia of 0.5 kg m^2 (``R(t + d) = 0.5 qdd(t + d)``), a two-speed motion, friction 0.3 N m Coulomb; the
+    residual a delay of ``size`` s (``y_kind`` "delay") or an inertia error of ``size`` kg m^2 ("inertia") makes,
+    plus white noise of 0.01 N m."""
+    from wamctl.analysis.diagnosis import delay_inertia as DI
+
+    rng = np.random.default_rng(seed)
+    t = np.arange(0, 40, 0.02)
+
+    def qd_at(s):
+        return 0.4 * np.sin(2 * np.pi * (t + s) / 4.0) + 0.2 * np.sin(2 * np.pi * (t + s) / 1.0)
+
+    def qdd_at(s):
+        return (0.4 * 2 * np.pi / 4.0 * np.cos(2 * np.pi * (t + s) / 4.0)
+                + 0.2 * 2 * np.pi * np.cos(2 * np.pi * (t + s) / 1.0))
+
+    mask = np.abs(qd_at(0.0)) > DI.MIN_SPEED_RAD_S
+    R = [{0: 0.5 * qdd_at(float(d))[mask]} for d in DI.DELAY_GRID_S]
+    QD = [{0: qd_at(float(d))[mask]} for d in DI.DELAY_GRID_S]
+    rows = DI.Rows(R, QD, {0: qdd_at(0.0)[mask]}, [0], {0: mask})
+    lev = {0: np.array([0.3, 0.3, 0.0, 0.0])}
+    if y_kind == "delay":
+        y = DI.delay_torque(rows, DI.nearest_k(size), lev)
+    else:
+        y = DI.inertia_torque(rows, {0: size}, lev)
+    y = {0: y[0] + rng.normal(scale=0.01, size=mask.sum())}
+    return DI.RunPart(label, rows, y, DI.decide(rows, y), named=named)
+
+
+def test_a_delay_a_run_named_is_kept_pooled_unless_a_run_contradicts_it():
+    """Two runs whose delay (1 ms) is too small to part from an inertia error on either (each run's excess below one
+    noise floor): pooled as before, ``ambiguous``; when the first run's own diagnosis named the delay, the pooled
+    result keeps it (named by that run, no run preferring inertia by a noise floor). A third run whose residual
+    is an inertia error that a delay cannot reproduce contradicts it: ambiguous again."""
+    from wamctl.analysis.diagnosis import delay_inertia as DI
+
+    a = _di_part("run", "delay", 1e-3, None, 1)
+    b = _di_part("next", "delay", 1e-3, None, 2)
+    assert a.decision["excess_noise_floors"] < 1 and b.decision["excess_noise_floors"] < 1
+    plain = DI.decide_pooled([a, b], n_boot=20)
+    assert plain["winner"] == "delay" and plain["outcome"] == "ambiguous"
+    a.named = "delay"
+    kept = DI.decide_pooled([a, b], n_boot=20)
+    assert kept["outcome"] == "delay" and kept["named_by"] == ["run"] and "run" in kept["decided_by"]
+    c = _di_part("third", "inertia", 0.05, None, 3)
+    assert c.decision["outcome"] == "inertia"
+    against = DI.decide_pooled([a, b, c], n_boot=20)
+    assert against["outcome"] == "ambiguous" and against["contradicted_by"]
