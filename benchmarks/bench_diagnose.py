@@ -251,7 +251,8 @@ def _two_joints(truth: dict) -> str:
 # ---------------------------------------------------------------------------------------------- the next run
 def _next_kind(nxt: dict) -> str:
     hyp = nxt.get("hypotheses") or ["payload", "link_parameters"]
-    return {"delay": "delay_or_inertia", "backlash": "backlash"}.get(hyp[0], "payload_or_links")
+    return {"delay": "delay_or_inertia", "backlash": "backlash",
+            "friction_drift": "friction_drift_or_stribeck"}.get(hyp[0], "payload_or_links")
 
 
 def follow(job: dict, path: Path, truth: dict, data, diag, row: dict, root: Path) -> dict:
