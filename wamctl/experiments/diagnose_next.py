@@ -114,30 +114,42 @@ def backlash_suspects(diag) -> list[int]:
       whose gravity torque kept one sign over the run (the drive never let the link fall through a gap; issue 28:
       "a structured residual stays unexplained"; a gap is one of the things it could be, and the only one a
       one-sign run cannot show: the designed run tests it, and names nothing when it is something else)."""
-    from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES, band_width
     from wamctl.model.dynamics import WamDynamics
 
     dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
-    leads, out = [], []
+    leads = _leading_joints(diag)
+    out = []
     for j, res in diag.joints_.items():
-        if any(t["name"] == "backlash" for t in res.kept):
+        if j in leads or any(t["name"] == "backlash" for t in res.kept):
             continue
-        c = res.candidates.get("backlash") or {}
-        ons = (getattr(diag, "onsets_", None) or {}).get(j) or {}
-        p = c.get("p_value")
-        if c.get("encoder_side") == "motor" and p is not None and p < SUSPECT_P and ons.get("tol_rad"):
-            ok = np.isfinite(ons["travel_rad"])
-            w = band_width(ons["travel_rad"][ok], ons["reversal"][ok]) if ons["reversal"][ok].any() else 0.0
-            if -w >= MIN_BAND_TOLERANCES * ons["tol_rad"]:
-                leads.append((float(p), j))
-                continue
         if not (any("backlash" in g["names"] for g in res.ambiguous) or (res.unexplained and not res.kept)):
             continue
         jd = diag.jd_[j]
         g = dyn.gravity_many(diag.signals_.at("q", jd.idx[:: max(1, len(jd.idx) // 400)]))[:, j]
         if len(g) and (g.min() > 0 or g.max() < 0):
             out.append(j)
-    return [j for _, j in sorted(leads)] + out
+    return sorted(leads, key=lambda j: leads[j][0]) + out
+
+
+def _leading_joints(diag) -> dict[int, tuple[float, float]]:
+    """{0-based joint: (p-value, lead rad)} where the backlash onset test, not kept, saw the measurement lead the
+    link at reversals (a gap on the motor side) by at least ``MIN_BAND_TOLERANCES`` detection tolerances with a
+    p-value below ``SUSPECT_P``."""
+    from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES, band_width
+
+    out = {}
+    for j, res in diag.joints_.items():
+        c = res.candidates.get("backlash") or {}
+        ons = (getattr(diag, "onsets_", None) or {}).get(j) or {}
+        p = c.get("p_value")
+        if (c.get("kept") or c.get("encoder_side") != "motor" or p is None or not p < SUSPECT_P
+                or not ons.get("tol_rad") or any(t["name"] == "backlash" for t in res.kept)):
+            continue
+        ok = np.isfinite(ons["travel_rad"])
+        w = band_width(ons["travel_rad"][ok], ons["reversal"][ok]) if ons["reversal"][ok].any() else 0.0
+        if -w >= MIN_BAND_TOLERANCES * ons["tol_rad"]:
+            out[j] = (float(p), float(-w))
+    return out
 
 
 def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints: list[int] | None = None,
@@ -221,9 +233,13 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
                f"noise floors RMS per reversal (the floor: the backlash test's resolution, {MIN_BAND_TOLERANCES:g} "
                f"detection tolerances of {tol:.2g} rad); the gravity step there {cr.torque_separation:.2g} noise "
                "floors")
-        why = (f"joint {j + 1}'s measurement may lead the link at reversals and the run cannot decide it "
-               f"({run_part}; a {gap_rad * 1e3:g} mrad gap); {how} (the run starts at that pose: move the arm "
-               "there first)")
+        lead = _leading_joints(diag).get(j)
+        trigger = (f"joint {j + 1}'s measurement led the link by {lead[1] * 1e3:.2g} mrad at reversals, too few to "
+                   f"decide (onset test p = {lead[0]:.2g}, not below the threshold {diag.threshold_:.2g})"
+                   if lead else f"joint {j + 1}'s residual was left structured and unexplained with nothing named "
+                   "there; a gap behind a motor-side encoder is one of what it could be")
+        why = (f"{trigger} ({run_part}; a {gap_rad * 1e3:g} mrad gap); {how} (the run starts at that pose: move "
+               "the arm there first)")
     else:
         why = (f"joint {j + 1}'s gravity torque {seen} (a {gap_rad * 1e3:g} mrad gap: separation {cr.original:.2g} "
                f"noise floors of {noise:.3g} N m); moving joint {j + 1} slowly ({tr.period_s:g} s period) about "

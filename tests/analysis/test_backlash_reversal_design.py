@@ -1,0 +1,104 @@
+"""Issue 28, motor-side backlash at the wrist: the designed run shows the gap at its reversals, not as a torque step.
+
+On a wrist joint gravity is too small for the gap's torque step at a gravity crossing to show (``2 b |dg/dq|``:
+below a thousandth of a noise floor at joint 7); what shows there is lost motion: at each reversal where the link
+comes to rest on its own friction (the torque the rigid link needs at the turning point below the link's share of
+the joint's Coulomb friction) the motor turns round and crosses the gap alone, and the measurement leads the link
+by the gap, which the backlash onset test resolves against ``MIN_BAND_TOLERANCES`` detection tolerances. The
+design scores both ways and the next experiment says which.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES
+from wamctl.analysis.diagnosis.backlash_design import (
+    LINK_FRICTION_SHARE,
+    design_crossing,
+    level_poses,
+    reversal_leads,
+    reversal_separation,
+)
+from wamctl.analysis.identification.excitation import ExcitationLimits, FourierTrajectory
+from wamctl.model.dynamics import WamDynamics
+from wamctl.model.friction import FrictionModel
+from wamctl.specs.excitation import ExcitationLimitsSpec
+
+Q0 = np.array([0.0, 0.0, 0.0, 1.9, 0.0, 0.0, 0.0])
+GAP_RAD = 0.008
+
+
+def _limits():
+    spec = ExcitationLimitsSpec()
+    return ExcitationLimits(*spec.arrays(), 1 - spec.torque_margin, spec.max_cartesian_speed_m_s)
+
+
+def _two_harmonic(j, pose, amplitude_rad=0.25, period_s=16.0, periods=2):
+    """The design's motion of joint ``j`` alone about ``pose``, sampled at 25 Hz over ``periods`` periods."""
+    w = 2 * np.pi / period_s
+    a, b = np.zeros((7, 2)), np.zeros((7, 2))
+    a[j] = [amplitude_rad * w, -amplitude_rad * w]
+    tr = FourierTrajectory(np.asarray(pose, float), period_s, a, b)
+    return tr.evaluate(np.arange(int(periods * period_s * 25)) / 25.0)
+
+
+def test_the_wrist_link_rests_on_its_friction_at_every_reversal_the_elbow_link_at_none():
+    """Joint 7 (gravity under a milli-newton-metre): every reversal of the slow two-harmonic motion is one where
+    the link rests on its own friction (0.2 of Table 4.1's 0.054 N m), the lead is the gap; the elbow about
+    1.9 rad (gravity about -5 N m) keeps the link pressed on one flank at each reversal: no lead. Two
+    reversals per period; the dwell at the series' start (at rest, same direction) is none."""
+    dyn = WamDynamics(None)
+    fc7, fc4 = 0.054, 0.9
+    q, qd, qdd = _two_harmonic(6, Q0)
+    lead = reversal_leads(dyn, q, qd, qdd, 6, GAP_RAD, fc7)
+    assert len(lead) == 4 and np.all(lead == GAP_RAD)          # 2 periods: 4 reversals
+    q, qd, qdd = _two_harmonic(3, Q0)
+    assert len(reversal_leads(dyn, q, qd, qdd, 3, GAP_RAD, fc4)) == 4
+    assert not reversal_leads(dyn, q, qd, qdd, 3, GAP_RAD, fc4).any()
+    # the separation: the gap over the test's resolution, RMS over the reversals
+    tol = 2e-4
+    sep, crossing, n = reversal_separation(dyn, *_two_harmonic(6, Q0), 6, GAP_RAD, fc7, tol)
+    assert (crossing, n) == (4, 4) and sep == pytest.approx(GAP_RAD / (MIN_BAND_TOLERANCES * tol))
+    # without friction on the link side nothing holds the link at rest against gravity: no crossing predicted
+    assert not reversal_leads(dyn, *_two_harmonic(6, Q0), 6, GAP_RAD, 0.0).any()
+    assert LINK_FRICTION_SHARE <= 0.3
+
+
+def test_level_poses_find_where_the_upper_arm_rotation_carries_no_gravity():
+    """Joint 3 (upper arm rotation): its gravity torque vanishes where the upper arm is vertical (joint 2 at 0)
+    or the forearm is folded along it; the best pose keeps |g_3| at the stroke's ends below 0.05 N m, where the
+    run's own pose (joint 2 at 1 rad, elbow at 1.5) needs several N m."""
+    dyn = WamDynamics(None)
+    lim = _limits()
+    run_pose = np.array([0.0, 1.0, 0.0, 1.5, 0.0, 0.0, 0.0])
+    poses = level_poses(dyn, run_pose, 2, lim.q_min_rad, lim.q_max_rad)
+    ends = 1.3 * 0.25 * np.array([-1.0, 1.0])
+    worst = []
+    for p in (poses[0], run_pose):
+        Q = np.tile(p, (2, 1))
+        Q[:, 2] = p[2] + ends
+        worst.append(np.abs(dyn.gravity_many(Q)[:, 2]).max())
+    assert worst[0] < 0.05 < 1.0 < worst[1], worst
+
+
+def test_the_wrist_design_predicts_the_gap_at_its_reversals():
+    """The design for joint 7 (a run's pose, an 8 mrad gap, a detection tolerance of 0.2 mrad, the floor of a
+    250 Hz wrist log): the gravity step stays below a hundredth of a noise floor (what the crossing design
+    predicted alone: 7e-5 on the dev split's wrist sweeps), the reversals separate it by more than 2 noise floors
+    (the gap against 5 tolerances: 8), with ten reversals over the designed run's five periods, all crossing; the
+    design keeps within excite's limits. Without a tolerance the design is the gravity crossing's alone, as before."""
+    dyn = WamDynamics(None)
+    lim = _limits()
+    pose = np.array([0.2, 0.0, -0.1, 1.5, -0.9, 0.1, 0.4])
+    q, qd, qdd = _two_harmonic(6, pose, amplitude_rad=0.5, period_s=6.0)
+    old = design_crossing(dyn, FrictionModel.table_4_1(), pose, 6, GAP_RAD, 0.0065, lim, q, qd)
+    assert old.separation < 0.01 and old.seen_by == "torque"
+    cr = design_crossing(dyn, FrictionModel.table_4_1(), pose, 6, GAP_RAD, 0.0065, lim, q, qd,
+                         tol_rad=2e-4, fc_Nm=0.054, run_qdd=qdd)
+    assert cr.seen_by == "reversals" and cr.torque_separation < 0.01
+    assert cr.separation == pytest.approx(GAP_RAD / (MIN_BAND_TOLERANCES * 2e-4)) and cr.separation > 2
+    assert cr.reversals[1:] == (10, 10)
+    assert cr.original == pytest.approx(cr.reversals_original[0]) and cr.reversals_original[1] >= 1
+    assert cr.trajectory.moving == [6] and cr.limit_use.worst[2] <= 0.95 + 1e-9
