@@ -184,6 +184,7 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
     friction = diag.declared_.friction or FrictionModel.table_4_1()
     sig = diag.signals_
     best, why_not = None, []
+    leads = _leading_joints(diag)
     for j in joints:
         idx = diag.jd_[j].idx
         idx = idx[:: max(1, int(round(1.0 / (sig.dt_s * 25.0))))]
@@ -199,6 +200,13 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
                                  tol_rad=float(tol), fc_Nm=max(float(fc), 0.0), run_qdd=sig.at("qdd", idx))
         except ValueError as exc:
             why_not.append(f"joint {j + 1}: {exc}")
+            continue
+        rv0 = cr.reversals_original
+        if (cr.seen_by == "reversals" and j not in leads and rv0 is not None
+                and rv0[1] >= cr.reversals[1] and rv0[0] > DESIGN_TARGET_FLOORS):
+            # the run's own reversals were as many chances for the gap to show as the design's: none led
+            why_not.append(f"joint {j + 1}: the run's own {rv0[1]} reversals where the link rests on its own "
+                           f"friction ({rv0[0]:.2g} noise floors) showed no lead, as many as a designed run has")
             continue
         if best is None or cr.separation > best[1].separation:
             g = dyn.gravity_many(sig.at("q", idx))[:, j]
@@ -233,7 +241,7 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
                f"noise floors RMS per reversal (the floor: the backlash test's resolution, {MIN_BAND_TOLERANCES:g} "
                f"detection tolerances of {tol:.2g} rad); the gravity step there {cr.torque_separation:.2g} noise "
                "floors")
-        lead = _leading_joints(diag).get(j)
+        lead = leads.get(j)
         trigger = (f"joint {j + 1}'s measurement led the link by {lead[1] * 1e3:.2g} mrad at reversals, too few to "
                    f"decide (onset test p = {lead[0]:.2g}, not below the threshold {diag.threshold_:.2g})"
                    if lead else f"joint {j + 1}'s residual was left structured and unexplained with nothing named "
@@ -283,7 +291,7 @@ def next_experiment_friction(diag, data, data_path: Path, out_dir: Path, seed: i
     limits = ExcitationLimits(*lim.arrays(), 1 - lim.torque_margin, lim.max_cartesian_speed_m_s)
     q0 = np.array([0.0 if v is None else float(v) for v in data.meta.q0])
     friction = diag.declared_.friction or FrictionModel.table_4_1()
-    settle_s = 1.0
+    settle_s = 0.0          # the drift's clock starts with the run: a hold at rest would spend its first seconds
     best, why_not = None, []
     for j in joints:
         res, jd = diag.joints_[j], diag.jd_[j]
@@ -318,10 +326,10 @@ def next_experiment_friction(diag, data, data_path: Path, out_dir: Path, seed: i
     sep, orig_sep = float(nr.separation["separation"]), float(nr.original["separation"])
     t = np.arange(int(tr.period_s * FD.DESIGN_RATE_HZ)) / FD.DESIGN_RATE_HZ
     peak = float(np.abs(tr.evaluate(t)[1][:, j]).max())
-    ratio = (hyp.lev_s[:2] + hyp.c_s) / np.maximum(hyp.lev_s[:2], 1e-9)
-    why = (f"joint {j + 1}'s run cannot tell a friction drift (Coulomb and viscous x (1 {hyp.c_d[0]:+.2g} (1 - "
-           f"exp(-t / {hyp.T_s:.3g} s))) from a Stribeck effect (breakaway {ratio[0]:.2f} / {ratio[1]:.2f} x "
-           f"Coulomb, vs {hyp.vs_rad_s:.2g} rad/s): separation {orig_sep:.2g} noise floors of {noise:.3g} N m; "
+    why = (f"joint {j + 1}'s run cannot tell a friction drift (Coulomb x (1 {hyp.c_d[0]:+.2g} (1 - exp(-t / "
+           f"{hyp.T_s:.3g} s))), viscous x (1 {hyp.c_d[1]:+.2g} (...))) from a Stribeck effect (friction raised by "
+           f"{hyp.c_s[0]:.2g} / {hyp.c_s[1]:.2g} N m per direction below about {hyp.vs_rad_s:.2g} rad/s): "
+           f"separation {orig_sep:.2g} noise floors of {noise:.3g} N m; "
            f"moving joint {j + 1} alone through the same slow and fast speeds (up to {peak:.2g} rad/s) "
            f"{nr.periods} times ({tr.period_s:g} s period; a Stribeck effect gives the same torque at the same "
            "speed whenever, a drift one that changes with time at every speed; the drift assumed to start again "
@@ -334,7 +342,7 @@ def next_experiment_friction(diag, data, data_path: Path, out_dir: Path, seed: i
     return dict(base, spec="next_experiment.yaml", joint=j + 1, joints=[j + 1], separation_noise_floors=sep,
                 original_separation_noise_floors=orig_sep, period_s=float(tr.period_s), periods=int(nr.periods),
                 decisive=sep > DESIGN_TARGET_FLOORS, noise_floor_Nm=noise, why=why,
-                fitted={"stribeck": {"breakaway_ratio": [float(x) for x in ratio], "vs_rad_s": hyp.vs_rad_s},
+                fitted={"stribeck": {"excess_Nm": [float(x) for x in hyp.c_s], "vs_rad_s": hyp.vs_rad_s},
                         "friction_drift": {"coefficients": [float(x) for x in hyp.c_d], "T_s": hyp.T_s}},
                 candidates=[{"period_s": p, "scale": k, "peak_speed_rad_s": v, "separation_noise_floors": s}
                             for p, k, v, s in nr.scored])

@@ -31,11 +31,13 @@ from wamctl.analysis.blas import single_threaded_blas
 from wamctl.analysis.diagnosis.candidates import DRIFT_T_GRID_FRACTION, STRIBECK_VS_GRID_RAD_S, stribeck_columns
 from wamctl.model.friction import classic_friction_columns
 
-MIN_SPEED_RAD_S = 0.01        # a sample counts where the joint moves faster than this (slower: it may stick)
+MIN_SPEED_RAD_S = 0.003       # a sample counts where the joint moves faster than this (the diagnosis' sweeps slide
+                              # at 0.005 rad/s; slower, a joint may stick)
 DESIGN_RATE_HZ = 10.0         # the criterion's samples per second
-PERIODS_S = (8.0, 16.0, 32.0) # base periods tried
-SPEED_SCALES = (1.0, 0.5, 0.25, 0.12)   # each candidate at its largest scale within the limits and slower: the
-                                        # Stribeck region is below a few tenths of a rad/s
+PERIODS_S = (2.0, 4.0, 8.0, 16.0, 32.0)   # base periods tried (a short one repeats the speeds within a warm-up
+                                          # of seconds)
+SPEED_SCALES = (1.0, 0.5, 0.25, 0.12, 0.06)   # each candidate at its largest scale within the limits and slower: the
+                                              # Stribeck region is below a few tenths of a rad/s
 MIN_RUN_S = 60.0              # the designed run lasts at least this, and at least as long as the run it follows
 MAX_RUN_S = 600.0
 NAMES = ("friction_drift", "stribeck")
