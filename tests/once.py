@@ -75,3 +75,16 @@ def remove_values(basetemp: Path) -> None:
     directories stay, as every test's temporary files do."""
     for f in (Path(basetemp) / "made_once").glob("*.pkl"):
         f.unlink(missing_ok=True)
+
+
+def independent_run(tmp_path_factory, cid: str, plan: tuple = (3, 3, 7, 0)):
+    """The independent generator's run ``cid`` of ``cases(*plan[:2], seed=plan[2], n_pairs=plan[3])``
+    (tests/analysis/gen_independent), generated once per session for every worker (its ``GeneratedRun``): runs
+    two test files read (test_diagnose_v2's independent subset, test_friction_id's sweeps of the generator).
+    Read only: a test must not change its files."""
+    def make(folder: Path):
+        from gen_independent import cases, generate
+
+        case = next(c for c in cases(plan[0], plan[1], seed=plan[2], n_pairs=plan[3]) if c["id"] == cid)
+        return generate(case, folder / cid)
+    return make_once(tmp_path_factory, "independent_{}_{}_{}_{}_{}".format(*plan, cid), make)

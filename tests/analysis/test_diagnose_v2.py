@@ -22,7 +22,7 @@ import pandas as pd
 import pytest
 import yaml
 from diagnosis_gen import DT_S, generate_run, simulate, write_measured
-from once import make_once
+from once import independent_run, make_once
 
 from wamctl.analysis.diagnosis import headtohead
 from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
@@ -250,16 +250,14 @@ def independent(tmp_path_factory):
     """A fixed subset of the independent generator's plan (seed 7, neither the benchmark's dev nor its report
     split), each run diagnosed once; made once per session for every xdist worker (tests/once.py: each worker that
     got one of its tests had made them)."""
-    return make_once(tmp_path_factory, "diagnose_v2_independent", _diagnose_the_independent_subset)
+    return make_once(tmp_path_factory, "diagnose_v2_independent",
+                     lambda root: _diagnose_the_independent_subset(tmp_path_factory))
 
 
-def _diagnose_the_independent_subset(root) -> dict:
-    from gen_independent import cases, generate
-
-    plan = {c["id"]: c for c in cases(3, 3, seed=7, n_pairs=0)}
+def _diagnose_the_independent_subset(tmp_path_factory) -> dict:
     out = {}
-    for cid in INDEPENDENT_SUBSET:
-        r = generate(plan[cid], root / cid)
+    for cid in INDEPENDENT_SUBSET:       # the clean runs are test_friction_id's too (once.independent_run)
+        r = independent_run(tmp_path_factory, cid)
         with caplog_off():
             out[cid] = (r.truth, ModelDiagnosis().fit(load_run_data(r.path)).to_dict())
     return out

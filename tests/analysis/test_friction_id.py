@@ -15,6 +15,7 @@ import pandas as pd
 import pytest
 import yaml
 from conftest import Q0
+from once import independent_run
 
 from wamctl.analysis.friction_id.identify import identify, identify_from_map
 from wamctl.analysis.friction_id.models import ClassicFriction, StribeckFriction
@@ -515,17 +516,17 @@ def test_jittered_time_stamps_keep_every_stage(tmp_path, monkeypatch, capsys):
 
 
 @pytest.mark.slow
-def test_sweeps_of_the_independent_generator(tmp_path):
+def test_sweeps_of_the_independent_generator(tmp_path_factory):
     """friction-id on sweeps it did not make: tests/analysis/gen_independent (4 kHz Karnopp physics, its own
     pinocchio model, logger-jittered stamps; seed 7, no study split). Tolerances set before the first run: the
     Coulomb levels within 0.5 %, the viscous coefficients within 2.5 % (measured: at most 0.03 % and 1.6 %); with
     links 10 % off the datasheet the gravity error shifts both Coulomb levels alike, so only their sum is held
     (within 1 %; measured 0.06 %, while each level is 19 % and 40 % off)."""
-    from gen_independent import cases, generate
+    from gen_independent import cases
 
     plan = {c["id"]: c for c in cases(3, 3, seed=7, n_pairs=0)}
     for cid in ("clean-nominal-000", "clean-heavier_3_4-001", "clean-random_10pct-002"):
-        r = generate(plan[cid], tmp_path / cid)
+        r = independent_run(tmp_path_factory, cid)      # the last two: test_diagnose_v2's too, made once
         j, true = plan[cid]["joint"], r.truth["friction_truth_classic"]
         row = identify(load_run_data(r.path)).table_4_1().loc[j]
         fc_pos, fc_neg = true["Fc_pos"][j - 1], true["Fc_neg"][j - 1]
