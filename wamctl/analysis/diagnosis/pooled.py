@@ -409,11 +409,14 @@ class PooledDiagnosis:
             finding = {"name": name, "joint": j + 1,
                        "what": f"joint {j + 1}: {name} (shape from {self.labels[r_best]}; {how})",
                        "pooled": per["pooled"], "per_stack": {k: v for k, v in per.items() if k != "pooled"}}
-            if shaped and not per["pooled"]["named"] and term.get("seen") == "at the breakaways":
-                # the breakaways decided it in the run that named it; the sliding samples pooled do not contradict
+            at_onsets = [self.labels[m.r] for m in sub_all for t in m.res.kept
+                         if t["name"] == name and "breakaways" in t.get("seen", "")]
+            if shaped and not per["pooled"]["named"] and at_onsets:
+                # the breakaways decided it in a run that named it (seen "at the breakaways" in the selection, or
+                # "breakaways" when added from the onsets after it); the sliding samples pooled do not contradict
                 # it unless they say so: kept, with why
                 finding["pooled"] = dict(per["pooled"], named=True, basis=(
-                    f"named at the breakaways by {', '.join(self.labels[r] for r, v in named_alone.items() if v)}; "
+                    f"named at the breakaways by {', '.join(at_onsets)}; "
                     "the sliding samples pooled do not show it on their own"))
             finding["decided_by"], finding["added_nothing"] = self._who_decided(finding, runs)
             self.findings_.append(finding)
