@@ -1,7 +1,12 @@
 """``wamctl diagnose``'s next experiment for a delay against an inertia error (issue 28 item 1): when a run's
 residual holds an effect that a measurement delay and joint inertia errors explain alike, the excitation that
 parts them best (:func:`wamctl.analysis.diagnosis.delay_inertia.design_next_run`) written as
-``next_experiment.yaml``; when the run tells them apart, the decision."""
+``next_experiment.yaml``; when the run tells them apart, the decision. The same for a friction drift against a
+Stribeck effect left ambiguous at a joint (:func:`next_experiment_friction`, :mod:`wamctl.analysis.diagnosis.
+friction_design`) and for a gap behind a motor-side encoder (:func:`next_experiment_backlash`). A design whose
+predicted separation stays below :data:`DESIGN_TARGET_FLOORS` is still written (delay, friction: ``decisive``
+false, and its ``why`` says that run alone cannot decide); pooled (:mod:`wamctl.analysis.diagnosis.pooled`), each
+run weighs its own evidence, and a name the first run made is kept unless a run's evidence contradicts it."""
 
 from __future__ import annotations
 
@@ -135,21 +140,34 @@ def _leading_joints(diag) -> dict[int, tuple[float, float]]:
     """{0-based joint: (p-value, lead rad)} where the backlash onset test, not kept, saw the measurement lead the
     link at reversals (a gap on the motor side) by at least ``MIN_BAND_TOLERANCES`` detection tolerances with a
     p-value below ``SUSPECT_P``."""
-    from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES, band_width
+    from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES
 
     out = {}
     for j, res in diag.joints_.items():
         c = res.candidates.get("backlash") or {}
-        ons = (getattr(diag, "onsets_", None) or {}).get(j) or {}
         p = c.get("p_value")
-        if (c.get("kept") or c.get("encoder_side") != "motor" or p is None or not p < SUSPECT_P
-                or not ons.get("tol_rad") or any(t["name"] == "backlash" for t in res.kept)):
+        lead = _motor_lead_rad(diag, j)
+        if (c.get("kept") or c.get("encoder_side") != "motor" or p is None or not p < SUSPECT_P or lead is None
+                or any(t["name"] == "backlash" for t in res.kept)):
             continue
-        ok = np.isfinite(ons["travel_rad"])
-        w = band_width(ons["travel_rad"][ok], ons["reversal"][ok]) if ons["reversal"][ok].any() else 0.0
-        if -w >= MIN_BAND_TOLERANCES * ons["tol_rad"]:
-            out[j] = (float(p), float(-w))
+        if lead >= MIN_BAND_TOLERANCES * diag.onsets_[j]["tol_rad"]:
+            out[j] = (float(p), float(lead))
     return out
+
+
+def _motor_lead_rad(diag, j: int) -> float | None:
+    """How far the measurement of 0-based joint ``j`` led the model's link at the run's reversals (rad, minus the
+    signed dead band of :func:`~wamctl.analysis.diagnosis.backlash.band_width`: positive for a lead); None
+    without onset data or reversals."""
+    from wamctl.analysis.diagnosis.backlash import band_width
+
+    ons = (getattr(diag, "onsets_", None) or {}).get(j) or {}
+    if not ons.get("tol_rad") or not len(ons.get("travel_rad", ())):
+        return None
+    ok = np.isfinite(ons["travel_rad"])
+    if not ons["reversal"][ok].any():
+        return None
+    return float(-band_width(ons["travel_rad"][ok], ons["reversal"][ok]))
 
 
 def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints: list[int] | None = None,
@@ -165,7 +183,7 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
     joint is suspected; ``spec`` None with ``why`` when no crossing keeps within the limits."""
     import yaml
 
-    from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES
+    from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES, MIN_REVERSALS
     from wamctl.analysis.diagnosis.backlash_design import CROSSING_PERIODS, LINK_FRICTION_SHARE, design_crossing
     from wamctl.analysis.diagnosis.onsets import detection_tolerance
     from wamctl.analysis.identification.excitation import ExcitationLimits
@@ -201,12 +219,13 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
         except ValueError as exc:
             why_not.append(f"joint {j + 1}: {exc}")
             continue
-        rv0 = cr.reversals_original
-        if (cr.seen_by == "reversals" and j not in leads and rv0 is not None
-                and rv0[1] >= cr.reversals[1] and rv0[0] > DESIGN_TARGET_FLOORS):
-            # the run's own reversals were as many chances for the gap to show as the design's: none led
-            why_not.append(f"joint {j + 1}: the run's own {rv0[1]} reversals where the link rests on its own "
-                           f"friction ({rv0[0]:.2g} noise floors) showed no lead, as many as a designed run has")
+        rv0, lead_rad = cr.reversals_original, _motor_lead_rad(diag, j)
+        if (cr.seen_by == "reversals" and j not in leads and rv0 is not None and rv0[1] >= 2 * MIN_REVERSALS
+                and rv0[0] > DESIGN_TARGET_FLOORS and lead_rad is not None and lead_rad < MIN_BAND_TOLERANCES * tol):
+            # the run's own reversals were chances enough for a gap to show: the measurement did not lead
+            why_not.append(f"joint {j + 1}: at the run's own {rv0[1]} reversals where the link rests on its own "
+                           f"friction ({rv0[0]:.2g} noise floors for a {gap_rad * 1e3:g} mrad gap) the measurement "
+                           f"led by {max(lead_rad, 0.0) * 1e3:.2g} mrad, below the backlash test's resolution")
             continue
         if best is None or cr.separation > best[1].separation:
             g = dyn.gravity_many(sig.at("q", idx))[:, j]
