@@ -86,7 +86,7 @@ def pytest_configure(config):
     """Under xdist, in the controller: the seed cache of the numba kernels, compiled once before the workers start
     (see the top of this file); a failure leaves the workers to compile, as without it."""
     if (not _OWN_NUMBA_CACHE or hasattr(config, "workerinput") or not config.getoption("numprocesses", None)
-            or config.getoption("collectonly", False) or _NUMBA_SEED.is_dir()):
+            or config.getoption("collectonly", False) or _NUMBA_SEED.is_dir() or not _many_files(config)):
         return
     import shutil
     import subprocess
@@ -110,6 +110,13 @@ def pytest_configure(config):
         print(f"tests/numba_warmup.py: {e}; each worker compiles its kernels", file=sys.stderr)
     finally:
         shutil.rmtree(part, ignore_errors=True)
+
+
+def _many_files(config) -> bool:
+    """The suite, a folder of it or more than five files: worth the seed's 35 s of CPU (a file or two after an edit
+    of a kernel compile only the kernels they use, in the workers, as before)."""
+    files = {str(a).split("::")[0] for a in config.args}
+    return not files or any(Path(f).is_dir() for f in files) or len(files) > 5
 
 
 def pytest_sessionfinish(session):
