@@ -146,3 +146,33 @@ def test_a_wrist_sweep_whose_gap_the_run_cannot_decide_gets_a_reversal_run_that_
         logging.disable(logging.NOTSET)
     assert diag2.effects_found_[:1] == ["backlash"]
     assert pooled["effects_found"][:1] == ["backlash"]
+
+
+def test_no_reversal_run_for_a_joint_whose_own_reversals_showed_no_lead(tmp_path):
+    """The independent generator's clean joint-1 sweep (no gap; seed fixed before the run was looked at): joint 1
+    carries no gravity, so the crossing design has nothing to cross, and the reversal design would move it back
+    and forth; but the run's own reversals (6, each where the link rests on its own friction) were chances enough
+    for a gap to show, and the measurement did not lead the model: no run is designed, and the why says so. (The
+    dev split's clean-heavier_3_4-001 got such a needless design, pooled to link_parameters.)"""
+    import logging
+
+    from gen_independent import generate
+
+    from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
+    from wamctl.experiments.diagnose_next import next_experiment_backlash
+    from wamctl.runs.measured import load_run_data
+
+    case = {"id": "clean-j1", "seed": 5, "links": "nominal", "rate_hz": 250, "noise": "quiet", "jitter": "stamp",
+            "excitation": "sweep", "joint": 1, "effects": []}
+    logging.disable(logging.WARNING)
+    try:
+        r = generate(case, tmp_path / case["id"])
+        data = load_run_data(r.path)
+        diag = ModelDiagnosis().fit(data)
+    finally:
+        logging.disable(logging.NOTSET)
+    assert diag.effects_found_ == []
+    out = next_experiment_backlash(diag, data, r.path, tmp_path, joints=[0])
+    assert out["spec"] is None and not (tmp_path / "next_experiment.yaml").exists()
+    assert "reversals where the link rests on its own friction" in out["why"]
+    assert "below the backlash test's resolution" in out["why"]

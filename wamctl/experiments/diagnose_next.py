@@ -252,8 +252,10 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
     if cr.seen_by == "reversals":
         run_part = (f"the run's {rv0[2]} reversals, {rv0[1]} of them where the link rests on its own friction, "
                     f"{cr.original:.2g} noise floors" if rv0 else "")
-        how = (f"moving joint {j + 1} alone slowly ({tr.period_s:g} s period, {CROSSING_PERIODS} periods) about "
-               f"{tr.q0_rad[j]:.3f} rad, the link comes to rest on its own friction at {rv[1]} of its {rv[2]} "
+        qj = tr.evaluate(np.linspace(0.0, tr.period_s, 201))[0][:, j]
+        how = (f"moving joint {j + 1} alone slowly ({tr.period_s:g} s period, {CROSSING_PERIODS} periods) between "
+               f"{qj.min():.3f} and {qj.max():.3f} rad, the link comes to rest on its own friction at {rv[1]} of its "
+               f"{rv[2]} "
                f"reversals (the torque the rigid link needs there below {LINK_FRICTION_SHARE:g} of the joint's "
                f"{fc:.3g} N m Coulomb level, the share assumed on the link side) and the motor crosses the gap "
                f"before it drives the link back: the measurement leads the link by the gap, {cr.separation:.2g} "
