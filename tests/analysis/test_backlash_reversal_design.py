@@ -87,7 +87,7 @@ def test_the_wrist_design_predicts_the_gap_at_its_reversals():
     """The design for joint 7 (a run's pose, an 8 mrad gap, a detection tolerance of 0.2 mrad, the floor of a
     250 Hz wrist log): the gravity step stays below a hundredth of a noise floor (what the crossing design
     predicted alone: 7e-5 on the dev split's wrist sweeps), the reversals separate it by more than 2 noise floors
-    (the gap against 5 tolerances: 8), with ten reversals over the designed run's five periods, all crossing; the
+    (the gap against 5 tolerances: 8), with sixteen reversals over the designed run's eight periods, all crossing; the
     design keeps within excite's limits. Without a tolerance the design is the gravity crossing's alone, as before."""
     dyn = WamDynamics(None)
     lim = _limits()
@@ -99,7 +99,7 @@ def test_the_wrist_design_predicts_the_gap_at_its_reversals():
                          tol_rad=2e-4, fc_Nm=0.054, run_qdd=qdd)
     assert cr.seen_by == "reversals" and cr.torque_separation < 0.01
     assert cr.separation == pytest.approx(GAP_RAD / (MIN_BAND_TOLERANCES * 2e-4)) and cr.separation > 2
-    assert cr.reversals[1:] == (10, 10)
+    assert cr.reversals[1:] == (16, 16)
     assert cr.original == pytest.approx(cr.reversals_original[0]) and cr.reversals_original[1] >= 1
     assert cr.trajectory.moving == [6] and cr.limit_use.worst[2] <= 0.95 + 1e-9
 
@@ -111,7 +111,7 @@ def test_a_wrist_sweep_whose_gap_the_run_cannot_decide_gets_a_reversal_run_that_
     that lead, the design moves joint 7 alone and predicts the gap at its reversals above 2 noise floors (the
     crossing design alone predicted 1e-5 on such runs), and the designed run, made by the generator with the same
     truth, names backlash alone and pooled with the run (``wamctl diagnose RUN NEXT``). (Measured when written:
-    7.8 noise floors, 10 of 10 reversals crossing; backlash named in both.)"""
+    7.8 noise floors, 16 of 16 reversals crossing; backlash named in both.)"""
     import logging
 
     from gen_independent import follow_up, generate

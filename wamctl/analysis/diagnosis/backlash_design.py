@@ -40,7 +40,7 @@ FD_STEP_RAD = 1e-4
 # the share of a joint's Coulomb friction assumed on the link side of a gap (bearings and seals after the gear):
 # not known from one run; a low share makes fewer reversals count as crossings (a conservative prediction)
 LINK_FRICTION_SHARE = 0.2
-CROSSING_PERIODS = 5             # periods of the designed run: two reversals each, ten in all
+CROSSING_PERIODS = 8             # periods of the designed run: two reversals each, sixteen in all
 
 
 def gravity_and_slope(dynamics, q: np.ndarray, j: int) -> tuple[np.ndarray, np.ndarray]:
