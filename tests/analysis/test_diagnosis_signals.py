@@ -96,3 +96,30 @@ def test_whiteness_is_statsmodels_ljung_box():
         want = float(acorr_ljungbox(x - x.mean(), lags=[10], return_df=True)["lb_pvalue"].iloc[0])
         assert whiteness_p(e, 2) == pytest.approx(want, rel=1e-9, abs=1e-300)
     assert np.isnan(whiteness_p(np.ones(100), 1))
+
+
+@pytest.mark.parametrize("fortran", [False, True])
+def test_a_quantised_source_is_evaluated_once_per_distinct_value(run, fortran):
+    """An encoder-quantised source: its windows' feature is evaluated on the distinct counts only and read back by
+    index; the numbers are the same as the feature evaluated on every window value (identical, not close)."""
+    from wamctl.analysis.diagnosis import signals
+
+    sig, q, rng = run
+    sig._memo.clear()
+    x = np.round(q[:, 3] / 2e-3) * 2e-3                 # counts of 2 mrad: a few hundred distinct values
+    idx = np.sort(rng.choice(np.arange(200, N - 200)[::80], 200, replace=False))
+    seen = []
+
+    def feature(v):
+        seen.append(len(v))
+        out = np.column_stack([np.sin(40 * v), np.cos(7 * v), v ** 2])
+        return np.asfortranarray(out) if fortran else out
+
+    got = sig.smooth_at(feature, idx, 1.0, source=(("x", 3), x))
+    assert max(seen) == len(np.unique(x)) < len(idx) * 10     # once, on the distinct values (not the windows)
+    k = sig.kernel()
+    first = 1 - len(k) // 2
+    want = signals._smooth_windows(feature, 3, idx, k, first, N,
+                                   [x[np.clip(idx[None, :] + first + np.arange(len(k))[:, None], 0, N - 1).ravel()]])
+    np.testing.assert_array_equal(got, want)
+    np.testing.assert_allclose(got, _reference(np.asarray(feature(x)), idx, 1.0), atol=1e-12)

@@ -45,6 +45,8 @@ STRETCH_RATIO = 8              # Signals.smooth_at: convolve stretches covering 
 SMOOTH_CHUNK = 2048            # Signals.smooth_at: samples evaluated together, window by window
 MAX_GAP_PERIODS = 5.5          # a step of t longer than this (5 or more samples missing) is a gap: left out
 ROW_CHUNK = 1 << 16            # full-rate arithmetic on long runs in pieces of this many samples
+FACTOR_PROBE = 20000           # Signals._windows: first samples of a source checked for repeats (quantised signal)
+FACTOR_MAX_SHARE = 0.25        # ... factorised when the distinct values are at most this share of them
 KEPT_WINDOWS = 6               # Signals.smooth_at: sets of gathered windows kept for the next features
 
 
@@ -205,8 +207,9 @@ class Signals:
         # a convolution costs about len(k) / STRETCH_RATIO evaluations of the feature per position it covers
         if STRETCH_RATIO * covered > len(idx) * len(k):
             if source is not None:
-                return _smooth_windows(values_fn, width, idx, k, first, self.n,
-                                       self._windows(source, idx, first, len(k)))
+                wins = self._windows(source, idx, first, len(k))
+                return _smooth_windows(values_fn, width, idx, k, first, self.n, wins,
+                                       self._memo["windows_factor"].get(id(wins)))
             return _smooth_windows(fn, width, idx, k, first, self.n)
         if 2 * covered > self.n:
             return _interp_rows(self.smooth(np.asarray(fn(np.arange(self.n)), float), deriv), idx, shift)
@@ -220,10 +223,17 @@ class Signals:
         if key not in kept:
             if len(kept) >= KEPT_WINDOWS:
                 del kept[next(iter(kept))]           # the oldest
+            factors = self._memo.setdefault("windows_factor", {})
+            for gone in set(factors) - {id(w) for w in kept.values()}:
+                del factors[gone]
             x = source[1]
             tap = first + np.arange(taps)[:, None]
-            kept[key] = [x[np.clip(idx[None, c:c + SMOOTH_CHUNK] + tap, 0, self.n - 1).ravel()]
-                         for c in range(0, len(idx), SMOOTH_CHUNK)]
+            pos = [np.clip(idx[None, c:c + SMOOTH_CHUNK] + tap, 0, self.n - 1).ravel()
+                   for c in range(0, len(idx), SMOOTH_CHUNK)]
+            kept[key] = [x[p] for p in pos]
+            levels = self.memo(("levels", source[0]), lambda: _levels(x))
+            if levels is not None and len(levels[0]) <= FACTOR_MAX_SHARE * sum(len(p) for p in pos):
+                factors[id(kept[key])] = levels[0], [levels[1][p] for p in pos]
         return kept[key]
 
     @property
@@ -414,17 +424,50 @@ def _feature_fn(X) -> tuple:
     return (lambda p: np.take(Xa, p, axis=0)), Xa.shape[1]     # several times faster than fancy indexing
 
 
+def _levels(x: np.ndarray):
+    """``(distinct values, index of each sample's value into them)`` of a full-rate signal ``x`` (n,) that repeats
+    its values (a quantised one: encoder counts; judged on its first ``FACTOR_PROBE`` samples), else None. A
+    pointwise feature of the signal's values is then evaluated once per distinct value (the same numbers, read
+    back by index)."""
+    probe = np.asarray(x[:FACTOR_PROBE])
+    if not len(probe) or len(np.unique(probe)) > 0.5 * len(probe):      # a continuous signal: not worth the sort
+        return None
+    uniq, inv = np.unique(x, return_inverse=True)
+    return uniq, inv.astype(np.intp, copy=False)
+
+
+def _factored_values(fn, factor, i: int, memo: dict) -> np.ndarray:
+    """``fn`` of chunk ``i``'s window values: ``fn`` of the distinct values (``factor``: those values and each
+    chunk's indices into them, see :func:`_levels`; computed once, kept in ``memo``) read back by index, in the
+    memory layout ``fn`` gives (so the products over the taps are the same)."""
+    if "U" not in memo:
+        memo["U"] = np.asarray(fn(factor[0]), float)
+    U, inv = memo["U"], factor[1][i]
+    if U.ndim == 1:
+        return np.take(U, inv)
+    if U.flags.f_contiguous and not U.flags.c_contiguous:
+        out = np.empty((U.shape[1], len(inv)))
+        for c in range(U.shape[1]):
+            np.take(U[:, c], inv, out=out[c])
+        return out.T
+    return np.take(U, inv, axis=0)
+
+
 def _smooth_windows(fn, width: int, idx: np.ndarray, k: np.ndarray, first: int, n: int,
-                    windows: list[np.ndarray] | None = None) -> np.ndarray:
+                    windows: list[np.ndarray] | None = None, factor=None) -> np.ndarray:
     """``sum_t k[t] fn(i + first + t)`` (m,) / (m, p) at samples ``idx`` (m,) far apart: the feature evaluated
     on each window (positions held at the ends of the run), one matrix-vector product over the taps. With
-    ``windows`` (the chunks of a source's values there, see ``Signals._windows``) ``fn`` maps those values."""
+    ``windows`` (the chunks of a source's values there, see ``Signals._windows``) ``fn`` maps those values
+    (pointwise; with ``factor``, see :func:`_factored_values`, it is evaluated on the distinct values only)."""
     taps = first + np.arange(len(k))[:, None]
     out = []
+    memo: dict = {}
     chunk = SMOOTH_CHUNK if windows is not None else max(64, SMOOTH_CHUNK // width)   # the arrays stay in cache
     for i, c in enumerate(range(0, max(len(idx), 1), chunk)):
         ii = idx[c:c + chunk]
-        if windows is not None:
+        if windows is not None and factor is not None and len(ii):
+            vals = _factored_values(fn, factor, i, memo)
+        elif windows is not None:
             vals = np.asarray(fn(windows[i]), float) if len(ii) else np.zeros(0)
         else:
             vals = np.asarray(fn(np.clip(ii[None, :] + taps, 0, n - 1).ravel()), float)
