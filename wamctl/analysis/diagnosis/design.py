@@ -242,7 +242,8 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
     if name == "position_ripple":        # h = (period, harmonics): sin, cos of each harmonic in turn
         q_f = sig.q_raw_rad[:, j]          # the angle as measured (the filter then smooths the feature)
         period, nh = float(h[0]), int(h[1])
-        return sig.smooth_at(lambda q: ripple_basis(q, period, nh), jd.idx, shift, source=(("q", j), q_f))
+        return sig.smooth_at(lambda q: ripple_basis(q, period, nh), jd.idx, shift, source=(("q", j), q_f),
+                             quantised=True)
     if name == "payload":
         X = jd.extra["payload"]
         if isinstance(h, tuple):       # ("global", fold): the one payload of the arm, fitted without fold

@@ -45,8 +45,9 @@ STRETCH_RATIO = 8              # Signals.smooth_at: convolve stretches covering 
 SMOOTH_CHUNK = 2048            # Signals.smooth_at: samples evaluated together, window by window
 MAX_GAP_PERIODS = 5.5          # a step of t longer than this (5 or more samples missing) is a gap: left out
 ROW_CHUNK = 1 << 16            # full-rate arithmetic on long runs in pieces of this many samples
-FACTOR_PROBE = 20000           # Signals._windows: first samples of a source checked for repeats (quantised signal)
-FACTOR_MAX_SHARE = 0.25        # ... factorised when the distinct values are at most this share of them
+FACTOR_PROBE = 20000           # Signals._windows: samples of a source checked for repeats (quantised signal)
+FACTOR_MAX_SHARE = 0.25        # ... factorised when the distinct values are at most this share of a window set
+FACTOR_AFTER_USES = 6          # ... from the source's sixth windowed feature on (the first ones evaluated directly)
 KEPT_WINDOWS = 6               # Signals.smooth_at: sets of gathered windows kept for the next features
 
 
@@ -170,7 +171,8 @@ class Signals:
         Gaussian truncated at 4 sigma): ``y[i] = sum_k kernel[k] x[i - r + k]``."""
         return _kernel(self.window, float(self.gauss), deriv, self.dt_s)
 
-    def smooth_at(self, X, idx: np.ndarray, shift: float = 0.0, deriv: int = 0, source=None) -> np.ndarray:
+    def smooth_at(self, X, idx: np.ndarray, shift: float = 0.0, deriv: int = 0, source=None,
+                  quantised: bool = False) -> np.ndarray:
         """The analysis filter of a full-rate feature evaluated at the samples ``idx`` only (m, p) or (m,): the
         same convolution as :meth:`smooth` away from the ends (which the masks leave out).
 
@@ -182,7 +184,8 @@ class Signals:
         samples only, so one ``key`` must always come with the same samples, a joint's). ``shift``: the filtered
         feature ``shift`` samples later (fractional: linear interpolation between the two neighbouring samples, as
         ``np.interp`` of the filtered feature). ``idx`` must be increasing (stretches are found between
-        neighbours).
+        neighbours). ``quantised``: the source is a measured angle (encoder counts: a few values, repeated), so a
+        long run's windowed feature is evaluated once per distinct value (see :func:`_levels`).
 
         Sparse samples (a long run's decimated ones) are evaluated window by window, one matrix-vector product
         over the taps; runs of nearby samples (stretches around onsets) by one convolution over the stretches
@@ -209,7 +212,7 @@ class Signals:
             if source is not None:
                 wins = self._windows(source, idx, first, len(k))
                 return _smooth_windows(values_fn, width, idx, k, first, self.n, wins,
-                                       self._memo["windows_factor"].get(id(wins)))
+                                       self._factor(source, wins) if quantised else None)
             return _smooth_windows(fn, width, idx, k, first, self.n)
         if 2 * covered > self.n:
             return _interp_rows(self.smooth(np.asarray(fn(np.arange(self.n)), float), deriv), idx, shift)
@@ -223,18 +226,38 @@ class Signals:
         if key not in kept:
             if len(kept) >= KEPT_WINDOWS:
                 del kept[next(iter(kept))]           # the oldest
-            factors = self._memo.setdefault("windows_factor", {})
-            for gone in set(factors) - {id(w) for w in kept.values()}:
-                del factors[gone]
             x = source[1]
             tap = first + np.arange(taps)[:, None]
             pos = [np.clip(idx[None, c:c + SMOOTH_CHUNK] + tap, 0, self.n - 1).ravel()
                    for c in range(0, len(idx), SMOOTH_CHUNK)]
             kept[key] = [x[p] for p in pos]
-            levels = self.memo(("levels", source[0]), lambda: _levels(x))
-            if levels is not None and len(levels[0]) <= FACTOR_MAX_SHARE * sum(len(p) for p in pos):
-                factors[id(kept[key])] = levels[0], [levels[1][p] for p in pos]
+            self._memo.setdefault("windows_pos", {})[id(kept[key])] = (kept[key], pos)
+            for gone in [i for i, (w, _) in self._memo["windows_pos"].items()
+                         if not any(w is v for v in kept.values())]:
+                del self._memo["windows_pos"][gone]
         return kept[key]
+
+    def _factor(self, source: tuple, wins: list[np.ndarray]):
+        """``(distinct values, each chunk's indices into them)`` of a quantised source's windows ``wins`` (see
+        :func:`_levels`), or None: before the source's ``FACTOR_AFTER_USES``-th feature (a joint whose features
+        are few would spend more on the sort than it saves), or when its values are not repeated enough."""
+        factors = self._memo.setdefault("windows_factor", {})
+        hit = factors.get(id(wins))
+        if hit is not None and hit[0] is wins:
+            return hit[1]
+        uses = self._memo.setdefault("quantised_uses", {})
+        uses[source[0]] = uses.get(source[0], 0) + 1
+        if uses[source[0]] < FACTOR_AFTER_USES:
+            return None
+        levels = self.memo(("levels", source[0]), lambda: _levels(source[1]))
+        factor = None
+        if levels is not None and len(levels[0]) <= FACTOR_MAX_SHARE * sum(len(w) for w in wins):
+            factor = levels[0], [levels[1][p] for p in self._memo["windows_pos"][id(wins)][1]]
+        kept = self._memo.get("windows", {}).values()
+        for gone in [i for i, (w, _) in factors.items() if not any(w is v for v in kept)]:
+            del factors[gone]
+        factors[id(wins)] = (wins, factor)
+        return factor
 
     @property
     def duration_s(self) -> float:
@@ -425,8 +448,8 @@ def _feature_fn(X) -> tuple:
 
 
 def _levels(x: np.ndarray):
-    """``(distinct values, index of each sample's value into them)`` of a full-rate signal ``x`` (n,) that repeats
-    its values (a quantised one: encoder counts; judged on its first ``FACTOR_PROBE`` samples), else None. A
+    """``(distinct values, each sample's index into them)`` of a full-rate signal ``x`` (n,) that repeats its
+    values (a quantised one: encoder counts; judged on its first ``FACTOR_PROBE`` samples), else None. A
     pointwise feature of the signal's values is then evaluated once per distinct value (the same numbers, read
     back by index)."""
     probe = np.asarray(x[:FACTOR_PROBE])
