@@ -244,7 +244,7 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
         orig = yaml.safe_load(src.read_text()) or {}
         raw.update({k: orig[k] for k in ("backend", "plant", "controller") if k in orig})
     raw["excitation"] = {"joints": [j + 1], "period_s": float(tr.period_s), "harmonics": int(tr.harmonics),
-                         "periods": CROSSING_PERIODS, "settle_s": 1.0}
+                         "periods": CROSSING_PERIODS if cr.seen_by == "reversals" else 3, "settle_s": 1.0}
     spec = designed_spec(raw, tr)
     seen = ("kept one sign over the run, so a gap behind a motor-side encoder was never crossed" if one_sign else
             "changed sign over the run")
@@ -283,7 +283,8 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
         f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
     return dict(base, spec="next_experiment.yaml", joint=j + 1, joints=[j + 1],
                 separation_noise_floors=float(cr.separation), original_separation_noise_floors=float(cr.original),
-                seen_by=cr.seen_by, reversals=None if rv is None else {"crossing": rv[1], "all": rv[2]},
+                seen_by=cr.seen_by,
+                reversals={"crossing": rv[1], "all": rv[2]} if rv is not None and cr.seen_by == "reversals" else None,
                 period_s=float(tr.period_s), crossing_pose_rad=[float(x) for x in tr.q0_rad],
                 gravity_slope_Nm_rad=float(cr.slope_Nm_rad), noise_floor_Nm=noise, why=why)
 
