@@ -185,7 +185,11 @@ def _onset_window(des: Design, dyn0: WamDynamics, j: int, o, model: OnsetModel, 
     sig = des.sig
     q_raw = sig.q_raw_rad[:, j]
     ii, q_end = state["ii"], state["q_end"]
-    b_jj = float(dyn0.mass_matrix(q_end)[j, j])
+    # the declared inertia at the onset's end: the same for every model tested at this onset (kept per onset)
+    kept = sig.memo(("onset_b_jj", id(dyn0), j), lambda: (dyn0, {}))[1]     # dyn0 held: its id stays its own
+    if o.end not in kept:
+        kept[o.end] = float(dyn0.mass_matrix(q_end)[j, j])
+    b_jj = kept[o.end]
     # the rigid body without the joint's own acceleration (its velocity is ~0 in a stall)
     rigid = des.rnea_Nm[ii, j] - b_jj * state["qdd_j"] + des.known_other_Nm[ii, j]
     u_decl = tau_c_decl[ii] - rigid
