@@ -15,29 +15,14 @@ from pathlib import Path
 # The cache is also keyed by the compiled sources' content: numba checks only the timestamp of a kernel's own
 # file, so a kernel that calls one from another file (sim_fused -> chain_kernels) would otherwise keep the old
 # callee's machine code after an edit of the callee.
-# In a fresh clone every worker compiled the same kernels (about 20 s of CPU each): the controller compiles them
-# once into a seed cache before the workers start (tests/numba_warmup.py, `pytest_configure` below), and a worker
-# whose own cache does not exist yet starts from a copy of it (no process ever writes into another's cache).
 _WORKER = os.environ.get("PYTEST_XDIST_WORKER")
-_OWN_NUMBA_CACHE = "NUMBA_CACHE_DIR" not in os.environ          # the user chose none: the suite keeps its own
-if _OWN_NUMBA_CACHE:
+if _WORKER and "NUMBA_CACHE_DIR" not in os.environ:
     import hashlib
 
     _SRC = Path(__file__).resolve().parents[1] / "wamctl"
     _DIGEST = hashlib.sha256(b"".join(p.read_bytes() for p in sorted(_SRC.rglob("*.py"))
                                       if b"@njit" in p.read_bytes())).hexdigest()[:12]
-    _NUMBA_ROOT = _SRC.parent / ".pytest_cache" / "numba" / _DIGEST
-    _NUMBA_SEED = _NUMBA_ROOT / "seed"
-    if _WORKER:
-        _own = _NUMBA_ROOT / _WORKER
-        if not _own.exists() and _NUMBA_SEED.is_dir():
-            import shutil
-
-            try:
-                shutil.copytree(_NUMBA_SEED, _own)
-            except OSError:          # a copy cut short: the worker compiles everything, as without a seed
-                shutil.rmtree(_own, ignore_errors=True)
-        os.environ["NUMBA_CACHE_DIR"] = str(_own)
+    os.environ["NUMBA_CACHE_DIR"] = str(_SRC.parent / ".pytest_cache" / "numba" / _DIGEST / _WORKER)
 
 # One BLAS thread in every test process and the processes it starts (the CLI's subprocesses inherit the setting),
 # unless the user chose a number. The tests' linear algebra is small dense products (the analyses' fits, the
@@ -80,43 +65,6 @@ settings.register_profile("default", derandomize=True, database=None, print_blob
 settings.register_profile("explore", derandomize=False, max_examples=1000, print_blob=True)
 
 Q0 = np.array([0.0, 0.0, 0.0, 1.57, 0.0, 0.0, 0.0])
-
-
-def pytest_configure(config):
-    """Under xdist, in the controller: the seed cache of the numba kernels, compiled once before the workers start
-    (see the top of this file); a failure leaves the workers to compile, as without it."""
-    if (not _OWN_NUMBA_CACHE or hasattr(config, "workerinput") or not config.getoption("numprocesses", None)
-            or config.getoption("collectonly", False) or _NUMBA_SEED.is_dir() or not _many_files(config)):
-        return
-    import shutil
-    import subprocess
-    import sys
-    import tempfile
-
-    _NUMBA_ROOT.mkdir(parents=True, exist_ok=True)
-    part = Path(tempfile.mkdtemp(prefix="seed.", dir=_NUMBA_ROOT))
-    try:
-        with tempfile.TemporaryDirectory() as work:
-            r = subprocess.run([sys.executable, str(Path(__file__).with_name("numba_warmup.py")), work],
-                               env={**os.environ, "NUMBA_CACHE_DIR": str(part)}, capture_output=True, text=True,
-                               timeout=900, check=False)
-        if r.returncode == 0:
-            part.rename(_NUMBA_SEED)     # atomic; another session's seed made meanwhile wins (OSError)
-        else:
-            last = (r.stderr.strip().splitlines() or [""])[-1]
-            print(f"tests/numba_warmup.py failed (exit {r.returncode}: {last}); each worker compiles its kernels",
-                  file=sys.stderr)
-    except (OSError, subprocess.SubprocessError) as e:
-        print(f"tests/numba_warmup.py: {e}; each worker compiles its kernels", file=sys.stderr)
-    finally:
-        shutil.rmtree(part, ignore_errors=True)
-
-
-def _many_files(config) -> bool:
-    """The suite, a folder of it or more than five files: worth the seed's 35 s of CPU (a file or two after an edit
-    of a kernel compile only the kernels they use, in the workers, as before)."""
-    files = {str(a).split("::")[0] for a in config.args}
-    return not files or any(Path(f).is_dir() for f in files) or len(files) > 5
 
 
 def pytest_sessionfinish(session):
