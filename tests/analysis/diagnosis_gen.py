@@ -202,3 +202,19 @@ def generate_run(out_dir: str | Path, effect: str | None = None, seed: int = 0, 
     (path / "truth.yaml").write_text(yaml.safe_dump(truth, sort_keys=False))
     return GeneratedRun(path, effect, joint if has_joint else None, effects.get(effect, {}) if effect else {},
                         seed, len(rows))
+
+
+def diagnose_quietly(path):
+    """``(ModelDiagnosis().fit(data), data)`` of the run at ``path`` (read by ``load_run_data``), the analyses'
+    warnings silenced."""
+    import logging
+
+    from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
+    from wamctl.runs.measured import load_run_data
+
+    logging.disable(logging.WARNING)
+    try:
+        data = load_run_data(path)
+        return ModelDiagnosis().fit(data), data
+    finally:
+        logging.disable(logging.NOTSET)

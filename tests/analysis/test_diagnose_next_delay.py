@@ -15,18 +15,13 @@ import logging
 import pytest
 import yaml
 
-from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
 from wamctl.experiments.diagnose_next import next_experiment_delay
-from wamctl.runs.measured import load_run_data
 
 
 def _diagnose(path):
-    logging.disable(logging.WARNING)
-    try:
-        data = load_run_data(path)
-        return ModelDiagnosis().fit(data), data
-    finally:
-        logging.disable(logging.NOTSET)
+    from diagnosis_gen import diagnose_quietly
+
+    return diagnose_quietly(path)
 
 
 def test_an_independent_wrist_sweep_with_a_delay_is_ambiguous_and_gets_a_run_that_separates(tmp_path):

@@ -12,8 +12,6 @@ constant, at joint 3 on a joint-3 sweep whose slowest speed comes first; nothing
 
 from __future__ import annotations
 
-import logging
-
 import numpy as np
 import pytest
 import yaml
@@ -55,15 +53,9 @@ def test_a_joint_that_hardly_moves_has_no_separation():
 
 
 def _diagnose(path):
-    from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
-    from wamctl.runs.measured import load_run_data
+    from diagnosis_gen import diagnose_quietly
 
-    logging.disable(logging.WARNING)
-    try:
-        data = load_run_data(path)
-        return ModelDiagnosis().fit(data), data
-    finally:
-        logging.disable(logging.NOTSET)
+    return diagnose_quietly(path)
 
 
 CASES = {"pair-delay+stribeck-009": ((10, 0, 0, 20), 7, "stribeck"), "friction_drift-019": ((30, 0, 0, 42), 3,

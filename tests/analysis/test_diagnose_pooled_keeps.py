@@ -11,23 +11,15 @@ it and the breakaways that did, added from the onsets, were not recognised). Now
 
 from __future__ import annotations
 
-import logging
-
 import pytest
 
 pytestmark = pytest.mark.slow
 
 
 def _diagnose(path):
-    from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
-    from wamctl.runs.measured import load_run_data
+    from diagnosis_gen import diagnose_quietly
 
-    logging.disable(logging.WARNING)
-    try:
-        data = load_run_data(path)
-        return ModelDiagnosis().fit(data), data
-    finally:
-        logging.disable(logging.NOTSET)
+    return diagnose_quietly(path)
 
 
 def test_a_below_target_designed_run_does_not_lose_the_first_runs_names(tmp_path):

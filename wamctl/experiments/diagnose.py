@@ -162,11 +162,8 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
     from wamctl.analysis.diagnosis.discriminate import design_next_run, fitted_hypotheses, trajectory_rows
     from wamctl.analysis.diagnosis.links import WIDE_PRIOR
     from wamctl.analysis.diagnosis.rigid import plausible_link_map
-    from wamctl.analysis.identification.excitation import ExcitationLimits
+    from wamctl.experiments.diagnose_next import design_setting
     from wamctl.experiments.excitation import designed_spec
-    from wamctl.model.dynamics import WamDynamics
-    from wamctl.model.friction import FrictionModel
-    from wamctl.specs.excitation import ExcitationLimitsSpec
 
     dec = diag.payload_vs_links_
     unnamed = {u["name"] for u in diag.arm_unnamed_}
@@ -179,17 +176,13 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
     sig = diag.signals_
     idx = np.unique(np.concatenate([diag.jd_[j].idx for j in diag.joints_]))
     idx = idx[:: max(1, int(round(1.0 / (sig.dt_s * 12.5))))]
-    dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
+    dyn, limits, q0, friction = design_setting(diag, data)
     rows_run = trajectory_rows(dyn, sig.at("q", idx), sig.at("qd", idx), sig.at("qdd", idx))
     hyp = fitted_hypotheses(rows_run, cone["mass_kg"], cone["com_m"],
                             plausible_link_map(diag.declared_.links, diag.payload_declared_), WIDE_PRIOR)
     noise = float(np.nanmedian([r.torque_rms_after_Nm for r in diag.joints_.values()]))
-    lim = ExcitationLimitsSpec()
-    limits = ExcitationLimits(*lim.arrays(), 1 - lim.torque_margin, lim.max_cartesian_speed_m_s)
-    q0 = np.array([0.0 if v is None else float(v) for v in data.meta.q0])
     ran = sorted(diag.joints_)
     sets = [ran, sorted(set(ran) | {4, 5, 6}), [1, 3, 4, 5], list(range(7))]
-    friction = diag.declared_.friction or FrictionModel.table_4_1()
     try:
         nr = design_next_run(dyn, friction, q0, hyp, noise, rows_run, limits, sets, seed=seed)
     except ValueError as exc:       # no candidate within the limits at this q0: said, no spec written

@@ -26,15 +26,11 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
     import yaml
 
     from wamctl.analysis.diagnosis import delay_inertia as DI
-    from wamctl.analysis.identification.excitation import ExcitationLimits
     from wamctl.experiments.excitation import designed_spec
-    from wamctl.model.dynamics import WamDynamics
-    from wamctl.model.friction import FrictionModel
-    from wamctl.specs.excitation import ExcitationLimitsSpec
 
     if not (diag.joints_ and delay_or_inertia_suspected(diag)):
         return None
-    dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
+    dyn, limits, q0, friction = design_setting(diag, data)
     chk = DI.check_run(diag, dyn)
     if not chk.suspected:
         return None
@@ -43,13 +39,9 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
     if dec["outcome"] != "ambiguous":
         return dict(base, spec=None, why="none needed, " + DI.decision_line(dec))
     noise = chk.floors
-    lim = ExcitationLimitsSpec()
-    limits = ExcitationLimits(*lim.arrays(), 1 - lim.torque_margin, lim.max_cartesian_speed_m_s)
-    q0 = np.array([0.0 if v is None else float(v) for v in data.meta.q0])
     ran = sorted(chk.rows.joints)
     sets = [ran, sorted(set(ran) | {3}), sorted(set(ran) | {1, 3}), list(range(7))]
     sets = [s for k, s in enumerate(sets) if s not in sets[:k]]
-    friction = diag.declared_.friction or FrictionModel.table_4_1()
     try:
         nr = DI.design_next_run(dyn, friction, q0, chk.hyp, noise, chk.rows, limits, sets, seed=seed)
     except ValueError as exc:       # no candidate within the limits at this q0: said, no spec written
@@ -85,6 +77,21 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
                 period_s=float(tr.period_s), noise_floor_Nm={j + 1: v for j, v in noise.items()}, why=why,
                 candidates=[{"joints": js, "period_s": p, "separation_noise_floors": float(v)}
                             for js, p, v in nr.scored])
+
+
+def design_setting(diag, data):
+    """What every designed run starts from: the declared rigid body (with the declared payload), excite's limits,
+    the run's start pose (rad; 0 where the log does not say) and the declared friction (Table 4.1 when none)."""
+    from wamctl.analysis.identification.excitation import ExcitationLimits
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.friction import FrictionModel
+    from wamctl.specs.excitation import ExcitationLimitsSpec
+
+    lim = ExcitationLimitsSpec()
+    return (WamDynamics(diag.payload_declared_, diag.declared_.links),
+            ExcitationLimits(*lim.arrays(), 1 - lim.torque_margin, lim.max_cartesian_speed_m_s),
+            np.array([0.0 if v is None else float(v) for v in data.meta.q0]),
+            diag.declared_.friction or FrictionModel.table_4_1())
 
 
 def delay_or_inertia_suspected(diag) -> bool:
@@ -186,20 +193,12 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
     from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES, MIN_REVERSALS
     from wamctl.analysis.diagnosis.backlash_design import CROSSING_PERIODS, LINK_FRICTION_SHARE, design_crossing
     from wamctl.analysis.diagnosis.onsets import detection_tolerance
-    from wamctl.analysis.identification.excitation import ExcitationLimits
     from wamctl.experiments.excitation import designed_spec
-    from wamctl.model.dynamics import WamDynamics
-    from wamctl.model.friction import FrictionModel
-    from wamctl.specs.excitation import ExcitationLimitsSpec
 
     joints = backlash_suspects(diag) if joints is None else list(joints)
     if not joints:
         return None
-    dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
-    lim = ExcitationLimitsSpec()
-    limits = ExcitationLimits(*lim.arrays(), 1 - lim.torque_margin, lim.max_cartesian_speed_m_s)
-    q0 = np.array([0.0 if v is None else float(v) for v in data.meta.q0])
-    friction = diag.declared_.friction or FrictionModel.table_4_1()
+    dyn, limits, q0, friction = design_setting(diag, data)
     sig = diag.signals_
     best, why_not = None, []
     leads = _leading_joints(diag)
@@ -299,20 +298,12 @@ def next_experiment_friction(diag, data, data_path: Path, out_dir: Path, seed: i
     import yaml
 
     from wamctl.analysis.diagnosis import friction_design as FD
-    from wamctl.analysis.identification.excitation import ExcitationLimits
     from wamctl.experiments.excitation import designed_spec
-    from wamctl.model.dynamics import WamDynamics
-    from wamctl.model.friction import FrictionModel
-    from wamctl.specs.excitation import ExcitationLimitsSpec
 
     joints = FD.ambiguous_joints(diag) if diag.joints_ else []
     if not joints:
         return None
-    dyn = WamDynamics(diag.payload_declared_, diag.declared_.links)
-    lim = ExcitationLimitsSpec()
-    limits = ExcitationLimits(*lim.arrays(), 1 - lim.torque_margin, lim.max_cartesian_speed_m_s)
-    q0 = np.array([0.0 if v is None else float(v) for v in data.meta.q0])
-    friction = diag.declared_.friction or FrictionModel.table_4_1()
+    dyn, limits, q0, friction = design_setting(diag, data)
     settle_s = 0.0          # the drift's clock starts with the run: a hold at rest would spend its first seconds
     best, why_not = None, []
     for j in joints:

@@ -286,7 +286,7 @@ def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float
     (:func:`~wamctl.analysis.diagnosis.discriminate.best_within_limits`): the candidate whose smaller separation is
     largest wins. ``scored``: each candidate's separation (after the control rate's check where it was checked).
     Raises ValueError when no candidate keeps within the limits."""
-    from wamctl.analysis.diagnosis.discriminate import best_within_limits, coarse_scaled
+    from wamctl.analysis.diagnosis.discriminate import best_within_limits, candidate_scores, coarse_scaled
     from wamctl.analysis.identification.excitation import FourierTrajectory
 
     rng = np.random.default_rng(seed)
@@ -310,8 +310,7 @@ def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float
     if best is None:
         raise ValueError("no candidate trajectory keeps within the limits")
     traj, sep, use, checked = best
-    scored = [(*label[k], float(s if checked.get(k) is None else checked[k]))
-              for s, _, k in cands if not (k in checked and checked[k] is None)]
+    scored = [(*label[k], s) for k, _, s in candidate_scores(cands, checked)]
     return NextRun(traj, sep, separation(rows_run, hyp, noise_Nm), scored, use)
 
 

@@ -235,6 +235,14 @@ def best_within_limits(candidates: list, score, limits, dynamics, friction, fill
     return None if best is None else (*best, checked)
 
 
+def candidate_scores(candidates: list, checked: dict) -> list[tuple]:
+    """``(label, trajectory, separation)`` of the ``candidates`` of :func:`best_within_limits` not found outside
+    the limits at the control rate: the separation after that check where it was made (``checked``), else the
+    coarse one."""
+    return [(k, tr, float(s if checked.get(k) is None else checked[k]))
+            for s, tr, k in candidates if not (k in checked and checked[k] is None)]
+
+
 LIMIT_CHECK_RATE_HZ = 50.0     # the candidates' scaling checked on this grid, the winner's at the control rate
 
 
@@ -269,6 +277,5 @@ def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float
     if best is None:
         raise ValueError("no candidate trajectory keeps within the limits")
     traj, sep, use, checked = best
-    scored = [([j + 1 for j in tr.moving], float(checked.get(k, s) if checked.get(k) is not None else s))
-              for s, tr, k in cands if not (k in checked and checked[k] is None)]
+    scored = [([j + 1 for j in tr.moving], s) for _, tr, s in candidate_scores(cands, checked)]
     return NextRun(traj, sep, separation(rows_run, hyp, noise_Nm), scored, use)

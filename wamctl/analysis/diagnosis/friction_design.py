@@ -180,6 +180,7 @@ def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float
     from wamctl.analysis.diagnosis.discriminate import (
         LIMIT_CHECK_RATE_HZ,
         best_within_limits,
+        candidate_scores,
         coarse_scaled,
     )
     from wamctl.analysis.identification.excitation import FourierTrajectory
@@ -209,7 +210,6 @@ def design_next_run(dynamics, friction, q0_rad, hyp: Hypotheses, noise_Nm: float
     if best is None:
         raise ValueError("no candidate trajectory keeps within the limits")
     traj, sep, use, checked = best
-    scored = [(*label[k], float(s if checked.get(k) is None else checked[k]))
-              for s, _, k in cands if not (k in checked and checked[k] is None)]
+    scored = [(*label[k], s) for k, _, s in candidate_scores(cands, checked)]
     orig = separation(hyp, np.asarray(run_qd, float), np.asarray(run_t_s, float), noise_Nm, hyp.duration_s)
     return NextRun(traj, n_per[traj.period_s], sep, orig, scored, use)
