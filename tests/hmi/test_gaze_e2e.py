@@ -59,8 +59,11 @@ def _run_block(fmt: str, tmp_path: Path):
     env = {**os.environ, "PYTHONPATH": str(ROOT) + os.pathsep + os.environ.get("PYTHONPATH", "")}
     sender = subprocess.Popen([sys.executable, "-m", "wamctl.backends.gaze.tracker_sim", "--fd", str(master_fd),
                                "--slave", slave, "--format", fmt, "--out", str(out_json)], pass_fds=(master_fd,),
-                              env=env)
+                              env=env, stdout=subprocess.PIPE, text=True)
     try:
+        # the session gives up when no byte arrives within 2 s of opening the port: open it once the sender runs
+        # (a loaded machine can take longer than that to start a Python process)
+        assert sender.stdout.readline().strip() == tracker_sim.READY
         spec = parse_spec({"kind": "hmi_block", "seed": 1, "name": f"pty-{fmt}", "hmi": {
             "subject": {"id": "P01"}, "locations": ["P4"], "start": "auto", "timeout_s": 20,
             "source": {"kind": "serial", "url": slave, "format": fmt, "eof_idle_s": 2.0}}})

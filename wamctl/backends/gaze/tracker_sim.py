@@ -6,7 +6,9 @@ Run it as its own process, so that its schedule does not share a GIL with the re
 
     python -m wamctl.backends.gaze.tracker_sim --fd N --slave /dev/pts/K --format asl-serial-out --out sent.json
 
-with the pty's master fd passed (``pass_fds``). It starts once the reader has opened the port: it polls the slave's
+with the pty's master fd passed (``pass_fds``). Once started it says so on stdout (:data:`READY`: a reader
+that gives up when no byte arrives within a few seconds of opening the port should open it after that line). It
+starts streaming once the reader has opened the port: it polls the slave's
 line speed until it reads ``--baud`` (pyserial sets the speed, then flushes the input, when it opens a port), waits
 0.2 s, then streams. It writes its JSON (the speed it saw; per frame the planned time and the start and return of
 the write of its last bytes, on ``time.monotonic``, the clock of the reader's arrival stamps) when done.
@@ -73,6 +75,9 @@ def garbage(fmt: str) -> bytes:
     return b"\x13\x55\x07" if fmt == "asl-serial-out" else b"\xfe\x00garbage,,\n"
 
 
+READY = "tracker_sim: waiting for the reader"   # the line on stdout once the process has started
+
+
 def wait_for_reader(slave: str, baud: int, timeout_s: float = 60.0) -> int:
     """Poll the slave's output speed until the reader set it to ``baud``; return the speed code seen."""
     fd = os.open(slave, os.O_RDWR | os.O_NOCTTY)
@@ -125,6 +130,8 @@ def main(argv: Sequence[str] | None = None) -> None:
     p.add_argument("--seconds", type=float, default=None,
                    help="look at the centre this long, no blink (default: the trial script)")
     args = p.parse_args(argv)
+    sys.stdout.write(READY + "\n")     # a caller may open the port now (its first-byte timeout runs from there)
+    sys.stdout.flush()
     try:
         speed = wait_for_reader(args.slave, args.baud)
     except TimeoutError as exc:
