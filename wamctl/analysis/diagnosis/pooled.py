@@ -431,6 +431,9 @@ class PooledDiagnosis:
         not add to the model with ``a``: ``b``'s finding is then not named (and ``a``'s named, with a finding of
         its own when no run kept it); neither adding beyond the other keeps the group ambiguous (neither named);
         both adding leaves each member's own finding. The record goes to ``head_to_head`` of the findings."""
+        from wamctl.analysis.diagnosis.headtohead import p_extra
+        from wamctl.analysis.diagnosis.stats import finite_ss
+
         groups = {}
         for m in ms:
             for g in m.res.ambiguous:
@@ -456,8 +459,6 @@ class PooledDiagnosis:
                 e, _, _ = _stack_cv(sub, own, shared, self.w_, self.n_folds)
                 k = sum(own[m.key][1].shape[1] for m in sub) + (next(iter(shared.values())).shape[1] if shared else 0)
                 systems[key] = (e, k)
-            from wamctl.analysis.diagnosis.headtohead import p_extra
-            from wamctl.analysis.diagnosis.stats import finite_ss
 
             def ss(e, sub=sub):
                 return sum(finite_ss(e[m.key] * self.w_[m.key]) for m in sub)
@@ -488,7 +489,7 @@ class PooledDiagnosis:
                     found[loser]["pooled"] = dict(found[loser]["pooled"], named=False, basis=(
                         f"{outcome} explains it on the runs pooled: {loser} adds nothing beyond {outcome}"))
                 if outcome not in found:
-                    t_w, _ = systems[("a" if outcome == a else "b")], None
+                    t_w = systems["a" if outcome == a else "b"]
                     t = _test(sub, e_own, t_w[0], self.w_, p_extra(outcome, terms[outcome]), t_w[1])
                     found[outcome] = {"name": outcome, "joint": j + 1,
                                       "what": f"joint {j + 1}: {outcome} (left ambiguous with {loser} by "
