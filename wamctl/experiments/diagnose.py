@@ -157,13 +157,11 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
     controller when the run directory names them); returns ``{"spec", "separation_noise_floors",
     "original_separation_noise_floors", "joints", "why", "noise_floor_Nm"}`` or None when nothing is to separate
     or no payload was fitted to design against."""
-    import yaml
 
     from wamctl.analysis.diagnosis.discriminate import design_next_run, fitted_hypotheses, trajectory_rows
     from wamctl.analysis.diagnosis.links import WIDE_PRIOR
     from wamctl.analysis.diagnosis.rigid import plausible_link_map
-    from wamctl.experiments.diagnose_next import design_setting
-    from wamctl.experiments.excitation import designed_spec
+    from wamctl.experiments.diagnose_next import design_setting, write_next_experiment
 
     dec = diag.payload_vs_links_
     unnamed = {u["name"] for u in diag.arm_unnamed_}
@@ -187,22 +185,14 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
         nr = design_next_run(dyn, friction, q0, hyp, noise, rows_run, limits, sets, seed=seed)
     except ValueError as exc:       # no candidate within the limits at this q0: said, no spec written
         return {"spec": None, "why": f"no run designed to tell a payload from link errors: {exc} at the run's q0"}
-    raw = {"kind": "excitation", "name": f"next-{data_path.name}", "seed": seed, "q0_rad": [float(x) for x in q0]}
-    src = data_path / "spec.yaml"
-    if src.is_file():       # our own run: the same arm, backend and (simulated) plant
-        orig = yaml.safe_load(src.read_text()) or {}
-        raw.update({k: orig[k] for k in ("backend", "plant", "controller") if k in orig})
-    raw["excitation"] = {"joints": [j + 1 for j in nr.trajectory.moving], "period_s": float(nr.trajectory.period_s),
-                         "harmonics": int(nr.trajectory.harmonics), "periods": 3, "settle_s": 1.0}
-    spec = designed_spec(raw, nr.trajectory)
     sep, orig_sep = float(nr.separation["separation"]), float(nr.original["separation"])
     why = (f"the run cannot tell a {cone['mass_kg']:.2g} kg wrist payload from link errors within {WIDE_PRIOR:g} "
            f"times the declared accuracy (separation {orig_sep:.2g} noise floors of {noise:.3g} N m); moving joints "
            f"{', '.join(str(j + 1) for j in nr.trajectory.moving)} their predicted torques differ by {sep:.2g} "
            "noise floors (RMS per sample, after each refits its own parameters)"
            + ("" if sep > 2 else ": still below 2, a longer run or a heavier test mass is needed to tell them"))
-    (out_dir / "next_experiment.yaml").write_text(
-        f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
+    write_next_experiment(data_path, out_dir, nr.trajectory, q0, [j + 1 for j in nr.trajectory.moving], 3, 1.0,
+                          why, seed)
     return {"spec": "next_experiment.yaml", "separation_noise_floors": sep,
             "original_separation_noise_floors": orig_sep, "joints": [j + 1 for j in nr.trajectory.moving],
             "noise_floor_Nm": noise, "why": why, "candidates": [{"joints": js, "separation_noise_floors": float(v)}

@@ -23,10 +23,8 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
     ``out_dir/next_experiment.yaml`` (an excitation spec for the run's backend, plant and controller when the run
     directory names them) and ``{"spec", "hypotheses", "decision", "separation_noise_floors",
     "original_separation_noise_floors", "joints", "period_s", "noise_floor_Nm", "why", "candidates"}``."""
-    import yaml
 
     from wamctl.analysis.diagnosis import delay_inertia as DI
-    from wamctl.experiments.excitation import designed_spec
 
     if not (diag.joints_ and delay_or_inertia_suspected(diag)):
         return None
@@ -47,16 +45,7 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
     except ValueError as exc:       # no candidate within the limits at this q0: said, no spec written
         return dict(base, spec=None, why=f"{DI.decision_line(dec)}; no run designed to tell them: {exc} at the "
                                          "run's q0")
-    raw = {"kind": "excitation", "name": f"next-{Path(data_path).name}", "seed": seed,
-           "q0_rad": [float(x) for x in q0]}
-    src = Path(data_path) / "spec.yaml"
-    if src.is_file():       # our own run: the same arm, backend and (simulated) plant
-        orig = yaml.safe_load(src.read_text()) or {}
-        raw.update({k: orig[k] for k in ("backend", "plant", "controller") if k in orig})
     tr = nr.trajectory
-    raw["excitation"] = {"joints": [j + 1 for j in tr.moving], "period_s": float(tr.period_s),
-                         "harmonics": int(tr.harmonics), "periods": 3, "settle_s": 1.0}
-    spec = designed_spec(raw, tr)
     sep, orig_sep = float(nr.separation["separation"]), float(nr.original["separation"])
     joints = ", ".join(str(j + 1) for j in tr.moving)
     why = (f"the run cannot tell a {dec['delay_s'] * 1e3:.1f} ms measurement delay from inertia errors of joint"
@@ -69,14 +58,36 @@ def next_experiment_delay(diag, data, data_path: Path, out_dir: Path, seed: int 
            "the run did not move assumed in proportion to its torque limit)"
            + ("" if sep > DI.DESIGN_TARGET_FLOORS else
               f": still below {DI.DESIGN_TARGET_FLOORS:g}, a longer run is needed to tell them"))
-    (Path(out_dir) / "next_experiment.yaml").write_text(
-        f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
+    write_next_experiment(data_path, out_dir, tr, q0, [j + 1 for j in tr.moving], 3, 1.0, why, seed)
     return dict(base, spec="next_experiment.yaml", separation_noise_floors=sep,
                 original_separation_noise_floors=orig_sep, decisive=sep > DI.DESIGN_TARGET_FLOORS,
                 joints=[j + 1 for j in tr.moving],
                 period_s=float(tr.period_s), noise_floor_Nm={j + 1: v for j, v in noise.items()}, why=why,
                 candidates=[{"joints": js, "period_s": p, "separation_noise_floors": float(v)}
                             for js, p, v in nr.scored])
+
+
+def write_next_experiment(data_path: Path, out_dir: Path, trajectory, q0_rad, joints: list[int], periods: int,
+                          settle_s: float, why: str, seed: int = 0) -> None:
+    """``out_dir/next_experiment.yaml``: the excitation spec of the designed ``trajectory`` (excite's Fourier
+    series) from ``q0_rad``, moving the 1-based ``joints`` for ``periods`` periods after ``settle_s``, for the
+    run's backend, plant and controller where its directory names them (our own run: the same arm and simulated
+    plant), with ``why`` as its first line."""
+    import yaml
+
+    from wamctl.experiments.excitation import designed_spec
+
+    raw = {"kind": "excitation", "name": f"next-{Path(data_path).name}", "seed": seed,
+           "q0_rad": [float(x) for x in q0_rad]}
+    src = Path(data_path) / "spec.yaml"
+    if src.is_file():
+        orig = yaml.safe_load(src.read_text()) or {}
+        raw.update({k: orig[k] for k in ("backend", "plant", "controller") if k in orig})
+    raw["excitation"] = {"joints": list(joints), "period_s": float(trajectory.period_s),
+                         "harmonics": int(trajectory.harmonics), "periods": int(periods), "settle_s": settle_s}
+    spec = designed_spec(raw, trajectory)
+    (Path(out_dir) / "next_experiment.yaml").write_text(
+        f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
 
 
 def design_setting(diag, data):
@@ -188,12 +199,10 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
     "joint", "gap_rad", "separation_noise_floors", "original_separation_noise_floors", "seen_by", "reversals",
     "joints", "period_s", "crossing_pose_rad", "gravity_slope_Nm_rad", "noise_floor_Nm", "why"}``. None when no
     joint is suspected; ``spec`` None with ``why`` when no crossing keeps within the limits."""
-    import yaml
 
     from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES, MIN_REVERSALS
     from wamctl.analysis.diagnosis.backlash_design import CROSSING_PERIODS, LINK_FRICTION_SHARE, design_crossing
     from wamctl.analysis.diagnosis.onsets import detection_tolerance
-    from wamctl.experiments.excitation import designed_spec
 
     joints = backlash_suspects(diag) if joints is None else list(joints)
     if not joints:
@@ -236,15 +245,6 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
         return dict(base, spec=None, why="no run designed to show a gap behind the encoder: " + "; ".join(why_not))
     j, cr, noise, one_sign, tol, fc = best
     tr = cr.trajectory
-    raw = {"kind": "excitation", "name": f"next-{Path(data_path).name}", "seed": seed,
-           "q0_rad": [float(x) for x in tr.q0_rad]}
-    src = Path(data_path) / "spec.yaml"
-    if src.is_file():
-        orig = yaml.safe_load(src.read_text()) or {}
-        raw.update({k: orig[k] for k in ("backend", "plant", "controller") if k in orig})
-    raw["excitation"] = {"joints": [j + 1], "period_s": float(tr.period_s), "harmonics": int(tr.harmonics),
-                         "periods": CROSSING_PERIODS if cr.seen_by == "reversals" else 3, "settle_s": 1.0}
-    spec = designed_spec(raw, tr)
     seen = ("kept one sign over the run, so a gap behind a motor-side encoder was never crossed" if one_sign else
             "changed sign over the run")
     rv, rv0 = cr.reversals, cr.reversals_original
@@ -278,8 +278,8 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
                "arm there first)")
     if cr.separation <= DESIGN_TARGET_FLOORS:
         why += f"; still below {DESIGN_TARGET_FLOORS:g}: only a larger gap would show on this joint"
-    (Path(out_dir) / "next_experiment.yaml").write_text(
-        f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
+    write_next_experiment(data_path, out_dir, tr, tr.q0_rad, [j + 1],
+                          CROSSING_PERIODS if cr.seen_by == "reversals" else 3, 1.0, why, seed)
     return dict(base, spec="next_experiment.yaml", joint=j + 1, joints=[j + 1],
                 separation_noise_floors=float(cr.separation), original_separation_noise_floors=float(cr.original),
                 seen_by=cr.seen_by,
@@ -295,10 +295,8 @@ def next_experiment_friction(diag, data, data_path: Path, out_dir: Path, seed: i
     ``out_dir/next_experiment.yaml``; ``{"spec", "hypotheses", "joint", "joints", "separation_noise_floors",
     "original_separation_noise_floors", "period_s", "periods", "noise_floor_Nm", "fitted", "why", "candidates"}``.
     None when no joint is ambiguous between them; ``spec`` None with ``why`` when no run could be designed."""
-    import yaml
 
     from wamctl.analysis.diagnosis import friction_design as FD
-    from wamctl.experiments.excitation import designed_spec
 
     joints = FD.ambiguous_joints(diag) if diag.joints_ else []
     if not joints:
@@ -327,15 +325,6 @@ def next_experiment_friction(diag, data, data_path: Path, out_dir: Path, seed: i
                                          + "; ".join(why_not))
     j, nr, noise, hyp = best
     tr = nr.trajectory
-    raw = {"kind": "excitation", "name": f"next-{Path(data_path).name}", "seed": seed,
-           "q0_rad": [float(x) for x in tr.q0_rad]}
-    src = Path(data_path) / "spec.yaml"
-    if src.is_file():       # our own run: the same arm, backend and (simulated) plant
-        orig = yaml.safe_load(src.read_text()) or {}
-        raw.update({k: orig[k] for k in ("backend", "plant", "controller") if k in orig})
-    raw["excitation"] = {"joints": [j + 1], "period_s": float(tr.period_s), "harmonics": int(tr.harmonics),
-                         "periods": int(nr.periods), "settle_s": settle_s}
-    spec = designed_spec(raw, tr)
     sep, orig_sep = float(nr.separation["separation"]), float(nr.original["separation"])
     t = np.arange(int(tr.period_s * FD.DESIGN_RATE_HZ)) / FD.DESIGN_RATE_HZ
     peak = float(np.abs(tr.evaluate(t)[1][:, j]).max())
@@ -350,8 +339,7 @@ def next_experiment_friction(diag, data, data_path: Path, out_dir: Path, seed: i
            "each refits its own parameters, friction and an offset)"
            + ("" if sep > DESIGN_TARGET_FLOORS else
               f": still below {DESIGN_TARGET_FLOORS:g}, this run alone cannot decide it"))
-    (Path(out_dir) / "next_experiment.yaml").write_text(
-        f"# designed by wamctl diagnose: {why}\n" + yaml.safe_dump(spec, sort_keys=False))
+    write_next_experiment(data_path, out_dir, tr, tr.q0_rad, [j + 1], int(nr.periods), settle_s, why, seed)
     return dict(base, spec="next_experiment.yaml", joint=j + 1, joints=[j + 1], separation_noise_floors=sep,
                 original_separation_noise_floors=orig_sep, period_s=float(tr.period_s), periods=int(nr.periods),
                 decisive=sep > DESIGN_TARGET_FLOORS, noise_floor_Nm=noise, why=why,
