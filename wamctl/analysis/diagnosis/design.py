@@ -256,14 +256,18 @@ def _build_columns(des: Design, name: str, jd: JointData, h, d: float) -> np.nda
         # that keep the directions together (a direction seen only early in the run would otherwise be
         # extrapolated in time). They are zero at the start of the run, so the friction columns are the levels
         # there, which the fit keeps non-negative; a time constant far beyond the run is a linear drift
-        F = columns(des, "friction", jd, None, d)
-        tb = declared_levels(des, jd)
-        ramp = -np.expm1(-jd.extra["t_rel"] / h)
-        return np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * ramp[:, None]
+        return drift_of(columns(des, "friction", jd, None, d), declared_levels(des, jd), jd.extra["t_rel"], h)
     if name == "backlash":
         dg = jd.extra["dgdq_full"]
         return sample(lambda p: (dg[p, 0] * np.sign(qd_f[p]))[:, None])
     raise ValueError(name)
+
+
+def drift_of(F: np.ndarray, tb: np.ndarray, t_s: np.ndarray, T_s: float) -> np.ndarray:
+    """(m, 2) a friction drift's columns: the Coulomb and the viscous torque of the declared levels ``tb`` (4,) on
+    the friction columns ``F`` (m, 4), each times ``1 - exp(-t / T)`` at times ``t_s`` (m,) from the run's start."""
+    ramp = -np.expm1(-np.asarray(t_s, float) / T_s)
+    return np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * ramp[:, None]
 
 
 def friction_columns(qd: np.ndarray, shape=None) -> np.ndarray:

@@ -29,6 +29,7 @@ import numpy as np
 
 from wamctl.analysis.blas import single_threaded_blas
 from wamctl.analysis.diagnosis.candidates import DRIFT_T_GRID_FRACTION, STRIBECK_VS_GRID_RAD_S, stribeck_columns
+from wamctl.analysis.diagnosis.design import drift_of
 from wamctl.model.friction import classic_friction_columns
 
 MIN_SPEED_RAD_S = 0.003       # a sample counts where the joint moves faster than this (the diagnosis' sweeps slide
@@ -63,10 +64,8 @@ class Hypotheses:
 
 def drift_columns(qd: np.ndarray, t_s: np.ndarray, T_s: float, tb: np.ndarray) -> np.ndarray:
     """(m, 2) the drift's columns (the Coulomb and the viscous torque of the levels ``tb`` times ``1 - exp(-t /
-    T)``), as the diagnosis' (:func:`wamctl.analysis.diagnosis.design.columns`, unsmoothed)."""
-    F = classic_friction_columns(qd)
-    ramp = -np.expm1(-np.asarray(t_s, float) / T_s)
-    return np.column_stack([F[:, :2] @ tb[:2], F[:, 2:] @ tb[2:]]) * ramp[:, None]
+    T)``), the diagnosis' columns (:func:`wamctl.analysis.diagnosis.design.drift_of`) unsmoothed."""
+    return drift_of(classic_friction_columns(qd), tb, t_s, T_s)
 
 
 def stribeck_torque(hyp: Hypotheses, qd: np.ndarray) -> np.ndarray:
