@@ -63,31 +63,15 @@ def moves_from_reference(t_s: np.ndarray, q_ref: np.ndarray, min_travel_rad: flo
     return out
 
 
-def _median(x: np.ndarray) -> float:
-    """``np.median`` of a 1-D float array, the same number (the middle element, or the mean of the middle two;
-    NaN when there is one), without its generic machinery (these loops call it thousands of times on a long
-    run)."""
-    x = np.asarray(x, float)
-    n = len(x)
-    if n == 0:
-        return float(np.median(x))
-    h = n // 2
-    kth = [h, n - 1] if n % 2 else [h - 1, h, n - 1]
-    p = np.partition(x, kth)
-    if np.isnan(p[-1]):
-        return float("nan")
-    return float(p[h]) if n % 2 else float((p[h - 1] + p[h]) / 2.0)
-
-
 def cruise_speed_rad_s(t_s: np.ndarray, q_ref: np.ndarray, baseline_s: float = 0.05) -> float:
     """The commanded cruise speed of one reference move (``t_s``, ``q_ref`` (m,)): the speed over a baseline of
     ``baseline_s`` at the move's top (the median of those within 2 % of the fastest). Over one sample, a log's
     jittered time stamps (a logger's jitter of 20 % of a period is common) would inflate the fastest speed by as
     much; over 50 ms they move it by a fraction of a percent."""
-    dt = float(_median(np.diff(t_s)))
+    dt = float(np.median(np.diff(t_s)))
     m = int(min(max(1, round(baseline_s / dt)), len(t_s) - 1))
     s = np.abs(q_ref[m:] - q_ref[:-m]) / (t_s[m:] - t_s[:-m])
-    return float(_median(s[s >= 0.98 * s.max()]))
+    return float(np.median(s[s >= 0.98 * s.max()]))
 
 
 def detect_moves(t_s: np.ndarray, q: np.ndarray, sigma_q: float | None = None, min_duration_s: float = 0.3,
@@ -156,7 +140,7 @@ def constant_velocity_stage(t_s: np.ndarray, q: np.ndarray, i0: int, i1: int, si
     t, x = t_s[i0:i1], q[i0:i1]
     if len(x) < 20:
         return Stage(i0, i0, "too few samples")
-    dt = float(_median(np.diff(t)))
+    dt = float(np.median(np.diff(t)))
     travel = x - x[0]
     total = travel[np.argmax(np.abs(travel))]
     if abs(total) < max(10 * sigma_q, 3 * step_rad, 1e-6):
@@ -175,7 +159,7 @@ def constant_velocity_stage(t_s: np.ndarray, q: np.ndarray, i0: int, i1: int, si
         c, v, tm = fit_line(t[lo:hi], x[lo:hi])
         r = x - (c + v * (t - tm))
         rs = r[lo:hi]
-        scale = max(1.4826 * float(_median(np.abs(rs - _median(rs)))), floor)
+        scale = max(1.4826 * float(np.median(np.abs(rs - np.median(rs)))), floor)
         band = band_sigmas * scale + 0.5 * step_rad
         ok = np.abs(r) <= band
         # grow from the centre of the current stage while inside the band (single outliers tolerated)
