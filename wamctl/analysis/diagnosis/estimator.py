@@ -72,6 +72,7 @@ from wamctl.analysis.diagnosis.arm import (
 from wamctl.analysis.diagnosis.augmented import MAX_SIM_SAMPLES, position_check
 from wamctl.analysis.diagnosis.candidates import ARM_ONLY, EFFECT_NAMES
 from wamctl.analysis.diagnosis.crossval import cv_terms
+from wamctl.analysis.diagnosis.delay_backlash import settle as delay_vs_gap
 from wamctl.analysis.diagnosis.design import JointData, columns, fit_theta, target_and_design
 from wamctl.analysis.diagnosis.honesty import against_declared, worse_warnings
 from wamctl.analysis.diagnosis.joint import JointResult, forward_select, joint_baseline, set_after
@@ -260,6 +261,7 @@ class ModelDiagnosis:
             for j in sig.joints:
                 onset_tests(self, j, tests)
             self._check_net_gain(tests, torque_tests)
+            delay_vs_gap(self, torque_tests, tests)      # a delay and a motor-side gap both kept: head to head
         self.effects_found_ = self._ranked_effects()
         self.ambiguous_ = self._ambiguous_groups()
         report_effects(self)

@@ -418,8 +418,27 @@ class PooledDiagnosis:
                 finding["pooled"] = dict(per["pooled"], named=True, basis=(
                     f"named at the breakaways by {', '.join(at_onsets)}; "
                     "the sliding samples pooled do not show it on their own"))
+            if name == "backlash" and onsets_only and per["pooled"]["named"] and self.delay_term_ is not None:
+                self._gap_or_delay(finding, j, runs)
             finding["decided_by"], finding["added_nothing"] = self._who_decided(finding, runs)
             self.findings_.append(finding)
+
+    def _gap_or_delay(self, finding: dict, j: int, runs: list[int]) -> None:
+        """A gap behind a motor-side encoder named from a run's onsets while the runs pooled named a delay: both
+        make the measurement part from the model's link where the joint starts again, and the delay is the arm's
+        (one for all runs): the onsets of every run that diagnosed the joint decide between them with that delay
+        (:func:`~wamctl.analysis.diagnosis.delay_backlash.pooled_head_to_head`). A name kept from one run gives
+        way when the runs pooled prefer the delay; recorded under ``delay_vs_gap``."""
+        from wamctl.analysis.diagnosis.delay_backlash import DECIDED_LOG_RATIO, pooled_head_to_head
+
+        h2h = pooled_head_to_head([self.diags[r] for r in runs], [self.labels[r] for r in runs], j,
+                                  float(self.delay_term_["h_all"]))
+        finding["delay_vs_gap"] = h2h
+        if h2h["outcome"] == "delay":
+            finding["pooled"] = dict(finding["pooled"], named=False, basis=(
+                f"the {h2h['delay_s'] * 1e3:.1f} ms delay named pooled explains the onsets of joint {j + 1} better "
+                f"than a gap (n log(RSS ratio) {h2h['log_ratio']:+.1f} summed over the runs, "
+                f"{-DECIDED_LOG_RATIO:g} decides)"))
 
     # -------------------------------------------------------------------------------- ambiguous joint-own groups
     def _joint_ambiguities(self, ms: list[_Member], runs: list[int]) -> None:
@@ -542,11 +561,13 @@ class PooledDiagnosis:
         d0 = self.diags[runs[0]]
         dec = DI.decide_pooled(parts, d0.n_blocks, d0.n_folds)
         out = dec["outcome"]
+        if out == "delay" and not any(p["excess_noise_floors"] >= DI.DECIDED_FLOORS for p in dec["per_run"]):
+            out = dec["outcome"] = self._delay_kept_or_gap(dec, runs)
         if out == "delay":
             d = float(dec["delay_s"])
             self.delay_term_ = {"name": "delay", "h_all": d, "h_fold": [d] * self.n_folds, "shared": True}
         if out == "ambiguous":
-            self.ambiguous_.append(["delay", "inertia"])
+            self.ambiguous_.append(["backlash", "delay"] if "gave_way_to" in dec else ["delay", "inertia"])
         t = dec["test"]
         per = {}
         for p in dec["per_run"]:        # each run alone: its own decision (no nested test: the two do not nest)
@@ -563,6 +584,24 @@ class PooledDiagnosis:
                        "ssr_ratio": t["ssr_ratio"], "named": out != "ambiguous"},
             "per_stack": per, "decided_by": dec["decided_by"], "added_nothing": dec["added_nothing"],
             "delay_or_inertia": dec})
+
+    def _delay_kept_or_gap(self, dec: dict, runs: list[int]) -> str:
+        """A delay kept pooled only because a run named it (:func:`~wamctl.analysis.diagnosis.delay_inertia.
+        decide_pooled`'s keep rule: no run's evidence decided it) gives way where some run kept a gap behind a
+        motor-side encoder and the onsets of the runs pooled, with the delay fitted pooled, prefer the gap
+        (:func:`~wamctl.analysis.diagnosis.delay_backlash.pooled_head_to_head`): ``"ambiguous"``, with
+        ``gave_way_to`` in the record; else ``"delay"``."""
+        from wamctl.analysis.diagnosis.delay_backlash import motor_gap_joints, pooled_head_to_head
+
+        gaps = sorted({j for r in runs for j in motor_gap_joints(self.diags[r])})
+        for j in gaps:
+            h2h = pooled_head_to_head([self.diags[r] for r in runs], [self.labels[r] for r in runs], j,
+                                      float(dec["fitted_delay_s"]))
+            if h2h["outcome"] == "backlash":
+                dec["gave_way_to"] = dict(h2h, name="backlash")
+                dec["decided_by"] = []
+                return "ambiguous"
+        return "delay"
 
     def _who_decided(self, finding: dict, runs: list[int], payload: bool = False) -> tuple[list[str], list[str]]:
         """The runs that decided a finding (alone named as pooled, or needed for it: without them the pooled

@@ -1,0 +1,103 @@
+"""A delay against a gap behind a motor-side encoder, told apart at a joint's onsets (issue 28, D8).
+
+The head to head of :mod:`wamctl.analysis.diagnosis.delay_backlash` on signed hidden travels made by each truth:
+a delay ``tau`` makes the measurement lag the model's link by about ``tau x speed`` at every onset (positions
+measured late), and the onset model run with a delay ``d`` leaves ``(tau - d) x speed``; a gap ``w`` on the motor
+side makes it lead by ``w`` at the reversals only, and a delay added to the model makes that lead longer.
+"""
+
+import numpy as np
+import pytest
+
+from wamctl.analysis.diagnosis import delay_backlash as DB
+
+TOL = 2e-4                              # detection tolerance, rad
+GRID = [0.0, *DB.DELAY_GRID_S[:12]]
+
+
+def _onsets(rng, n=16, same=4):
+    rev = np.r_[np.ones(n - same, bool), np.zeros(same, bool)]
+    speed = rng.uniform(0.1, 1.0, n)    # reversals at clearly different speeds
+    return rev, speed
+
+
+def _delay_truth(rng, tau_s=0.006, same=4):
+    rev, v = _onsets(rng, same=same)
+    noise = rng.normal(0, 0.2 * TOL, len(v))
+    return {d: (tau_s - d) * v + noise for d in GRID}, rev
+
+
+def _gap_truth(rng, gap_rad=0.004):
+    rev, v = _onsets(rng)
+    noise = rng.normal(0, 0.2 * TOL, len(v))
+    base = np.where(rev, -gap_rad * rng.uniform(0.7, 1.0, len(v)), 0.0) + noise
+    return {d: base - d * v for d in GRID}, rev
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_delay_is_named_delay_not_a_gap(seed):
+    travel, rev = _delay_truth(np.random.default_rng(seed))
+    r = DB.compare(travel, rev, TOL)
+    assert r["outcome"] == "delay"
+    assert r["log_ratio"] <= -DB.DECIDED_LOG_RATIO
+    assert r["delay_s"] == pytest.approx(0.006, abs=1.01e-3)      # the grid's step is 1 ms
+    assert r["rss_delay"] < 0.2 * r["rss_gap"]
+
+
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_a_motor_side_gap_is_named_backlash_not_a_delay(seed):
+    travel, rev = _gap_truth(np.random.default_rng(seed))
+    r = DB.compare(travel, rev, TOL)
+    assert r["outcome"] == "backlash"
+    assert r["log_ratio"] >= DB.DECIDED_LOG_RATIO
+    assert r["mean_reversal_travel_rad"] == pytest.approx(-0.0034, abs=0.0006)
+    assert r["gap_log_coef"] < 0                                  # the measurement leads
+
+
+def test_a_lag_at_the_reversals_is_not_a_motor_side_gap():
+    """A reversal term of the lag's sign is not the gap hypothesis (a gap on the motor side leads): on a sweep's
+    reversals (no same-direction onset) lagging by the delay the gap explains nothing."""
+    travel, rev = _delay_truth(np.random.default_rng(5), same=0)
+    r = DB.compare(travel, rev, TOL)
+    assert r["rss_gap"] == pytest.approx(r["rss_neither"])
+
+
+def test_too_few_reversals_are_untestable():
+    travel, rev = _gap_truth(np.random.default_rng(3))
+    rev = np.zeros_like(rev)
+    rev[:2] = True
+    r = DB.compare(travel, rev, TOL)
+    assert r["outcome"] == "untestable"
+    assert np.isnan(r["log_ratio"])
+
+
+def test_leads_against_speed():
+    """The reversals' leads against the speed: ``tau x speed`` (a delay) or one width (a gap), each decided when
+    the speeds differ; at one speed the two cannot part."""
+    rng = np.random.default_rng(0)
+    v = rng.uniform(0.1, 1.5, 20)
+    rev = np.ones(20, bool)
+    noise = rng.normal(0, 0.1 * TOL, 20)
+    r_d = DB.compare_speed(-(0.008 * v) + noise, rev, v, TOL)
+    assert r_d["outcome"] == "delay" and r_d["tau_s"] == pytest.approx(0.008, rel=0.05)
+    r_g = DB.compare_speed(np.full(20, -0.004) + noise, rev, v, TOL)
+    assert r_g["outcome"] == "backlash" and r_g["lead_rad"] == pytest.approx(0.004, rel=0.05)
+    one = np.full(20, 0.5)
+    r_1 = DB.compare_speed(np.full(20, -0.004) + noise, rev, one, TOL)
+    assert r_1["outcome"] == "ambiguous" and r_1["speed_spread"] == pytest.approx(1.0)
+
+
+def test_pooled_runs_add_their_evidence(monkeypatch):
+    """Runs pooled: each run's log-likelihood ratio added; two runs each short of deciding decide together."""
+    recs = iter([{"outcome": "ambiguous", "log_ratio": -4.0, "n": 8, "reversals": 6},
+                 {"outcome": "ambiguous", "log_ratio": -3.5, "n": 9, "reversals": 7}])
+    monkeypatch.setattr(DB, "head_to_head", lambda d, j, ds: dict(next(recs)))
+
+    class Run:
+        conclusive_ = True
+        joints_ = {6: None}
+
+    r = DB.pooled_head_to_head([Run(), Run()], ["run", "next"], 6, 0.006)
+    assert r["outcome"] == "delay"
+    assert r["log_ratio"] == pytest.approx(-7.5)
+    assert set(r["per_run"]) == {"run", "next"}

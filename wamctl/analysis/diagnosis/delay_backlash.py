@@ -1,0 +1,243 @@
+"""A measurement delay against a gap behind a motor-side encoder, told apart at a joint's onsets (no I/O).
+
+Both make the measurement lead the model's link where a joint starts to move again (issue 28, D8): a delay
+``d`` because the torque that moved the link to the measured position acted ``d`` earlier, a gap ``w`` on the
+motor side because the motor crosses the gap before it drives the link. What parts them:
+
+* a delay shifts the *whole* signal: its lead at an onset is the measured travel over ``d`` after the link
+  started, so it grows with the approach (a fast reversal, a steep torque slew) and it shows at onsets in the same
+  direction as well; the onset model run with the delay (:func:`~wamctl.analysis.diagnosis.onsets.joint_onsets`
+  with ``delay_s``) leaves no lead anywhere;
+* a gap is crossed only where the torque the drive passes to the link changes sign (reversals), by at most the
+  gap, whatever the speed: one width at the reversals, nothing at the other onsets.
+
+Each hypothesis is fitted to the signed hidden travel of every onset of the joint, on the backlash test's
+logarithmic scale (:func:`~wamctl.analysis.diagnosis.backlash.log_travel`):
+
+* ``H_D``: the travel under the onset model with one delay (on :data:`DELAY_GRID_S`, or about the delay the
+  torque residual chose), a common offset (with two or more same-direction onsets to set it);
+* ``H_G``: the travel under the onset model without a delay, the common offset and one width at the reversals,
+  a lead (a reversal term that says the measurement lags is not a gap behind a motor-side encoder: the offset
+  alone then).
+
+Each has one parameter beyond the offset, so the log-likelihood ratio ``n log(RSS_D / RSS_G)`` (Gaussian onsets,
+``n`` of them) is the evidence, as a difference of BIC (Kass & Raftery 1995: 6 is strong): ``backlash`` when it
+is at least :data:`DECIDED_LOG_RATIO`, ``delay`` when at most minus that, else ``ambiguous``. Where the run's
+onsets are all alike (a sweep's reversals at one speed) the two fit alike and the outcome is ``ambiguous``: a run
+with reversals at clearly different speeds tells them (:func:`reversal_speed_spread`).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+
+import numpy as np
+
+from wamctl.analysis.diagnosis.backlash import MIN_REVERSALS, log_travel
+
+DELAY_GRID_S = np.arange(1, 21) * 1e-3          # 1 to 20 ms (a longer delay makes libbarrett's PD loop unstable)
+DECIDED_LOG_RATIO = 6.0                         # n log(RSS ratio) that decides: a BIC difference of 6, "strong"
+NEAR_FACTORS = (0.5, 0.75, 1.0, 1.25, 1.5)      # about a delay the torque chose: these multiples of it
+
+
+def _onsets_at(diag, j: int, delay_s: float) -> dict:
+    """The onsets of 0-based joint ``j`` under its final model without a kept delay, with ``delay_s`` added to the
+    declared one (:func:`~wamctl.analysis.diagnosis.onsets.joint_onsets`)."""
+    from wamctl.analysis.diagnosis.onsets import joint_onsets, onset_model
+
+    m = onset_model(diag, j, exclude=("delay", "backlash"))
+    m = replace(m, delay_s=m.delay_declared_s + float(delay_s))
+    return joint_onsets(diag.design_, diag.dynamics_, diag.jd_[j], m)
+
+
+def _rss(v: np.ndarray, X: np.ndarray) -> float:
+    if X.shape[1] == 0:
+        return float(v @ v)
+    e = v - X @ np.linalg.lstsq(X, v, rcond=None)[0]
+    return float(e @ e)
+
+
+def compare(travel: dict, rev: np.ndarray, tol: float) -> dict:
+    """``H_D`` against ``H_G`` on the signed travels ``travel`` ({delay s: (k,) rad}, 0 included: the travel
+    without a delay) of ``k`` onsets (``rev`` (k,) bool: reversals; ``tol`` the detection tolerance, rad): the
+    onsets finite under every delay, each fitted by least squares on the logarithmic scale. Returns ``outcome``,
+    ``log_ratio`` (``n log(RSS_D / RSS_G)``: positive prefers the gap), both RSS, the delay ``H_D`` chose, the
+    width ``H_G`` fitted (rad, negative: the measurement leads), ``n`` and the reversals used."""
+    ok = np.all([np.isfinite(t) for t in travel.values()], axis=0)
+    rev = np.asarray(rev, bool)
+    n, n_rev = int(ok.sum()), int((rev & ok).sum())
+    out = {"n": n, "reversals": n_rev}
+    if n_rev < MIN_REVERSALS or n < 4:
+        return dict(out, outcome="untestable", log_ratio=float("nan"),
+                    why=f"{n_rev} reversals with a travel under every delay (at least {MIN_REVERSALS} needed)")
+    r = rev[ok].astype(float)
+    X0 = np.ones((n, 1)) if (n - n_rev) >= 2 else np.zeros((n, 0))
+    v0 = log_travel(travel[0.0][ok], tol)
+    rss_none = _rss(v0, X0)
+    Xg = np.column_stack([X0, r])
+    coef = np.linalg.lstsq(Xg, v0, rcond=None)[0]
+    # a gap on the motor side makes the measurement lead (negative travel): a reversal term of the other sign is
+    # not this hypothesis, which then explains no more than the offset
+    rss_g = _rss(v0, Xg) if coef[-1] < 0 else rss_none
+    delays = [d for d in travel if d > 0]
+    rss_d = {d: _rss(log_travel(travel[d][ok], tol), X0) for d in delays}
+    d_best = min(rss_d, key=rss_d.get)
+    floor = 1e-6 * max(rss_none, 1e-12)
+    lr = n * float(np.log(max(rss_d[d_best], floor) / max(rss_g, floor)))
+    lead = float(np.mean(travel[0.0][ok][rev[ok]]))
+    outcome = "backlash" if lr >= DECIDED_LOG_RATIO else "delay" if lr <= -DECIDED_LOG_RATIO else "ambiguous"
+    return dict(out, outcome=outcome, log_ratio=lr, rss_delay=rss_d[d_best], rss_gap=rss_g, rss_neither=rss_none,
+                delay_s=float(d_best), gap_log_coef=float(min(coef[-1], 0.0)), mean_reversal_travel_rad=lead)
+
+
+def head_to_head(diag, j: int, delay_s: float | None = None) -> dict:
+    """:func:`compare` at 0-based joint ``j`` of a fitted diagnosis: ``H_D`` on :data:`DELAY_GRID_S`, or with
+    ``delay_s`` (the arm's delay the torque residual chose) on :data:`NEAR_FACTORS` of it (one delay for all the
+    samples: the onsets' delay must be the torque's). Adds ``joint`` (1-based), ``speed_spread``
+    (:func:`reversal_speed_spread`)."""
+    grid = DELAY_GRID_S if delay_s is None or delay_s <= 0 else np.array(NEAR_FACTORS) * float(delay_s)
+    base = _onsets_at(diag, j, 0.0)
+    travel = {0.0: base["travel_rad"]}
+    for d in grid:
+        travel[float(d)] = _onsets_at(diag, j, float(d))["travel_rad"]
+    out = compare(travel, base["reversal"], float(base["tol_rad"]))
+    out.update(joint=j + 1, speed_spread=reversal_speed_spread(diag, j, base))
+    return out
+
+
+def reversal_speed_spread(diag, j: int, ons: dict) -> float:
+    """How different the joint's approaches to its reversals are: the ratio of the largest to the smallest mean
+    speed over the measured stall's reach after each reversal (1: all alike, a delay's lead and a gap's then
+    look alike), NaN without two reversals."""
+    sig = diag.design_.sig
+    v = []
+    for w, r in zip(ons.get("windows", []), ons["reversal"]):
+        if not r:
+            continue
+        ii = np.arange(w["end"], min(w["end"] + 2 * sig.reach, sig.n))
+        if len(ii) >= 2:
+            v.append(float(np.mean(np.abs(sig.qd_rad_s[ii, j]))))
+    v = [x for x in v if x > 0]
+    return float(max(v) / min(v)) if len(v) >= 2 else float("nan")
+
+
+def arm_delay_s(diag) -> float | None:
+    """The delay the run's torque residual kept (the median over the joints that kept it), None when none did."""
+    d = [t["h_all"] for r in diag.joints_.values() for t in r.kept if t["name"] == "delay"]
+    return float(np.median(d)) if d else None
+
+
+def motor_gap_joints(diag) -> list[int]:
+    """0-based joints where a gap behind a motor-side encoder was kept."""
+    return [j for j, r in diag.joints_.items()
+            if any(t["name"] == "backlash" and t.get("encoder_side") == "motor" for t in r.kept)]
+
+
+def reversal_speeds(diag, j: int, ons: dict) -> np.ndarray:
+    """(k,) the joint's mean measured speed (rad/s) over the reach of the smoothing filter after each onset."""
+    sig = diag.design_.sig
+    out = []
+    for w in ons.get("windows", []):
+        ii = np.arange(w["end"], min(w["end"] + 2 * sig.reach, sig.n))
+        out.append(float(np.mean(np.abs(sig.qd_rad_s[ii, j]))) if len(ii) else np.nan)
+    return np.asarray(out, float)
+
+
+def compare_speed(travel_rad: np.ndarray, rev: np.ndarray, speed_rad_s: np.ndarray, tol: float) -> dict:
+    """The leads at the reversals against the speed there: ``H_D`` a lead ``tau x speed`` (one ``tau`` >= 0 for
+    all), ``H_G`` one lead ``w`` whatever the speed; least squares in units of the detection tolerance ``tol``.
+    ``log_ratio = n log(RSS_D / RSS_G)`` (positive prefers the gap); ``speed_spread`` the largest over the
+    smallest speed (near 1 the two cannot part)."""
+    ok = np.isfinite(travel_rad) & np.isfinite(speed_rad_s) & np.asarray(rev, bool)
+    lead, v = -travel_rad[ok] / tol, speed_rad_s[ok]
+    n = int(ok.sum())
+    if n < MIN_REVERSALS or not (v > 0).any():
+        return {"n": n, "outcome": "untestable", "log_ratio": float("nan")}
+    tau = max(float(lead @ v / (v @ v)), 0.0)
+    w = max(float(np.mean(lead)), 0.0)
+    rss_d, rss_g = float(np.sum((lead - tau * v) ** 2)), float(np.sum((lead - w) ** 2))
+    floor = 1e-9 + 1e-6 * float(lead @ lead)
+    lr = n * float(np.log((rss_d + floor) / (rss_g + floor)))
+    outcome = "backlash" if lr >= DECIDED_LOG_RATIO else "delay" if lr <= -DECIDED_LOG_RATIO else "ambiguous"
+    spread = float(v.max() / max(v.min(), 1e-9))
+    return {"n": n, "outcome": outcome, "log_ratio": lr, "tau_s": tau * tol, "lead_rad": w * tol,
+            "rss_delay": rss_d, "rss_gap": rss_g, "speed_spread": spread}
+
+
+# ------------------------------------------------------------------------------------------------- one run
+def settle(diag, torque_tests: list[str], tests: list[str]) -> list[dict]:
+    """Where a run's diagnosis kept both a delay (from the torque residual, anywhere in the arm) and a gap behind a
+    motor-side encoder at a joint (from its onsets), the two are put head to head at that joint
+    (:func:`head_to_head` with the delay the torque chose): ``delay`` drops the gap there (the onsets' lead is the
+    delay's, said in the joint's backlash candidate); ``backlash`` diagnoses the joint again without the delay
+    (its onsets contradict the delay the torque residual chose: the measurement leads where the delay would make
+    it lag); ``ambiguous`` drops the gap and leaves the pair an ambiguous group at the joint. Returns the
+    records (also in ``diag.delay_vs_gap_``)."""
+    from wamctl.analysis.diagnosis.onset_tests import onset_tests
+
+    records = []
+    d_t = arm_delay_s(diag)
+    if d_t is None:
+        diag.delay_vs_gap_ = records
+        return records
+    for j in motor_gap_joints(diag):
+        r = head_to_head(diag, j, d_t)
+        r["delay_torque_s"] = d_t
+        records.append(r)
+        res = diag.joints_[j]
+        if r["outcome"] == "backlash":
+            if any(t["name"] == "delay" for t in res.kept):
+                why = (f"its onsets prefer a gap behind a motor-side encoder to the {d_t * 1e3:.1f} ms delay "
+                       f"(n log(RSS ratio) {r['log_ratio']:+.1f} over {r['n']} onsets)")
+                diag._rediagnose(j, torque_tests, "delay", why)
+                onset_tests(diag, j, tests)
+            continue
+        _drop_gap(diag, j, r)
+        if r["outcome"] == "ambiguous":
+            res.ambiguous.append({"names": ["backlash", "delay"], "evidence": {
+                "log_ratio": r["log_ratio"], "n_onsets": r["n"], "reversals": r["reversals"]}})
+    diag.delay_vs_gap_ = records
+    return records
+
+
+def _drop_gap(diag, j: int, r: dict) -> None:
+    """The motor-side gap at 0-based joint ``j`` left out (no torque-domain term: the kept list only), with why."""
+    res = diag.joints_[j]
+    res.kept = [t for t in res.kept if t["name"] != "backlash"]
+    why = ("the delay explains the onsets" if r["outcome"] == "delay" else
+           "ambiguous with the delay at the onsets") + (f" (n log(RSS ratio) {r['log_ratio']:+.1f} over {r['n']} "
+                                                      f"onsets, {DECIDED_LOG_RATIO:g} decides)")
+    from wamctl.analysis.diagnosis.joint import set_rms
+    from wamctl.analysis.diagnosis.onsets import stall_residual
+
+    if j in getattr(diag, "onsets_", {}):
+        res.stall_after = stall_residual(diag, j, diag.onsets_[j], after=True)
+        set_rms(res)
+    c = res.candidates.get("backlash")
+    if c is not None:
+        c.update(kept=False, reason=why, delay_vs_gap=r["outcome"])
+    diag.warnings_ = [w for w in diag.warnings_ if not (w.startswith(f"joint {j + 1}: backlash with the encoder "
+                                                                     "on the motor side"))]
+
+
+# ------------------------------------------------------------------------------------------------- runs pooled
+def pooled_head_to_head(diags: list, labels: list[str], j: int, delay_s: float | None) -> dict:
+    """:func:`head_to_head` at 0-based joint ``j`` in every run that diagnosed it and measured enough reversals
+    there, with one delay for all (``delay_s``: the delay the runs pooled chose; None: each run's onsets choose
+    it on the grid). The runs' onsets are independent: their log-likelihood ratios add. ``outcome`` from the sum
+    as in :func:`compare`; ``per_run`` each run's record."""
+    per, total = {}, 0.0
+    for d, lab in zip(diags, labels):
+        if not getattr(d, "conclusive_", False) or j not in d.joints_:
+            continue
+        try:
+            r = head_to_head(d, j, delay_s)
+        except (KeyError, ValueError, IndexError):        # a run without onset data at the joint: not counted
+            continue
+        per[lab] = {k: r[k] for k in ("outcome", "log_ratio", "n", "reversals") if k in r}
+        if np.isfinite(r.get("log_ratio", np.nan)):
+            total += float(r["log_ratio"])
+    tested = [k for k, v in per.items() if np.isfinite(v.get("log_ratio", np.nan))]
+    outcome = ("untestable" if not tested else "backlash" if total >= DECIDED_LOG_RATIO else
+               "delay" if total <= -DECIDED_LOG_RATIO else "ambiguous")
+    return {"joint": j + 1, "outcome": outcome, "log_ratio": total, "delay_s": delay_s, "per_run": per}
