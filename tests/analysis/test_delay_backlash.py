@@ -101,3 +101,37 @@ def test_pooled_runs_add_their_evidence(monkeypatch):
     assert r["outcome"] == "delay"
     assert r["log_ratio"] == pytest.approx(-7.5)
     assert set(r["per_run"]) == {"run", "next"}
+
+
+def test_reversals_at_one_rate_cannot_part_them_two_rates_can():
+    """The design's criterion: reversals all at one acceleration make a delay's lag one width (separation 0);
+    at two clearly different ones the delay's lags differ by more than the onset test's resolution."""
+    tol = 2e-4
+    one = DB.separation(np.full(12, 4.0), 0.006, 0.004, tol)
+    assert one["delay_true"] == pytest.approx(0.0, abs=1e-9) and one["separation"] == pytest.approx(0.0, abs=1e-9)
+    two = DB.separation(np.r_[np.full(6, 0.5), np.full(6, 20.0)], 0.006, 0.004, tol)
+    # the delay's lag: a t0 d + a d^2 / 2, t0 = sqrt(2 tol / a): 0.469 and 4.483 tolerances at 0.5 and 20 rad/s^2
+    lag = DB.predicted_leads(np.array([0.5, 20.0]), 0.006, tol) / tol
+    assert lag == pytest.approx([0.4693, 4.4833], rel=1e-3)
+    assert two["delay_true"] == pytest.approx((lag[1] - lag[0]) / 2, rel=1e-6)
+    assert two["separation"] > 0.5
+    assert two["total"] == pytest.approx(two["separation"] * np.sqrt(12))
+
+
+def test_the_design_finds_reversals_that_part_them():
+    """A designed run of joint 4 alone within excite's limits: its reversals part a 6 ms delay from a 4 mrad gap
+    by at least 2 tolerances over the run, more than a run whose reversals all come at one rate."""
+    from wamctl.analysis.identification.excitation import ExcitationLimits
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.friction import FrictionModel
+    from wamctl.specs.excitation import ExcitationLimitsSpec
+
+    lim = ExcitationLimitsSpec()
+    limits = ExcitationLimits(*lim.arrays(), 1 - lim.torque_margin, lim.max_cartesian_speed_m_s)
+    q0 = np.array([0.0, 0.0, 0.0, 1.5, 0.0, 0.0, 0.0])
+    tr, sep, scored = DB.design_two_speeds(WamDynamics(), FrictionModel.table_4_1(), q0, 3, limits, 0.006, 0.004,
+                                           2e-4, per_period=2)
+    assert tr.moving == [3]
+    assert sep["reversals"] >= 2 * 10
+    assert sep["total"] >= 2.0
+    assert sep["separation"] == pytest.approx(max(s for _, s in scored), rel=0.2)

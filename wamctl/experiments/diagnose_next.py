@@ -192,16 +192,28 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
                              gap_rad: float = BACKLASH_GAP_RAD, seed: int = 0) -> dict | None:
     """A gap behind a motor-side encoder against nothing (:mod:`wamctl.analysis.diagnosis.backlash_design`): for
     the suspected ``joints`` (0-based; default :func:`backlash_suspects`, most suspect first) the slow
-    back-and-forth of the joint alone that shows a gap of ``gap_rad`` best, about the pose where its gravity
-    torque changes sign (the link falls through the gap: a torque step) or where it rests on its own friction at
-    the reversals (the measurement leads the link by the gap), written as ``out_dir/next_experiment.yaml``; the
-    first suspect whose design reaches ``DESIGN_TARGET_FLOORS`` (else the best). ``{"spec", "hypotheses",
-    "joint", "gap_rad", "separation_noise_floors", "original_separation_noise_floors", "seen_by", "reversals",
-    "joints", "period_s", "crossing_pose_rad", "gravity_slope_Nm_rad", "noise_floor_Nm", "why"}``. None when no
-    joint is suspected; ``spec`` None with ``why`` when no crossing keeps within the limits."""
+    back-and-forth of the joint alone that shows a gap best, about the pose where its gravity torque changes sign
+    (the link falls through the gap: a torque step) or where it rests on its own friction at the reversals (the
+    measurement leads the link by the gap), written as ``out_dir/next_experiment.yaml``. The gap designed for: the
+    lead the run's onset test saw at the joint (a suspect for its lead), else ``gap_rad``. A reversal run is sized
+    to the power ``POWER_TARGET`` of the diagnosis' own backlash decision on it (its threshold, the scatter of the
+    run's onsets: :func:`~wamctl.analysis.diagnosis.backlash_design.size_reversal_run`) within ``MAX_RUN_S``, or
+    says it cannot. The first suspect whose design decides (else the best). ``{"spec", "hypotheses", "joint",
+    "gap_rad", "separation_noise_floors", "original_separation_noise_floors", "seen_by", "reversals", "power",
+    "power_se", "periods", "duration_s", "decisive", "power_curve", "joints", "period_s", "crossing_pose_rad",
+    "gravity_slope_Nm_rad", "noise_floor_Nm", "why"}``: for a reversal run ``separation_noise_floors`` is the
+    predicted median test statistic of the decision (the reversals' lead in its standard errors), and
+    ``original_separation_noise_floors`` the one the run's own test gave. None when no joint is suspected;
+    ``spec`` None with ``why`` when no crossing keeps within the limits."""
 
     from wamctl.analysis.diagnosis.backlash import MIN_BAND_TOLERANCES, MIN_REVERSALS
-    from wamctl.analysis.diagnosis.backlash_design import CROSSING_PERIODS, LINK_FRICTION_SHARE, design_crossing
+    from wamctl.analysis.diagnosis.backlash_design import (
+        MAX_RUN_S,
+        POWER_TARGET,
+        OnsetScatter,
+        design_crossing,
+        onset_scatter,
+    )
     from wamctl.analysis.diagnosis.onsets import detection_tolerance
 
     joints = backlash_suspects(diag) if joints is None else list(joints)
@@ -218,12 +230,19 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
         if not np.isfinite(noise) or noise <= 0:
             why_not.append(f"joint {j + 1}: no noise floor (held-out torque RMS) to design against")
             continue
-        tol = (getattr(diag, "onsets_", {}).get(j) or {}).get("tol_rad") or detection_tolerance(sig, j)[1]
+        ons = (getattr(diag, "onsets_", {}) or {}).get(j) or {}
+        tol = ons.get("tol_rad") or detection_tolerance(sig, j)[1]
+        scatter = (onset_scatter(ons["travel_rad"], ons["reversal"], tol) if len(ons.get("travel_rad", ()))
+                   else OnsetScatter())
         f = diag.friction_after(j)
         fc = min(f["fc_pos_Nm"], f["fc_neg_Nm"])
+        gap_j = leads[j][1] if j in leads else gap_rad
+        share = _link_share(diag, dyn, j, max(float(fc), 0.0), float(tol))
         try:
-            cr = design_crossing(dyn, friction, q0, j, gap_rad, noise, limits, sig.at("q", idx), sig.at("qd", idx),
-                                 tol_rad=float(tol), fc_Nm=max(float(fc), 0.0), run_qdd=sig.at("qdd", idx))
+            cr = design_crossing(dyn, friction, q0, j, gap_j, noise, limits, sig.at("q", idx), sig.at("qd", idx),
+                                 tol_rad=float(tol), fc_Nm=max(float(fc), 0.0), run_qdd=sig.at("qdd", idx),
+                                 scatter=scatter, threshold=float(diag.threshold_), n_folds=int(diag.n_folds),
+                                 share=share["share"])
         except ValueError as exc:
             why_not.append(f"joint {j + 1}: {exc}")
             continue
@@ -232,60 +251,124 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
                 and rv0[0] > DESIGN_TARGET_FLOORS and lead_rad is not None and lead_rad < MIN_BAND_TOLERANCES * tol):
             # the run's own reversals were chances enough for a gap to show: the measurement did not lead
             why_not.append(f"joint {j + 1}: at the run's own {rv0[1]} reversals where the link rests on its own "
-                           f"friction ({rv0[0]:.2g} noise floors for a {gap_rad * 1e3:g} mrad gap) the measurement "
+                           f"friction ({rv0[0]:.2g} noise floors for a {gap_j * 1e3:g} mrad gap) the measurement "
                            f"led by {max(lead_rad, 0.0) * 1e3:.2g} mrad, below the backlash test's resolution")
             continue
-        if best is None or cr.separation > best[1].separation:
+        decides = _backlash_decides(cr)
+        if best is None or (decides, _backlash_score(cr)) > (_backlash_decides(best[1]), _backlash_score(best[1])):
             g = dyn.gravity_many(sig.at("q", idx))[:, j]
-            best = (j, cr, noise, bool(g.min() > 0 or g.max() < 0), float(tol), float(fc))
-        if cr.separation >= DESIGN_TARGET_FLOORS:       # the most suspect joint that the design can show
+            best = (j, cr, noise, bool(g.min() > 0 or g.max() < 0), float(tol), float(fc), gap_j, scatter, share)
+        if decides:       # the most suspect joint that the design can decide
             break
     base = {"hypotheses": ["backlash", "none"], "gap_rad": gap_rad}
     if best is None:
         return dict(base, spec=None, why="no run designed to show a gap behind the encoder: " + "; ".join(why_not))
-    j, cr, noise, one_sign, tol, fc = best
+    j, cr, noise, one_sign, tol, fc, gap_j, scatter, share = best
+    base["gap_rad"] = gap_j
     tr = cr.trajectory
     seen = ("kept one sign over the run, so a gap behind a motor-side encoder was never crossed" if one_sign else
             "changed sign over the run")
-    rv, rv0 = cr.reversals, cr.reversals_original
+    rv, rv0, sz = cr.reversals, cr.reversals_original, cr.size
+    cand = diag.joints_[j].candidates.get("backlash") or {}
+    t_run = (float(np.sqrt(cand["F"])) if cand.get("encoder_side") == "motor" and cand.get("F") is not None
+             and np.isfinite(cand["F"]) else 0.0)
     if cr.seen_by == "reversals":
-        run_part = (f"the run's {rv0[2]} reversals, {rv0[1]} of them where the link rests on its own friction, "
-                    f"{cr.original:.2g} noise floors" if rv0 else "")
+        cr.original = t_run
+        run_part = (f"the run's {rv0[2]} reversals, {rv0[1]} of them where the link rests on its own friction; its "
+                    f"test statistic {t_run:.2g}" if rv0 else f"its test statistic {t_run:.2g}")
         qj = tr.evaluate(np.linspace(0.0, tr.period_s, 201))[0][:, j]
-        how = (f"moving joint {j + 1} alone slowly ({tr.period_s:g} s period, {CROSSING_PERIODS} periods) between "
-               f"{qj.min():.3f} and {qj.max():.3f} rad, the link comes to rest on its own friction at {rv[1]} of its "
-               f"{rv[2]} "
-               f"reversals (the torque the rigid link needs there below {LINK_FRICTION_SHARE:g} of the joint's "
-               f"{fc:.3g} N m Coulomb level, the share assumed on the link side) and the motor crosses the gap "
-               f"before it drives the link back: the measurement leads the link by the gap, {cr.separation:.2g} "
-               f"noise floors RMS per reversal (the floor: the backlash test's resolution, {MIN_BAND_TOLERANCES:g} "
-               f"detection tolerances of {tol:.2g} rad); the gravity step there {cr.torque_separation:.2g} noise "
-               "floors")
+        power = (f"the backlash decision's predicted power {sz['power']:.2f} +- {sz['power_se']:.2f} (its median "
+                 f"test statistic {sz['t_median']:.2g}; Monte Carlo of the diagnosis' own test at its threshold "
+                 f"{diag.threshold_:.2g}, the run's onsets' scatter: log travel sd {scatter.same_log_sd:.2g} from "
+                 f"{scatter.n_same} same-direction onsets, {scatter.lead_log_sd:.2g} from {scatter.n_lead} leads, "
+                 f"{'measured' if scatter.n_same >= 3 else 'assumed'})")
+        if sz["reached"]:
+            size = (f"{cr.periods} periods ({sz['duration_s']:g} s), the fewest that reach power {POWER_TARGET:g}: "
+                    f"{power}")
+        else:
+            size = (f"{cr.periods} periods ({sz['duration_s']:g} s, the most within {MAX_RUN_S:g} s) do not reach "
+                    f"power {POWER_TARGET:g}: {power}; this run may not decide")
+        how = (f"moving joint {j + 1} alone slowly ({tr.period_s:g} s period) between {qj.min():.3f} and "
+               f"{qj.max():.3f} rad, the link comes to rest on its own friction at {rv[1]} of its {rv[2]} reversals "
+               f"(the torque the rigid link needs there below {share['share']:.2g} of the joint's {fc:.3g} N m "
+               f"Coulomb level, {_share_words(share)}) and the motor crosses the gap before it drives "
+               f"the link back: the measurement leads the link by the gap; {size}; the gravity step there "
+               f"{cr.torque_separation:.2g} noise floors")
         lead = leads.get(j)
         trigger = (f"joint {j + 1}'s measurement led the link by {lead[1] * 1e3:.2g} mrad at reversals, too few to "
                    f"decide (onset test p = {lead[0]:.2g}, not below the threshold {diag.threshold_:.2g})"
                    if lead else f"joint {j + 1}'s residual was left structured and unexplained with nothing named "
                    "there; a gap behind a motor-side encoder is one of what it could be")
-        why = (f"{trigger} ({run_part}; a {gap_rad * 1e3:g} mrad gap); {how} (the run starts at that pose: move "
-               "the arm there first)")
+        why = (f"{trigger} ({run_part}; a {gap_j * 1e3:.2g} mrad gap designed for); {how} (the run starts at that "
+               "pose: move the arm there first)")
     else:
-        why = (f"joint {j + 1}'s gravity torque {seen} (a {gap_rad * 1e3:g} mrad gap: separation {cr.original:.2g} "
+        why = (f"joint {j + 1}'s gravity torque {seen} (a {gap_j * 1e3:.2g} mrad gap: separation {cr.original:.2g} "
                f"noise floors of {noise:.3g} N m); moving joint {j + 1} slowly ({tr.period_s:g} s period) about "
                f"{tr.q0_rad[j]:.3f} rad, where its "
                f"gravity torque changes sign ({cr.slope_Nm_rad:.3g} N m/rad), the link falls through the gap at each "
-               f"crossing: the residual steps by {gap_rad * cr.slope_Nm_rad:.2g} N m, {cr.separation:.2g} noise "
+               f"crossing: the residual steps by {gap_j * cr.slope_Nm_rad:.2g} N m, {cr.separation:.2g} noise "
                "floors RMS after friction and an offset are refitted (the run starts at the crossing pose: move the "
                "arm there first)")
-    if cr.separation <= DESIGN_TARGET_FLOORS:
-        why += f"; still below {DESIGN_TARGET_FLOORS:g}: only a larger gap would show on this joint"
-    write_next_experiment(data_path, out_dir, tr, tr.q0_rad, [j + 1],
-                          CROSSING_PERIODS if cr.seen_by == "reversals" else 3, 1.0, why, seed)
+        if sz is not None:
+            why += (f"; a reversal run would not decide it within {MAX_RUN_S:g} s (predicted power "
+                    f"{sz['power']:.2f})")
+        if cr.separation <= DESIGN_TARGET_FLOORS:
+            why += f"; still below {DESIGN_TARGET_FLOORS:g}: only a larger gap would show on this joint"
+    write_next_experiment(data_path, out_dir, tr, tr.q0_rad, [j + 1], cr.periods, 1.0, why, seed)
+    rev_run = cr.seen_by == "reversals"
     return dict(base, spec="next_experiment.yaml", joint=j + 1, joints=[j + 1],
                 separation_noise_floors=float(cr.separation), original_separation_noise_floors=float(cr.original),
                 seen_by=cr.seen_by,
-                reversals={"crossing": rv[1], "all": rv[2]} if rv is not None and cr.seen_by == "reversals" else None,
+                reversals={"crossing": rv[1], "all": rv[2]} if rv is not None and rev_run else None,
+                power=float(sz["power"]) if rev_run and sz else None,
+                power_se=float(sz["power_se"]) if rev_run and sz else None,
+                power_curve=[[int(n), float(p), float(t)] for n, p, t in sz["curve"]] if rev_run and sz else None,
+                periods=int(cr.periods), duration_s=float(cr.periods * tr.period_s),
+                decisive=_backlash_decides(cr),
                 period_s=float(tr.period_s), crossing_pose_rad=[float(x) for x in tr.q0_rad],
-                gravity_slope_Nm_rad=float(cr.slope_Nm_rad), noise_floor_Nm=noise, why=why)
+                gravity_slope_Nm_rad=float(cr.slope_Nm_rad), noise_floor_Nm=noise, link_friction_share=share,
+                why=why)
+
+
+def _link_share(diag, dyn, j: int, fc_Nm: float, tol_rad: float) -> dict:
+    """The link-side share of 0-based joint ``j``'s Coulomb friction its run's reversals bound
+    (:func:`~wamctl.analysis.diagnosis.backlash_design.link_share_from_run`: the torque the rigid link needed at
+    each measured turning point, and whether the measurement led there), or the assumed share without reversals."""
+    from wamctl.analysis.diagnosis.backlash_design import LINK_FRICTION_SHARE, link_share_from_run
+
+    ons = (getattr(diag, "onsets_", {}) or {}).get(j) or {}
+    listed = (diag.jd_[j].extra.get("_onsets") or {}).get(ons.get("tol_rad"))
+    if not ons or listed is None or len(listed) != len(ons["travel_rad"]) or not ons["reversal"].any():
+        return {"low": 0.0, "high": None, "crossed": 0, "held": 0, "share": LINK_FRICTION_SHARE, "estimated": False}
+    rev = np.flatnonzero(ons["reversal"])
+    turn = np.array([listed[i].turn if listed[i].turn >= 0 else listed[i].start for i in rev], int)
+    sig = diag.signals_
+    return link_share_from_run(dyn, sig.at("q", turn), sig.at("qd", turn), sig.at("qdd", turn), j,
+                               -ons["travel_rad"][rev], fc_Nm, tol_rad)
+
+
+def _share_words(share: dict) -> str:
+    """How the link-side friction share was had, for the why."""
+    hi = "" if share["high"] is None else f", at most {share['high']:.2g} where {share['held']} held"
+    if share["estimated"]:
+        return (f"the link-side share of the friction the run's reversals bound: at least {share['low']:.2g} where "
+                f"{share['crossed']} crossed the gap{hi}; the least taken")
+    return f"the link-side share assumed (the run's reversals did not bound it from below{hi})"
+
+
+def _backlash_decides(cr) -> bool:
+    """A backlash design decides: a reversal run reaching its power, or a gravity step above the target."""
+    if cr.seen_by == "reversals" and cr.size is not None:
+        return bool(cr.size["reached"])
+    return cr.separation >= DESIGN_TARGET_FLOORS
+
+
+def _backlash_score(cr) -> float:
+    """Between two designs that both decide or both do not: the predicted power of a reversal run, else the
+    gravity step's separation over the target (capped at 1)."""
+    if cr.seen_by == "reversals" and cr.size is not None:
+        return float(cr.size["power"])
+    return min(cr.separation / DESIGN_TARGET_FLOORS, 1.0)
 
 
 def next_experiment_friction(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -> dict | None:
@@ -349,10 +432,64 @@ def next_experiment_friction(diag, data, data_path: Path, out_dir: Path, seed: i
                             for p, k, v, s in nr.scored])
 
 
+def next_experiment_delay_or_gap(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -> dict | None:
+    """A measurement delay against a gap behind a motor-side encoder left ambiguous at a joint's onsets
+    (:func:`wamctl.analysis.diagnosis.delay_backlash.settle`): the motion of that joint alone whose reversals come
+    at clearly different accelerations (a delay's lag at a reversal grows with them, a gap's lead does not),
+    T-optimal among excite's Fourier candidates within its limits (:func:`~wamctl.analysis.diagnosis.
+    delay_backlash.design_two_speeds`), written as ``out_dir/next_experiment.yaml``. ``{"spec", "hypotheses",
+    "joint", "joints", "delay_s", "gap_rad", "separation_noise_floors", "original_separation_noise_floors",
+    "total_noise_floors", "reversals", "period_s", "decisive", "why", "candidates"}``; None when no joint is
+    ambiguous between them; ``spec`` None with ``why`` when no run keeps within the limits."""
+    from wamctl.analysis.diagnosis import delay_backlash as DB
+
+    joints = DB.ambiguous_joints(diag) if diag.joints_ else []
+    if not joints:
+        return None
+    j = joints[0]
+    rec = next((r for r in getattr(diag, "delay_vs_gap_", []) if r.get("joint") == j + 1), {})
+    dyn, limits, q0, friction = design_setting(diag, data)
+    ons = diag.onsets_.get(j) or {}
+    tol = float(ons.get("tol_rad") or 1e-3)
+    delay_s = float(rec.get("delay_torque_s") or DB.arm_delay_s(diag) or 0.005)
+    gap_rad = max(-float(rec.get("mean_reversal_travel_rad", -BACKLASH_GAP_RAD)), 5 * tol)
+    sig = diag.signals_
+    idx = diag.jd_[j].idx
+    q, qd, qdd = sig.at("q", idx)[:, j], sig.at("qd", idx)[:, j], sig.at("qdd", idx)[:, j]
+    orig = DB.separation(DB.reversal_accelerations(q, qd, qdd), delay_s, gap_rad, tol)
+    base = {"hypotheses": ["delay", "backlash"], "joint": j + 1, "delay_s": delay_s, "gap_rad": gap_rad}
+    try:
+        tr, sep, scored = DB.design_two_speeds(dyn, friction, q0, j, limits, delay_s, gap_rad, tol, seed=seed)
+    except ValueError as exc:
+        return dict(base, spec=None, why=f"delay or backlash at joint {j + 1}: ambiguous; no run designed to tell "
+                                         f"them: {exc} at the run's q0")
+    s = float(sep["separation"])
+    why = (f"joint {j + 1}'s onsets cannot tell a {delay_s * 1e3:.1f} ms measurement delay from a "
+           f"{gap_rad * 1e3:.2g} mrad gap behind a motor-side encoder (n log(RSS ratio) "
+           f"{rec.get('log_ratio', float('nan')):+.1f}; at the run's reversals they differ by "
+           f"{orig['separation']:.2g} detection tolerances of {tol:.2g} rad RMS per reversal); moving joint {j + 1} "
+           f"alone ({tr.period_s:g} s period, {tr.harmonics} harmonics, 10 periods) its {sep['reversals']} reversals "
+           "come at different accelerations: a delay's lag grows with the acceleration, a gap's lead does not; "
+           f"their predicted leads differ by {s:.2g} tolerances RMS per reversal ({sep['total']:.2g} over the run), "
+           "after each refits its own width or delay")
+    decisive = bool(sep["total"] >= 2.0)
+    if not decisive:
+        why += "; still below 2 over the run: a longer run is needed to tell them"
+    write_next_experiment(data_path, out_dir, tr, q0, [j + 1], 10, 1.0, why, seed)
+    return dict(base, spec="next_experiment.yaml", joints=[j + 1], separation_noise_floors=s,
+                original_separation_noise_floors=float(orig["separation"]), total_noise_floors=float(sep["total"]),
+                reversals=int(sep["reversals"]), period_s=float(tr.period_s), decisive=decisive, why=why,
+                candidates=[{"period_s": p, "separation_noise_floors": v} for p, v in scored])
+
+
 def next_experiment_more(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -> dict | None:
-    """The next experiments beyond the payload against link errors, in turn: a delay against inertia errors
+    """The next experiments beyond the payload against link errors, in turn: a delay against a motor-side gap left
+    ambiguous at a joint's onsets (:func:`next_experiment_delay_or_gap`), a delay against inertia errors
     (:func:`next_experiment_delay`), a friction drift against a Stribeck effect (:func:`next_experiment_friction`),
     then a gap behind a motor-side encoder (:func:`next_experiment_backlash`)."""
+    gap = next_experiment_delay_or_gap(diag, data, data_path, out_dir, seed)
+    if gap is not None and gap.get("spec"):
+        return gap
     out = next_experiment_delay(diag, data, data_path, out_dir, seed)
     if out is not None and out.get("spec"):
         return out
@@ -360,4 +497,4 @@ def next_experiment_more(diag, data, data_path: Path, out_dir: Path, seed: int =
     if fr is not None and fr.get("spec"):
         return fr
     more = next_experiment_backlash(diag, data, data_path, out_dir, seed=seed)
-    return more if (more is not None and more.get("spec")) else (out or fr or more)
+    return more if (more is not None and more.get("spec")) else (gap or out or fr or more)

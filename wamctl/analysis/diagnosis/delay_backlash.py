@@ -241,3 +241,86 @@ def pooled_head_to_head(diags: list, labels: list[str], j: int, delay_s: float |
     outcome = ("untestable" if not tested else "backlash" if total >= DECIDED_LOG_RATIO else
                "delay" if total <= -DECIDED_LOG_RATIO else "ambiguous")
     return {"joint": j + 1, "outcome": outcome, "log_ratio": total, "delay_s": delay_s, "per_run": per}
+
+
+# ------------------------------------------------------------------------------------------------- the design
+DESIGN_RATE_HZ = 500.0          # the reversals' accelerations read at the control rate
+PERIODS_S = (1.5, 3.0, 6.0)     # base periods tried: a slow and a fast harmonic give reversals at several rates
+
+
+def predicted_leads(qdd_rad_s2: np.ndarray, delay_s: float, tol_rad: float) -> np.ndarray:
+    """The lag a delay ``delay_s`` makes at reversals of accelerations ``qdd_rad_s2`` (k,) as the onset test
+    measures it (:func:`~wamctl.analysis.diagnosis.backlash.signed_travel`): the link leaves its turning point as
+    ``x = a t^2 / 2`` and has moved ``tol`` at ``t0 = sqrt(2 tol / a)``; the measurement shows that ``d`` later,
+    when the link has travelled ``x(t0 + d)``: ``x(t0 + d) - tol = a t0 d + a d^2 / 2``."""
+    a = np.maximum(np.abs(np.asarray(qdd_rad_s2, float)), 1e-9)
+    t0 = np.sqrt(2.0 * tol_rad / a)
+    return a * t0 * delay_s + 0.5 * a * delay_s ** 2
+
+
+def separation(qdd_rad_s2: np.ndarray, delay_s: float, gap_rad: float, tol_rad: float) -> dict:
+    """T-criterion of reversals with accelerations ``qdd_rad_s2`` (k,): each hypothesis true, the other refitted
+    (the gap one width, the delay one ``tau`` on a fine grid up to 20 ms), what it cannot reproduce, RMS per
+    reversal in detection tolerances (the onset test's resolution); ``separation`` the smaller, ``total`` it
+    times the square root of the reversals (what the onset head to head sums)."""
+    a = np.asarray(qdd_rad_s2, float)
+    if len(a) < MIN_REVERSALS:
+        return {"delay_true": 0.0, "gap_true": 0.0, "separation": 0.0, "total": 0.0, "reversals": len(a)}
+    lead_d = predicted_leads(a, delay_s, tol_rad) / tol_rad
+    delay_true = float(np.sqrt(np.mean((lead_d - lead_d.mean()) ** 2)))
+    g = gap_rad / tol_rad
+    taus = np.linspace(0.0, 0.02, 81)
+    gap_true = min(float(np.sqrt(np.mean((g - predicted_leads(a, t, tol_rad) / tol_rad) ** 2))) for t in taus)
+    sep = min(delay_true, gap_true)
+    return {"delay_true": delay_true, "gap_true": gap_true, "separation": sep, "total": sep * np.sqrt(len(a)),
+            "reversals": len(a)}
+
+
+def reversal_accelerations(q_rad: np.ndarray, qd_rad_s: np.ndarray, qdd_rad_s2: np.ndarray) -> np.ndarray:
+    """(k,) the acceleration at each reversal of a trajectory's joint (its speed changes sign)."""
+    s = np.sign(qd_rad_s)
+    k = np.flatnonzero(s[1:] * s[:-1] < 0)
+    return np.abs(qdd_rad_s2[k])
+
+
+def design_two_speeds(dynamics, friction, q0_rad, j: int, limits, delay_s: float, gap_rad: float, tol_rad: float,
+                      periods: int = 10, harmonics: int = 5, per_period: int = 4, fill: float = 0.95,
+                      seed: int = 0):
+    """T-optimal choice among Fourier candidates of 0-based joint ``j`` alone (excite's parametrisation, seeded,
+    ``per_period`` per base period of :data:`PERIODS_S`, each scaled within excite's limits): the one whose
+    reversals part a delay ``delay_s`` from a gap ``gap_rad`` most (:func:`separation` over ``periods`` periods).
+    Returns ``(trajectory, separation dict, scored [(period s, separation)])``; ValueError when no candidate keeps
+    within the limits."""
+    from wamctl.analysis.diagnosis.discriminate import best_within_limits, coarse_scaled
+    from wamctl.analysis.identification.excitation import FourierTrajectory
+
+    rng = np.random.default_rng(seed)
+
+    def score(traj):
+        t = np.arange(int(traj.period_s * DESIGN_RATE_HZ) * periods) / DESIGN_RATE_HZ
+        q, qd, qdd = traj.evaluate(t)
+        return separation(reversal_accelerations(q[:, j], qd[:, j], qdd[:, j]), delay_s, gap_rad, tol_rad)
+
+    cands, label = [], {}
+    for period in PERIODS_S:
+        for _ in range(per_period):
+            x = rng.normal(size=(1, 2 * (harmonics - 1))) / np.tile(np.arange(2, harmonics + 1), 2)
+            got = coarse_scaled(FourierTrajectory.from_free(q0_rad, period, [j], x, harmonics), limits, dynamics,
+                                friction, fill, rate_hz=50.0)
+            if got is None:
+                continue
+            label[len(cands)] = float(period)
+            cands.append((score(got[0])["separation"], got[0], len(cands)))
+    best = best_within_limits(cands, score, limits, dynamics, friction, fill)
+    if best is None:
+        raise ValueError("no candidate trajectory keeps within the limits")
+    traj, sep, _, checked = best
+    scored = [(label[k], float(checked[k] if checked.get(k) is not None else s)) for s, _, k in cands
+              if not (k in checked and checked[k] is None)]
+    return traj, sep, scored
+
+
+def ambiguous_joints(diag) -> list[int]:
+    """0-based joints where the run left a delay and a motor-side gap ambiguous (:func:`settle`)."""
+    return [j for j, r in diag.joints_.items()
+            if any(sorted(g["names"]) == ["backlash", "delay"] for g in r.ambiguous)]
