@@ -353,7 +353,7 @@ def _share_words(share: dict) -> str:
     if share["estimated"]:
         return (f"the link-side share of the friction the run's reversals bound: at least {share['low']:.2g} where "
                 f"{share['crossed']} crossed the gap{hi}; the least taken")
-    return f"the link-side share assumed (the run's reversals did not bound it from below{hi})"
+    return f"the link-side share assumed (no reversal of the run crossed a gap to bound it from below{hi})"
 
 
 def _backlash_decides(cr) -> bool:

@@ -160,19 +160,27 @@ def onset_tests(diag, j: int, tests: list[str]) -> None:
 
 
 def _test_backlash(diag, ons: dict) -> dict:
-    """Signed hidden travel at reversals beyond the same-direction onsets': a dead band behind the encoder (the
-    measurement lags: positive) or a gap on the motor side (it leads: negative) of at least
-    ``MIN_BAND_TOLERANCES`` detection tolerances. A dead band behind the encoder is crossed by the same amount at
-    every reversal: the travel is tested as it is; a gap on the motor side is crossed where the torque passed to
-    the link changes sign, wholly, partly or not at all: tested on its logarithmic scale. Each side is tested one
-    way (the fitted term must have that side's sign), so the pair keeps the false-alarm rate of one test. Onsets
-    where the model's link never moved are left out."""
-    tol = ons["tol_rad"]
+    """The backlash decision (:func:`backlash_decision`) on a joint's onsets ``ons``; onsets where the model's link
+    never moved are left out."""
     ok = np.isfinite(ons["travel_rad"])
-    d, rev, fold = ons["travel_rad"][ok], ons["reversal"][ok], ons["fold"][ok]
+    return backlash_decision(ons["travel_rad"][ok], ons["reversal"][ok], ons["fold"][ok], ons["tol_rad"],
+                             diag.n_folds, diag.threshold_)
+
+
+def backlash_decision(d: np.ndarray, rev: np.ndarray, fold: np.ndarray, tol: float, n_folds: int,
+                      threshold: float) -> dict:
+    """Signed hidden travel ``d`` (k,) rad at onsets (``rev`` (k,): reversals; ``fold`` (k,): their folds) beyond the
+    same-direction onsets': a dead band behind the encoder (the measurement lags: positive) or a gap on the motor
+    side (it leads: negative) of at least ``MIN_BAND_TOLERANCES`` detection tolerances ``tol``. A dead band behind
+    the encoder is crossed by the same amount at every reversal: the travel is tested as it is; a gap on the motor
+    side is crossed where the torque passed to the link changes sign, wholly, partly or not at all: tested on its
+    logarithmic scale. Each side is tested one way (the fitted term must have that side's sign), so the pair keeps
+    the false-alarm rate of one test. The rule the diagnosis applies, and the one a designed run's power is
+    predicted for (:mod:`wamctl.analysis.diagnosis.backlash_design`)."""
+    d, rev, fold = np.asarray(d, float), np.asarray(rev, bool), np.asarray(fold)
     w = band_width(d, rev) if rev.any() else 0.0
     side = "motor" if w < 0 else "link"
-    r = onset_candidate(log_travel(d, tol) if side == "motor" else d, rev, fold, diag.n_folds, diag.threshold_,
+    r = onset_candidate(log_travel(d, tol) if side == "motor" else d, rev, fold, n_folds, threshold,
                         lambda c: True, lambda c: "")
     if "coef" not in r:
         return r
@@ -191,6 +199,65 @@ def _test_backlash(diag, ons: dict) -> dict:
                  if side == "motor" else "the measurement lags the link at reversals: a dead band behind the encoder")
         r["reason"] = f"kept (seen at onsets: {where})"
     return r
+
+
+def backlash_decision_many(D: np.ndarray, rev: np.ndarray, fold: np.ndarray, tol: float, n_folds: int,
+                           threshold: float) -> dict:
+    """:func:`backlash_decision` on many draws at once: ``D`` (r, k) signed hidden travels (rad) of r runs sharing
+    the onsets' pattern ``rev`` (k,) and folds ``fold`` (k,), all finite (a designed run's power, predicted by
+    Monte Carlo: :func:`~wamctl.analysis.diagnosis.backlash_design.reversal_power`). The same rule, its held-out
+    fits written as the linear maps they are (the design matrices do not change between draws).
+    ``{"kept", "motor", "F", "p_value", "width_rad"}``, each (r,): the decision, whether it is the motor side's,
+    its F statistic, p-value and the signed dead band."""
+    from scipy import stats as st
+
+    D = np.atleast_2d(np.asarray(D, float))
+    rev, fold = np.asarray(rev, bool), np.asarray(fold)
+    r, k = D.shape
+    none = {"kept": np.zeros(r, bool), "motor": np.zeros(r, bool), "F": np.zeros(r), "p_value": np.ones(r),
+            "width_rad": np.full(r, np.nan)}
+    if k < MIN_ONSETS or rev.sum() < MIN_REVERSALS:
+        return none
+    # band_width, row by row
+    n_same = int((~rev).sum())
+    c = D[:, ~rev].mean(axis=1) if n_same >= 2 else np.zeros(r)
+    dr = D[:, rev]
+    lag = (dr - c[:, None]).mean(axis=1) >= 0
+    c = np.where(lag, np.maximum(c, 0.0), np.minimum(c, 0.0))
+    v = np.sort(dr - c[:, None], axis=1)
+    half = (int(rev.sum()) + 1) // 2
+    w = np.where(lag, v.mean(axis=1), np.minimum(v[:, :half].mean(axis=1), 0.0))
+    motor = w < 0
+    Y = np.where(motor[:, None], log_travel(D, tol), D)
+    X0, X1 = _onset_design(k, rev)
+
+    def heldout(X):
+        A = np.eye(k)
+        for f in range(n_folds):
+            te = fold == f
+            if not te.any() or X.shape[1] == 0:
+                continue
+            tr = ~te
+            A[np.ix_(te, tr)] -= X[te] @ np.linalg.pinv(X[tr])
+            A[np.ix_(te, te)] = np.eye(int(te.sum()))
+        return A
+
+    e0, e1 = Y @ heldout(X0).T, Y @ heldout(X1).T
+    ssr0, ssr1 = (e0 ** 2).sum(axis=1), (e1 ** 2).sum(axis=1)
+    k1 = X1.shape[1]
+    n_eff = max(float(k), k1 + 2.0)
+    df2 = max(n_eff - k1, 1.0)
+    better = (ssr1 < ssr0) & (ssr0 > 0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        F = np.where(better, (ssr0 - ssr1) / np.maximum(ssr1, 1e-300) * df2, 0.0)
+        ratio = np.where(ssr0 > 0, ssr1 / ssr0, 1.0)
+    lam = n_eff * MIN_EFFECT / (1.0 - MIN_EFFECT)
+    p = np.where(better, st.ncf.sf(F, 1, df2, lam), 1.0)
+    p = np.where(np.isfinite(p), p, np.where(F > 1, 0.0, 1.0))
+    dbic = n_eff * np.log(np.maximum(ratio, 1e-300)) + np.log(n_eff)
+    coef = Y @ np.linalg.pinv(X1)[-1]
+    kept = (p < threshold) & (dbic < 0) & (np.sign(coef) == np.sign(w)) & (np.abs(w) >= MIN_BAND_TOLERANCES * tol)
+    return {"kept": kept, "motor": motor, "F": F, "p_value": p, "width_rad": w}
 
 
 def _test_stribeck(diag, ons: dict, exclude_reversals: bool) -> dict:
