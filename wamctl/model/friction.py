@@ -241,10 +241,12 @@ def _friction_torque_kernel(qd, prm, out):
     for i in range(qd.shape[0]):
         for j in range(qd.shape[1]):
             v = qd[i, j]
-            if v > 0.0:
-                out[i, j] = _level(v, j, True, prm) + prm[2, j] * v
-            elif v < 0.0:
-                out[i, j] = -_level(v, j, False, prm) + prm[3, j] * v
+            # the direction as a bool variable, not the constants True / False: numba compiles a kernel once per
+            # literal argument, and _level with a runtime bool is the one the simulator's friction already uses
+            pos = v > 0.0
+            if pos or v < 0.0:
+                level = _level(v, j, pos, prm)
+                out[i, j] = level + prm[2, j] * v if pos else -level + prm[3, j] * v
             else:
                 out[i, j] = 0.0
 
