@@ -64,7 +64,7 @@ def fused_supported(backend, controller) -> bool:
         WamDynamics.gravity, WamDynamics.gravity_view)
 
 
-@njit(cache=True)
+@njit(cache=True, nogil=True)     # the diagnosis' position check runs its simulations side by side
 def _fused_ticks(k0, k1, row0, rows, t_ref, q_ref, ff, has_ff,
                  # declared model (gravity compensation)
                  g_on, g_rot, g_trans, g_inertia, g_arm, g_grav,

@@ -22,6 +22,8 @@ move keep the declared friction (Table 4.1, or the given model file's).
 from __future__ import annotations
 
 import logging
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 
@@ -42,6 +44,7 @@ log = logging.getLogger(__name__)
 WINDOW_SAMPLES = 20000           # a simulation of the position check runs this long at most, then restarts
 MAX_SIM_SAMPLES = 100000         # per model: runs up to this long are checked whole, longer ones in windows spread
 BOTH_HALVES_MAX = 20000          # up to this many samples checked both halves are scored (four simulations each)
+SIM_THREADS = min(4, os.cpu_count() or 1)    # the position check's simulations run side by side on this many threads
 
 
 def encoder_counts(q_raw: np.ndarray, joints: list[int]) -> int:
@@ -111,8 +114,9 @@ def plant_dict(diag, which: str = "after", thetas: dict | None = None) -> dict:
     sensors = dict(declared.sensors or {})
     sig = diag.signals_
     measured = sig.usable()          # not a gap's interpolated stretch (steps finer than a count)
-    sensors.setdefault("encoder_counts_per_rev", sig.memo("encoder_counts",
-                                                         lambda: encoder_counts(sig.q_raw_rad[measured], sig.joints)))
+    sensors.setdefault("encoder_counts_per_rev", sig.memo(
+        "encoder_counts", lambda: encoder_counts(sig.q_raw_rad if measured.all() else sig.q_raw_rad[measured],
+                                                 sig.joints)))        # (no copy of a log without gaps)
     out = {"friction": {"joints": joints}, "effects": effects, "sensors": sensors}
     if declared.links is not None:          # an identified arm (`wamctl identify`) stays the plant's rigid body
         out["links"] = declared.links.to_mapping()
@@ -259,27 +263,38 @@ def position_check(diag, data, simulate_positions, max_samples: int = MAX_SIM_SA
                                 gravity) for a, b in spans]
     traces = {"before": np.full((m, nj), np.nan), "after": np.full((m, nj), np.nan)}
     same = not diag.effects_found_
+    starts = np.cumsum([0] + [b - a for a, b in spans])        # each window's first row among ``rows``
+
+    def simulate(plant: dict, k: int) -> np.ndarray:
+        a, b = spans[k]
+        # the first window starts as the run does (at rest); later ones from the measured state
+        qd0 = None if a == 0 else sig.qd_rad_s[a]
+        return simulate_positions(plant, meta, t_run[a:b], sig.q_ref_rad[a:b], sig.q_raw_rad[a], ffs[k],
+                                  ctl_payload, qd0=qd0, t0_s=float(t_run[a] - t_run[0]))
+
     # up to BOTH_HALVES_MAX samples checked, both halves are scored (four simulations); above, one half (two)
+    models = []
     for h in ((0, 1) if m <= BOTH_HALVES_MAX else (1,)):
         if not any((half == h).any() for half in half_t.values()):
             continue        # no sample of this half in the windows simulated (a long run's first block)
         thetas = diag.refit(lambda jd, h=h: half_fit[jd.j] != h)       # fit on the other half
-        for which in ("before", "after"):
-            if which == "after" and same:
-                continue
-            plant = plant_dict(diag, which, thetas)
-            q_sim = np.full((m, nj), np.nan)
-            at = 0
-            for (a, b), ff in zip(spans, ffs):
-                # the first window starts as the run does (at rest); later ones from the measured state
-                qd0 = None if a == 0 else sig.qd_rad_s[a]
-                q_sim[at:at + b - a] = simulate_positions(plant, meta, t_run[a:b], sig.q_ref_rad[a:b],
-                                                          sig.q_raw_rad[a], ff, ctl_payload, qd0=qd0,
-                                                          t0_s=float(t_run[a] - t_run[0]))
-                at += b - a
-            for j in range(nj):
-                sel = half_t[j] == h if j in half_t else np.ones(m, bool)
-                traces[which][sel, j] = q_sim[sel, j]
+        models += [(h, which, plant_dict(diag, which, thetas)) for which in ("before", "after")
+                   if not (which == "after" and same)]
+    # every window of every model is its own simulation from its own start state: they run side by side (the
+    # compiled loop releases the interpreter), each writing its own rows, so the traces are those of one by one
+    jobs = [(i, k) for i in range(len(models)) for k in range(len(spans))]
+    workers = min(len(jobs), SIM_THREADS)
+    if workers > 1:
+        with ThreadPoolExecutor(workers) as pool:
+            sims = list(pool.map(lambda job: simulate(models[job[0]][2], job[1]), jobs))
+    else:
+        sims = [simulate(models[i][2], k) for i, k in jobs]
+    for (i, k), q_win in zip(jobs, sims):           # in the order of the loop one by one (a later model wins)
+        h, which = models[i][0], models[i][1]
+        rows_k = slice(starts[k], starts[k + 1])
+        for j in range(nj):
+            sel = half_t[j][rows_k] == h if j in half_t else np.ones(len(q_win), bool)
+            traces[which][rows_k][sel, j] = q_win[sel, j]
     if same:
         traces["after"] = traces["before"].copy()
     q_meas = sig.q_raw_rad[rows]

@@ -4,6 +4,7 @@ quantisation step of an encoder signal, a least-squares line and batch-means sta
 from __future__ import annotations
 
 import math
+from functools import lru_cache
 
 import numpy as np
 from scipy import stats
@@ -74,4 +75,11 @@ def batch_mean_se(x: np.ndarray, blocks: int = 10) -> tuple[float, float]:
         return float("nan"), float("nan")
     means = np.array([b.mean() for b in np.array_split(x, k)])
     se = float(means.std(ddof=1) / math.sqrt(k))
-    return se, float(stats.t.ppf(0.975, k - 1) * se)
+    return se, t975(k - 1) * se
+
+
+@lru_cache(maxsize=64)
+def t975(dof: int) -> float:
+    """The 97.5 % quantile of Student's t with ``dof`` degrees of freedom (kept: scipy's ``ppf`` costs half a
+    millisecond a call, and a long run's friction map asks for the same few hundreds of times)."""
+    return float(stats.t.ppf(0.975, dof))

@@ -5,11 +5,9 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from functools import lru_cache
 
 import numpy as np
 import pandas as pd
-from scipy import stats
 
 from wamctl.analysis.friction_id.segments import (
     Move,
@@ -24,6 +22,7 @@ from wamctl.analysis.friction_id.signals import (
     position_noise_rad,
     quantisation_step_rad,
     savgol_derivative,
+    t975,
 )
 
 MAP_COLUMNS = ["joint", "move", "direction", "v_cmd_rad_s", "t_start_s", "t_end_s", "n_samples",
@@ -131,12 +130,6 @@ def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndar
     return df
 
 
-@lru_cache(maxsize=64)
-def _t975(dof: int) -> float:
-    """The 97.5 % quantile of Student's t with ``dof`` degrees of freedom (one per stage: scipy's is slow)."""
-    return float(stats.t.ppf(0.975, dof))
-
-
 def _stage_velocity(t_s: np.ndarray, x: np.ndarray, v_fine: np.ndarray, m: Move, st: Stage,
                     o: MapOptions) -> dict:
     """The velocity columns of one stage of joint position ``x``, and its rejection when it was not in steady
@@ -146,9 +139,11 @@ def _stage_velocity(t_s: np.ndarray, x: np.ndarray, v_fine: np.ndarray, m: Move,
     # velocity spread and the CI of the mean velocity from block slopes
     nb = min(10, (st.s1 - st.s0) // 25)
     if nb >= 3:
-        blocks = np.array_split(np.arange(st.s0, st.s1), nb)
-        bv = np.array([fit_line(t_s[b], x[b])[1] for b in blocks])
-        v_ci = float(_t975(nb - 1) * bv.std(ddof=1) / math.sqrt(nb))
+        # the blocks of np.array_split, as slices (views: the same numbers as the copies, without the copies)
+        size, extra = divmod(st.s1 - st.s0, nb)
+        ends = st.s0 + np.cumsum([size + 1] * extra + [size] * (nb - extra))
+        bv = np.array([fit_line(t_s[a:b], x[a:b])[1] for a, b in zip(np.r_[st.s0, ends[:-1]], ends)])
+        v_ci = float(t975(nb - 1) * bv.std(ddof=1) / math.sqrt(nb))
     else:
         v_ci = float("nan")
     vf = v_fine[sl]
