@@ -135,3 +135,36 @@ def test_the_design_finds_reversals_that_part_them():
     assert sep["reversals"] >= 2 * 10
     assert sep["total"] >= 2.0
     assert sep["separation"] == pytest.approx(max(s for _, s in scored), rel=0.2)
+
+
+@pytest.fixture(scope="module")
+def gap_run(tmp_path_factory):
+    """The independent generator's dev case ``backlash-000`` (a motor-side gap at joint 5), diagnosed."""
+    from gen_independent import cases, generate
+
+    from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
+    from wamctl.runs.measured import load_run_data
+
+    case = next(c for c in cases(1, 0, 0, 0) if c["id"] == "backlash-000")
+    d = tmp_path_factory.mktemp("gap")
+    generate(case, d)
+    return ModelDiagnosis().fit(load_run_data(d))
+
+
+def test_a_delay_kept_beside_a_motor_side_gap_gives_way_at_the_gap(gap_run):
+    """One run: a motor-side gap kept at joint 5 and a 5 ms delay kept there too (as the torque residual of a
+    sweep with a gap once chose, report backlash-004): the onsets, which lead where a delay would make them lag,
+    prefer the gap; the joint is diagnosed again without the delay, the gap stays named."""
+    diag = gap_run
+    j = 4
+    assert DB.motor_gap_joints(diag) == [j]
+    diag.joints_[j].kept.append({"name": "delay", "h_all": 0.005, "h_fold": [0.005] * diag.n_folds,
+                                 "evidence": {"p_value": 1e-6}, "gain": 0.05})
+    torque = [c for c in diag.candidates if c not in ("backlash", "link_parameters")]
+    recs = DB.settle(diag, torque, torque + ["backlash"])
+    assert [(r["joint"], r["outcome"]) for r in recs] == [(5, "backlash")]
+    assert recs[0]["log_ratio"] > 3 * DB.DECIDED_LOG_RATIO
+    assert recs[0]["mean_reversal_travel_rad"] < -1e-3          # the measurement leads by millimetres of rad
+    names = [t["name"] for t in diag.joints_[j].kept]
+    assert "delay" not in names and "backlash" in names
+    assert "onsets prefer a gap" in diag.rejected_[j]["delay"]
