@@ -87,20 +87,44 @@ def test_leads_against_speed():
     assert r_1["outcome"] == "ambiguous" and r_1["speed_spread"] == pytest.approx(1.0)
 
 
-def test_pooled_runs_add_their_evidence(monkeypatch):
-    """Runs pooled: each run's log-likelihood ratio added; two runs each short of deciding decide together."""
-    recs = iter([{"outcome": "ambiguous", "log_ratio": -4.0, "n": 8, "reversals": 6},
-                 {"outcome": "ambiguous", "log_ratio": -3.5, "n": 9, "reversals": 7}])
-    monkeypatch.setattr(DB, "head_to_head", lambda d, j, ds: dict(next(recs)))
+def _fake_runs(monkeypatch, truths):
+    """Runs whose onsets at joint 7 each truth makes (``"gap"``, ``"delay"``), served to the pooled head to head
+    in place of the onset model."""
+    data = {}
+    for r, t in enumerate(truths):
+        travel, rev = (_gap_truth if t == "gap" else _delay_truth)(np.random.default_rng(10 + r))
+        v = np.random.default_rng(10 + r).uniform(0.1, 1.0, len(rev))
+        data[r] = (travel[0.0], rev, v, t)
+
+    def onsets_at(d, j, delay_s):
+        base, rev, v, t = data[d.r]
+        return {"travel_rad": base - delay_s * v, "reversal": rev, "tol_rad": TOL}
+
+    monkeypatch.setattr(DB, "_onsets_at", onsets_at)
 
     class Run:
         conclusive_ = True
         joints_ = {6: None}
 
-    r = DB.pooled_head_to_head([Run(), Run()], ["run", "next"], 6, 0.006)
-    assert r["outcome"] == "delay"
-    assert r["log_ratio"] == pytest.approx(-7.5)
-    assert set(r["per_run"]) == {"run", "next"}
+        def __init__(self, r):
+            self.r = r
+
+    return [Run(r) for r in range(len(truths))]
+
+
+def test_pooled_runs_share_one_width(monkeypatch):
+    """Runs pooled: one gap width and one delay for all runs (the arm's). Two runs whose reversals lead by a gap
+    decide ``backlash``; a run whose reversals lead stacked with one whose onsets lag by a delay does not: the
+    shared width cannot be both."""
+    runs = _fake_runs(monkeypatch, ["gap", "gap"])
+    r = DB.pooled_head_to_head(runs, ["a", "b"], 6, 0.006)
+    assert r["outcome"] == "backlash" and r["log_ratio"] >= DB.DECIDED_LOG_RATIO
+    assert set(r["per_run"]) == {"a", "b"}
+    runs = _fake_runs(monkeypatch, ["gap", "delay"])
+    one = DB.pooled_head_to_head(runs[:1], ["a"], 6, 0.006)
+    both = DB.pooled_head_to_head(runs, ["a", "b"], 6, 0.006)
+    assert one["outcome"] == "backlash"
+    assert both["outcome"] != "backlash" and both["log_ratio"] < one["log_ratio"]
 
 
 def test_reversals_at_one_rate_cannot_part_them_two_rates_can():

@@ -38,6 +38,8 @@ from wamctl.analysis.diagnosis.backlash import MIN_REVERSALS, log_travel
 DELAY_GRID_S = np.arange(1, 21) * 1e-3          # 1 to 20 ms (a longer delay makes libbarrett's PD loop unstable)
 DECIDED_LOG_RATIO = 6.0                         # n log(RSS ratio) that decides: a BIC difference of 6, "strong"
 NEAR_FACTORS = (0.5, 0.75, 1.0, 1.25, 1.5)      # about a delay the torque chose: these multiples of it
+OVERTURN_LOG_RATIO = 10.0                       # runs pooled overturn a name a run made on "very strong" evidence
+                                                # only (a BIC difference above 10, Kass & Raftery 1995)
 
 
 def _onsets_at(diag, j: int, delay_s: float) -> dict:
@@ -57,21 +59,26 @@ def _rss(v: np.ndarray, X: np.ndarray) -> float:
     return float(e @ e)
 
 
-def compare(travel: dict, rev: np.ndarray, tol: float) -> dict:
+def compare(travel: dict, rev: np.ndarray, tol, run: np.ndarray | None = None) -> dict:
     """``H_D`` against ``H_G`` on the signed travels ``travel`` ({delay s: (k,) rad}, 0 included: the travel
     without a delay) of ``k`` onsets (``rev`` (k,) bool: reversals; ``tol`` the detection tolerance, rad): the
     onsets finite under every delay, each fitted by least squares on the logarithmic scale. Returns ``outcome``,
     ``log_ratio`` (``n log(RSS_D / RSS_G)``: positive prefers the gap), both RSS, the delay ``H_D`` chose, the
-    width ``H_G`` fitted (rad, negative: the measurement leads), ``n`` and the reversals used."""
+    width ``H_G`` fitted (rad, negative: the measurement leads), ``n`` and the reversals used. Several runs
+    stacked: ``run`` (k,) labels each onset's run (each run its own offset, from two same-direction onsets; one
+    width and one delay for all: the arm's), ``tol`` a float or (k,) per onset."""
     ok = np.all([np.isfinite(t) for t in travel.values()], axis=0)
     rev = np.asarray(rev, bool)
+    tol = np.broadcast_to(np.asarray(tol, float), rev.shape)[ok]
+    run = np.zeros(len(rev), int) if run is None else np.asarray(run)
     n, n_rev = int(ok.sum()), int((rev & ok).sum())
     out = {"n": n, "reversals": n_rev}
     if n_rev < MIN_REVERSALS or n < 4:
         return dict(out, outcome="untestable", log_ratio=float("nan"),
                     why=f"{n_rev} reversals with a travel under every delay (at least {MIN_REVERSALS} needed)")
-    r = rev[ok].astype(float)
-    X0 = np.ones((n, 1)) if (n - n_rev) >= 2 else np.zeros((n, 0))
+    r, ro = rev[ok].astype(float), run[ok]
+    X0 = np.column_stack([np.zeros(n)] + [(ro == u).astype(float) for u in np.unique(ro)
+                                          if ((ro == u) & (r == 0)).sum() >= 2])[:, 1:]
     v0 = log_travel(travel[0.0][ok], tol)
     rss_none = _rss(v0, X0)
     Xg = np.column_stack([X0, r])
@@ -222,25 +229,35 @@ def _drop_gap(diag, j: int, r: dict) -> None:
 
 # ------------------------------------------------------------------------------------------------- runs pooled
 def pooled_head_to_head(diags: list, labels: list[str], j: int, delay_s: float | None) -> dict:
-    """:func:`head_to_head` at 0-based joint ``j`` in every run that diagnosed it and measured enough reversals
-    there, with one delay for all (``delay_s``: the delay the runs pooled chose; None: each run's onsets choose
-    it on the grid). The runs' onsets are independent: their log-likelihood ratios add. ``outcome`` from the sum
-    as in :func:`compare`; ``per_run`` each run's record."""
-    per, total = {}, 0.0
-    for d, lab in zip(diags, labels):
+    """:func:`compare` at 0-based joint ``j`` on the onsets of every run that diagnosed it, stacked: one gap
+    width and one delay for all the runs (the arm's: a gap does not change between runs, nor does the delay; each
+    run its own offset), the delay about ``delay_s`` (the delay the runs pooled chose; None: the grid). A run
+    whose reversals lag cannot have the others' lead: the shared width weighs every run's onsets. ``per_run``:
+    each run's onsets counted."""
+    grid = DELAY_GRID_S if delay_s is None or delay_s <= 0 else np.array(NEAR_FACTORS) * float(delay_s)
+    keys = [0.0] + [float(d) for d in grid]
+    travel, rev, tol, run, per = {k: [] for k in keys}, [], [], [], {}
+    for r, (d, lab) in enumerate(zip(diags, labels)):
         if not getattr(d, "conclusive_", False) or j not in d.joints_:
             continue
         try:
-            r = head_to_head(d, j, delay_s)
+            ons = {k: _onsets_at(d, j, k) for k in keys}
         except (KeyError, ValueError, IndexError):        # a run without onset data at the joint: not counted
             continue
-        per[lab] = {k: r[k] for k in ("outcome", "log_ratio", "n", "reversals") if k in r}
-        if np.isfinite(r.get("log_ratio", np.nan)):
-            total += float(r["log_ratio"])
-    tested = [k for k, v in per.items() if np.isfinite(v.get("log_ratio", np.nan))]
-    outcome = ("untestable" if not tested else "backlash" if total >= DECIDED_LOG_RATIO else
-               "delay" if total <= -DECIDED_LOG_RATIO else "ambiguous")
-    return {"joint": j + 1, "outcome": outcome, "log_ratio": total, "delay_s": delay_s, "per_run": per}
+        base = ons[0.0]
+        for k in keys:
+            travel[k].append(ons[k]["travel_rad"])
+        rev.append(base["reversal"])
+        tol.append(np.full(len(base["reversal"]), float(base["tol_rad"])))
+        run.append(np.full(len(base["reversal"]), r))
+        per[lab] = {"onsets": int(len(base["reversal"])), "reversals": int(np.sum(base["reversal"]))}
+    if not per:
+        return {"joint": j + 1, "outcome": "untestable", "log_ratio": float("nan"), "delay_s": delay_s,
+                "per_run": per}
+    out = compare({k: np.concatenate(v) for k, v in travel.items()}, np.concatenate(rev), np.concatenate(tol),
+                  np.concatenate(run))
+    return dict(out, joint=j + 1, delay_s=delay_s if out.get("delay_s") is None else out["delay_s"],
+                delay_pooled_s=delay_s, per_run=per)
 
 
 # ------------------------------------------------------------------------------------------------- the design

@@ -428,17 +428,18 @@ class PooledDiagnosis:
         make the measurement part from the model's link where the joint starts again, and the delay is the arm's
         (one for all runs): the onsets of every run that diagnosed the joint decide between them with that delay
         (:func:`~wamctl.analysis.diagnosis.delay_backlash.pooled_head_to_head`). A name kept from one run gives
-        way when the runs pooled prefer the delay; recorded under ``delay_vs_gap``."""
-        from wamctl.analysis.diagnosis.delay_backlash import DECIDED_LOG_RATIO, pooled_head_to_head
+        way when the runs pooled prefer the delay very strongly (:data:`~wamctl.analysis.diagnosis.delay_backlash.
+        OVERTURN_LOG_RATIO`); recorded under ``delay_vs_gap``."""
+        from wamctl.analysis.diagnosis.delay_backlash import OVERTURN_LOG_RATIO, pooled_head_to_head
 
         h2h = pooled_head_to_head([self.diags[r] for r in runs], [self.labels[r] for r in runs], j,
                                   float(self.delay_term_["h_all"]))
         finding["delay_vs_gap"] = h2h
-        if h2h["outcome"] == "delay":
+        if h2h["log_ratio"] <= -OVERTURN_LOG_RATIO:
             finding["pooled"] = dict(finding["pooled"], named=False, basis=(
                 f"the {h2h['delay_s'] * 1e3:.1f} ms delay named pooled explains the onsets of joint {j + 1} better "
-                f"than a gap (n log(RSS ratio) {h2h['log_ratio']:+.1f} summed over the runs, "
-                f"{-DECIDED_LOG_RATIO:g} decides)"))
+                f"than a gap (n log(RSS ratio) {h2h['log_ratio']:+.1f} over the runs' onsets stacked, "
+                f"{-OVERTURN_LOG_RATIO:g} overturns a run's name)"))
 
     # -------------------------------------------------------------------------------- ambiguous joint-own groups
     def _joint_ambiguities(self, ms: list[_Member], runs: list[int]) -> None:
@@ -588,16 +589,21 @@ class PooledDiagnosis:
     def _delay_kept_or_gap(self, dec: dict, runs: list[int]) -> str:
         """A delay kept pooled only because a run named it (:func:`~wamctl.analysis.diagnosis.delay_inertia.
         decide_pooled`'s keep rule: no run's evidence decided it) gives way where some run kept a gap behind a
-        motor-side encoder and the onsets of the runs pooled, with the delay fitted pooled, prefer the gap
+        motor-side encoder and the onsets of the runs pooled, with the delay fitted pooled, prefer the gap very
+        strongly (:data:`~wamctl.analysis.diagnosis.delay_backlash.OVERTURN_LOG_RATIO`)
         (:func:`~wamctl.analysis.diagnosis.delay_backlash.pooled_head_to_head`): ``"ambiguous"``, with
         ``gave_way_to`` in the record; else ``"delay"``."""
-        from wamctl.analysis.diagnosis.delay_backlash import motor_gap_joints, pooled_head_to_head
+        from wamctl.analysis.diagnosis.delay_backlash import (
+            OVERTURN_LOG_RATIO,
+            motor_gap_joints,
+            pooled_head_to_head,
+        )
 
         gaps = sorted({j for r in runs for j in motor_gap_joints(self.diags[r])})
         for j in gaps:
             h2h = pooled_head_to_head([self.diags[r] for r in runs], [self.labels[r] for r in runs], j,
                                       float(dec["fitted_delay_s"]))
-            if h2h["outcome"] == "backlash":
+            if h2h["log_ratio"] >= OVERTURN_LOG_RATIO:
                 dec["gave_way_to"] = dict(h2h, name="backlash")
                 dec["decided_by"] = []
                 return "ambiguous"
