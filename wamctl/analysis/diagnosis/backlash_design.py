@@ -22,6 +22,18 @@ the measurement leads the link by the gap, which the backlash onset test
 (:mod:`wamctl.analysis.diagnosis.backlash`) sees against its resolution (``MIN_BAND_TOLERANCES`` detection
 tolerances). :func:`reversal_leads` predicts those leads, :func:`reversal_separation` their RMS over a
 trajectory's reversals in units of that resolution; the design is scored on both and says which.
+
+That figure is the lead at one reversal: it does not grow with their number, so it cannot say whether a run will
+decide. What decides is the diagnosis' backlash decision on the designed run's onsets
+(:func:`~wamctl.analysis.diagnosis.onset_tests.backlash_decision`: a nested test on held-out onsets at the
+diagnosis' threshold, its BIC, the lead's sign and ``MIN_BAND_TOLERANCES``), and a motor-side gap found there is
+named pooled as the run named it (:mod:`wamctl.analysis.diagnosis.pooled`: an effect seen at the onsets only is not
+tested again). :func:`reversal_power` predicts that decision's power and median test statistic for a run's onsets
+by Monte Carlo (the leads :func:`reversal_leads` predicts, the log travel scattered as the first run's onsets were:
+:func:`onset_scatter`); :func:`size_reversal_run` takes the fewest periods that reach ``POWER_TARGET`` within
+``MAX_RUN_S``, or says none does. The link-side friction share is bounded by the first run's reversals where it
+can be (:func:`link_share_from_run`), else ``LINK_FRICTION_SHARE`` is assumed. The prediction is conservative
+where the designed run repeats one motion: its onsets scatter less than the first run's.
 """
 
 from __future__ import annotations
