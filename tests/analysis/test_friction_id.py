@@ -19,7 +19,12 @@ from once import independent_run
 
 from wamctl.analysis.friction_id.identify import identify, identify_from_map
 from wamctl.analysis.friction_id.models import ClassicFriction, StribeckFriction
-from wamctl.analysis.friction_id.segments import constant_velocity_stage, detect_moves, moves_from_reference
+from wamctl.analysis.friction_id.segments import (
+    constant_velocity_stage,
+    detect_moves,
+    moves_from_reference,
+    spread,
+)
 from wamctl.analysis.friction_id.selection import select_model
 from wamctl.analysis.friction_id.signals import fit_line, position_noise_rad, quantisation_step_rad
 from wamctl.analysis.friction_id.velocity_map import friction_map, friction_samples
@@ -171,6 +176,22 @@ def synthetic_joint(speeds, rng, step_rad, noise_rad, fc=(1.5, 0.8), b=(0.9, 0.6
     windows = [(t[i] + stuck_s + tc_s, t[i] + stuck_s + tc_s + d / abs(v) - tc_s, v)
                for i, (v, d) in zip(starts, plan)]
     return t, q_meas, tau, qr, windows, friction
+
+
+def test_moves_from_reference_at_most_spreads_the_same_moves():
+    # a long run keeps at most max_moves moves, evenly spread: the same windows, directions and commanded
+    # speeds as the full list's spread (the speeds are only computed for the moves kept)
+    rng = np.random.default_rng(11)
+    step = 2 * np.pi / 4096 / 42.0
+    t, q, tau, qr, windows, friction = synthetic_joint([0.005, 0.02, 0.05, 0.1, 0.2, 0.4], rng, step, 1e-5)
+    full = moves_from_reference(t, qr)
+    assert len(full) == 12
+    for at_most in (3, 5, 7, 12, 40):
+        kept = moves_from_reference(t, qr, max_moves=at_most)
+        idx = np.unique(np.linspace(0, len(full) - 1, at_most).round().astype(int)) if at_most < 12 else range(12)
+        assert spread(len(full), at_most) == [int(i) for i in idx]
+        assert kept == [full[i] for i in idx]
+    assert spread(5, None) == [0, 1, 2, 3, 4] and spread(0, 3) == []
 
 
 @pytest.mark.parametrize("use_reference", [True, False])

@@ -33,12 +33,13 @@ class Move:
 
 
 def moves_from_reference(t_s: np.ndarray, q_ref: np.ndarray, min_travel_rad: float = 1e-4,
-                         creep_s: float = 2.0) -> list[Move]:
+                         creep_s: float = 2.0, max_moves: int | None = None) -> list[Move]:
     """Moves of one joint from its reference (the commanded schedule as a hint).
 
     Each window runs from the start of a reference move to the start of the next one, but at most
     ``creep_s`` (or half the move's duration, if longer) past the end of the reference move: a joint under PD
-    creeps on after its reference stops. ``q_ref`` (n,).
+    creeps on after its reference stops. ``q_ref`` (n,). ``max_moves``: at most this many, evenly spread over
+    the run (:func:`spread`; the commanded speed is only computed for those kept).
     """
     dq = np.diff(q_ref)
     moving = np.abs(dq) > 1e-12
@@ -53,14 +54,22 @@ def moves_from_reference(t_s: np.ndarray, q_ref: np.ndarray, min_travel_rad: flo
             travel = q_ref[s1] - q_ref[s0]
             if abs(travel) < min_travel_rad:
                 continue
-            v = cruise_speed_rad_s(t_s[s0:s1 + 1], q_ref[s0:s1 + 1])
-            starts.append((s0, s1, int(np.sign(travel)), v * np.sign(travel)))
-    for k, (s0, s1, d, v) in enumerate(starts):
+            starts.append((s0, s1, np.sign(travel)))
+    for k in spread(len(starts), max_moves):
+        s0, s1, direction = starts[k]
         end = starts[k + 1][0] if k + 1 < len(starts) else len(q_ref)
         t_end = t_s[s1] + max(creep_s, 0.5 * (t_s[s1] - t_s[s0]))
         end = min(end, int(np.searchsorted(t_s, t_end)))
-        out.append(Move(int(s0), int(end), d, float(v)))
+        v = cruise_speed_rad_s(t_s[s0:s1 + 1], q_ref[s0:s1 + 1]) * direction
+        out.append(Move(int(s0), int(end), int(direction), float(v)))
     return out
+
+
+def spread(n: int, at_most: int | None) -> list[int]:
+    """Indices of ``n`` items, at most ``at_most`` (None: all) evenly spread from the first to the last."""
+    if at_most is None or n <= at_most:
+        return list(range(n))
+    return [int(i) for i in np.unique(np.linspace(0, n - 1, at_most).round().astype(int))]
 
 
 def cruise_speed_rad_s(t_s: np.ndarray, q_ref: np.ndarray, baseline_s: float = 0.05) -> float:

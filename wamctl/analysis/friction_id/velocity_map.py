@@ -15,6 +15,7 @@ from wamctl.analysis.friction_id.segments import (
     constant_velocity_stage,
     detect_moves,
     moves_from_reference,
+    spread,
 )
 from wamctl.analysis.friction_id.signals import (
     batch_mean_se,
@@ -99,11 +100,10 @@ def friction_map(t_s: np.ndarray, q: np.ndarray, tau: np.ndarray, q_ref: np.ndar
         sig = position_noise_rad(x)
         step = quantisation_step_rad(x)
         if q_ref is not None and o.use_reference:
-            moves = moves_from_reference(t_s, q_ref[:, j - 1])
+            moves = moves_from_reference(t_s, q_ref[:, j - 1], max_moves=o.max_moves)
         else:
             moves = detect_moves(t_s, x, sig)
-        if o.max_moves is not None and len(moves) > o.max_moves:
-            moves = [moves[i] for i in np.unique(np.linspace(0, len(moves) - 1, o.max_moves).round().astype(int))]
+            moves = [moves[i] for i in spread(len(moves), o.max_moves)]
         v_fine = savgol_derivative(x, dt, 0.05, 1)
         for k, m in enumerate(moves):
             st = constant_velocity_stage(t_s, x, m.i0, m.i1, sig, step, o.min_stage_s, o.guard_s,
