@@ -172,7 +172,10 @@ def gap_run(tmp_path_factory):
     case = next(c for c in cases(1, 0, 0, 0) if c["id"] == "backlash-000")
     d = tmp_path_factory.mktemp("gap")
     generate(case, d)
-    return ModelDiagnosis().fit(load_run_data(d))
+    data = load_run_data(d)
+    diag = ModelDiagnosis().fit(data)
+    diag.run_data, diag.run_dir = data, d
+    return diag
 
 
 def test_a_delay_kept_beside_a_motor_side_gap_gives_way_at_the_gap(gap_run):
@@ -192,3 +195,30 @@ def test_a_delay_kept_beside_a_motor_side_gap_gives_way_at_the_gap(gap_run):
     names = [t["name"] for t in diag.joints_[j].kept]
     assert "delay" not in names and "backlash" in names
     assert "onsets prefer a gap" in diag.rejected_[j]["delay"]
+
+
+def test_an_ambiguous_pair_gets_a_designed_run(gap_run, tmp_path):
+    """Left ambiguous at joint 5 (as :func:`settle` leaves it), the next experiment moves joint 5 alone with
+    reversals at different accelerations: written as next_experiment.yaml, at least 2 tolerances over the run
+    (decisive), more per reversal than the run's own reversals, with its why."""
+    import yaml
+
+    from wamctl.experiments.diagnose_next import next_experiment_delay_or_gap, next_experiment_more
+
+    diag = gap_run
+    diag.joints_[4].ambiguous.append({"names": ["backlash", "delay"], "evidence": {}})
+    diag.delay_vs_gap_ = [{"joint": 5, "log_ratio": 3.1, "delay_torque_s": 0.005,
+                           "mean_reversal_travel_rad": -0.0024}]
+    try:
+        r = next_experiment_delay_or_gap(diag, diag.run_data, diag.run_dir, tmp_path)
+        assert r["spec"] == "next_experiment.yaml" and r["hypotheses"] == ["delay", "backlash"]
+        assert r["joints"] == [5] and r["delay_s"] == pytest.approx(0.005) and r["gap_rad"] == pytest.approx(0.0024)
+        assert r["total_noise_floors"] >= 2.0 and r["decisive"]
+        assert r["separation_noise_floors"] > r["original_separation_noise_floors"]
+        assert "a delay's lag grows with the acceleration" in r["why"]
+        spec = yaml.safe_load((tmp_path / "next_experiment.yaml").read_text())
+        assert spec["excitation"]["joints"] == [5] and spec["excitation"]["periods"] == 10
+        assert next_experiment_more(diag, diag.run_data, diag.run_dir, tmp_path)["hypotheses"] == ["delay",
+                                                                                                   "backlash"]
+    finally:
+        diag.joints_[4].ambiguous.pop()
