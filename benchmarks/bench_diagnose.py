@@ -251,6 +251,8 @@ def _two_joints(truth: dict) -> str:
 # ---------------------------------------------------------------------------------------------- the next run
 def _next_kind(nxt: dict) -> str:
     hyp = nxt.get("hypotheses") or ["payload", "link_parameters"]
+    if hyp[:2] == ["delay", "backlash"]:
+        return "delay_or_gap"
     return {"delay": "delay_or_inertia", "backlash": "backlash",
             "friction_drift": "friction_drift_or_stribeck"}.get(hyp[0], "payload_or_links")
 
