@@ -201,7 +201,9 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
     says it cannot. The first suspect whose design decides (else the best). ``{"spec", "hypotheses", "joint",
     "gap_rad", "separation_noise_floors", "original_separation_noise_floors", "seen_by", "reversals", "power",
     "power_se", "periods", "duration_s", "decisive", "power_curve", "joints", "period_s", "crossing_pose_rad",
-    "gravity_slope_Nm_rad", "noise_floor_Nm", "why"}``: for a reversal run ``separation_noise_floors`` is the
+    "gravity_slope_Nm_rad", "noise_floor_Nm", "link_friction_share", "why"}``: ``power`` that of the backlash
+    decision on the designed run (a gravity step's run too: it is named from the leads only); for a reversal run
+    ``separation_noise_floors`` is the
     predicted median test statistic of the decision (the reversals' lead in its standard errors), and
     ``original_separation_noise_floors`` the one the run's own test gave. None when no joint is suspected;
     ``spec`` None with ``why`` when no crossing keeps within the limits."""
@@ -310,8 +312,9 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
                "floors RMS after friction and an offset are refitted (the run starts at the crossing pose: move the "
                "arm there first)")
         if sz is not None:
-            why += (f"; a reversal run would not decide it within {MAX_RUN_S:g} s (predicted power "
-                    f"{sz['power']:.2f})")
+            why += (f"; the diagnosis names a gap behind a motor-side encoder from the leads at reversals only, and "
+                    f"no reversal run reaches power {POWER_TARGET:g} within {MAX_RUN_S:g} s: this run's predicted "
+                    f"power {sz['power']:.2f}, it may not decide")
         if cr.separation <= DESIGN_TARGET_FLOORS:
             why += f"; still below {DESIGN_TARGET_FLOORS:g}: only a larger gap would show on this joint"
     write_next_experiment(data_path, out_dir, tr, tr.q0_rad, [j + 1], cr.periods, 1.0, why, seed)
@@ -320,8 +323,8 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
                 separation_noise_floors=float(cr.separation), original_separation_noise_floors=float(cr.original),
                 seen_by=cr.seen_by,
                 reversals={"crossing": rv[1], "all": rv[2]} if rv is not None and rev_run else None,
-                power=float(sz["power"]) if rev_run and sz else None,
-                power_se=float(sz["power_se"]) if rev_run and sz else None,
+                power=float(sz["power"]) if sz else None,
+                power_se=float(sz["power_se"]) if sz else None,
                 power_curve=[[int(n), float(p), float(t)] for n, p, t in sz["curve"]] if rev_run and sz else None,
                 periods=int(cr.periods), duration_s=float(cr.periods * tr.period_s),
                 decisive=_backlash_decides(cr),
@@ -358,7 +361,7 @@ def _share_words(share: dict) -> str:
 
 def _backlash_decides(cr) -> bool:
     """A backlash design decides: a reversal run reaching its power, or a gravity step above the target."""
-    if cr.seen_by == "reversals" and cr.size is not None:
+    if cr.size is not None:       # a motor-side gap is named from the reversals' leads only
         return bool(cr.size["reached"])
     return cr.separation >= DESIGN_TARGET_FLOORS
 
@@ -366,7 +369,7 @@ def _backlash_decides(cr) -> bool:
 def _backlash_score(cr) -> float:
     """Between two designs that both decide or both do not: the predicted power of a reversal run, else the
     gravity step's separation over the target (capped at 1)."""
-    if cr.seen_by == "reversals" and cr.size is not None:
+    if cr.size is not None:
         return float(cr.size["power"])
     return min(cr.separation / DESIGN_TARGET_FLOORS, 1.0)
 

@@ -460,7 +460,9 @@ def _pick(cands: list[CrossingRun]) -> CrossingRun:
     """The sized design among candidates: the shortest reversal run reaching its power (the larger power on a tie),
     else the largest gravity step when it reaches ``TORQUE_TARGET_FLOORS``, else the reversal run of the largest
     power (the gravity step where none has any). The winner's figures are its reversals' (``seen_by``
-    "reversals": ``separation`` the median test statistic, ``reversals`` over its periods) or its step's."""
+    "reversals": ``separation`` the median test statistic, ``reversals`` over its periods) or its step's (with
+    ``size`` the reversals' power over its own three periods: the diagnosis names a motor-side gap from the leads
+    at reversals only, so a step alone does not decide it)."""
     ok = [c for c in cands if c.size and c.size["reached"]]
     torque = max(cands, key=lambda c: c.torque_separation)
     if ok:
@@ -474,6 +476,13 @@ def _pick(cands: list[CrossingRun]) -> CrossingRun:
     if best is torque and not (best.size and best.size["reached"]):
         best.separation, best.seen_by = best.torque_separation, "torque"
         best.periods = 3
+        if best.size:
+            # what decides a gap behind a motor-side encoder is the reversals' lead, not the step: the power of
+            # that decision on this run's own periods (short of the target, or it would have been the pick)
+            at = {n: (p, t) for n, p, t in best.size["curve"]}.get(best.periods)
+            if at is not None:
+                best.size = dict(best.size, periods=best.periods, power=at[0], t_median=at[1], reached=False,
+                                 duration_s=best.periods * best.trajectory.period_s)
         return best
     sz = best.size
     best.seen_by, best.separation, best.periods = "reversals", float(sz["t_median"]), int(sz["periods"])
