@@ -652,7 +652,7 @@ def prepare_signals(t_s: np.ndarray, q_rad: np.ndarray, q_ref_rad: np.ndarray, t
         raise DataFormatError(f"only {int(valid.sum())} samples away from the gaps in t ({len(gaps)} gaps of "
                               f"{MAX_GAP_PERIODS - 0.5:.0f} or more missing samples); the diagnosis needs at least "
                               f"{4 * w}")
-    q_noise = position_noise_rad(q[valid])
+    q_noise = position_noise_rad(q if valid.all() else q[valid])     # (a log without gaps: no copy of it)
     v_noise = q_noise * derivative_noise_gain(w, gs, dt)
     # stuck: slower than 4 sigma of the velocity noise, and never faster than a floor of 1 mrad/s
     v_stick = np.maximum(4.0 * v_noise, 1e-3)
