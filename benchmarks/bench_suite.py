@@ -65,6 +65,27 @@ This is the comparison the criterion asks for, and it is far from a third: wall 
 were taken with PYTHONDONTWRITEBYTECODE=1 at high load and overstated the gain (the old side then paid the
 recompilation and the load far more than now).
 
+Measured again 2026-11-27 12:57-13:28, the same way (both sides re-run: the load was 6-13 from other sessions'
+studies, against 1-6 for the rows above), after 9c3ea8b (one compiled ``_level`` instead of three literal
+specialisations) and 6b89108 (the batch dynamics keep their last results: in test_friction_id + test_diagnose 31 of
+165 inverse-dynamics and 66 of 117 regressor batches repeated one already made, ~7 of 17 s of pinocchio loops):
+
+    checkout                                   wall     CPU (user+sys)   load before -> after
+    4a352c7  before the compiled loop          985 s    724 s (1.00)      7.6 -> 6.2   ****
+    99afaa5  now (main, with both changes)     840 s    599 s (0.83)      6.2 -> 13.1
+             wall 0.85 of before
+
+    **** 6 of the old side's tests failed (test_interrupts, test_sweep_killed, test_store: a run's process ended
+       before its signal), ending early: its figures are a little low.
+
+The two changes cannot be told apart from the other sessions' commits between dfc45a8 and 99afaa5, nor from the
+load (0.89 -> 0.85 of wall, 0.86 -> 0.83 of CPU is within what the load moves). Measured alone they are small:
+the literal specialisations cost ~1-2 s of cold compile per worker, the repeated batches ~7 s of CPU in the two
+files. Not found within the brief's bit-identical rule: a compiled batch RNEA (chain_kernels, 0.5 against 5 us a
+sample) differs from pinocchio by ~1e-14 N m, and tests/model/test_model.py asks the batch to equal the per-sample
+pinocchio calls exactly; the cold compile is numba's front end (type inference and lowering, NUMBA_OPT=0 saves
+~1 s of ~14 s for the compiled loop and its kernels; inline="always" changes nothing measurable), not LLVM.
+
 Not shown a third less CPU on the same tests: 0.67 once and 0.70-0.75 with the changes, within the noise of CPU
 time on this shared machine (the criterion asks <= 0.67). Where the CPU goes (per-test CPU, a profiler plugin,
 at load 10-13, 693 of 740 s in tests, ~18 s per worker collecting): test_diagnose_v2 93 s, test_diagnose 80 s,
