@@ -459,8 +459,10 @@ TORQUE_TARGET_FLOORS = 2.0      # a gravity step the design takes instead of a r
 def _pick(cands: list[CrossingRun]) -> CrossingRun:
     """The sized design among candidates: the shortest reversal run reaching its power (the larger power on a tie),
     else the largest gravity step when it reaches ``TORQUE_TARGET_FLOORS``, else the reversal run of the largest
-    power (the gravity step where none has any). The winner's figures are its reversals' (``seen_by``
-    "reversals": ``separation`` the median test statistic, ``reversals`` over its periods) or its step's (with
+    power, then median test statistic (the predicted power is a lower bound: it takes the first run's onset scatter,
+    larger than a designed run's repeated motion shows), the gravity step only where no reversal run leads at all.
+    The winner's figures are its reversals' (``seen_by`` "reversals": ``separation`` the median test statistic,
+    ``reversals`` over its periods) or its step's (with
     ``size`` the reversals' power over its own three periods: the diagnosis names a motor-side gap from the leads
     at reversals only, so a step alone does not decide it)."""
     ok = [c for c in cands if c.size and c.size["reached"]]
@@ -471,7 +473,8 @@ def _pick(cands: list[CrossingRun]) -> CrossingRun:
         best = torque
     else:
         best = max(cands, key=lambda c: (c.size["power"] if c.size else 0.0, c.size["t_median"] if c.size else 0.0))
-        if not best.size or best.size["power"] <= 0:
+        if not best.size or (best.size["power"] <= 0 and best.size["t_median"] <= 0):
+            # a step alone never names a motor-side gap: it is taken only where no reversal run leads at all
             best = torque
     if best is torque and not (best.size and best.size["reached"]):
         best.separation, best.seen_by = best.torque_separation, "torque"

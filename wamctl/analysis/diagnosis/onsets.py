@@ -29,6 +29,9 @@ from wamctl.model.dynamics import Payload, WamDynamics
 from wamctl.model.effects import friction_drift_scale, ripple_torque_Nm
 
 EXTEND_SAMPLES = 100        # samples of the slip kept after each stall (the slip velocity is fitted on them)
+# where the model's link has not moved within them (a slow reversal through a gap: the measurement leads by more
+# than the window), the window is extended up to this long, never into the next onset, before the onset is given up
+EXTEND_MAX_S = 1.0
 MAX_ONSETS = 250            # onsets analysed per joint at most
 
 
@@ -146,6 +149,7 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
     cut = np.cumsum([0] + [len(ii) for ii in spans])
     qdd_all = sig.smooth_at(sig.q_raw_rad[:, j], np.concatenate(spans), 0.0, 2) if ons else np.zeros(0)
     q_ends = sig.at("q", np.array([o.end for o in ons], int)) if ons else np.zeros((0, 7))
+    long_n = max(int(EXTEND_MAX_S / sig.dt_s), extend)
     for k, o in enumerate(ons):
         state = {"ii": spans[k], "qdd_j": qdd_all[cut[k]:cut[k + 1]], "q_end": q_ends[k]}
         w = _onset_window(des, dyn0, j, o, model, tau_c, tau_c_decl, state)
@@ -156,6 +160,14 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
         fsn = ref[1] * model.fs_ratio[1] if model.fs_ratio else None
         x = travel_with(w["u"], sig.dt_s, w["inertia"], f, fsp, fsn)
         moved = np.flatnonzero(o.sign_new * x >= tol)
+        stop = min(o.end + long_n, sig.n, ons[k + 1].start if k + 1 < len(ons) else sig.n)
+        if not len(moved) and stop > spans[k][-1] + 1:
+            # the model's link still at rest at the window's end: the same onset over a longer window
+            ii = np.arange(o.start, stop)
+            state = {"ii": ii, "qdd_j": sig.smooth_at(sig.q_raw_rad[:, j], ii, 0.0, 2), "q_end": q_ends[k]}
+            w = _onset_window(des, dyn0, j, o, model, tau_c, tau_c_decl, state)
+            x = travel_with(w["u"], sig.dt_s, w["inertia"], f, fsp, fsn)
+            moved = np.flatnonzero(o.sign_new * x >= tol)
         w["moved"] = int(moved[0]) if len(moved) else len(x)
         travel.append(signed_travel(x, w["q"], stall, w["q_turn"], o.sign_new, tol))
         # a direction whose level was floored (no sliding samples that way) holds the joint at the new direction's
