@@ -101,36 +101,77 @@ def find_onsets(t_s: np.ndarray, q_raw: np.ndarray, qd_s: np.ndarray, v_stick: f
     min_len : shortest stretch of motion that counts (samples; about a filter window).
     """
     st = sliding_stretches(q_raw, qd_s, v_stick, tol, min_len)
-    n = len(q_raw)
+    if len(st) < 2:
+        return []
+    q = np.ascontiguousarray(q_raw, dtype=float)
+    bounds = np.array([(s0, s1) for s0, s1, _ in st], dtype=np.int64)
+    dirs = np.array([d for _, _, d in st], dtype=float)
+    k_pair, a, b, turn = _onsets_kernel(q, bounds, dirs, float(tol), int(min_len))
     out = []
-    for (p0, p1, d_prev), (s0, s1, d_new) in zip(st[:-1], st[1:]):
+    for k, a_k, b_k, t_k in zip(k_pair.tolist(), a.tolist(), b.tolist(), turn.tolist()):
+        d_new = float(dirs[k + 1])
+        rev = d_new != float(dirs[k])
+        out.append(Onset(a_k, b_k, rev, d_new, float(t_s[b_k]), t_k if rev else a_k))
+    return out
+
+
+@njit(cache=True)
+def _onsets_kernel(q_raw, bounds, dirs, tol, min_len):
+    """The stalls between consecutive stretches ``bounds`` (m, 2) of motion in directions ``dirs`` (m,):
+    (pair index, start, end, turning point) per onset kept (see :func:`find_onsets`; the turning point -1 where
+    the motion does not reverse)."""
+    n = len(q_raw)
+    m = len(bounds)
+    k_out = np.empty(max(m - 1, 0), np.int64)
+    a_out = np.empty(max(m - 1, 0), np.int64)
+    b_out = np.empty(max(m - 1, 0), np.int64)
+    t_out = np.empty(max(m - 1, 0), np.int64)
+    c = 0
+    for k in range(m - 1):
+        p0, p1 = bounds[k, 0], bounds[k, 1]
+        s0, s1 = bounds[k + 1, 0], bounds[k + 1, 1]
+        d_prev, d_new = dirs[k], dirs[k + 1]
         # the stall value: the measured position where the two stretches meet (quantised, so the median)
         lo, hi = max(p1 - min_len, p0), min(s0 + min_len, s1)
-        seg = q_raw[lo:hi]
-        mid_i = lo + int(np.argmin(np.abs(seg - np.median(q_raw[p1:s0 + 1]))))
+        med = np.median(q_raw[p1:s0 + 1])
+        mid_i = lo
+        best = np.inf
+        for i in range(lo, hi):
+            e = abs(q_raw[i] - med)
+            if e < best:
+                best, mid_i = e, i
         q_stall = q_raw[mid_i]
-        off = np.abs(q_raw[p0:s1] - q_stall) > tol          # within this pair of stretches only
-        m = mid_i - p0
-        before = np.flatnonzero(off[:m])
-        a = p0 + (before[-1] + 1 if len(before) else 0)
-        after = np.flatnonzero(off[m:])
-        b = p0 + m + after[0] if len(after) else s1
+        # within this pair of stretches only: the last sample off the stall value before it, the first after
+        a = p0
+        for i in range(mid_i - 1, p0 - 1, -1):
+            if abs(q_raw[i] - q_stall) > tol:
+                a = i + 1
+                break
+        b = s1
+        for i in range(mid_i, s1):
+            if abs(q_raw[i] - q_stall) > tol:
+                b = i
+                break
         if b >= min(s1, n) or b - a < 2:
             continue
         if np.sign(q_raw[b] - q_stall) != d_new:
             continue
-        rev = d_new != d_prev
-        out.append(Onset(a, b, rev, d_new, float(t_s[b]), turning_point(q_raw, a, b, d_new, min_len) if rev else a))
-    return out
+        turn = turning_point(q_raw, a, b, d_new, min_len) if d_new != d_prev else -1
+        k_out[c], a_out[c], b_out[c], t_out[c] = k, a, b, turn
+        c += 1
+    return k_out[:c], a_out[:c], b_out[:c], t_out[:c]
 
 
+@njit(cache=True)
 def turning_point(q_raw: np.ndarray, start: int, end: int, sign_new: float, reach: int) -> int:
     """The measured turning point of a reversal: the last sample where the measured position (n,) is furthest
     in the old direction, from ``reach`` samples before the stall's ``start`` to its ``end`` (a motor that
     crosses a gap may reverse before the measured speed counts as stopped)."""
-    lo = max(start - reach, 0)
-    seg = sign_new * q_raw[lo:end + 1]
-    return lo + len(seg) - 1 - int(np.argmin(seg[::-1]))
+    turn, low = end, sign_new * q_raw[end]
+    for i in range(end - 1, max(start - reach, 0) - 1, -1):
+        if sign_new * q_raw[i] < low:
+            low, turn = sign_new * q_raw[i], i
+    return turn
 
 
 def signed_travel(x: np.ndarray, q: np.ndarray, stall: int, q_turn: float, sign: float, tol: float) -> float:
