@@ -181,10 +181,18 @@ def without_key(label: str) -> str:
 
 # ------------------------------------------------------------------------------------------------ the estimator
 def effects_in_order(findings: list[dict]) -> list[str]:
-    """The names of the findings named pooled, smallest pooled p-value first; a finding with no pooled test (an
-    effect seen at the onsets only, named from the runs that named it: p-value None) after those tested."""
+    """The names of the findings named pooled, smallest pooled p-value first; a finding the pooled test did not
+    name (an effect seen at the onsets only, p-value None, or kept on another basis: a Stribeck effect a run named
+    at the breakaways) after those, smallest p-value of the run that named it first (``run_p_value``): its pooled
+    p-value is not what named it."""
     found = [f for f in findings if f["pooled"]["named"]]
-    found.sort(key=lambda f: (f["pooled"]["p_value"] is None, f["pooled"]["p_value"] or 0.0))
+
+    def key(f):
+        p = f["pooled"]["p_value"]
+        if p is not None and "basis" not in f["pooled"]:
+            return (0, p)
+        return (1, f.get("run_p_value", 1.0))
+    found.sort(key=key)
     return list(dict.fromkeys(f["name"] for f in found))
 
 
@@ -406,7 +414,7 @@ class PooledDiagnosis:
             how = ("its evidence is at the onsets only: not tested again, named from the runs that named it"
                    if onsets_only else "each run's friction levels shaped alike" if shaped else
                    "coefficients shared by every run")
-            finding = {"name": name, "joint": j + 1,
+            finding = {"name": name, "joint": j + 1, "run_p_value": wanted[(j, name)][0],
                        "what": f"joint {j + 1}: {name} (shape from {self.labels[r_best]}; {how})",
                        "pooled": per["pooled"], "per_stack": {k: v for k, v in per.items() if k != "pooled"}}
             at_onsets = [self.labels[m.r] for m in sub_all for t in m.res.kept
