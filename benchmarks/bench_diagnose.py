@@ -55,10 +55,11 @@ sys.path.insert(0, str(ROOT / "tests" / "analysis"))
 EFFECTS = ("stribeck", "position_ripple", "payload", "delay", "friction_drift", "backlash")
 NAMES = EFFECTS + ("link_parameters",)
 # seeds of the first generator: SEED_BASE[split] + 1000 * effect index + run index (clean: + 9000)
-SIM_SEED_BASE = {"dev": 50_000, "report": 70_000}
-# the independent generator's study plans: cases(..., seed=...) of each split, and the false-alarm plan
-INDEPENDENT_SEED = {"dev": 0, "report": 1}
-FA_SEED = {"dev": 100, "report": 101}
+SIM_SEED_BASE = {"dev": 50_000, "report": 70_000, "fresh": 90_000}
+# the independent generator's study plans: cases(..., seed=...) of each split, and the false-alarm plan; "fresh":
+# seeds no round has run before 2026-11-27 (issue 28's "and on fresh seeds"), for a check after the report split
+INDEPENDENT_SEED = {"dev": 0, "report": 1, "fresh": 2}
+FA_SEED = {"dev": 100, "report": 101, "fresh": 102}
 
 
 # ---------------------------------------------------------------------------------------------- jobs
@@ -823,7 +824,7 @@ def shortfalls(studies: dict) -> list[str]:
 
 def main(argv=None) -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    ap.add_argument("--split", choices=("dev", "report"), default="report")
+    ap.add_argument("--split", choices=("dev", "report", "fresh"), default="report")
     ap.add_argument("--generators", default="sim,independent")
     ap.add_argument("--runs-per-effect", type=int, default=10)
     ap.add_argument("--clean", type=int, default=20)
