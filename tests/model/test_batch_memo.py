@@ -7,7 +7,7 @@ from __future__ import annotations
 import numpy as np
 import pinocchio as pin
 
-from wamctl.model.dynamics import _MEMO, Payload, WamDynamics, _BatchMemo
+from wamctl.model.dynamics import Payload, WamDynamics, _BatchMemo
 
 RNG = np.random.default_rng(31)
 
@@ -61,19 +61,3 @@ def test_the_budget_is_held_least_recently_used_first_out():
     memo.put(keys[5], np.zeros(101))
     assert memo.get(keys[5]) is None
     assert memo.key(b"x", b"m", np.zeros((2, 3))) != memo.key(b"x", b"m", np.zeros((3, 2)))
-    few = _BatchMemo(max_bytes=10**6, max_items=2)     # the count is held too (many small results)
-    for k in keys[:3]:
-        few.put(k, np.zeros(3))
-    assert few.get(keys[0]) is None and few.get(keys[2]) is not None and len(few._items) == 2
-    assert few.get(None) is None
-
-
-def test_short_batches_are_not_kept():
-    dyn = WamDynamics()
-    q = RNG.uniform(-1.0, 1.0, (_MEMO.min_rows - 1, 7))
-    np.testing.assert_array_equal(dyn.gravity_many(q), [dyn.gravity(x) for x in q])
-    assert _MEMO.get(_MEMO.key(b"gravity", dyn._model_digest(), q)) is None
-    q_long = np.vstack([q, q[:1]])                       # min_rows samples: kept
-    dyn.gravity_many(q_long)
-    np.testing.assert_array_equal(_MEMO.get(_MEMO.key(b"gravity", dyn._model_digest(), q_long)),
-                                  [dyn.gravity(x) for x in q_long])

@@ -214,7 +214,7 @@ class WamDynamics:
     def inverse_dynamics_many(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """:meth:`inverse_dynamics` of states (n, 7): (n, 7)."""
         q, qd, qdd = (np.ascontiguousarray(np.atleast_2d(x), dtype=float) for x in (q, qd, qdd))
-        key = _MEMO.key(b"rnea", self._model_digest(), q, qd, qdd) if len(q) >= _MEMO.min_rows else None
+        key = _MEMO.key(b"rnea", self._model_digest(), q, qd, qdd)
         out = _MEMO.get(key)
         if out is not None:
             return out
@@ -228,7 +228,7 @@ class WamDynamics:
     def gravity_many(self, q: np.ndarray) -> np.ndarray:
         """:meth:`gravity` of positions (n, 7): (n, 7)."""
         q = np.ascontiguousarray(np.atleast_2d(q), dtype=float)
-        key = _MEMO.key(b"gravity", self._model_digest(), q) if len(q) >= _MEMO.min_rows else None
+        key = _MEMO.key(b"gravity", self._model_digest(), q)
         out = _MEMO.get(key)
         if out is not None:
             return out
@@ -249,8 +249,7 @@ class WamDynamics:
         the kinematics only, never on the link parameters or the payload."""
         q, qd, qdd = (np.atleast_2d(np.asarray(x, float)) for x in (q, qd, qdd))
         # the regressor is the kinematics' only (the robot's joints and gravity), whatever the links and payload
-        key = (_MEMO.key(b"regressor", self.robot.name.encode() + self.model.gravity.linear.tobytes(), q, qd, qdd)
-               if len(q) >= _MEMO.min_rows else None)
+        key = _MEMO.key(b"regressor", self.robot.name.encode() + self.model.gravity.linear.tobytes(), q, qd, qdd)
         out = _MEMO.get(key)
         if out is not None:
             return out
@@ -296,16 +295,14 @@ class WamDynamics:
 
 class _BatchMemo:
     """The last batch results (:meth:`WamDynamics.inverse_dynamics_many`, ``gravity_many``, ``torque_regressor``),
-    least recently used first out, at most ``max_bytes`` of results and ``max_items`` results in all (each process
-    its own). Batches of fewer than ``min_rows`` samples are not kept (the key None: hashing and copying would cost
-    about what pinocchio does).
+    least recently used first out, at most ``max_bytes`` of results in all (each process its own).
 
     A key is a 128-bit BLAKE2b digest of the call's kind, the model's digest and every input's dtype, shape and
     bytes (hashing is ~1 % of computing the batch); :meth:`get` returns a copy, so a caller that writes into its
     result leaves the kept one as computed. Results larger than a quarter of the budget are not kept."""
 
-    def __init__(self, max_bytes: int, max_items: int = 512, min_rows: int = 32):
-        self.max_bytes, self.max_items, self.min_rows = max_bytes, max_items, min_rows
+    def __init__(self, max_bytes: int):
+        self.max_bytes = max_bytes
         self._items: OrderedDict[bytes, np.ndarray] = OrderedDict()
         self._bytes = 0
         self._lock = threading.Lock()
@@ -319,9 +316,7 @@ class _BatchMemo:
             h.update(np.ascontiguousarray(a).data)
         return h.digest()
 
-    def get(self, key: bytes | None) -> np.ndarray | None:
-        if key is None:
-            return None
+    def get(self, key: bytes) -> np.ndarray | None:
         with self._lock:
             out = self._items.get(key)
             if out is None:
@@ -329,8 +324,8 @@ class _BatchMemo:
             self._items.move_to_end(key)
         return out.copy()
 
-    def put(self, key: bytes | None, value: np.ndarray) -> None:
-        if key is None or value.nbytes > self.max_bytes // 4:
+    def put(self, key: bytes, value: np.ndarray) -> None:
+        if value.nbytes > self.max_bytes // 4:
             return
         kept = value.copy()
         with self._lock:
@@ -338,7 +333,7 @@ class _BatchMemo:
                 return
             self._items[key] = kept
             self._bytes += kept.nbytes
-            while self._bytes > self.max_bytes or len(self._items) > self.max_items:
+            while self._bytes > self.max_bytes:
                 self._bytes -= self._items.popitem(last=False)[1].nbytes
 
     def clear(self) -> None:
