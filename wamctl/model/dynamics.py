@@ -23,9 +23,6 @@ Conventions
 
 from __future__ import annotations
 
-import hashlib
-import threading
-from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -196,47 +193,23 @@ class WamDynamics:
         return out
 
     # ------------------------------------------------------------------------------------------ batches
-    # Along a trajectory, states (n, 7): one pinocchio call per sample, without the per-call copies. A batch is
-    # ~5 us of pinocchio and Python per sample, and the analyses ask for the same trajectory's batch more than once
-    # (a diagnosis' stages, a fit and its check): the results are kept (_BatchMemo, keyed by the model and the
-    # inputs' bytes) and a repeated call returns a copy of the same numbers.
-    def _model_digest(self) -> bytes:
-        """Bytes that change with anything the batches depend on: the robot, its inertial parameters (payload
-        included), armature and gravity (the pinocchio model is built once, in ``__init__``)."""
-        d = self.__dict__.get("_digest")
-        if d is None:
-            h = hashlib.blake2b(self.robot.name.encode(), digest_size=16)
-            for a in (self.standard_parameters(), self.armature_kg_m2, self.model.gravity.linear):
-                h.update(np.ascontiguousarray(a, dtype=float).tobytes())
-            d = self._digest = h.digest()
-        return d
-
+    # Along a trajectory, states (n, 7): one pinocchio call per sample, without the per-call copies.
     def inverse_dynamics_many(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
         """:meth:`inverse_dynamics` of states (n, 7): (n, 7)."""
         q, qd, qdd = (np.ascontiguousarray(np.atleast_2d(x), dtype=float) for x in (q, qd, qdd))
-        key = _MEMO.key(b"rnea", self._model_digest(), q, qd, qdd)
-        out = _MEMO.get(key)
-        if out is not None:
-            return out
         out = np.empty((len(q), self.n_joints))
         model, data, rnea = self.model, self.data, pin.rnea
         for k in range(len(q)):
             out[k] = rnea(model, data, q[k], qd[k], qdd[k])
-        _MEMO.put(key, out)
         return out
 
     def gravity_many(self, q: np.ndarray) -> np.ndarray:
         """:meth:`gravity` of positions (n, 7): (n, 7)."""
         q = np.ascontiguousarray(np.atleast_2d(q), dtype=float)
-        key = _MEMO.key(b"gravity", self._model_digest(), q)
-        out = _MEMO.get(key)
-        if out is not None:
-            return out
         out = np.empty((len(q), self.n_joints))
         model, data, grav = self.model, self.data, pin.computeGeneralizedGravity
         for k in range(len(q)):
             out[k] = grav(model, data, q[k])
-        _MEMO.put(key, out)
         return out
 
     def regressor_basis(self, q: np.ndarray, qd: np.ndarray, qdd: np.ndarray) -> np.ndarray:
@@ -248,15 +221,9 @@ class WamDynamics:
         """:meth:`regressor_basis` along a trajectory: (k, n, 10 n) for states (k, n). The regressor depends on
         the kinematics only, never on the link parameters or the payload."""
         q, qd, qdd = (np.atleast_2d(np.asarray(x, float)) for x in (q, qd, qdd))
-        # the regressor is the kinematics' only (the robot's joints and gravity), whatever the links and payload
-        key = _MEMO.key(b"regressor", self.robot.name.encode() + self.model.gravity.linear.tobytes(), q, qd, qdd)
-        out = _MEMO.get(key)
-        if out is not None:
-            return out
         out = np.empty((len(q), self.n_joints, self.n_standard))
         for k in range(len(q)):
             out[k] = pin.computeJointTorqueRegressor(self.model, self.data, q[k], qd[k], qdd[k])
-        _MEMO.put(key, out)
         return out
 
     def standard_parameters(self) -> np.ndarray:
@@ -291,58 +258,6 @@ class WamDynamics:
         trans = np.array([self.model.jointPlacements[i + 1].translation for i in range(n)])
         inertia = np.array([self.model.inertias[i + 1].matrix() for i in range(n)])
         return rot, trans, inertia, np.array(self.model.armature), np.array(self.model.gravity.linear)
-
-
-class _BatchMemo:
-    """The last batch results (:meth:`WamDynamics.inverse_dynamics_many`, ``gravity_many``, ``torque_regressor``),
-    least recently used first out, at most ``max_bytes`` of results in all (each process its own).
-
-    A key is a 128-bit BLAKE2b digest of the call's kind, the model's digest and every input's dtype, shape and
-    bytes (hashing is ~1 % of computing the batch); :meth:`get` returns a copy, so a caller that writes into its
-    result leaves the kept one as computed. Results larger than a quarter of the budget are not kept."""
-
-    def __init__(self, max_bytes: int):
-        self.max_bytes = max_bytes
-        self._items: OrderedDict[bytes, np.ndarray] = OrderedDict()
-        self._bytes = 0
-        self._lock = threading.Lock()
-
-    @staticmethod
-    def key(kind: bytes, model: bytes, *arrays: np.ndarray) -> bytes:
-        h = hashlib.blake2b(kind, digest_size=16)
-        h.update(model)
-        for a in arrays:
-            h.update(f"{a.dtype.str}{a.shape}".encode())
-            h.update(np.ascontiguousarray(a).data)
-        return h.digest()
-
-    def get(self, key: bytes) -> np.ndarray | None:
-        with self._lock:
-            out = self._items.get(key)
-            if out is None:
-                return None
-            self._items.move_to_end(key)
-        return out.copy()
-
-    def put(self, key: bytes, value: np.ndarray) -> None:
-        if value.nbytes > self.max_bytes // 4:
-            return
-        kept = value.copy()
-        with self._lock:
-            if key in self._items:
-                return
-            self._items[key] = kept
-            self._bytes += kept.nbytes
-            while self._bytes > self.max_bytes:
-                self._bytes -= self._items.popitem(last=False)[1].nbytes
-
-    def clear(self) -> None:
-        with self._lock:
-            self._items.clear()
-            self._bytes = 0
-
-
-_MEMO = _BatchMemo(max_bytes=256 * 2**20)
 
 
 def links_from_standard(pi: np.ndarray, armature_kg_m2: np.ndarray,
