@@ -87,6 +87,9 @@ files. Not found within the brief's bit-identical rule: a compiled batch RNEA (c
 sample) differs from pinocchio by ~1e-14 N m, and tests/model/test_model.py asks the batch to equal the per-sample
 pinocchio calls exactly; the cold compile is numba's front end (type inference and lowering, NUMBA_OPT=0 saves
 ~1 s of ~14 s for the compiled loop and its kernels; inline="always" changes nothing measurable), not LLVM.
+6b89108's memo of batch results was taken out again (e55ef16, 1a2652d): measured alone it saved ~3 % of the CPU
+of test_friction_id + test_diagnose_pooled (45.6 against 47.2 s, load 1-3), for a process-wide cache of up to
+256 MB keyed by hashed inputs; an analysis that needs a batch twice should keep it, not the model layer.
 
 Not shown a third less CPU on the same tests: 0.67 once and 0.70-0.75 with the changes, within the noise of CPU
 time on this shared machine (the criterion asks <= 0.67). Where the CPU goes (per-test CPU, a profiler plugin,
