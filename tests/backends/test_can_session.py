@@ -73,15 +73,18 @@ def session():
     plant = StaticPlant(HOME_Q_RAD)
     monitor = can.Bus(interface="virtual", channel=ch)
     confirmed_at: list[float] = []
+    # the operator moves the arm when asked, and presses Shift-Activate when asked: a scripted activation 0.3 s
+    # into the polling came before the request to move on a loaded machine (the arm, then active, was not moved)
     sim = PuckSimulator(plant, channel=ch, start_awake=False, zeroed=False, seed=7, start_pose_rad=Q0,
-                        pendant="activate@0.3,idle@end").start()
+                        pendant="idle@end").start()
 
     class Operator(ScriptedOperator):
         def confirm(self, question):
             confirmed_at.append(time.time())
             return super().confirm(question)
 
-    op = Operator(answers=(True,), on_say={"Move the arm": lambda _t: sim.press("move")})
+    op = Operator(answers=(True,), on_say={"Move the arm": lambda _t: sim.press("move"),
+                                           "Press Shift-Activate on the pendant": lambda _t: sim.press("activate")})
     b = CanBackend("virtual", ch, q0_rad=Q0, reply_timeout_s=0.05, watchdog_cycles=25, operator=op,
                    session=SessionSettings(activation_timeout_s=20.0, idle_wait_s=5.0))
     try:

@@ -144,8 +144,11 @@ def test_a_wam4_session_zeroes_at_its_home_and_drives_pucks_1_to_4_only(channel)
     monitor = can.Bus(interface="virtual", channel=channel)
     try:
         with PuckSimulator(plant, channel=channel, robot="wam4", start_awake=False, zeroed=False, seed=5,
-                           wake_s=0.05, start_pose_rad=Q0_WAM4, pendant="activate@0.2,idle@end") as sim:
-            op = ScriptedOperator(answers=(True,), on_say={"Move the arm": lambda _t: sim.press("move")})
+                           wake_s=0.05, start_pose_rad=Q0_WAM4, pendant="idle@end") as sim:
+            # moved when asked, activated when asked (a scripted activation could come before the request to move)
+            op = ScriptedOperator(answers=(True,), on_say={"Move the arm": lambda _t: sim.press("move"),
+                                                           "Press Shift-Activate on the pendant":
+                                                               lambda _t: sim.press("activate")})
             with CanBackend("virtual", channel, q0_rad=Q0_WAM4, robot="wam4", operator=op, reply_timeout_s=0.05,
                             watchdog_cycles=25, session=SessionSettings(activation_timeout_s=20.0,
                                                                         idle_wait_s=5.0)) as b:
