@@ -161,6 +161,9 @@ def joint_onsets(des: Design, dyn0: WamDynamics, jd, model: OnsetModel, extend: 
         x = travel_with(w["u"], sig.dt_s, w["inertia"], f, fsp, fsn)
         moved = np.flatnonzero(o.sign_new * x >= tol)
         stop = min(o.end + long_n, sig.n, ons[k + 1].start if k + 1 < len(ons) else sig.n)
+        if sig.valid is not None:              # nor into a gap of the log
+            bad = np.flatnonzero(~sig.valid[o.end:stop])
+            stop = o.end + int(bad[0]) if len(bad) else stop
         if not len(moved) and stop > spans[k][-1] + 1:
             # the model's link still at rest at the window's end: the same onset over a longer window
             ii = np.arange(o.start, stop)
