@@ -475,9 +475,9 @@ def next_experiment_delay_or_gap(diag, data, data_path: Path, out_dir: Path, see
            "come at different accelerations: a delay's lag grows with the acceleration, a gap's lead does not; "
            f"their predicted leads differ by {s:.2g} tolerances RMS per reversal ({sep['total']:.2g} over the run), "
            "after each refits its own width or delay")
-    decisive = bool(sep["total"] >= 2.0)
+    decisive = bool(sep["total"] >= DESIGN_TARGET_FLOORS)
     if not decisive:
-        why += "; still below 2 over the run: a longer run is needed to tell them"
+        why += f"; still below {DESIGN_TARGET_FLOORS:g} over the run: a longer run is needed to tell them"
     write_next_experiment(data_path, out_dir, tr, q0, [j + 1], 10, 1.0, why, seed)
     return dict(base, spec="next_experiment.yaml", joints=[j + 1], separation_noise_floors=s,
                 original_separation_noise_floors=float(orig["separation"]), total_noise_floors=float(sep["total"]),

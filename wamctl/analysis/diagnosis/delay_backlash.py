@@ -114,18 +114,11 @@ def head_to_head(diag, j: int, delay_s: float | None = None) -> dict:
 
 def reversal_speed_spread(diag, j: int, ons: dict) -> float:
     """How different the joint's approaches to its reversals are: the ratio of the largest to the smallest mean
-    speed over the measured stall's reach after each reversal (1: all alike, a delay's lead and a gap's then
-    look alike), NaN without two reversals."""
-    sig = diag.design_.sig
-    v = []
-    for w, r in zip(ons.get("windows", []), ons["reversal"]):
-        if not r:
-            continue
-        ii = np.arange(w["end"], min(w["end"] + 2 * sig.reach, sig.n))
-        if len(ii) >= 2:
-            v.append(float(np.mean(np.abs(sig.qd_rad_s[ii, j]))))
-    v = [x for x in v if x > 0]
-    return float(max(v) / min(v)) if len(v) >= 2 else float("nan")
+    speed over the measured stall's reach after each reversal (:func:`reversal_speeds`; 1: all alike, a delay's
+    lead and a gap's then look alike), NaN without two reversals."""
+    v = reversal_speeds(diag, j, ons)[np.asarray(ons["reversal"], bool)[:len(ons.get("windows", []))]]
+    v = v[np.isfinite(v) & (v > 0)]
+    return float(v.max() / v.min()) if len(v) >= 2 else float("nan")
 
 
 def arm_delay_s(diag) -> float | None:
@@ -141,12 +134,13 @@ def motor_gap_joints(diag) -> list[int]:
 
 
 def reversal_speeds(diag, j: int, ons: dict) -> np.ndarray:
-    """(k,) the joint's mean measured speed (rad/s) over the reach of the smoothing filter after each onset."""
+    """(k,) the joint's mean measured speed (rad/s) over the reach of the smoothing filter after each onset (NaN
+    where fewer than two samples follow it)."""
     sig = diag.design_.sig
     out = []
     for w in ons.get("windows", []):
         ii = np.arange(w["end"], min(w["end"] + 2 * sig.reach, sig.n))
-        out.append(float(np.mean(np.abs(sig.qd_rad_s[ii, j]))) if len(ii) else np.nan)
+        out.append(float(np.mean(np.abs(sig.qd_rad_s[ii, j]))) if len(ii) >= 2 else np.nan)
     return np.asarray(out, float)
 
 
