@@ -139,10 +139,9 @@ def _stage_velocity(t_s: np.ndarray, x: np.ndarray, v_fine: np.ndarray, m: Move,
     # velocity spread and the CI of the mean velocity from block slopes
     nb = min(10, (st.s1 - st.s0) // 25)
     if nb >= 3:
-        # the blocks of np.array_split, as slices (views: the same numbers as the copies, without the copies)
-        size, extra = divmod(st.s1 - st.s0, nb)
-        ends = st.s0 + np.cumsum([size + 1] * extra + [size] * (nb - extra))
-        bv = np.array([fit_line(t_s[a:b], x[a:b])[1] for a, b in zip(np.r_[st.s0, ends[:-1]], ends)])
+        # np.array_split's blocks, read as slices (views, not copies of the samples)
+        blocks = np.array_split(np.arange(st.s0, st.s1), nb)
+        bv = np.array([fit_line(t_s[b[0]:b[-1] + 1], x[b[0]:b[-1] + 1])[1] for b in blocks])
         v_ci = float(t975(nb - 1) * bv.std(ddof=1) / math.sqrt(nb))
     else:
         v_ci = float("nan")
