@@ -71,22 +71,6 @@ def test_too_few_reversals_are_untestable():
     assert np.isnan(r["log_ratio"])
 
 
-def test_leads_against_speed():
-    """The reversals' leads against the speed: ``tau x speed`` (a delay) or one width (a gap), each decided when
-    the speeds differ; at one speed the two cannot part."""
-    rng = np.random.default_rng(0)
-    v = rng.uniform(0.1, 1.5, 20)
-    rev = np.ones(20, bool)
-    noise = rng.normal(0, 0.1 * TOL, 20)
-    r_d = DB.compare_speed(-(0.008 * v) + noise, rev, v, TOL)
-    assert r_d["outcome"] == "delay" and r_d["tau_s"] == pytest.approx(0.008, rel=0.05)
-    r_g = DB.compare_speed(np.full(20, -0.004) + noise, rev, v, TOL)
-    assert r_g["outcome"] == "backlash" and r_g["lead_rad"] == pytest.approx(0.004, rel=0.05)
-    one = np.full(20, 0.5)
-    r_1 = DB.compare_speed(np.full(20, -0.004) + noise, rev, one, TOL)
-    assert r_1["outcome"] == "ambiguous" and r_1["speed_spread"] == pytest.approx(1.0)
-
-
 def _fake_runs(monkeypatch, truths):
     """Runs whose onsets at joint 7 each truth makes (``"gap"``, ``"delay"``), served to the pooled head to head
     in place of the onset model."""

@@ -144,27 +144,6 @@ def reversal_speeds(diag, j: int, ons: dict) -> np.ndarray:
     return np.asarray(out, float)
 
 
-def compare_speed(travel_rad: np.ndarray, rev: np.ndarray, speed_rad_s: np.ndarray, tol: float) -> dict:
-    """The leads at the reversals against the speed there: ``H_D`` a lead ``tau x speed`` (one ``tau`` >= 0 for
-    all), ``H_G`` one lead ``w`` whatever the speed; least squares in units of the detection tolerance ``tol``.
-    ``log_ratio = n log(RSS_D / RSS_G)`` (positive prefers the gap); ``speed_spread`` the largest over the
-    smallest speed (near 1 the two cannot part)."""
-    ok = np.isfinite(travel_rad) & np.isfinite(speed_rad_s) & np.asarray(rev, bool)
-    lead, v = -travel_rad[ok] / tol, speed_rad_s[ok]
-    n = int(ok.sum())
-    if n < MIN_REVERSALS or not (v > 0).any():
-        return {"n": n, "outcome": "untestable", "log_ratio": float("nan")}
-    tau = max(float(lead @ v / (v @ v)), 0.0)
-    w = max(float(np.mean(lead)), 0.0)
-    rss_d, rss_g = float(np.sum((lead - tau * v) ** 2)), float(np.sum((lead - w) ** 2))
-    floor = 1e-9 + 1e-6 * float(lead @ lead)
-    lr = n * float(np.log((rss_d + floor) / (rss_g + floor)))
-    outcome = "backlash" if lr >= DECIDED_LOG_RATIO else "delay" if lr <= -DECIDED_LOG_RATIO else "ambiguous"
-    spread = float(v.max() / max(v.min(), 1e-9))
-    return {"n": n, "outcome": outcome, "log_ratio": lr, "tau_s": tau * tol, "lead_rad": w * tol,
-            "rss_delay": rss_d, "rss_gap": rss_g, "speed_spread": spread}
-
-
 # ------------------------------------------------------------------------------------------------- one run
 def settle(diag, torque_tests: list[str], tests: list[str]) -> list[dict]:
     """Where a run's diagnosis kept both a delay (from the torque residual, anywhere in the arm) and a gap behind a
