@@ -219,6 +219,19 @@ def log_travel(d: np.ndarray, tol: float) -> np.ndarray:
     return np.sign(d) * np.log1p(np.abs(d) / tol)
 
 
+def reversal_leads_tol(d: np.ndarray, rev: np.ndarray, tol: float) -> np.ndarray:
+    """(r,) how far the measurement led the model's link at each of the onsets' ``r`` reversals, in detection
+    tolerances ``tol``, beyond the same-direction onsets (their median, where there are two or more and only where
+    it leads too: a same-direction onset whose model ran ahead is no lead taken back): positive for a lead. From the
+    signed travel ``d`` (k,) (NaN: given up, left out) and ``rev`` (k,). A gap on the motor side crossed at a
+    reversal, wholly or partly, leads there and not at same-direction onsets."""
+    d, rev = np.asarray(d, float), np.asarray(rev, bool)
+    ok = np.isfinite(d)
+    same = d[ok & ~rev]
+    c = min(float(np.median(same)), 0.0) if len(same) >= 2 else 0.0
+    return -(d[ok & rev] - c) / tol
+
+
 def hidden_travel(u_Nm: np.ndarray, dt_s: float, inertia: float, fc_pos: float, fc_neg: float,
                   b_pos: float, b_neg: float, fs_pos: float | None = None, fs_neg: float | None = None,
                   substeps: int = 4, vs_rad_s: float = 0.0) -> np.ndarray:
