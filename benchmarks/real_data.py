@@ -69,6 +69,10 @@ RECORDINGS = (
     Recording("alberta-zeus-4dof-fourier", "rbtlog_15_zeus_4dof_excerpt.dat", "wam4", "total",
               ("--format", "table", "--layout", "t,q[4],tau[4]"),
               held_wrist_rad=(0.0212, -0.1193, 0.0356)),
+    # a second arm of the same lab ("slax"), the same recorder; its wrist commanded to zero and held within 0.06 rad
+    Recording("alberta-slax-4dof-fourier", "rbtlog_11_slax_4dof_excerpt.dat", "wam4", "total",
+              ("--format", "table", "--layout", "t,q[4],tau[4]"),
+              held_wrist_rad=(0.0244, -0.0513, 0.0059)),
 )
 
 
@@ -186,11 +190,28 @@ def joint1_reference(run_dir: Path, holdout: float) -> dict:
             "relative_error": round(float(np.linalg.norm(err) / np.linalg.norm(tau1[test])), 4)}
 
 
-def model_torque(q, qd, qdd, model_file: Path | tuple | None, robot: str = "wam7"):
+def fit_datasheet_friction(run_dir: Path, robot: str) -> np.ndarray:
+    """Per joint Coulomb, viscous and offset (N m, N m s/rad, N m) fitted by least squares beside the robot's
+    datasheet arm on the whole of ``run_dir`` (a training part), the filter's ends left out: the reference any
+    estimator must beat, fitted on the same rows as the estimators and checked on the same held-out rows."""
+    from wamctl.model.dynamics import WamDynamics
+
+    joints, q, qd, qdd, tau, window = run_signals(run_dir)
+    rows = slice(window, len(q) - window)
+    resid = tau - WamDynamics(robot=robot).inverse_dynamics_many(q, qd, qdd)
+    coef = np.zeros((len(joints), 3))
+    for k in range(len(joints)):
+        basis = np.column_stack([np.sign(qd[:, k]), qd[:, k], np.ones_like(qd[:, k])])
+        coef[k], *_ = np.linalg.lstsq(basis[rows], resid[rows, k], rcond=None)
+    return coef
+
+
+def model_torque(q, qd, qdd, model_file: Path | tuple | np.ndarray | None, robot: str = "wam7"):
     """Torque of the datasheet arm (``None``: Table 4.1 friction) or of a wamctl-model/1 file (links, friction and
     a payload effect, as `identify` and `diagnose` write them; what the file leaves out stays the datasheet's);
     a tuple: the wam7 datasheet arm with its wrist held at those joint angles (rad), Table 4.1 friction, the
-    first ``q.shape[1]`` joints' torque."""
+    first ``q.shape[1]`` joints' torque; an array (joints x 3): the datasheet arm plus that Coulomb, viscous and
+    offset per joint (`fit_datasheet_friction`)."""
     from wamctl.io import load_yaml
     from wamctl.model.dynamics import Payload, WamDynamics
     from wamctl.model.friction import FrictionModel
@@ -203,6 +224,9 @@ def model_torque(q, qd, qdd, model_file: Path | tuple | None, robot: str = "wam7
         q7, qd7, qdd7 = (np.hstack([q, pad]), np.hstack([qd, zero]), np.hstack([qdd, zero]))
         tau7 = WamDynamics().inverse_dynamics_many(q7, qd7, qdd7) + FrictionModel.table_4_1().friction_torque(qd7)
         return tau7[:, :n]
+    if isinstance(model_file, np.ndarray):
+        basis = np.stack([np.sign(qd), qd, np.ones_like(qd)], axis=2)          # rows x joints x 3
+        return WamDynamics(robot=robot).inverse_dynamics_many(q, qd, qdd) + np.einsum("rjk,jk->rj", basis, model_file)
     data = load_yaml(model_file) if model_file else {}
     links = LinkParameters.datasheet(robot).with_overrides(data.get("links"))
     load = (data.get("effects") or {}).get("payload")
@@ -212,7 +236,7 @@ def model_torque(q, qd, qdd, model_file: Path | tuple | None, robot: str = "wam7
     return WamDynamics(payload=payload, links=links).inverse_dynamics_many(q, qd, qdd) + friction.friction_torque(qd)
 
 
-def held_out_models(test_run: Path, models: dict[str, Path | tuple | None], robot: str = "wam7") -> dict:
+def held_out_models(test_run: Path, models: dict[str, Path | tuple | np.ndarray | None], robot: str = "wam7") -> dict:
     """Each model's torque RMS per moving joint and relative error on the whole of ``test_run`` (a run kept out
     of every fit), unfiltered torque, Savitzky-Golay accelerations, the filter's ends left out."""
     joints, q, qd, qdd, tau, window = run_signals(test_run)
@@ -263,7 +287,9 @@ def split_parts(source: Path, out: Path, holdout: float, rec: Recording) -> None
         code, text = run(["friction-id", "--data", str(whole), "--out", str(out / "analyses")])
         tail = first_error(text) if code != 0 else text.splitlines()[-1] if text else ""
         print(f"  wamctl friction-id --data (whole excerpt): exit {code}: {tail}")
-    models: dict[str, Path | tuple | None] = {"datasheet arm + Table 4.1 friction": None}
+    models: dict[str, Path | tuple | np.ndarray | None] = {
+        "datasheet arm + Table 4.1 friction": None,
+        "datasheet arm + friction fitted on the first part": fit_datasheet_friction(train, rec.robot)}
     if rec.held_wrist_rad is not None:
         models["wam7 datasheet arm, wrist held, + Table 4.1 friction"] = rec.held_wrist_rad
     for command in (["identify", str(train), "--validate", str(test)], ["diagnose", str(train)]):
@@ -280,13 +306,22 @@ def main() -> None:
     parser.add_argument("--data", type=Path, required=True, help="folder with one sub-folder per recording")
     parser.add_argument("--out", type=Path, default=Path("/tmp/wamctl-real-data"))
     parser.add_argument("--holdout", type=float, default=0.25)
+    parser.add_argument("--only", action="append", default=None, metavar="NAME",
+                        help="run only this recording (a sub-folder name; may be given more than once)")
     args = parser.parse_args()
+    known = {rec.name for rec in RECORDINGS}
+    for name in args.only or ():
+        if name not in known:
+            parser.error(f"--only {name}: not a recording here (known: {', '.join(sorted(known))})")
     args.out.mkdir(parents=True, exist_ok=True)
     for rec in RECORDINGS:
+        if args.only and rec.name not in args.only:
+            continue
         source = args.data / rec.name / rec.file
         print(f"## {rec.name}/{rec.file} ({rec.robot}, torque {rec.torque})")
         if not source.exists():
-            print(f"  not found: {source}")
+            print(f"  skipped: {source} not found "
+                  f"(tests/fixtures/real/{rec.name}/PROVENANCE.md says how to rebuild it)")
             continue
         code, text = run(["import", str(source), *rec.import_args, "--robot", rec.robot,
                           "--torque", rec.torque, "--out", str(args.out / "runs"), "--json"])
