@@ -136,3 +136,46 @@ def test_a_sweep_whose_gap_leads_partly_gets_a_run_that_names_it_and_its_clean_t
     finally:
         logging.disable(logging.NOTSET)
     assert "backlash" not in got["effects_found"], got["effects_found"]
+
+
+def _limits():
+    from wamctl.analysis.identification.excitation import ExcitationLimits
+    from wamctl.specs.excitation import ExcitationLimitsSpec
+
+    spec = ExcitationLimitsSpec()
+    return ExcitationLimits(*spec.arrays(), 1 - spec.torque_margin, spec.max_cartesian_speed_m_s)
+
+
+# a joint-1 sweep's pose (the dev split's backlash-023: shoulder 0.34, elbow 2.43 rad)
+Q0_J1 = np.array([0.042, 0.338, -1.115, 2.425, -1.708, -0.833, -1.796])
+
+
+def _j1_sweep():
+    t = np.arange(0.0, 24.0, 0.04)
+    q = np.tile(Q0_J1, (len(t), 1))
+    w = 2 * np.pi / 6.0
+    q[:, 0] += 0.4 * np.sin(w * t)
+    qd, qdd = np.zeros_like(q), np.zeros_like(q)
+    qd[:, 0], qdd[:, 0] = 0.4 * w * np.cos(w * t), -0.4 * w * w * np.sin(w * t)
+    return q, qd, qdd
+
+
+def test_a_joint_without_gravity_is_moved_from_the_run_pose_and_sized_as_a_reversal_run():
+    """Joint 1 carries no gravity torque anywhere: every pose ties on it, and the run's own pose of the others comes
+    first (the shoulder moved to -1 rad with the elbow at 1.5 rad held more gravity than joint 2's torque limit:
+    no candidate kept within the limits, no run was designed). Its reversal run short of power 0.9 (onsets
+    scattered widely) is the longest within 120 s, not cut to a gravity step's three periods: without gravity
+    every candidate's step is 0, and the reversal run of the largest power was taken for the step."""
+    from wamctl.analysis.diagnosis.backlash_design import MAX_RUN_S, OnsetScatter, design_crossing, level_poses
+    from wamctl.model.dynamics import WamDynamics
+    from wamctl.model.friction import FrictionModel
+
+    dyn, lim = WamDynamics(None), _limits()
+    poses = level_poses(dyn, Q0_J1, 0, lim.q_min_rad, lim.q_max_rad)
+    assert np.allclose(poses[0][1:], Q0_J1[1:])
+    q, qd, qdd = _j1_sweep()
+    cr = design_crossing(dyn, FrictionModel.table_4_1(), Q0_J1, 0, 0.002, 0.02, lim, q, qd, tol_rad=TOL_RAD,
+                         fc_Nm=1.5, run_qdd=qdd, scatter=OnsetScatter(2.5, 2.5, 8, 4), threshold=1e-3)
+    assert cr.torque_separation == pytest.approx(0.0, abs=1e-6)
+    assert cr.seen_by == "reversals" and not cr.size["reached"] and 0 < cr.size["power"] < 0.9
+    assert cr.periods == int(MAX_RUN_S // cr.trajectory.period_s) and cr.periods > 3

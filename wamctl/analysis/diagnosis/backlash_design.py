@@ -49,6 +49,7 @@ MIN_SPEED_RAD_S = 0.005          # sliding samples (a slow crossing)
 CROSSING_PERIOD_S = 16.0         # slow: the link falls through the gap while the motor barely moves
 CROSSING_AMPLITUDE_RAD = 0.25    # the motion about the crossing pose
 FD_STEP_RAD = 1e-4
+GRAVITY_ZERO_NM = 1e-9           # a gravity torque below this is none (a joint whose axis stays vertical)
 # the share of a joint's Coulomb friction assumed on the link side of a gap (bearings and seals after the gear):
 # not known from one run; a low share makes fewer reversals count as crossings (a conservative prediction)
 LINK_FRICTION_SHARE = 0.2
@@ -311,7 +312,8 @@ def level_poses(dynamics, q0_rad: np.ndarray, j: int, q_min: np.ndarray, q_max: 
     the link must rest on its own friction for a gap to be crossed): ``q_j`` on a grid ``margin_rad`` inside its
     range, the other joints at ``q0_rad`` or the shoulder (joint 2) and elbow (joint 4) moved to a few poses
     (as :func:`crossing_poses`); the ``n`` whose largest ``|g_j|`` over ``q_j +- 1.3 amplitude_rad`` (the
-    two-harmonic series' ends) is smallest, smallest first."""
+    two-harmonic series' ends) is smallest, smallest first; among poses without any (below ``GRAVITY_ZERO_NM``:
+    joint 1), those nearest ``q0_rad`` first."""
     q0_rad = np.asarray(q0_rad, float)
     others = [q0_rad]
     for q2 in (-1.0, 0.0, 1.0):
@@ -334,9 +336,13 @@ def level_poses(dynamics, q0_rad: np.ndarray, j: int, q_min: np.ndarray, q_max: 
             Q[:, j] = v + ends
             pose = p.copy()
             pose[j] = v
-            scored.append((float(np.abs(dynamics.gravity_many(Q)[:, j]).max()), pose))
-    scored.sort(key=lambda x: x[0])
-    return [pose for _, pose in scored[:n]]
+            g = float(np.abs(dynamics.gravity_many(Q)[:, j]).max())
+            # a joint whose axis stays vertical (joint 1) has no gravity torque anywhere: every pose ties, and the
+            # run's own pose of the others is kept first (a shoulder and elbow moved for nothing may hold more
+            # gravity than their torque limits allow: no candidate then keeps within them)
+            scored.append((g if g > GRAVITY_ZERO_NM else 0.0, float(np.abs(pose - q0_rad).sum()), pose))
+    scored.sort(key=lambda x: (x[0], x[1]))
+    return [pose for _, _, pose in scored[:n]]
 
 
 def periodic_onsets(traj, j: int, gap_rad: float, fc_Nm: float, dynamics, share: float, rate_hz: float = 25.0,
@@ -467,16 +473,19 @@ def _pick(cands: list[CrossingRun]) -> CrossingRun:
     at reversals only, so a step alone does not decide it)."""
     ok = [c for c in cands if c.size and c.size["reached"]]
     torque = max(cands, key=lambda c: c.torque_separation)
+    step = False
     if ok:
         best = min(ok, key=lambda c: (c.size["duration_s"], -c.size["power"]))
     elif torque.torque_separation >= TORQUE_TARGET_FLOORS:
-        best = torque
+        best, step = torque, True
     else:
         best = max(cands, key=lambda c: (c.size["power"] if c.size else 0.0, c.size["t_median"] if c.size else 0.0))
         if not best.size or (best.size["power"] <= 0 and best.size["t_median"] <= 0):
             # a step alone never names a motor-side gap: it is taken only where no reversal run leads at all
-            best = torque
-    if best is torque and not (best.size and best.size["reached"]):
+            best, step = torque, True
+    # taken for its step (not merely the candidate of the largest step too: without gravity every step is 0, and
+    # the reversal run of the largest power was cut to a step's three periods)
+    if step and not (best.size and best.size["reached"]):
         best.separation, best.seen_by = best.torque_separation, "torque"
         best.periods = 3
         if best.size:
