@@ -92,8 +92,9 @@ def test_a_sweep_whose_gap_leads_partly_gets_a_run_that_names_it_and_its_clean_t
     same-direction onsets scatter: one is 185 tolerances off). A suspect now (it was not: p above SUSPECT_P), its
     run designed for the lead seen; that run, made by the generator with the same truth, pooled with the first
     (``wamctl diagnose RUN NEXT``), names backlash first. The same case without the gap: no suspect; the same
-    designed run made on it, pooled with it, names no gap. (Measured when written: p 0.28, lead 12 mrad, the
-    design a gravity step of 5.9 mrad at predicted power 0.17, the designed run named the gap at p 1e-8.)"""
+    designed run made on it, pooled with it, names no gap. (Measured when written: p 0.28, a lead of 5.9 mrad at 4
+    of 4 reversals, the design joint 1's reversals over 7 periods (112 s) at predicted power 0.43, the designed run
+    named the gap at p 2e-13.)"""
     from gen_independent import follow_up, generate
 
     from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
@@ -120,7 +121,7 @@ def test_a_sweep_whose_gap_leads_partly_gets_a_run_that_names_it_and_its_clean_t
         assert backlash_suspects(diag)[:1] == [0]
         (tmp_path / "design").mkdir()
         out = next_experiment_backlash(diag, data, r.path, tmp_path / "design")
-        assert out["spec"] == "next_experiment.yaml" and out["joints"] == [1]
+        assert out["spec"] == "next_experiment.yaml" and out["joints"] == [1] and out["seen_by"] == "reversals"
         assert out["gap_rad"] >= ASSUMED_MIN_GAP_TOLERANCES * diag.onsets_[0]["tol_rad"] - 1e-12
         assert "at least 2 detection tolerances" in out["why"] and "lower bound of the gap" in out["why"]
         follow_up(r.path, tmp_path / "design" / out["spec"], tmp_path / "gap-next")
