@@ -77,11 +77,24 @@ RECORDINGS = (
 
 
 def run(args: list[str]) -> tuple[int, str]:
-    """Run a wamctl command; its exit code and what it printed (stdout alone when it exits 0 with --json)."""
+    """Run a wamctl command; its exit code and what it printed: with --json, stdout alone when it is the JSON
+    answer (exit 0, and exit 3, identify's "held-out check failed, model not written"), else stdout and stderr."""
     done = subprocess.run([WAMCTL, *args], capture_output=True, text=True, cwd=ROOT)
-    if done.returncode == 0 and "--json" in args:
-        return 0, done.stdout.strip()
+    if "--json" in args and json_answer(done.stdout) is not None:
+        return done.returncode, done.stdout.strip()
     return done.returncode, (done.stdout + done.stderr).strip()
+
+
+def json_answer(text: str) -> dict | None:
+    """The JSON object a command printed with --json, or None when it printed none (an error)."""
+    start = text.find("{")
+    if start < 0:
+        return None
+    try:
+        out = json.loads(text[start:])
+    except json.JSONDecodeError:
+        return None
+    return out if isinstance(out, dict) else None
 
 
 def first_error(text: str) -> str:
@@ -94,11 +107,14 @@ def first_error(text: str) -> str:
 def summary_line(command: str, code: int, text: str) -> str:
     """What a command's --json output says in one line: identify's held-out check, diagnose's effects, or the
     first error."""
-    if code != 0:
+    out = json_answer(text) if code == 0 or command == "identify" else None
+    if out is None:
         return first_error(text)
-    out = json.loads(text[text.index("{"):])
     if command == "identify":
-        return out["held_out_check"]["statement"]
+        check = out["held_out_check"]
+        if check.get("model_written", True):
+            return check["statement"]
+        return f"{check['statement']} [model.yaml not written; kept as {check['model_file']}]"
     if command == "diagnose":
         return f"effects found: {out['effects_found']}"
     return f"run directory {out.get('run_dir')}"
@@ -295,8 +311,12 @@ def split_parts(source: Path, out: Path, holdout: float, rec: Recording) -> None
     for command in (["identify", str(train), "--validate", str(test)], ["diagnose", str(train)]):
         code, text = run([*command, "--out", str(out / "analyses"), "--json"])
         print(f"  wamctl {command[0]} (first part): exit {code}: {summary_line(command[0], code, text)}")
-        if code == 0:
-            models[f"{command[0]}'s model.yaml"] = Path(json.loads(text[text.index("{"):])["run_dir"]) / "model.yaml"
+        answer = json_answer(text) if code in (0, 3) else None
+        if answer is None:
+            continue
+        model_file = Path(answer.get("model_file") or Path(answer["run_dir"]) / "model.yaml")
+        if model_file.exists():                     # identify's model_rejected.yaml too: what it refused, measured
+            models[f"{command[0]}'s {model_file.name}"] = model_file
     print(f"  on the last {holdout:.0%} ({len(records) - n_train} records): "
           f"{json.dumps(held_out_models(test, models, rec.robot))}")
 
