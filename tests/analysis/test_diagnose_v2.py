@@ -88,6 +88,21 @@ def test_payload_moved_by_two_joints_reports_what_it_cannot_determine(two_joints
             assert e["params_ci"][f"com_{ax}_m"][0] <= v <= e["params_ci"][f"com_{ax}_m"][1]
 
 
+def test_model_file_lists_what_the_data_did_not_determine(two_joints):
+    """model.yaml must hold a whole centre of mass to run, but the component the two joints cannot feel is listed
+    under ``diagnosis.not_identified`` with the note that its value is not an estimate (a real 4-DOF log showed a
+    model file with the full centre of mass and no word of it), and the components that were determined are not."""
+    from wamctl.analysis.diagnosis.augmented import NOT_IDENTIFIED_NOTE, model_file
+
+    path, diag, out = two_joints
+    e = next(e for e in out["joints"]["2"]["effects"] if e["name"] == "payload")
+    mf = model_file(diag, str(path))
+    assert len(mf["effects"]["payload"]["com_m"]) == 3
+    assert mf["diagnosis"]["not_identified"] == {"payload": sorted(e["not_identified"])}
+    assert [k for k in ("com_x_m", "com_y_m", "com_z_m") if k not in e["not_identified"]]   # some determined
+    assert mf["diagnosis"]["note"] == NOT_IDENTIFIED_NOTE
+
+
 def test_missing_gains_are_estimated_from_the_log(two_joints):
     """Gains absent from meta.yaml: estimated from the log within 2 % at the moving joints, said so, and the
     closed-loop check runs with them (the position error drops with the payload found)."""

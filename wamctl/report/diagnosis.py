@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
+from wamctl.io import load_yaml
 from wamctl.report.document import Document
 from wamctl.report.figures import joint_grid, save
 
@@ -370,6 +371,10 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
               "kept or rejected")
     _figures(run_path, out_dir, result, doc)
     if (run_path / "model.yaml").is_file():
+        undetermined = ((load_yaml(run_path / "model.yaml") or {}).get("diagnosis") or {}).get("not_identified") or {}
         doc.text("The augmented model is in model.yaml (format wamctl-model/1); use it as `plant: model.yaml` in a "
-                 "spec to re-simulate an experiment with it.")
+                 "spec to re-simulate an experiment with it."
+                 + "".join(f" Its {name} holds values for {', '.join(ps)} that the data did not determine (listed "
+                           "under diagnosis.not_identified): they let the model run and are not estimates."
+                           for name, ps in undetermined.items()))
     return doc

@@ -176,13 +176,35 @@ def _effects_after(diag, thetas, joints_friction) -> dict:
     return out
 
 
+NOT_IDENTIFIED_NOTE = ("the parameters under not_identified were not determined by the data (the diagnosis "
+                       "reports no value and no interval for them); the model holds the values the fit left there "
+                       "so that it runs: they are not estimates")
+
+
+def not_identified_params(summary: dict) -> dict[str, list[str]]:
+    """{effect name: its parameters the data did not determine, over every joint that named it} of a diagnosis
+    summary (:meth:`~wamctl.analysis.diagnosis.estimator.ModelDiagnosis.to_dict`), for the effects it kept."""
+    out: dict[str, set] = {}
+    for res in (summary.get("joints") or {}).values():
+        for e in res.get("effects", []):
+            if e.get("not_identified"):
+                out.setdefault(e["name"], set()).update(e["not_identified"])
+    return {k: sorted(v) for k, v in out.items()}
+
+
 def model_file(diag, data_path: str = "") -> dict:
-    """The augmented model as a model file (``format: wamctl-model/1``) with the diagnosis summary."""
+    """The augmented model as a model file (``format: wamctl-model/1``) with the diagnosis summary. A model runs
+    only with every parameter set, so an effect's parameters the data did not determine are written as the fit
+    left them and listed under ``diagnosis.not_identified`` with :data:`NOT_IDENTIFIED_NOTE` (as ``wamctl
+    identify``'s model file lists its undetermined base parameters)."""
     plant = plant_dict(diag, "after")
     robot = diag.dynamics_.robot.name
+    summary = diag.to_dict(data_path)
+    undetermined = {k: v for k, v in not_identified_params(summary).items() if k in plant.get("effects", {})}
     return {"format": MODEL_FILE_FORMAT, **({"robot": robot} if robot != "wam7" else {}), **plant,
             "diagnosis": {"data": data_path, "effects_found": list(diag.effects_found_),
-                          "declared_model": diag.to_dict(data_path)["declared_model"]}}
+                          "declared_model": summary["declared_model"],
+                          **({"not_identified": undetermined, "note": NOT_IDENTIFIED_NOTE} if undetermined else {})}}
 
 
 def feedforward_from_log(meta, t_s, q_ref, q, tau, gravity) -> np.ndarray | None:
