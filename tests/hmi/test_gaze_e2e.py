@@ -33,12 +33,14 @@ import subprocess
 import sys
 import threading
 import time
+import traceback
 import tty
 from pathlib import Path
 
 import numpy as np
 import pandas as pd
 import pytest
+from once import make_once
 
 from wamctl.backends.gaze import tracker_sim
 from wamctl.backends.gaze.formats import make_decoder
@@ -79,10 +81,43 @@ def _run_block(fmt: str, tmp_path: Path):
     return outcome, json.loads(out_json.read_text())
 
 
-@pytest.fixture(scope="module", params=["asl-serial-out", "ascii-pair", "ascii-timestamped"])
+FORMATS = ("asl-serial-out", "ascii-pair", "ascii-timestamped")
+# each block: its sender's start, a 6.4 s stream, the hmi timeout of 20 s, 60 s for the sender to end; all at once
+BLOCKS_DEADLINE_S = 240.0
+
+
+def _run_blocks(folder: Path) -> dict:
+    """The three formats' blocks at the same time, each in a thread of its own with its own sender and pty (a
+    block mostly waits for its 30 Hz stream: one after the other they left a core idle for ~25 s; the port is read
+    and stamped in each block's own child process, so the stamps do not wait for the other blocks). Per format
+    ``(outcome, sent)``, or the traceback of what failed (a failure stays that format's)."""
+    results: dict = {}
+
+    def one(fmt: str) -> None:
+        try:
+            (folder / fmt).mkdir()
+            results[fmt] = _run_block(fmt, folder / fmt)
+        except BaseException:  # noqa: BLE001 - reported by the format's tests (block_run)
+            results[fmt] = traceback.format_exc()
+
+    threads = {fmt: threading.Thread(target=one, args=(fmt,), name=f"block-{fmt}", daemon=True) for fmt in FORMATS}
+    for th in threads.values():
+        th.start()
+    deadline = time.monotonic() + BLOCKS_DEADLINE_S
+    for fmt, th in threads.items():
+        th.join(max(0.0, deadline - time.monotonic()))
+        if th.is_alive():      # a block that hangs fails its format's tests instead of the session's timeout
+            results[fmt] = f"the {fmt} block did not end within {BLOCKS_DEADLINE_S:.0f} s"
+    return dict(results)
+
+
+@pytest.fixture(scope="module", params=FORMATS)
 def block_run(request, tmp_path_factory):
-    tmp = tmp_path_factory.mktemp(request.param)
-    outcome, sent = _run_block(request.param, tmp)
+    # made once per session for every xdist worker (tests/once.py); the tests only read its files
+    made = make_once(tmp_path_factory, "gaze_e2e_blocks", _run_blocks)[request.param]
+    if isinstance(made, str):
+        pytest.fail(f"the {request.param} block failed:\n{made}", pytrace=False)
+    outcome, sent = made
     return request.param, outcome, sent
 
 
