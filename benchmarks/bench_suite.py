@@ -58,6 +58,19 @@ at load 1-6 with nothing else running:
     dfc45a8  now                               320 s    520 s (0.86)      4.4 -> 5.9
              wall 0.89 of before
 
+Again 2026-11-27 16:19-16:32, the same way (one side after the other, nothing else running, the new side a fresh
+clone that had run `make demo` and `make test` before, its caches removed by this script):
+
+    checkout                                   wall     CPU (user+sys)   load before -> after
+    4a352c7  before the compiled loop          362 s    621 s (1.00)      1.6 -> 6.1   *****
+    1b47b37  now                               349 s    613 s (0.99)      6.1 -> 5.9
+             wall 0.96 of before
+
+    ***** 5 of its 882 tests failed (test_interrupts' four, test_store's signal test: the old side's, not seen on
+       the new), which may have shortened its run. The load at the new side's start (6.1, left by the old side)
+       was higher than at the old side's (1.6). The gaze end-to-end file's three blocks side by side (0189bcf,
+       42 -> 24-27 s measured alone) do not show at this resolution.
+
     **** 5 of the old side's interrupt tests failed (test_interrupts: a run's process ended before its
        signal), ending early: its figures are a little low.
 
