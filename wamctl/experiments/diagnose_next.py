@@ -523,14 +523,15 @@ def next_experiment_delay_or_gap(diag, data, data_path: Path, out_dir: Path, see
            f"{gap_rad * 1e3:.2g} mrad gap behind a motor-side encoder (n log(RSS ratio) "
            f"{rec.get('log_ratio', float('nan')):+.1f}; at the run's reversals they differ by "
            f"{orig['separation']:.2g} detection tolerances of {tol:.2g} rad RMS per reversal); moving joint {j + 1} "
-           f"alone ({tr.period_s:g} s period, {tr.harmonics} harmonics, 10 periods) its {sep['reversals']} reversals "
+           f"alone ({tr.period_s:g} s period, {tr.harmonics} harmonics, {DB.DESIGN_PERIODS} periods) its "
+           f"{sep['reversals']} reversals "
            "come at different accelerations: a delay's lag grows with the acceleration, a gap's lead does not; "
            f"their predicted leads differ by {s:.2g} tolerances RMS per reversal ({sep['total']:.2g} over the run), "
            "after each refits its own width or delay")
     decisive = bool(sep["total"] >= DESIGN_TARGET_FLOORS)
     if not decisive:
         why += f"; still below {DESIGN_TARGET_FLOORS:g} over the run: a longer run is needed to tell them"
-    write_next_experiment(data_path, out_dir, tr, q0, [j + 1], 10, 1.0, why, seed)
+    write_next_experiment(data_path, out_dir, tr, q0, [j + 1], DB.DESIGN_PERIODS, 1.0, why, seed)
     return dict(base, spec="next_experiment.yaml", joints=[j + 1], separation_noise_floors=s,
                 original_separation_noise_floors=float(orig["separation"]), total_noise_floors=float(sep["total"]),
                 reversals=int(sep["reversals"]), period_s=float(tr.period_s), decisive=decisive, why=why,

@@ -423,29 +423,28 @@ def design_crossing(dynamics, friction, q0_rad, j: int, gap_rad: float, noise_Nm
     if not poses:
         raise ValueError(f"joint {j + 1}'s gravity torque does not change sign within its range")
     cands = []
-    for per in (period_s,):
-        w = 2 * np.pi / per
-        t = np.arange(int(per * rate_hz)) / rate_hz
-        for pose, slope in poses:
-            a = np.zeros((len(pose), 2))
-            b = np.zeros((len(pose), 2))
-            a[j] = [amplitude_rad * w, -amplitude_rad * w]        # q_j - q* = A (sin wt - sin 2wt / 2)
-            got = scaled_to_limits(FourierTrajectory(pose, per, a, b), limits, dynamics, friction, fill)
-            if got is None:
-                continue
-            traj, use = got
-            q, qd, qdd = traj.evaluate(t)
-            sep = separation(dynamics, q, qd, j, gap_rad, noise_Nm)
-            cand = CrossingRun(traj, sep, 0.0, slope, use, torque_separation=sep)
-            if leads:
-                rs, nc, nr = reversal_separation(dynamics, q, qd, qdd, j, gap_rad, fc_Nm, tol_rad, share)
-                cand.reversals = (rs, nc * CROSSING_PERIODS, nr * CROSSING_PERIODS)
-                if rs > sep:
-                    cand.separation, cand.seen_by = rs, "reversals"
-            if sized:
-                rev, lead = periodic_onsets(traj, j, gap_rad, fc_Nm, dynamics, share, rate_hz)
-                cand.size = size_reversal_run(rev, lead, per, tol_rad, scatter, threshold, n_folds, target, max_run_s)
-            cands.append(cand)
+    w = 2 * np.pi / period_s
+    t = np.arange(int(period_s * rate_hz)) / rate_hz
+    for pose, slope in poses:
+        a = np.zeros((len(pose), 2))
+        b = np.zeros((len(pose), 2))
+        a[j] = [amplitude_rad * w, -amplitude_rad * w]        # q_j - q* = A (sin wt - sin 2wt / 2)
+        got = scaled_to_limits(FourierTrajectory(pose, period_s, a, b), limits, dynamics, friction, fill)
+        if got is None:
+            continue
+        traj, use = got
+        q, qd, qdd = traj.evaluate(t)
+        sep = separation(dynamics, q, qd, j, gap_rad, noise_Nm)
+        cand = CrossingRun(traj, sep, 0.0, slope, use, torque_separation=sep)
+        if leads:
+            rs, nc, nr = reversal_separation(dynamics, q, qd, qdd, j, gap_rad, fc_Nm, tol_rad, share)
+            cand.reversals = (rs, nc * CROSSING_PERIODS, nr * CROSSING_PERIODS)
+            if rs > sep:
+                cand.separation, cand.seen_by = rs, "reversals"
+        if sized:
+            rev, lead = periodic_onsets(traj, j, gap_rad, fc_Nm, dynamics, share, rate_hz)
+            cand.size = size_reversal_run(rev, lead, period_s, tol_rad, scatter, threshold, n_folds, target, max_run_s)
+        cands.append(cand)
     if not cands:
         raise ValueError("no crossing trajectory keeps within the limits")
     best = _pick(cands) if sized else max(cands, key=lambda c: c.separation)
@@ -485,7 +484,7 @@ def _pick(cands: list[CrossingRun]) -> CrossingRun:
             best, step = torque, True
     # taken for its step (not merely the candidate of the largest step too: without gravity every step is 0, and
     # the reversal run of the largest power was cut to a step's three periods)
-    if step and not (best.size and best.size["reached"]):
+    if step:          # (no candidate reached its power: a reached one is always the pick)
         best.separation, best.seen_by = best.torque_separation, "torque"
         best.periods = 3
         if best.size:

@@ -236,6 +236,7 @@ def pooled_head_to_head(diags: list, labels: list[str], j: int, delay_s: float |
 # ------------------------------------------------------------------------------------------------- the design
 DESIGN_RATE_HZ = 500.0          # the reversals' accelerations read at the control rate
 PERIODS_S = (1.5, 3.0, 6.0)     # base periods tried: a slow and a fast harmonic give reversals at several rates
+DESIGN_PERIODS = 10             # periods of the designed run (scored over them, and written so)
 
 
 def predicted_leads(qdd_rad_s2: np.ndarray, delay_s: float, tol_rad: float) -> np.ndarray:
@@ -274,7 +275,7 @@ def reversal_accelerations(q_rad: np.ndarray, qd_rad_s: np.ndarray, qdd_rad_s2: 
 
 
 def design_two_speeds(dynamics, friction, q0_rad, j: int, limits, delay_s: float, gap_rad: float, tol_rad: float,
-                      periods: int = 10, harmonics: int = 5, per_period: int = 4, fill: float = 0.95,
+                      periods: int = DESIGN_PERIODS, harmonics: int = 5, per_period: int = 4, fill: float = 0.95,
                       seed: int = 0):
     """T-optimal choice among Fourier candidates of 0-based joint ``j`` alone (excite's parametrisation, seeded,
     ``per_period`` per base period of :data:`PERIODS_S`, each scaled within excite's limits): the one whose
