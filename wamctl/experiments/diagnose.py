@@ -106,7 +106,7 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
     if progress:
         progress(80, 100, "diagnose: writing the report")
     if diag.conclusive_:
-        mf = model_file(diag, str(data_path))
+        mf = model_file(diag, str(data_path), result)
         (run.path / "model.yaml").write_text(yaml.safe_dump(mf, sort_keys=False))
         rows = []
         for j, res in diag.joints_.items():

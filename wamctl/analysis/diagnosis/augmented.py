@@ -192,14 +192,15 @@ def not_identified_params(summary: dict) -> dict[str, list[str]]:
     return {k: sorted(v) for k, v in out.items()}
 
 
-def model_file(diag, data_path: str = "") -> dict:
-    """The augmented model as a model file (``format: wamctl-model/1``) with the diagnosis summary. A model runs
-    only with every parameter set, so an effect's parameters the data did not determine are written as the fit
-    left them and listed under ``diagnosis.not_identified`` with :data:`NOT_IDENTIFIED_NOTE` (as ``wamctl
-    identify``'s model file lists its undetermined base parameters)."""
+def model_file(diag, data_path: str = "", summary: dict | None = None) -> dict:
+    """The augmented model as a model file (``format: wamctl-model/1``) with the diagnosis summary (``summary``:
+    ``diag.to_dict(data_path)`` where the caller has it already). A model runs only with every parameter set, so
+    an effect's parameters the data did not determine are written as the fit left them and listed under
+    ``diagnosis.not_identified`` with :data:`NOT_IDENTIFIED_NOTE` (as ``wamctl identify``'s model file lists its
+    undetermined base parameters)."""
     plant = plant_dict(diag, "after")
     robot = diag.dynamics_.robot.name
-    summary = diag.to_dict(data_path)
+    summary = diag.to_dict(data_path) if summary is None else summary
     undetermined = {k: v for k, v in not_identified_params(summary).items() if k in plant.get("effects", {})}
     return {"format": MODEL_FILE_FORMAT, **({"robot": robot} if robot != "wam7" else {}), **plant,
             "diagnosis": {"data": data_path, "effects_found": list(diag.effects_found_),
