@@ -254,7 +254,8 @@ class HmiBlock:
             started = False
         if not started:
             raise BackendError(self.feed.no_sample_message(self.arm.t_s - t0, ended=self.feed.exhausted))
-        self._event("stream_start", f"first gaze sample at tracker time {self.feed.offset_s:.3f} s")
+        first, offset = self.feed.first_t_s, self.feed.offset_s  # (offset_s is tracker minus arm time)
+        self._event("stream_start", f"first gaze sample at tracker time {first:.3f} s, arm time {first - offset:.3f} s")
 
     def _go_home(self) -> None:
         self._trial = None

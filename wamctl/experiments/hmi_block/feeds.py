@@ -21,7 +21,7 @@ import time
 from collections.abc import Callable
 from pathlib import Path
 
-from wamctl.backends.gaze.base import RECORD_COLUMNS, Decoded, stream_problem
+from wamctl.backends.gaze.base import MIN_GOOD_SAMPLES, RECORD_COLUMNS, Decoded, stream_problem
 from wamctl.backends.gaze.virtual import VirtualSubject
 from wamctl.hmi.gaze import GazeSample
 from wamctl.io import resolve_path
@@ -137,6 +137,15 @@ class StreamFeed:
     A live source is read in a thread; when its next sample has not arrived yet, :meth:`next_due` waits for it as
     long as the arm clock is ahead of the last sample's time plus the wall time since it arrived (so the
     simulation follows the tracker and a silent tracker stalls in real time).
+
+    The stream is said to start (:attr:`started`) at the arm tick that delivers its ``MIN_GOOD_SAMPLES``-th timed
+    sample (for a decoded stream, judged on the decoder's counts as they were when that sample was decoded): a
+    function of the samples alone, so a live run and an offline replay of its capture start at the same sample, and
+    their trials, which begin a fixed arm time after the start, agree but for how late the live run took its
+    samples. (Judged on the counts of whatever had been read at the time, the start followed how far ahead the
+    source had been read: in a live run, the third sample's arrival; in a replay, which reads one sample ahead, a
+    sample period earlier; a burst of bytes, at the first sample. That shifted a replay's trial times by up to a
+    sample against its live run.)
     """
 
     def __init__(self, source, *, live: bool, clock: Callable[[], float] = time.monotonic,
@@ -152,6 +161,10 @@ class StreamFeed:
         self._last_t_s: float | None = None
         self._last_wall_s = clock()
         self._first_look: tuple[float, float] | None = None  # (arm time, wall time) when first looked for a sample
+        self._first_t_s: float | None = None  # tracker time of the first timed sample
+        self._timed = 0  # timed samples delivered
+        self._problem: str | None = None  # stream_problem of the decoder's counts when the last delivered one decoded
+        self._ahead_problem: str | None = None  # the same for the sample read ahead
         self._ended = False
         self._queue: queue.Queue | None = None
         self._stop = threading.Event()
@@ -161,24 +174,28 @@ class StreamFeed:
             self._thread = threading.Thread(target=self._reader, name="gaze-reader", daemon=True)
             self._thread.start()
 
-    def _next(self, timeout_s: float) -> GazeSample | None:
-        """The source's next sample, its decoded frame recorded (sources with ``read_decoded``)."""
+    def _next(self, timeout_s: float) -> tuple[GazeSample, str | None] | None:
+        """The source's next sample, its decoded frame recorded (sources with ``read_decoded``), and
+        :func:`~wamctl.backends.gaze.base.stream_problem` of the decoder's counts right after it was decoded
+        (None for a source without counts)."""
         read_decoded = getattr(self.source, "read_decoded", None)
         if read_decoded is None:
-            return self.source.read(timeout_s)
+            s = self.source.read(timeout_s)
+            return None if s is None else (s, None)
         d = read_decoded(timeout_s)
         if d is None:
             return None
         if self.record is not None:
             self.record.write(d)
-        return d.sample
+        stats = getattr(self.source, "stats", None)
+        return d.sample, None if stats is None else stream_problem(stats)
 
     def _reader(self) -> None:
         try:
             while not self._stop.is_set():
-                s = self._next(0.05)
-                if s is not None:
-                    self._queue.put(s)
+                item = self._next(0.05)
+                if item is not None:
+                    self._queue.put(item)
                 elif self.source.exhausted:
                     break
         except Exception as exc:  # noqa: BLE001 - reported through the queue's end
@@ -192,13 +209,20 @@ class StreamFeed:
 
     @property
     def started(self) -> bool:
-        """True once the first timed sample has been seen (it sets the stream's time offset) and, for a decoded
-        stream, the stream is usable (:func:`~wamctl.backends.gaze.base.stream_problem`: a few samples, few errors):
-        a misconfigured decoder that makes a sample or two of nonsense does not start a session."""
-        if self._offset_s is None:
-            return False
-        stats = getattr(self.source, "stats", None)
-        return stats is None or stream_problem(stats) is None
+        """True once ``MIN_GOOD_SAMPLES`` timed samples have been delivered (the first sets the stream's time
+        offset) and, for a decoded stream, the stream is usable (:func:`~wamctl.backends.gaze.base.stream_problem`
+        of the decoder's counts as they were when the last delivered sample was decoded: few errors and bytes
+        outside frames): a misconfigured decoder that makes a sample or two of nonsense does not start a session.
+
+        Judged on what :meth:`next_due` has delivered, not on what has been read ahead, and the same for every
+        source (a recorded gaze file too): so it turns True at the tick that delivers the same sample, live or
+        replayed."""
+        return self._timed >= MIN_GOOD_SAMPLES and self._problem is None
+
+    @property
+    def first_t_s(self) -> float | None:
+        """Tracker time of the stream's first timed sample, s (None before it)."""
+        return self._first_t_s
 
     @property
     def offset_s(self) -> float:
@@ -209,10 +233,12 @@ class StreamFeed:
         if self._ended:
             return None
         if not self.live:
-            s = self._next(0.0)
-            if s is None and self.source.exhausted:
-                self._ended = True
-            return s
+            item = self._next(0.0)
+            if item is None:
+                if self.source.exhausted:
+                    self._ended = True
+                return None
+            return self._unpack(item)
         try:
             item = self._queue.get_nowait()
         except queue.Empty:
@@ -231,7 +257,16 @@ class StreamFeed:
         if item is _END:
             self._ended = True
             return None
-        return item
+        return self._unpack(item)
+
+    def _unpack(self, item: tuple[GazeSample, str | None]) -> GazeSample:
+        s, self._ahead_problem = item
+        return s
+
+    def _deliver(self, s: GazeSample) -> GazeSample:
+        self._ahead = None
+        self._problem = self._ahead_problem
+        return s
 
     def next_due(self, t_s: float) -> GazeSample | None:
         if self._ahead is None:
@@ -240,15 +275,15 @@ class StreamFeed:
                 return None
         s = self._ahead
         if not s.has_time:
-            self._ahead = None
-            return s
+            return self._deliver(s)
         if self._offset_s is None:
             self._offset_s = s.t_s - t_s
+            self._first_t_s = s.t_s
         if s.t_s - self._offset_s <= t_s:
-            self._ahead = None
             self._last_t_s = s.t_s - self._offset_s
             self._last_wall_s = self.clock()
-            return s
+            self._timed += 1
+            return self._deliver(s)
         return None
 
     def no_sample_message(self, waited_s: float, ended: bool = False) -> str:
