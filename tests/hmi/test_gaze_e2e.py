@@ -285,5 +285,14 @@ def test_replay_raw_source_reruns_the_session_offline(block_run, tmp_path, via):
     # tied to the samples, the replay's trial was a sample period (26-36 ms) off the live one, against 50 ms here.
     stamps_differ_s = float(np.ptp(rerun["t_s"].to_numpy()[:n] - live["t_s"].to_numpy()[:n]))
     allowed_s = 1.0 / tracker_sim.RATE_HZ + 1.0 / spec.hmi.ik_rate_hz + stamps_differ_s
+    for name, run, trials in (("live", outcome, t_live), ("replay", again, t_again)):  # where each run started
+        ev = pd.read_csv(run.path / "hmi_events.csv")
+        start, trial = (ev[ev["kind"] == k].iloc[0] for k in ("stream_start", "trial_start"))
+        lag = read_table(run.path, "trajectory").eval("t_s - gaze_t_s").dropna().to_numpy()  # arm - tracker time
+        print(f"{via} {name}: stream_start at {start['t_s']:.3f} s ({start['detail']}), trial_start "
+              f"{trial['t_s']:.3f} s, time {trials.loc[0, 'time_s']} s; its samples taken {1e3 * np.ptp(lag):.1f} ms "
+              f"apart in lag")
+    print(f"{via}: trial times differ {1e3 * (t_again.loc[0, 'time_s'] - t_live.loc[0, 'time_s']):+.1f} ms, allowed "
+          f"{1e3 * allowed_s:.1f} ms")
     assert t_again.loc[0, "time_s"] == pytest.approx(t_live.loc[0, "time_s"], abs=allowed_s)
     assert (again.path / "gaze_capture.txt").read_text().count("\n# section") == 1  # the bytes it decoded, kept
