@@ -278,11 +278,13 @@ def test_replay_raw_source_reruns_the_session_offline(block_run, tmp_path, via):
     t_again = pd.read_csv(again.path / "trials.csv")
     assert t_again.loc[0, "outcome"] == t_live.loc[0, "outcome"]
     # Both runs start the stream at the tick that delivers the same (third) sample and the trial a fixed arm time
-    # later (tests/hmi/test_stream_start.py), so the trial times differ only by how late the live run took its
-    # samples (the first tick after each arrived, at most about a sample on a loaded machine; the replay at the tick
-    # each is due) and by an IK period (the gripper and the commands are updated on it), plus however differently
-    # the two runs' samples were stamped (both are in the runs' tables; 0 in-process). Before the stream start was
-    # tied to the samples, the replay's trial was a sample period (26-36 ms) off the live one, against 50 ms here.
+    # later, and the live run's simulated arm waits for samples its reader has not passed on yet, so both take every
+    # sample at the tick it is due (tests/hmi/test_stream_start.py). What is left: the phase of the IK period (the
+    # gripper and the commands are updated on it) against the first sample, which differs between the runs; a
+    # sample for a frame the port's reader process had stamped but not yet sent when the feed looked (the one delay
+    # the wait cannot see); and however differently the two runs' samples were stamped (0 in-process). Before, the
+    # replay's trial was a sample period (26-36 ms) off the live one and a stalled block's half a second, against
+    # 50 ms here.
     stamps_differ_s = float(np.ptp(rerun["t_s"].to_numpy()[:n] - live["t_s"].to_numpy()[:n]))
     allowed_s = 1.0 / tracker_sim.RATE_HZ + 1.0 / spec.hmi.ik_rate_hz + stamps_differ_s
     for name, run, trials in (("live", outcome, t_live), ("replay", again, t_again)):  # where each run started

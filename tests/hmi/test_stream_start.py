@@ -13,6 +13,7 @@ ahead) and the burst at the first sample: trial times a whole sample apart for t
 
 from __future__ import annotations
 
+import threading
 import time
 
 import pytest
@@ -104,3 +105,51 @@ def test_first_sample_and_offset_are_reported():
     t_s, _ = _start(feed)
     assert feed.first_t_s == pytest.approx(T0_S, abs=1e-9)
     assert feed.first_t_s - feed.offset_s == pytest.approx(TICK_S, abs=1e-9)
+
+
+class _StalledReader:
+    """A live source whose reader stops after the first sample until ``gate`` is set (a block whose process lost
+    the CPU or the GIL while the bytes kept arriving and being stamped by the port's reader process)."""
+
+    def __init__(self, sections, gate: threading.Event) -> None:
+        self._inner = RawReplaySource(sections, lambda: make_decoder("ascii-pair"))
+        self._gate = gate
+        self._reads = 0
+
+    @property
+    def stats(self):
+        return self._inner.stats
+
+    @property
+    def exhausted(self) -> bool:
+        return self._inner.exhausted
+
+    def read_decoded(self, timeout_s=None):
+        if self._reads == 1:
+            self._gate.wait(30.0)
+        self._reads += 1
+        return self._inner.read_decoded(timeout_s)
+
+    def close(self) -> None:
+        self._inner.close()
+
+
+def test_a_simulated_arm_waits_for_samples_a_stalled_reader_holds_back():
+    """The reader passes the first sample on, then nothing for 0.3 s of wall time while the rest had arrived: the
+    simulated arm's clock (``hold_arm_clock``) waits for them, so they are taken at the ticks they are due and the
+    stream starts where the replay of the same bytes starts (before, the arm kept to the wall clock past them and
+    started the stream 0.3 s late: the trial times of that live run 0.3 s off its replay)."""
+    gate = threading.Event()
+    feed = StreamFeed(_StalledReader(_capture(), gate), live=True)
+    feed.hold_arm_clock = True
+    timer = threading.Timer(0.3, gate.set)
+    timer.start()
+    try:
+        t_live_s, got_live = _start(feed, max_ticks=100_000)
+    finally:
+        gate.set()
+        timer.cancel()
+    t_replay_s, _ = _start(_feed(_capture(), live=False))
+    assert len(got_live) == 3
+    t_first_s = feed.first_t_s - feed.offset_s  # the tick the first sample was taken at (after the first look)
+    assert t_live_s - t_first_s == pytest.approx(t_replay_s - TICK_S, abs=1e-9)

@@ -179,6 +179,7 @@ class HmiBlock:
             with make_backend(self.spec, self.base_dir) as backend:
                 try:
                     self.simulated = backend.name == "sim"
+                    self.feed.hold_arm_clock = self.simulated  # a simulated arm waits for samples still in transit
                     self.arm = self._make_arm(backend, controller, ff, friction_ff)
                     self.supervisor = Supervisor(h.start_mode())
                     self._event("session_start", f"{len(todo)} of {len(plan.trials)} trials to run")

@@ -138,6 +138,12 @@ class StreamFeed:
     long as the arm clock is ahead of the last sample's time plus the wall time since it arrived (so the
     simulation follows the tracker and a silent tracker stalls in real time).
 
+    With :attr:`hold_arm_clock` (a simulated arm, whose clock may wait), it waits instead until the reader has
+    passed on every frame that arrived up to the arm's time (on the frames' arrival clock, from the last sample's
+    arrival): a sample that had arrived is then taken at the tick it is due, however late the reader thread ran
+    (a process that lost the CPU or the GIL for half a second let the arm catch up with the wall clock past
+    samples still in the pipe, and took them that much late), as a replay of the capture takes it.
+
     The stream is said to start (:attr:`started`) at the arm tick that delivers its ``MIN_GOOD_SAMPLES``-th timed
     sample (for a decoded stream, judged on the decoder's counts as they were when that sample was decoded): a
     function of the samples alone, so a live run and an offline replay of its capture start at the same sample, and
@@ -165,6 +171,14 @@ class StreamFeed:
         self._timed = 0  # timed samples delivered
         self._problem: str | None = None  # stream_problem of the decoder's counts when the last delivered one decoded
         self._ahead_problem: str | None = None  # the same for the sample read ahead
+        self._ahead_arrival_s = math.nan  # arrival time of the sample read ahead
+        self._last_arrival_s = math.nan  # arrival time of the last timed sample delivered
+        #: The arm clock may wait for the stream (a simulated arm): see the class's docstring.
+        self.hold_arm_clock = False
+        # Arrival time up to which (exclusive) the reader has passed on every frame, and (arrival time, clock) of
+        # the newest frame it read: written by the reader thread only.
+        self._heard_s = -math.inf
+        self._newest: tuple[float, float] | None = None
         self._ended = False
         self._queue: queue.Queue | None = None
         self._stop = threading.Event()
@@ -174,30 +188,38 @@ class StreamFeed:
             self._thread = threading.Thread(target=self._reader, name="gaze-reader", daemon=True)
             self._thread.start()
 
-    def _next(self, timeout_s: float) -> tuple[GazeSample, str | None] | None:
-        """The source's next sample, its decoded frame recorded (sources with ``read_decoded``), and
+    def _next(self, timeout_s: float) -> tuple[GazeSample, str | None, float] | None:
+        """The source's next sample, its decoded frame recorded (sources with ``read_decoded``),
         :func:`~wamctl.backends.gaze.base.stream_problem` of the decoder's counts right after it was decoded
-        (None for a source without counts)."""
+        (None for a source without counts), and its arrival time (the sample's time for a source without)."""
         read_decoded = getattr(self.source, "read_decoded", None)
         if read_decoded is None:
             s = self.source.read(timeout_s)
-            return None if s is None else (s, None)
+            return None if s is None else (s, None, s.t_s)
         d = read_decoded(timeout_s)
         if d is None:
             return None
         if self.record is not None:
             self.record.write(d)
         stats = getattr(self.source, "stats", None)
-        return d.sample, None if stats is None else stream_problem(stats)
+        return d.sample, None if stats is None else stream_problem(stats), d.arrival_s
 
     def _reader(self) -> None:
         try:
             while not self._stop.is_set():
+                before = self.clock()
                 item = self._next(0.05)
                 if item is not None:
                     self._queue.put(item)
-                elif self.source.exhausted:
-                    break
+                    if math.isfinite(item[2]):  # frames come in arrival order: all before this one are passed on
+                        self._newest = (item[2], self.clock())
+                        self._heard_s = max(self._heard_s, item[2])
+                else:
+                    if self._newest is not None:  # nothing was waiting when the read began
+                        arrival, read = self._newest
+                        self._heard_s = max(self._heard_s, arrival + max(0.0, before - read))
+                    if self.source.exhausted:
+                        break
         except Exception as exc:  # noqa: BLE001 - reported through the queue's end
             log.error("gaze reader stopped: %s", exc)
         finally:
@@ -242,26 +264,52 @@ class StreamFeed:
         try:
             item = self._queue.get_nowait()
         except queue.Empty:
-            if self._last_t_s is None:  # before the first sample: the arm clock keeps to the wall clock
-                if self._first_look is None:
-                    self._first_look = (t_s, self.clock())
-                wait = (t_s - self._first_look[0]) - (self.clock() - self._first_look[1])
-            else:
-                wait = t_s - (self._last_t_s + self.clock() - self._last_wall_s)
-            if wait <= 0.0:
-                return None
-            try:
-                item = self._queue.get(timeout=min(wait, 0.5))
-            except queue.Empty:
+            item = self._wait(t_s)
+            if item is None:
                 return None
         if item is _END:
             self._ended = True
             return None
         return self._unpack(item)
 
-    def _unpack(self, item: tuple[GazeSample, str | None]) -> GazeSample:
-        s, self._ahead_problem = item
+    def _wait(self, t_s: float):
+        """The reader's next item if it is worth waiting for at arm time ``t_s``, else None."""
+        if self._last_t_s is None:  # before the first sample: the arm clock keeps to the wall clock
+            if self._first_look is None:
+                self._first_look = (t_s, self.clock())
+            wait = (t_s - self._first_look[0]) - (self.clock() - self._first_look[1])
+        elif self.hold_arm_clock and math.isfinite(self._last_arrival_s):
+            return self._hold(self._last_arrival_s + (t_s - self._last_t_s))
+        else:
+            wait = t_s - (self._last_t_s + self.clock() - self._last_wall_s)
+        if wait <= 0.0:
+            return None
+        try:
+            return self._queue.get(timeout=min(wait, 0.5))
+        except queue.Empty:
+            return None
+
+    def _unpack(self, item: tuple[GazeSample, str | None, float]) -> GazeSample:
+        s, self._ahead_problem, self._ahead_arrival_s = item
         return s
+
+    #: Longest wait of :meth:`_hold` for a reader that passes nothing on, s (it reports every 0.05 s).
+    HOLD_LIMIT_S = 2.0
+
+    def _hold(self, arrival_s: float):
+        """Wait until the reader passed on a sample (returned) or every frame that arrived up to ``arrival_s``
+        (None: nothing is due up to there). A reader that reports nothing for :attr:`HOLD_LIMIT_S` is not waited
+        for longer."""
+        deadline = self.clock() + self.HOLD_LIMIT_S
+        while self._heard_s <= arrival_s and self.clock() < deadline:
+            try:
+                return self._queue.get(timeout=0.01)
+            except queue.Empty:
+                continue
+        try:
+            return self._queue.get_nowait()
+        except queue.Empty:
+            return None
 
     def _deliver(self, s: GazeSample) -> GazeSample:
         self._ahead = None
@@ -282,6 +330,7 @@ class StreamFeed:
         if s.t_s - self._offset_s <= t_s:
             self._last_t_s = s.t_s - self._offset_s
             self._last_wall_s = self.clock()
+            self._last_arrival_s = self._ahead_arrival_s
             self._timed += 1
             return self._deliver(s)
         return None
