@@ -248,21 +248,23 @@ class _PtyPlayer:
         self.path = os.ttyname(self.slave_fd)
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._play, name="gaze-pty-replay", daemon=True)
+        #: ``time.monotonic()`` when the last recorded read had been written (None until then).
+        self.finished_s: float | None = None
 
     def start(self) -> None:
         self._thread.start()
 
     def _play(self) -> None:
-        if not self._chunks:
-            return
-        t0_rec, t0 = self._chunks[0][0], time.monotonic()
-        for t_s, data in self._chunks:
-            due = t0 + (t_s - t0_rec) / self.speed
-            if self._stop.wait(max(0.0, due - time.monotonic())):
-                return
-            view = memoryview(data)
-            while view:
-                view = view[os.write(self.master_fd, view):]
+        if self._chunks:
+            t0_rec, t0 = self._chunks[0][0], time.monotonic()
+            for t_s, data in self._chunks:
+                due = t0 + (t_s - t0_rec) / self.speed
+                if self._stop.wait(max(0.0, due - time.monotonic())):
+                    return
+                view = memoryview(data)
+                while view:
+                    view = view[os.write(self.master_fd, view):]
+        self.finished_s = time.monotonic()
 
     def close(self) -> None:
         self._stop.set()
@@ -276,7 +278,9 @@ class _PtyPlayer:
 
 class PtyReplaySource(SerialGazeSource):
     """A raw capture written at its recorded pace into a pseudo-terminal and read back by the serial source (the
-    whole live path: port settings, reads, arrival stamps). Exhausted ``eof_idle_s`` after the last byte.
+    whole live path: port settings, reads, arrival stamps). Exhausted ``eof_idle_s`` after the last byte, once the
+    whole capture has been written: a silence while the player still has bytes to write (its process lost the CPU
+    or the GIL, or the capture has a pause) is not the end of the stream.
 
     Parameters
     ----------
@@ -297,6 +301,17 @@ class PtyReplaySource(SerialGazeSource):
             self._player.close()
             raise
         self._player.start()  # after the open: pyserial flushes the input when it opens a port
+
+    def _receive(self) -> None:
+        finished, idle = self._player.finished_s, self.eof_idle_s
+        if idle is None or (finished is not None and time.monotonic() - finished > idle):
+            super()._receive()
+            return
+        self.eof_idle_s = None  # still playing, or just done: the serial source's idle end waits
+        try:
+            super()._receive()
+        finally:
+            self.eof_idle_s = idle
 
     def _close(self) -> None:
         super()._close()
