@@ -75,7 +75,9 @@ def arm(tmp_path_factory):
     train = run_config("excitation.yaml", plant, out)
     held = run_config("excitation_validation.yaml", plant, out)
     est, validation, _ = identify([train], [held])
-    rows = run_rows(load_run_data(held), WamDynamics(), window_s=None)
+    # the noise floor on the rows the models are judged on: the fit's band (issue H10)
+    (band,) = validation["band"]
+    rows = run_rows(load_run_data(held), WamDynamics(), window_s=band["window_s"], gauss_s=band["gauss_s"])
     pi_true = true_standard(plant)
     floor = est.rms_by_joint([rows], pi=pi_true)
     return {"out": out, "plant": plant, "train": train, "held": held, "est": est, "validation": validation,
@@ -123,19 +125,25 @@ def test_model_file_runs_the_identified_arm_and_feeds_the_controller(arm, tmp_pa
     (`controller.declared_links: model.yaml`): its gravity matches the true arm's far better than the
     datasheet's."""
     run_path, result, doc = identify_to_run_dir([arm["train"]], [arm["held"]], out=tmp_path)
-    # the held-out check against the datasheet arm with friction fitted: better on joints 1-4 and 6 (0.09-0.95x),
-    # above it on the wrist joints 5 and 7 (1.013x, 1.007x: links off by 20 % there change less than the
-    # estimate's noise) by less than the held-out run can tell (Diebold-Mariano p >= 0.05): `no_worse`, said with
-    # the ratios and p, and written as model.yaml without --force
+    # the held-out check against the datasheet arm with friction fitted, in the fit's band (issue H10): below it
+    # on every joint (0.0057-0.996x measured; 1-4 significantly, p_worse >= 0.98), the wrist joints 5-7 barely
+    # (0.96 / 0.88 / 0.996x: links off by 20 % there change less than the estimate's noise): `better`, written as
+    # model.yaml without --force. Until H10 the check ran without the fit's second filter: joints 5 and 7 were
+    # above the declared arm (1.013x, 1.007x) by less than the held-out run could tell, `no_worse`.
     check = result["held_out_check"]
     print("held-out check", check["verdict"], {j: (round(r, 4), round(check["p_worse"][j], 3))
                                                 for j, r in check["ratio"].items()})
-    assert check["verdict"] == "no_worse" and set(check["within_noise_joints"]) <= {5, 7}
-    assert all(check["p_worse"][j] >= 0.05 for j in check["within_noise_joints"])
+    assert check["verdict"] == "better" and check["within_noise_joints"] == [] and check["worse_joints"] == []
+    assert all(check["p_worse"][j] >= 0.95 for j in (2, 3, 4))
     assert check["model_written"] and not check["forced"] and (run_path / "model.yaml").is_file()
-    assert "not significantly" in check["statement"]
+    assert check["statement"].startswith("held-out check: the identified model is at least as good")
     assert all(r <= 0.25 for j, r in check["ratio"].items() if j in (2, 3, 4))
-    assert max(check["ratio"].values()) <= 1.10
+    assert max(check["ratio"].values()) < 1.0
+    # in the diagnosis' band (the rows the check used before H10) the same model: joints 2-4 still far below
+    v = result["validation"]
+    diag = np.array(v["identified_diagnosis_band"]) / np.array(v["nominal_diagnosis_band"])
+    print("diagnosis band ratios", diag.round(4))
+    assert np.all(diag[1:4] <= 0.25) and diag.max() <= 1.10
     # instrumental variables on joints 1-6; joint 7 by least squares, said with its figure (its tracking error
     # is 40 % of its motion under the default gains; the reference is an instrument up to 20 %)
     runs = result["instruments_detail"]["runs"]

@@ -86,10 +86,13 @@ def _fit(fit, held):
 def test_two_joint_real_like_log_is_at_least_as_good_as_the_datasheet_arm_with_its_payload(real_like, tmp_path,
                                                                                            no_reference):
     """Held-out RMS on joints 2 and 4: the identified model at most the datasheet arm's with friction fitted
-    (0.74 / 0.74 N m here) and within 2 % of the datasheet arm plus the true payload, declared, with friction
-    fitted (the truth: the noise floor);
+    (0.73 / 0.66 N m here in the fit's band, 0.1x and 0.02x of it; without the reference, no second filter:
+    0.80 / 0.79) and, in the diagnosis' band, within 2 % of the
+    datasheet arm plus the true payload, declared, with friction fitted (the truth: the noise floor). In the fit's
+    band (issue H10: the held-out check's rows), where the noise is smaller, 0.97x / 1.14x that floor measured
+    (0.075 / 0.0125 against 0.077 / 0.011 N m): the fit's own estimation error shows; at most 1.25x asserted;
     the solver's objective is of the order of the rows (it was 7.5e14 and 1e21); the held joints' parameters are
-    not identified; the verdict is `better`."""
+    not identified."""
     fit, held = _cut(real_like.path, tmp_path / "undeclared", no_reference=no_reference)
     est, validation, _ = _fit(fit, held)
     rms = validation["rms"]
@@ -100,11 +103,16 @@ def test_two_joint_real_like_log_is_at_least_as_good_as_the_datasheet_arm_with_i
     print("identified", np.round(rms["identified"][[1, 3]], 3), "datasheet", np.round(rms["nominal"][[1, 3]], 3),
           "datasheet + payload", np.round(with_payload[[1, 3]], 3), "objective", est.opt_["objective"],
           "in-sample", np.round(rms["in_sample_identified"][[1, 3]], 3))
+    with_payload_diag = validation_p["rms"]["nominal_diagnosis_band"]
+    print("diagnosis band: identified", np.round(rms["identified_diagnosis_band"][[1, 3]], 4), "datasheet + payload",
+          np.round(with_payload_diag[[1, 3]], 4))
     for j in (1, 3):
         assert rms["identified"][j] <= rms["nominal"][j], j
         # the datasheet arm with the true payload is this arm's model (the links are the datasheet's): its
-        # held-out RMS is the noise floor, which the identified model reaches within 2 % (0.4 % measured)
-        assert rms["identified"][j] <= 1.02 * with_payload[j], j
+        # held-out RMS is the noise floor, which the identified model reaches within 2 % in the diagnosis' band
+        # (0.4 % measured before H10) and within 25 % in the fit's band
+        assert rms["identified_diagnosis_band"][j] <= 1.02 * with_payload_diag[j], j
+        assert rms["identified"][j] <= 1.25 * with_payload[j], j
         assert rms["in_sample_identified"][j] <= rms["identified"][j], j
     assert est.opt_["objective"] < 1e4
     # what no row sees stays exactly the declared arm's: the friction and armature of the joints that did not move
@@ -120,7 +128,13 @@ def test_two_joint_real_like_log_is_at_least_as_good_as_the_datasheet_arm_with_i
 
 def test_held_out_check_is_said_in_json_report_and_model_file(real_like, tmp_path):
     """Without --validate (a held-out quarter of its own data): the JSON carries the verdict and the per-joint
-    ratios, the report's first line says it, the joints that did not move are named, model.yaml is written."""
+    ratios, the report's first line says it, the joints that did not move are named, model.yaml is written.
+
+    The quarter is 2.5 s: in the fit's band (issue H10) its loss difference rests on few independent stretches
+    (fixed-b degrees of freedom 2.6 / 2.3 on joints 2 / 4), so the identified model, 0.052x / 0.013x the declared
+    arm's RMS, is below it on both joints but not significantly (one-sided p 0.11 / 0.13): `no_worse`, written,
+    and said so. (Before H10, in the diagnosis' band with normal critical values: `better`; those values rejected
+    12-20 % of equally good models on rows this few, tests/analysis/test_identification_heldout_band.py.)"""
     fit, _ = _cut(real_like.path, tmp_path / "runs", share=1.0 - 1e-9)
     logging.disable(logging.WARNING)
     try:
@@ -128,17 +142,20 @@ def test_held_out_check_is_said_in_json_report_and_model_file(real_like, tmp_pat
     finally:
         logging.disable(logging.NOTSET)
     check = result["held_out_check"]
-    assert check["verdict"] == "better", check
-    assert set(check["ratio"]) == {2, 4} and max(check["ratio"].values()) <= 1.0
+    print(check["statement"])
+    assert check["verdict"] == "no_worse" and check["within_noise_joints"] == [], check
+    assert set(check["ratio"]) == {2, 4} and max(check["ratio"].values()) <= 0.1
+    assert all(p > 0.5 for p in check["p_worse"].values())
     assert check["not_moving_joints"] == [1, 3, 5, 6, 7]
     saved = json.loads((run / "identification.json").read_text())["held_out_check"]
-    assert saved["verdict"] == "better" and saved["model_written"] is True
+    assert saved["verdict"] == "no_worse" and saved["model_written"] is True
     assert (run / "model.yaml").is_file() and not (run / "model_rejected.yaml").exists()
     first = (run / "report.md").read_text().split("\n\n")[1]
-    assert first.startswith("Held-out check: the identified model is at least as good") and "joint 2" in first
+    assert first.startswith("Held-out check: the identified model is below the declared arm") and "joint 2" in first
+    assert "but on no joint significantly" in first
     assert "joint(s) 1, 3, 5, 6, 7 did not move: not identified" in first
     mf = yaml.safe_load((run / "model.yaml").read_text())
-    assert mf["identification"]["held_out_check"]["verdict"] == "better"
+    assert mf["identification"]["held_out_check"]["verdict"] == "no_worse"
     # where the rows went (the real log used 395 of its candidates, unsaid): every candidate accounted for once,
     # the fitted rows are the used ones, and the report says it
     (acc,) = result["row_accounting"]
@@ -151,13 +168,18 @@ def test_a_model_worse_than_the_declared_arm_is_not_written_and_exits_3(real_lik
     """Validated on the same trajectory of the arm without its tool (the datasheet arm itself): the identified
     model, which learnt the 1 kg tool, predicts it worse than the datasheet arm: verdict `worse`,
     model_rejected.yaml instead of model.yaml, exit code 3, said on the terminal, in the JSON and the report's first
-    line; --force writes model.yaml, exit 0, the verdict still `worse`."""
+    line; --force writes model.yaml, exit 0, the verdict still `worse`.
+
+    The bad model is the same as before issue H10 (fitted on the tool-carrying run's first 6 s); it is validated
+    on the bare arm's first 14 s instead of its 4 s tail. On the tail, judged in the fit's band, joint 4 is 1.105x
+    the declared arm but with 3.2 fixed-b degrees of freedom p = 0.057: the check cannot see it there (before H10,
+    in the diagnosis' band with normal critical values, 1.11x, p 0.014). On 14 s: joint 4 1.36x, p 0.0014."""
     from gen_independent import generate
 
     fit, _ = _cut(real_like.path, tmp_path / "runs")
     bare = generate(dict(id="bare", seed=1, effects=[], links="nominal", excitation="free", free_joints=[2, 4],
                          joint=2, rate_hz=250, noise="noisy", jitter="stamp"), tmp_path / "bare")
-    _, held = _cut(bare.path, tmp_path / "bare_runs")
+    held, _ = _cut(bare.path, tmp_path / "bare_runs", share=1.0 - 1e-9, t_end_s=14.0)
     cmd = ["identify", fit, "--validate", held, "--out", tmp_path]
     r = wamctl_completed(*cmd, "--quiet")
     assert r.returncode == 3, r.stderr[-2000:]
@@ -165,7 +187,8 @@ def test_a_model_worse_than_the_declared_arm_is_not_written_and_exits_3(real_lik
     (run,) = tmp_path.glob("*-identify-fit")
     saved = json.loads((run / "identification.json").read_text())
     check = saved["held_out_check"]
-    # joint 4 1.11x, significantly (Diebold-Mariano p 0.014); joint 2 1.005x, within what the held-out data tell
+    # joint 4 1.36x, significantly (Diebold-Mariano p 0.0014); joint 2 1.17x, within what the held-out data tell
+    # (p 0.097)
     assert check["verdict"] == "worse" and check["worse_joints"] == [4] and check["model_written"] is False
     assert check["ratio"]["4"] > 1.05 and check["p_worse"]["4"] < 0.05 and check["within_noise_joints"] == [2]
     assert saved["model_file"] == "model_rejected.yaml"

@@ -131,8 +131,12 @@ def perturbed(tmp_path_factory):
 
 def test_wam4_identified_arm_predicts_held_out_torque_better_than_the_declared_arm(perturbed):
     """The perturbed wam4 (links 2-4 25-35 % heavier, COMs 1.5 cm off): on another trajectory the identified
-    model's held-out RMS is at most 0.5x the declared arm's with friction fitted on every joint and within 30 %
-    of the noise floor (the truth's RMS on the same rows); the verdict is `better`."""
+    model's held-out RMS is at most 0.5x the declared arm's with friction fitted on every joint (0.03-0.09x
+    measured) and the verdict is `better`. Against the noise floor (the truth's RMS on the same rows): within 30 %
+    of it in the diagnosis' band (1.004-1.052x measured, the claim before issue H10); in the fit's band, where
+    the noise is 5-25 times smaller and the fit's own error shows, 1.08 / 1.72 / 1.09 / 1.26x measured (the
+    excess over the floor 0.5-4.4 times the fit's expected estimation noise ``fit_noise_ms``: on joint 2 the
+    prior's pull toward the datasheet, which the posterior does not include), at most 2x asserted."""
     from wamctl.experiments.identify import held_out_check
 
     _, held, (est, validation, prov) = perturbed
@@ -141,12 +145,18 @@ def test_wam4_identified_arm_predicts_held_out_torque_better_than_the_declared_a
     from wamctl.analysis.identification.data import run_rows
     from wamctl.runs.measured import read_measured
 
-    rows = run_rows(read_measured(held), est.dynamics_, window_s=None)
+    # the floor on the rows the models are judged on (the fit's band, issue H10)
+    (band,) = validation["band"]
+    rows = run_rows(read_measured(held), est.dynamics_, window_s=band["window_s"], gauss_s=band["gauss_s"])
     floor = est.rms_by_joint([rows], pi=_truth_pi(1.0))
     print("identified", rms["identified"].round(4), "nominal", rms["nominal"].round(4), "floor", floor.round(4))
     assert rms["identified"].shape == (4,)
     assert np.all(rms["identified"] <= 0.5 * rms["nominal"]), (rms["identified"], rms["nominal"])
-    assert np.all(rms["identified"] <= 1.3 * floor), (rms["identified"], floor)
+    assert np.all(rms["identified"] <= 2.0 * floor), (rms["identified"], floor)
+    rows0 = run_rows(read_measured(held), est.dynamics_, window_s=None)
+    floor0 = est.rms_by_joint([rows0], pi=_truth_pi(1.0))
+    print("diagnosis band: identified / floor", (rms["identified_diagnosis_band"] / floor0).round(4))
+    assert np.all(rms["identified_diagnosis_band"] <= 1.3 * floor0), (rms["identified_diagnosis_band"], floor0)
     check = held_out_check(validation, sorted({j for rr in est.rows_ for j in rr.joints}))
     assert check["verdict"] == "better", check
 
@@ -184,26 +194,38 @@ def test_wam4_base_parameters_recovered_within_their_intervals(perturbed):
 
 
 def test_wam4_nil_perturbation_is_no_worse_not_a_spurious_improvement(tmp_path):
-    """The run's arm is the declared wam4 (friction 1.3x the declared, which the nominal model fits): held-out
-    ratio identified / declared 0.97 to 1.05 on every joint (1.003 / 1.020 / 1.009 / 1.021 measured) and the
-    verdict `no_worse`, neither `better` (no joint significantly below) nor `worse`: the excess is the fit's own
-    estimation noise (expected 0.8-4.5 % of the nominal's mean square here), which the held-out check now allows
-    for a precise fit (before: `worse` on joints 2-4, Diebold-Mariano p < 0.05). Seeds 3/4; on seeds 11-18 the
-    verdict was `worse` on 2 of 4 (ratios up to 1.05, 1.16 with the friction 30 % off): the fit's held-out error
-    was about 1.5x what its HAC posterior predicted (the intervals too narrow). Since issue 27 item 3 (solver
-    objective in the posterior's metric, leverage-adjusted and shrunk sandwich, t intervals): 18 of 20 seeds
-    `no_worse` (tests/analysis/test_identification_coverage.py, benchmarks/bench_identify_coverage.py)."""
+    """The run's arm is the declared wam4 (friction 1.3x the declared, which the nominal model fits): the verdict
+    `no_worse`, neither `better` (no joint significantly below) nor `worse`: the excess is the fit's own estimation
+    noise, which the held-out check allows for a precise fit. Seeds 3/4.
+
+    Judged in the fit's band (issue H10), where the noise's mean square is 5-25 times smaller than in the
+    diagnosis' band, that estimation noise is no longer small against it: expected 18 / 132 / 32 / 47 % of the
+    nominal's mean square (``fit_noise_share``), ratios identified / declared 1.065 / 1.085 / 1.279 / 0.999
+    measured, each within what the fit's posterior allows (``p_worse_given_fit`` 0.62 / 0.95 / 0.16 / 0.995).
+    The allowance is capped at 10 % of the nominal's mean square in the diagnosis' band (the precision asked
+    before H10, in N m^2); capped at 10 % of the filtered one instead, joint 3 was `worse` (p 3e-4) on this
+    arm that is the declared one. In the diagnosis' band the same models are 0.97-1.05x apart (the claim before
+    H10, kept: 1.003 / 1.020 / 1.009 / 1.021 measured then). Before issue 27 the verdict was `worse` on joints
+    2-4 (Diebold-Mariano p < 0.05); on seeds 11-18 `worse` on 2 of 4 (the fit's held-out error about 1.5x
+    what its HAC posterior predicted). tests/analysis/test_identification_coverage.py: five more seeds."""
     from wamctl.experiments.identify import held_out_check
 
     fit, held = write_run(tmp_path / "fit", 0.0, 3), write_run(tmp_path / "held", 0.0, 4)
     est, validation, _ = _identify(fit, held)
     check = held_out_check(validation, sorted({j for rr in est.rows_ for j in rr.joints}))
     ratio = np.array(list(check["ratio"].values()))
-    print("nil ratios", ratio.round(4), check["verdict"], {j: round(c["fit_noise_share"], 4) for j, c in
-                                                             validation["comparison"].items()})
+    rms = validation["rms"]
+    diag = rms["identified_diagnosis_band"] / rms["nominal_diagnosis_band"]
+    share = {j: round(c["fit_noise_share"], 4) for j, c in validation["comparison"].items()}
+    print("nil ratios", ratio.round(4), "diagnosis band", diag.round(4), check["verdict"], share,
+          check["p_worse_given_fit"])
     assert len(ratio) == 4
-    assert np.all((ratio >= 0.97) & (ratio <= 1.05)), ratio
     assert check["verdict"] == "no_worse", check
+    assert np.all(ratio >= 0.97), ratio
+    # the excess is what the fit's posterior allows, and that is not small in the fit's band
+    assert all(p >= 0.05 for p in check["p_worse_given_fit"].values()), check["p_worse_given_fit"]
+    assert max(share.values()) > 0.5
+    assert np.all((diag >= 0.97) & (diag <= 1.05)), diag
 
 
 def test_wam4_controller_torque_uses_only_the_joints_without_gravity(tmp_path):

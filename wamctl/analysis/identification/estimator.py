@@ -152,6 +152,17 @@ def hac_lags(n: int, reach_rows: float) -> int:
     return min(n - 1, max(rule, int(np.ceil(HAC_REACHES * reach_rows))))
 
 
+def dm_reference(n: int, lags: int) -> tuple[float, float]:
+    """(degrees of freedom, deflation) of the held-out check's Diebold-Mariano statistic on ``n`` rows with a
+    Bartlett (Newey-West) variance of ``lags`` lags: fixed-b asymptotics' Student-t approximation (Sun, "Let's fix
+    it", J. Econometrics 2014), ``b = (lags + 1) / n``, degrees of freedom ``1 / (b int k^2) = 3 / (2 b)`` and the
+    statistic divided by ``sqrt(1 + b int k) = sqrt(1 + b)`` (the kernel estimate's downward bias). The normal's
+    one-sided 5 % test on two equally good models' filtered residuals rejected 6-20 %, this one 2.8-5.7 % (1000
+    draws each, windows none to 0.4 s, 130-1300 rows; tests/analysis/test_identification_heldout_band.py)."""
+    b = (lags + 1.0) / n
+    return float(max(1.5 / b, 1.0)), float(np.sqrt(1.0 + b))
+
+
 def hac_score_covariance(scores: np.ndarray, sample: np.ndarray, reach_rows: float) -> tuple[np.ndarray, int]:
     """Newey-West long-run covariance of least-squares scores (rows of ``scores``, each of the sample index
     ``sample``: the joints of one instant summed first) and its lag count (:func:`hac_lags`). The sandwich's
@@ -525,12 +536,16 @@ class InertialIdentification:
         with np.errstate(invalid="ignore", divide="ignore"):
             return np.where(cnt > 0, np.sqrt(sq / np.maximum(cnt, 1)), np.nan)
 
-    def held_out_comparison(self, rows: list[RunRows], masks: list | None = None) -> dict:
+    def held_out_comparison(self, rows: list[RunRows], masks: list | None = None,
+                            precision_rows: list[RunRows] | None = None, precision_masks: list | None = None) -> dict:
         """Per joint, whether the identified model predicts held-out torque worse than the nominal one (declared
         links, friction fitted on the same rows), beyond what the held-out sample can tell apart: Diebold and
         Mariano's test on the loss difference ``d = (tau - tau_identified)^2 - (tau - tau_nominal)^2``, its mean's
         variance by the Newey-West sandwich (lags: ``HAC_REACHES`` filter reaches, at least Newey and West's rule;
-        the filtered residuals are correlated in time), summed over the runs.
+        the filtered residuals are correlated in time), summed over the runs. The statistic is referred to
+        Student's t with the held-out rows' effective degrees of freedom (:func:`dm_reference`, fixed-b), not to
+        the normal: with lags of 4 filter reaches the variance rests on few independent stretches (a held-out
+        quarter of 2.5 s holds some 2), and the normal's 5 % test rejected up to 20 % of equally good models.
 
         ``p_worse_given_fit`` asks the same with the identified model's own uncertainty in the null (West's point:
         the test above takes the fitted parameters as exact): a model that differs from the truth only by its
@@ -538,21 +553,33 @@ class InertialIdentification:
         square (``M`` the mean outer product of the joint's held-out base-regressor rows), so the null
         distribution of the mean loss difference is that weighted chi-square plus the held-out noise above
         (``N_NULL_DRAWS`` seeded draws); on a declared arm that is the truth, the identified model is then no worse
-        within what the fit and the held-out data can tell, not "worse" by its own noise. The allowance is at most
-        ``PRECISE_SHARE`` of the nominal model's held-out mean square (each draw of ``Q`` capped there: the
-        estimation noise may add at most about 5 % to the RMS); an imprecise fit's excess beyond that is its
-        failure, not an excuse (on the rotation run of joints 6-7 at 0.083 rad/s the identified model is 2.95x the
-        declared arm's RMS on joint 7, and its posterior would have covered that). Until issue 27 item 3 a fit whose
-        expected excess ``E[Q] = tr(cov_post_ M)`` was above the cap got no allowance at all: with the honest
-        covariance the declared wam4's joint 4 expects 11-16 % and was called worse at an excess of 2-3 %. The
-        fit's covariance is itself estimated, so ``delta`` is drawn as Student's t (:meth:`check_dof`). The nominal
-        model's friction fit is taken as exact (its estimation error is the smaller: 4 parameters a joint).
+        within what the fit and the held-out data can tell, not "worse" by its own noise. The allowance is capped
+        (each draw of ``Q``) at ``PRECISE_SHARE`` of the nominal model's held-out mean square *in the diagnosis'
+        band* (``precision_rows``: the same held-out samples without the second filter; without them, ``rows``'
+        own): an imprecise fit's excess beyond that is its failure, not an excuse (on the rotation run of joints
+        6-7 at 0.083 rad/s the identified model is about 3x the declared arm's RMS on joint 7, and its posterior
+        would have covered that). Why the diagnosis' band: the cap was set (issue 27) as a precision in N m^2 on
+        rows without the second filter; the fit's error ``Q`` is a model error in the motion's band, which the
+        second filter passes (its cut-off three times that band), so it is the same on both rows, while the
+        noise's mean square drops by the filter's noise bandwidth. Capped at 10 % of the *filtered* nominal's
+        mean square, the same honest fit (the declared wam4, seeds 100-108) expects 18-260 % there and was called
+        worse on 4 of 5 seeds; the cap in the diagnosis' band asks the same precision as before the check moved
+        into the fit's band. Until issue 27 item 3 a fit whose expected excess ``E[Q] = tr(cov_post_ M)`` was
+        above the cap got no allowance at all. The fit's covariance is itself estimated, so ``delta`` is drawn as
+        Student's t (:meth:`check_dof`). The nominal model's friction fit is taken as exact (its estimation error
+        is the smaller: 4 parameters a joint).
 
         Returns ``{0-based joint: {"p_worse": one-sided p of E[d] <= 0, "p_worse_given_fit" (``p_worse`` where no
-        allowance is made), "fit_noise_share": E[Q] / nominal mean square, "n": samples}}`` for every joint with
-        held-out rows (``p_worse`` NaN when d has no variance)."""
-        from scipy.stats import norm
+        allowance is made), "fit_noise_share": E[Q] / nominal mean square, "n": rows, "dof": the test's degrees
+        of freedom, "fit_noise_ms", "nominal_ms", "torque_ms" (mean squares, N^2 m^2), "allowance_cap_ms",
+        "mean_loss_difference", "loss_difference_se"}}`` for every joint with held-out rows (``p_worse`` NaN when
+        d has no variance)."""
+        from scipy.stats import t as student
 
+        cap_ms = {}
+        if precision_rows is not None:
+            ms = self.rms_by_joint(precision_rows, "nominal", masks=precision_masks) ** 2
+            cap_ms = {j: PRECISE_SHARE * float(v) for j, v in enumerate(ms) if np.isfinite(v)}
         acc: dict[int, list] = {}
         for i, rr in enumerate(rows):
             Y, y, j, k = rr.stacked(None if masks is None else masks[i])
@@ -563,31 +590,42 @@ class InertialIdentification:
                 sel = j == jj
                 dj = d[sel]
                 n = len(dj)
-                a = acc.setdefault(int(jj), [0.0, 0.0, 0, 0.0, 0.0])
+                a = acc.setdefault(int(jj), [0.0, 0.0, 0, 0.0, 0.0, 0.0, 0.0, 0])
                 a[0] += dj.sum()
                 a[4] += float(np.sum((y[sel] - Y[sel] @ self.pi_nominal_) ** 2))
+                a[5] += float(np.sum(y[sel] ** 2))
                 if n > 1:       # n x the long-run variance
-                    a[1] += float(S_hac_simple((dj - dj.mean())[:, None], hac_lags(n, reach_rows))[0, 0])
+                    lags = hac_lags(n, reach_rows)
+                    a[1] += float(S_hac_simple((dj - dj.mean())[:, None], lags)[0, 0])
+                    a[6] += lags + 1.0
+                    a[7] += 1
                 a[2] += n
                 a[3] = a[3] + Xb[sel].T @ Xb[sel]
         out = {}
-        for jj, (dsum, var_sum, n, XtX, nom_sq) in acc.items():
-            se = np.sqrt(var_sum) / n if var_sum > 0 else np.nan
+        for jj, (dsum, var_sum, n, XtX, nom_sq, y_sq, lag_sum, _) in acc.items():
+            # over several runs, b = sum (lags + 1) / sum n: the lag windows they hold together
+            nu, deflate = dm_reference(n, lag_sum - 1.0)
+            se = np.sqrt(var_sum) / n * deflate if var_sum > 0 else np.nan
             ok = np.isfinite(se) and se > 0
-            p = float(norm.sf((dsum / n) / se)) if ok else float("nan")
+            p = float(student.sf((dsum / n) / se, nu)) if ok else float("nan")
             lam = self._fit_noise(XtX / n)
             share = float(lam.sum() / (nom_sq / n)) if nom_sq > 0 and lam is not None else float("nan")
+            cap = cap_ms.get(jj, PRECISE_SHARE * nom_sq / n)
             p_fit = p
             if ok and lam is not None and nom_sq > 0:
                 rng = np.random.default_rng(NULL_SEED)
                 z = rng.standard_normal((N_NULL_DRAWS, len(lam)))
                 # the fit's covariance is itself estimated (its degrees of freedom: the median over the determined
                 # parameters of :func:`effective_blocks` less one): delta is Student's t, not normal
-                nu = self.check_dof()
-                scale = rng.chisquare(nu, N_NULL_DRAWS) / nu if np.isfinite(nu) else np.ones(N_NULL_DRAWS)
-                allowed = np.minimum(((z ** 2) @ lam) / scale, PRECISE_SHARE * nom_sq / n)
-                p_fit = float(np.mean(norm.sf((dsum / n - allowed) / se)))
-            out[jj] = {"p_worse": p, "p_worse_given_fit": p_fit, "fit_noise_share": share, "n": int(n)}
+                nu_fit = self.check_dof()
+                scale = (rng.chisquare(nu_fit, N_NULL_DRAWS) / nu_fit if np.isfinite(nu_fit)
+                         else np.ones(N_NULL_DRAWS))
+                allowed = np.minimum(((z ** 2) @ lam) / scale, cap)
+                p_fit = float(np.mean(student.sf((dsum / n - allowed) / se, nu)))
+            out[jj] = {"p_worse": p, "p_worse_given_fit": p_fit, "fit_noise_share": share, "n": int(n),
+                       "dof": float(nu), "fit_noise_ms": float(lam.sum()) if lam is not None else float("nan"),
+                       "nominal_ms": nom_sq / n, "torque_ms": y_sq / n, "allowance_cap_ms": float(cap),
+                       "mean_loss_difference": dsum / n, "loss_difference_se": float(se)}
         return out
 
     def check_dof(self) -> float:
