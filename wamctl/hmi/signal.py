@@ -107,7 +107,8 @@ class SampleRateEstimator:
                 if len(self._intervals) >= self.min_intervals:
                     median_s = statistics.median(self._intervals)
                     typical = [d for d in self._intervals if 0.5 * median_s <= d <= 1.5 * median_s]
-                    self.rate_hz = len(typical) / sum(typical)
+                    if typical:  # none when bursts and periods split an even count: the median falls between
+                        self.rate_hz = len(typical) / sum(typical)
         self._last_t_s = sample.t_s
         return self.rate_hz
 
