@@ -245,7 +245,7 @@ class HmiBlock:
             friction_ff=friction_ff, ff_buffer=ff)
 
     def _wait_for_stream(self) -> None:
-        """Hold until the gaze stream delivers its first sample (a recorded one at once)."""
+        """Hold until the gaze stream has started (:attr:`StreamFeed.started`: its third timed sample taken)."""
         if self.feed.started:
             return
         t0 = self.arm.t_s
