@@ -10,8 +10,9 @@ Here, made by code (test_identification_wam4's generator): a wam4 whose links 2-
 declared, position noise 2e-4 rad (ten times the default: broadband acceleration noise), torque noise 0.05 N m.
 Measured before the change (the check on rows without the second filter): `worse`, joint 1 1.025x p < 1e-4, the
 model refused; after: `better` (0.03-0.31x). A truly worse model (fitted on that arm, validated on the declared
-one) is refused before and after. And the check's test itself: on filtered residuals of two equally good
-models the normal's critical values reject too often; the fixed-b t's do not.
+one) is refused before and after. The same runs without their reference now get a second filter from the
+position's band (the fit's and the check's). And the check's test itself: on filtered residuals of two equally
+good models the normal's critical values reject too often; the fixed-b t's do not.
 """
 
 from __future__ import annotations
@@ -135,3 +136,32 @@ def test_the_check_accounts_for_the_filtered_residuals_effective_sample_size():
     print("size normal", normal, "fixed-b t", fixed_b)
     assert normal > 0.08
     assert 0.025 <= fixed_b <= 0.075
+
+
+def test_a_log_without_a_reference_gets_its_band_from_the_position(fit_run, tmp_path):
+    """The same runs without their reference (as slax, zeus and the 7-DOF log: the measured positions stand in).
+    The stand-in's acceleration is its noise (second differences raise it as f^4): its 99 % band was at the
+    Nyquist frequency, so no second filter was chosen, and the fit and its check ran on that noise (before H10:
+    `worse`, joint 1 1.08x p 0.003, joint 3 1.18x p 0.001, measured). The band is now the position's (1.04 Hz): a
+    second filter of 0.15 s, and the check says `better` (0.04-0.37x measured)."""
+    import pandas as pd
+
+    from wamctl.analysis.identification.data import auto_filter, signal_band_hz
+
+    runs = []
+    for src in fit_run[:2]:
+        dst = tmp_path / src.name
+        dst.mkdir()
+        df = pd.read_parquet(src / "data.parquet")
+        df.drop(columns=[c for c in df if c.startswith("q_ref_")]).to_parquet(dst / "data.parquet", index=False)
+        (dst / "meta.yaml").write_text((src / "meta.yaml").read_text())
+        runs.append(dst)
+    df = pd.read_parquet(runs[0] / "data.parquet")
+    t, q = df["t"].to_numpy(), df[[f"q_{j}" for j in range(1, 5)]].to_numpy()
+    assert signal_band_hz(t, q) > 200.0                 # of 250 Hz: the noise's
+    assert signal_band_hz(t, q, order=0) < 1.5          # the motion's (harmonics of 0.1-0.5 Hz): 1.04 Hz
+    assert auto_filter(t, q) is None and auto_filter(t, q, stand_in=True) is not None
+    est, validation, check = _check(*runs)
+    print(est.rows_[0].window_s, check["verdict"], {j: round(r, 3) for j, r in check["ratio"].items()})
+    assert est.rows_[0].window_s is not None and validation["band"][0]["window_s"] == est.rows_[0].window_s
+    assert check["verdict"] == "better", check
