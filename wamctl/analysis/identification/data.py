@@ -12,7 +12,8 @@ Filtering (two stages, one filter: :func:`wamctl.analysis.diagnosis.signals.smoo
    filtering): ``S[tau] = S[Y] pi`` holds exactly because ``tau = Y pi`` is linear in ``pi``, so the filter
    distorts nothing (not the gravity's curvature, not the friction's jump at a reversal) while it averages the
    noise away. Its band follows the commanded motion (:func:`auto_filter`: three times the band holding 99 % of
-   the reference's acceleration energy). ``window_s=None`` skips it (the residuals then compare with
+   the reference's acceleration energy; of its position's where the measurement stands in for a reference not
+   logged, whose acceleration is noise). ``window_s=None`` skips it (the residuals then compare with
    ``wamctl diagnose``'s).
 
 Derivatives
