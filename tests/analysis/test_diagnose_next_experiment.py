@@ -120,3 +120,9 @@ def test_an_elbow_sweep_named_link_parameters_gets_a_run_that_separates(tmp_path
     assert set(out["joints"]) - {4}
     assert out["original_separation_noise_floors"] < 1
     assert out["separation_noise_floors"] > 2
+    # a payload no WAM carries (a 370 kg fit, seen on a wrist sweep with a delay) gets no run: nothing written
+    diag.payload_cone_fit_ = dict(diag.payload_cone_fit_, mass_kg=370.0)
+    (tmp_path / "implausible").mkdir()
+    out = next_experiment(diag, data, r.path, tmp_path / "implausible")
+    assert out["spec"] is None and "370 kg, not a wrist payload (0.01 to 10 kg)" in out["why"]
+    assert not (tmp_path / "implausible" / "next_experiment.yaml").exists()

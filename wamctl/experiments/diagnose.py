@@ -158,6 +158,7 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
     "original_separation_noise_floors", "joints", "why", "noise_floor_Nm"}`` or None when nothing is to separate
     or no payload was fitted to design against."""
 
+    from wamctl.analysis.diagnosis.arm import PAYLOAD_MASS_RANGE_KG
     from wamctl.analysis.diagnosis.discriminate import design_next_run, fitted_hypotheses, trajectory_rows
     from wamctl.analysis.diagnosis.links import WIDE_PRIOR
     from wamctl.analysis.diagnosis.rigid import plausible_link_map
@@ -171,6 +172,13 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
     cone = diag.payload_cone_fit_
     if not cone or cone["mass_kg"] <= 0:
         return None
+    lo_kg, hi_kg = PAYLOAD_MASS_RANGE_KG
+    if not lo_kg <= cone["mass_kg"] <= hi_kg:
+        # a payload no WAM carries is no competitor for the links' errors: a run designed against it would cost
+        # the lab a run and decide nothing (seen: 370 kg fitted to a wrist sweep with a measurement delay)
+        return {"spec": None, "why": f"no run designed to tell a payload from link errors: the payload that would "
+                                     f"compete with them here is {cone['mass_kg']:.3g} kg, not a wrist payload "
+                                     f"({lo_kg:g} to {hi_kg:g} kg)"}
     sig = diag.signals_
     idx = np.unique(np.concatenate([diag.jd_[j].idx for j in diag.joints_]))
     idx = idx[:: max(1, int(round(1.0 / (sig.dt_s * 12.5))))]
