@@ -112,12 +112,29 @@ def summary_line(command: str, code: int, text: str) -> str:
         return first_error(text)
     if command == "identify":
         check = out["held_out_check"]
+        band = identify_band(out.get("run_dir"))
         if check.get("model_written", True):
-            return check["statement"]
-        return f"{check['statement']} [model.yaml not written; kept as {check['model_file']}]"
+            return check["statement"] + band
+        return f"{check['statement']} [model.yaml not written; kept as {check['model_file']}]{band}"
     if command == "diagnose":
         return f"effects found: {out['effects_found']}"
     return f"run directory {out.get('run_dir')}"
+
+
+def identify_band(run_dir: str | None) -> str:
+    """The band identify fitted and judged in (its identification.json: the fitting runs' second filter and the
+    held-out rows'), as " [second filter: fit 0.08 s, check 0.08 s]" (none: the diagnosis' band alone)."""
+    path = Path(run_dir or "") / "identification.json"
+    if not run_dir or not path.exists():
+        return ""
+    res = json.loads(path.read_text())
+
+    def say(ws):
+        return ", ".join("none" if w is None else f"{w:g} s" for w in ws) or "?"
+
+    fit = say(f.get("window_s") for f in res.get("filter", []))
+    check = say(b.get("window_s") for b in res.get("validation_band", []))
+    return f" [second filter: fit {fit}, check {check}]"
 
 
 def joint_columns(frame: pd.DataFrame, prefix: str, unit: str) -> list[str]:
