@@ -134,7 +134,7 @@ def test_wam4_identified_arm_predicts_held_out_torque_better_than_the_declared_a
     model's held-out RMS is at most 0.5x the declared arm's with friction fitted on every joint (0.03-0.09x
     measured) and the verdict is `better`. Against the noise floor (the truth's RMS on the same rows): within 30 %
     of it in the diagnosis' band (1.004-1.052x measured, the claim before issue H10); in the fit's band, where
-    the noise is 5-25 times smaller and the fit's own error shows, 1.08 / 1.72 / 1.09 / 1.26x measured (the
+    the floor is 2.7-8.3 times smaller and the fit's own error shows, 1.08 / 1.72 / 1.09 / 1.26x measured (the
     excess over the floor 0.5-4.4 times the fit's expected estimation noise ``fit_noise_ms``: on joint 2 the
     prior's pull toward the datasheet, which the posterior does not include), at most 2x asserted."""
     from wamctl.experiments.identify import held_out_check
@@ -198,7 +198,7 @@ def test_wam4_nil_perturbation_is_no_worse_not_a_spurious_improvement(tmp_path):
     `no_worse`, neither `better` (no joint significantly below) nor `worse`: the excess is the fit's own estimation
     noise, which the held-out check allows for a precise fit. Seeds 3/4.
 
-    Judged in the fit's band (issue H10), where the noise's mean square is 5-25 times smaller than in the
+    Judged in the fit's band (issue H10), where the nominal's mean square is 7-54 times smaller than in the
     diagnosis' band, that estimation noise is no longer small against it: expected 18 / 132 / 32 / 47 % of the
     nominal's mean square (``fit_noise_share``), ratios identified / declared 1.065 / 1.085 / 1.279 / 0.999
     measured, each within what the fit's posterior allows (``p_worse_given_fit`` 0.62 / 0.95 / 0.16 / 0.995).
