@@ -85,8 +85,16 @@ if os.environ.get("SIMSHARE_DIR"):
     def _patch(engine):
         import wamctl.backends.base as _base
         engine.run_loop = _loop(engine.run_loop)
+        fused = sys.modules.get("wamctl.backends.sim_fused")      # absent before the compiled loop
         for _name in ("read_positions", "command_torques", "wait_next_cycle"):
-            setattr(_base.ArmBackend, _name, _method(getattr(_base.ArmBackend, _name)))
+            wrapped = _method(getattr(_base.ArmBackend, _name))
+            setattr(_base.ArmBackend, _name, wrapped)
+            if fused is not None:
+                # the compiled loop runs only where these are the originals (fused_supported): the wrapper is
+                # transparent, so it counts as the original, else every run would take the Python path
+                for table in ("_BASE_METHODS", "_LOOP_METHODS"):
+                    if _name in getattr(fused, table, {}):
+                        getattr(fused, table)[_name] = wrapped
 
     import importlib.abc
     import sys
