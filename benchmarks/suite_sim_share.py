@@ -22,7 +22,7 @@ the load than a wall time):
 
     checkout                                  suite CPU   closed loop   outside it   share   wall    load
     4a352c7  before the compiled loop           627 s        88 s          3.3 s     14.5 %  436 s   4.0 -> 4.5
-    c620c74  the compiled loop, today's tree      755 s        43 s          4.8 s      6.3 %  426 s   3.6 -> 4.8
+    c620c74  the compiled loop, today's tree    755 s        43 s          4.8 s      6.3 %  426 s   3.6 -> 4.8
 
 Under the timers test_interrupts' 50-point test fails on both trees (5 failures on 4a352c7, its own, as in
 bench_suite.py's runs); it passes without them. So even a simulator that cost nothing would have taken at most
