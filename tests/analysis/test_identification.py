@@ -12,6 +12,7 @@ held-out RMS of the true arm's own model through the same processing (the diagno
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -136,6 +137,13 @@ def test_model_file_runs_the_identified_arm_and_feeds_the_controller(arm, tmp_pa
     assert check["verdict"] == "better" and check["within_noise_joints"] == [] and check["worse_joints"] == []
     assert all(check["p_worse"][j] >= 0.95 for j in (2, 3, 4))
     assert check["model_written"] and not check["forced"] and (run_path / "model.yaml").is_file()
+    # the report says which band its held-out RMS is in, and gives the diagnosis band's beside it
+    report = (run_path / "report.md").read_text()
+    (band,) = result["validation_band"]
+    assert f"then the fit's second filter ({band['window_s']:g} s window)" in report
+    assert "diagnosis filter (about 10 Hz, as `wamctl diagnose`)" not in report
+    rows = json.loads((run_path / "report.json").read_text())["validation"]
+    assert all(r["nominal_rms_diagnosis_band_Nm"] > 0 for r in rows)
     assert check["statement"].startswith("held-out check: the identified model is at least as good")
     assert all(r <= 0.25 for j, r in check["ratio"].items() if j in (2, 3, 4))
     assert max(check["ratio"].values()) < 1.0

@@ -21,10 +21,24 @@ def validation_table(result: dict) -> pd.DataFrame:
     rows = []
     for j in range(len(v["nominal"])):
         nom, idf, ins = v["nominal"][j], v["identified"][j], v["in_sample_identified"][j]
-        rows.append({"joint": j + 1, "nominal_rms_Nm": nom, "identified_rms_Nm": idf,
-                     "identified_over_nominal": (idf / nom) if nom and idf is not None else None,
-                     "in_sample_rms_Nm": ins})
+        row = {"joint": j + 1, "nominal_rms_Nm": nom, "identified_rms_Nm": idf,
+               "identified_over_nominal": (idf / nom) if nom and idf is not None else None,
+               "in_sample_rms_Nm": ins}
+        if "identified_diagnosis_band" in v:     # the same held-out samples without the fit's second filter
+            dn, di = v["nominal_diagnosis_band"][j], v["identified_diagnosis_band"][j]
+            row.update(nominal_rms_diagnosis_band_Nm=dn, identified_rms_diagnosis_band_Nm=di)
+        rows.append(row)
     return pd.DataFrame(rows).set_index("joint")
+
+
+def validation_band_text(result: dict) -> str:
+    """Which band the held-out RMS is in: the fit's (the diagnosis' filter, then the fit's second filter)."""
+    windows = sorted({b["window_s"] for b in result.get("validation_band") or [] if b.get("window_s")})
+    if not windows:
+        return "the diagnosis' filter (about 10 Hz, as `wamctl diagnose`), the band the model was fitted in"
+    return ("the band the model was fitted in: the diagnosis' filter (about 10 Hz), then the fit's second filter "
+            f"({', '.join(f'{w:g}' for w in windows)} s window); the diagnosis band columns: the same held-out samples "
+            "without the second filter, as `wamctl diagnose` sees them")
 
 
 def parameter_table(result: dict) -> pd.DataFrame:
@@ -119,9 +133,10 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     doc.text(text)
     doc.heading("Held-out validation")
     vt = validation_table(result)
-    doc.table("validation", vt, "RMS of measured - predicted torque on held-out data, diagnosis filter (about 10 "
-              "Hz, as `wamctl diagnose`); nominal: declared links with friction fitted on the same data; "
-              "in-sample: the identified model on the data it was fitted on (after the identification's filter).")
+    band = validation_band_text(result)
+    doc.table("validation", vt, f"RMS of measured - predicted torque on held-out data, in {band}; nominal: "
+              "declared links with friction fitted on the same data; in-sample: the identified model on the data "
+              "it was fitted on (after the identification's filter).")
     doc.data["validation"] = vt.reset_index().replace({np.nan: None}).to_dict("records")
     _validation_figure(run_path, out_dir, doc)
     _relative_error_section(result, doc)
