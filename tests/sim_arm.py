@@ -28,6 +28,14 @@ def udp() -> tuple[str, int]:
     return group, port
 
 
+# what the simulated operator does on a just-powered arm (times from the first position request): moves the arm to
+# the start pose only after wamctl has checked the zeroing. That check reads the positions at the first heartbeat,
+# right after the first read (which waits up to 1 s for the pucks); a move scripted at 0.3 s came first on a loaded
+# machine, and the check read the start pose ("after zeroing, joint 2 reads -0.0000 rad instead of the home pose's
+# -2.0000 rad", test_can_cross_process and test_hmi_yes, 2 in 3 full runs of the suite on 2026-11-27)
+PENDANT_AFTER_ZEROING = "move@2.0,activate@2.5,idle@end"
+
+
 def can_backend(group: str, port: int, **kw) -> dict:
     """A spec's ``backend`` on that bus, with the timeouts the cross-process tests use."""
     return {"kind": "can", "interface": "udp_multicast", "channel": group, "bus_options": {"port": port},

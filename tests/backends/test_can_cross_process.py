@@ -21,7 +21,7 @@ import pytest
 import yaml
 from can_wire import all_pucks_torque_index, host_mode_writes, host_sets, torque_frames, wake_pacing
 from conftest import Q0, rotation_spec
-from sim_arm import SimArm, can_backend
+from sim_arm import PENDANT_AFTER_ZEROING, SimArm, can_backend
 from typer.testing import CliRunner
 
 from wamctl.analysis.rotation import rotation_metrics
@@ -71,7 +71,7 @@ def test_first_session_of_the_day_over_udp_matches_the_direct_simulation(runs_di
     # missing from the record (a puck's MODE=TORQUE reply lost put the confirmation later than the torques)
     with WireLog(group, port, tmp_path / "wire.log") as wire:
         arm = SimArm(group, port, "--spec", str(spec_file), "--pose", "home", "--not-zeroed", "--asleep",
-                     "--pendant", "move@0.3,activate@0.8,idle@end")
+                     "--pendant", PENDANT_AFTER_ZEROING)
         try:
             out_can = run_spec(parse_spec(can_spec), tmp_path, runs_dir, make_report=False)
         finally:

@@ -13,7 +13,7 @@ import json
 import pytest
 import yaml
 from cli_runs import run_cli
-from sim_arm import SimArm, can_backend
+from sim_arm import PENDANT_AFTER_ZEROING, SimArm, can_backend
 
 pytestmark = pytest.mark.timeout(300)
 
@@ -30,7 +30,7 @@ def test_hmi_session_yes_zeroes_a_just_powered_arm(tmp_path, udp, monkeypatch):
     p.write_text(yaml.safe_dump(spec))
     monkeypatch.setattr("sys.stdin", io.StringIO(""))          # no terminal to answer (was stdin=DEVNULL)
     arm = SimArm(group, port, "--spec", p, "--pose", "home", "--not-zeroed", "--asleep",
-                 "--pendant", "move@0.3,activate@0.8,idle@end")
+                 "--pendant", PENDANT_AFTER_ZEROING)
     try:
         r = run_cli("hmi-session", p, "--out", tmp_path / "runs", "--yes", "--json")
     finally:
