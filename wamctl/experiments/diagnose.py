@@ -175,7 +175,7 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
     lo_kg, hi_kg = PAYLOAD_MASS_RANGE_KG
     if not lo_kg <= cone["mass_kg"] <= hi_kg:
         # a payload no WAM carries is no competitor for the links' errors: a run designed against it would cost
-        # the lab a run and decide nothing (seen: 370 kg fitted to a wrist sweep with a measurement delay)
+        # the lab a run and decide nothing (seen: 366 kg fitted to a wrist sweep with a measurement delay)
         return {"spec": None, "why": f"no run designed to tell a payload from link errors: the payload that would "
                                      f"compete with them here is {cone['mass_kg']:.3g} kg, not a wrist payload "
                                      f"({lo_kg:g} to {hi_kg:g} kg)"}
