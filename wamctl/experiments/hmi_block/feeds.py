@@ -162,7 +162,8 @@ class StreamFeed:
         self.record = record
         self.start_timeout_s = start_timeout_s
         self.summary: dict | None = None
-        self._ahead: GazeSample | None = None
+        # the sample read ahead, with its decoder's problem and its arrival time (:meth:`_next`'s item)
+        self._ahead: tuple[GazeSample, str | None, float] | None = None
         self._offset_s: float | None = None
         self._last_t_s: float | None = None
         self._last_wall_s = clock()
@@ -170,8 +171,6 @@ class StreamFeed:
         self._first_t_s: float | None = None  # tracker time of the first timed sample
         self._timed = 0  # timed samples delivered
         self._problem: str | None = None  # stream_problem of the decoder's counts when the last delivered one decoded
-        self._ahead_problem: str | None = None  # the same for the sample read ahead
-        self._ahead_arrival_s = math.nan  # arrival time of the sample read ahead
         self._last_arrival_s = math.nan  # arrival time of the last timed sample delivered
         #: The arm clock may wait for the stream (a simulated arm): see the class's docstring.
         self.hold_arm_clock = False
@@ -251,7 +250,7 @@ class StreamFeed:
         """Tracker time minus arm time, s (0 before the first sample)."""
         return self._offset_s or 0.0
 
-    def _read(self, t_s: float) -> GazeSample | None:
+    def _read(self, t_s: float) -> tuple[GazeSample, str | None, float] | None:
         if self._ended:
             return None
         if not self.live:
@@ -260,7 +259,7 @@ class StreamFeed:
                 if self.source.exhausted:
                     self._ended = True
                 return None
-            return self._unpack(item)
+            return item
         try:
             item = self._queue.get_nowait()
         except queue.Empty:
@@ -270,7 +269,7 @@ class StreamFeed:
         if item is _END:
             self._ended = True
             return None
-        return self._unpack(item)
+        return item
 
     def _wait(self, t_s: float):
         """The reader's next item if it is worth waiting for at arm time ``t_s``, else None."""
@@ -288,10 +287,6 @@ class StreamFeed:
             return self._queue.get(timeout=min(wait, 0.5))
         except queue.Empty:
             return None
-
-    def _unpack(self, item: tuple[GazeSample, str | None, float]) -> GazeSample:
-        s, self._ahead_problem, self._ahead_arrival_s = item
-        return s
 
     #: Longest wait of :meth:`_hold` for a reader that passes nothing on, s (it reports every 0.05 s).
     HOLD_LIMIT_S = 2.0
@@ -311,9 +306,9 @@ class StreamFeed:
         except queue.Empty:
             return None
 
-    def _deliver(self, s: GazeSample) -> GazeSample:
+    def _deliver(self, s: GazeSample, problem: str | None) -> GazeSample:
         self._ahead = None
-        self._problem = self._ahead_problem
+        self._problem = problem
         return s
 
     def next_due(self, t_s: float) -> GazeSample | None:
@@ -321,18 +316,18 @@ class StreamFeed:
             self._ahead = self._read(t_s)
             if self._ahead is None:
                 return None
-        s = self._ahead
+        s, problem, arrival_s = self._ahead
         if not s.has_time:
-            return self._deliver(s)
+            return self._deliver(s, problem)
         if self._offset_s is None:
             self._offset_s = s.t_s - t_s
             self._first_t_s = s.t_s
         if s.t_s - self._offset_s <= t_s:
             self._last_t_s = s.t_s - self._offset_s
             self._last_wall_s = self.clock()
-            self._last_arrival_s = self._ahead_arrival_s
+            self._last_arrival_s = arrival_s
             self._timed += 1
-            return self._deliver(s)
+            return self._deliver(s, problem)
         return None
 
     def no_sample_message(self, waited_s: float, ended: bool = False) -> str:
