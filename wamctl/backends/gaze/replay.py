@@ -302,16 +302,11 @@ class PtyReplaySource(SerialGazeSource):
             raise
         self._player.start()  # after the open: pyserial flushes the input when it opens a port
 
-    def _receive(self) -> None:
-        finished, idle = self._player.finished_s, self.eof_idle_s
-        if idle is None or (finished is not None and time.monotonic() - finished > idle):
-            super()._receive()
-            return
-        self.eof_idle_s = None  # still playing, or just done: the serial source's idle end waits
-        try:
-            super()._receive()
-        finally:
-            self.eof_idle_s = idle
+    def _idle_ended(self, now: float) -> bool:
+        """The serial source's idle end, once the player has written the whole capture ``eof_idle_s`` ago: a
+        silence while it still plays (or has just finished) is not the end."""
+        finished = self._player.finished_s
+        return super()._idle_ended(now) and finished is not None and now - finished > self.eof_idle_s
 
     def _close(self) -> None:
         super()._close()

@@ -168,9 +168,13 @@ class SerialGazeSource(SourceBase):
         if ended is not None:
             logger.warning("gaze tracker %s: connection ended (%s)", self.url, ended)
             self._end_of_stream(now)
-        elif not data and self.eof_idle_s is not None and now - self._last_rx_s > self.eof_idle_s:
+        elif not data and self._idle_ended(now):
             logger.info("gaze tracker %s: no data for %.2f s, end of stream", self.url, self.eof_idle_s)
             self._end_of_stream(now)
+
+    def _idle_ended(self, now: float) -> bool:
+        """True when the port has been silent for longer than ``eof_idle_s`` (the stream's end, where one is set)."""
+        return self.eof_idle_s is not None and now - self._last_rx_s > self.eof_idle_s
 
     def _got(self, data: bytes, now: float) -> None:
         self._last_rx_s = now
