@@ -523,14 +523,15 @@ def per_effect(df: pd.DataFrame) -> pd.DataFrame:
 
 
 # ---------------------------------------------------------------------------------------------- speed
-def timing(duration_s: float, cache: Path, profile: bool = False) -> dict:
+def timing(duration_s: float, cache: Path, profile: bool = False, jobs: int | None = None) -> dict:
     """One run of ``duration_s`` at 500 Hz with every joint moving (the first generator, a position ripple),
-    generated once into ``cache``, loaded, and diagnosed with and then without the closed-loop position check.
+    generated once into ``cache``, loaded, and diagnosed with and then without the closed-loop position check, the
+    joints in ``jobs`` worker processes (None: as ``wamctl diagnose`` chooses; 1: none); how many it used is said.
 
-    Each step's wall time and this process's CPU time (all its threads; the figure an idle machine's wall time
-    approaches on one core) are returned with the load average (1 min) before and after, so that a figure taken
-    on a busy machine can be told from one taken on a quiet one. ``profile``: cProfile (CPU time) of the diagnosis
-    with the check, top entries printed."""
+    Each step's wall time and CPU time (this process's, all its threads, and its finished worker processes';
+    without workers the figure an idle machine's wall time approaches on one core) are returned with the load
+    average (1 min) before and after, so that a figure taken on a busy machine can be told from one taken on a quiet
+    one. ``profile``: cProfile (CPU time) of the diagnosis with the check, top entries printed."""
     import os
 
     from diagnosis_gen import generate_run
@@ -540,7 +541,8 @@ def timing(duration_s: float, cache: Path, profile: bool = False) -> dict:
     from wamctl.runs.measured import load_run_data
 
     def clock():
-        return time.perf_counter(), time.process_time()
+        t = os.times()
+        return time.perf_counter(), time.process_time() + t.children_user + t.children_system
 
     d = cache / f"long-{int(duration_s)}s"
     t0 = clock()
@@ -558,14 +560,14 @@ def timing(duration_s: float, cache: Path, profile: bool = False) -> dict:
 
         pr = cProfile.Profile(time.process_time)
         pr.enable()
-    diag = ModelDiagnosis(simulator=simulate_positions).fit(data)
+    diag = ModelDiagnosis(simulator=simulate_positions, jobs=jobs).fit(data)
     t3 = clock()
     if profile:
         pr.disable()
         st = pstats.Stats(pr)
         st.sort_stats("cumulative").print_stats(40)
         st.sort_stats("tottime").print_stats(25)
-    diag_nosim = ModelDiagnosis().fit(data)
+    diag_nosim = ModelDiagnosis(jobs=jobs).fit(data)
     t4 = clock()
     moving = [j + 1 for j in diag.signals_.joints]
     out = {"samples": len(data.data), "duration_s": duration_s, "joints_diagnosed": moving,
@@ -574,10 +576,11 @@ def timing(duration_s: float, cache: Path, profile: bool = False) -> dict:
            "diagnose_without_position_check_s": t4[0] - t3[0],
            "diagnose_without_position_check_cpu_s": t4[1] - t3[1],
            "load_average_1min": [round(load_before, 2), round(os.getloadavg()[0], 2)], "cpus": os.cpu_count(),
-           "profiled": profile, "effects_found": diag.effects_found_,
+           "profiled": profile, "effects_found": diag.effects_found_, "worker_processes": diag.workers_,
            "same_without_check": diag_nosim.effects_found_ == diag.effects_found_}
     print(f"\n{out['samples']} samples ({duration_s:.0f} s at 500 Hz, joints {moving}); load average "
-          f"{out['load_average_1min'][0]} -> {out['load_average_1min'][1]} on {out['cpus']} CPUs"
+          f"{out['load_average_1min'][0]} -> {out['load_average_1min'][1]} on {out['cpus']} CPUs; the joints in "
+          + (f"{diag.workers_} worker processes" if diag.workers_ > 1 else "this process (no workers)")
           + (" (profiled: cProfile slows it)" if profile else ""))
     for what, w, c in (("load the run", out["load_s"], out["load_cpu_s"]),
                        ("diagnose, with the position check", out["diagnose_s"], out["diagnose_cpu_s"]),
@@ -838,6 +841,8 @@ def main(argv=None) -> None:
     ap.add_argument("--only-timing", action="store_true")
     ap.add_argument("--only-design", action="store_true",
                     help="only the next experiment's design timed (issue 28: under 30 s), then exit")
+    ap.add_argument("--jobs", type=int, default=None, help="with the timing: worker processes for the joints "
+                    "(default: as wamctl diagnose chooses; 1: none)")
     ap.add_argument("--profile", action="store_true", help="with the timing: cProfile (CPU time) of the diagnosis")
     ap.add_argument("--runs-dir", type=Path, default=None, help="keep generated runs here (default: temporary)")
     ap.add_argument("--write", type=Path, default=ROOT / "docs" / "diagnosis-validation.md",
@@ -892,7 +897,7 @@ def main(argv=None) -> None:
             k, n = int(fa["wrong_first"].sum()), len(fa)
             print(f"\nfalse alarms: {k} of {n}, 95 % CI {clopper_pearson(k, n)}")
     if not a.no_timing:
-        speed = timing(a.long_s, ROOT / "benchmarks" / "out", a.profile)
+        speed = timing(a.long_s, ROOT / "benchmarks" / "out", a.profile, a.jobs)
         print(json.dumps(speed, indent=1, default=str))
     if a.csv:
         pd.concat(list(studies.values()) + ([fa] if fa is not None else [])).to_csv(a.csv, index=False)

@@ -22,7 +22,10 @@ def diagnose(data: DataArg,
              out: Annotated[Path, typer.Option("--out", help="Parent directory of the run directory.")]
              = Path("runs"),
              quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No tables on the terminal.")] = False,
-             json: Annotated[bool, typer.Option("--json", help="Print diagnosis.json on stdout.")] = False):
+             json: Annotated[bool, typer.Option("--json", help="Print diagnosis.json on stdout.")] = False,
+             jobs: Annotated[int | None, typer.Option(
+                 "--jobs", min=1, help="Worker processes for the joints (the same diagnosis; 1: none). Default: the "
+                                       "CPUs available, on a long run.", show_default=False)] = None):
     """Find what the declared model (rigid body + armature + classic friction) lacks in a measured run.
 
     The torque residual (inverse dynamics on Savitzky-Golay derivatives) is tested against one signature per
@@ -40,11 +43,11 @@ def diagnose(data: DataArg,
     from wamctl.experiments.diagnose import diagnose_to_run_dir
 
     if len(data) > 1:
-        _pooled(data, model, out, quiet, json)
+        _pooled(data, model, out, quiet, json, jobs)
         return
     data = data[0]
     with progress_bar("diagnose", enabled=not (quiet or json)) as progress:
-        path, result, doc = diagnose_to_run_dir(data, model, out, progress=progress)
+        path, result, doc = diagnose_to_run_dir(data, model, out, progress=progress, jobs=jobs)
     if json:
         emit_json(dict(result, run_dir=str(path)))
         return
@@ -76,7 +79,7 @@ def diagnose(data: DataArg,
     console.print(f"run directory: {path}", highlight=False, soft_wrap=True)     # alone and whole: to be copied
 
 
-def _pooled(data: list[Path], model: Path | None, out: Path, quiet: bool, json: bool) -> None:
+def _pooled(data: list[Path], model: Path | None, out: Path, quiet: bool, json: bool, jobs: int | None) -> None:
     """``wamctl diagnose RUN1 RUN2 ...``: the runs pooled."""
     from wamctl.commands.common import print_document_tables, print_warnings, progress_bar
     from wamctl.experiments.diagnose import diagnose_runs_to_run_dir
@@ -84,7 +87,7 @@ def _pooled(data: list[Path], model: Path | None, out: Path, quiet: bool, json: 
     from wamctl.report.diagnosis_pooled import decided_lines
 
     with progress_bar("diagnose", enabled=not (quiet or json)) as progress:
-        path, result, doc = diagnose_runs_to_run_dir(data, model, out, progress=progress)
+        path, result, doc = diagnose_runs_to_run_dir(data, model, out, progress=progress, jobs=jobs)
     if json:
         emit_json(dict(result, run_dir=str(path)))
         return

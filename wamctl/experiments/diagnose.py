@@ -77,9 +77,10 @@ def declared_model(path: Path | None, robot: str = "wam7"):
 
 
 def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = Path("runs"),
-                        name: str | None = None, formats=("md", "html", "json"), progress=None):
+                        name: str | None = None, formats=("md", "html", "json"), progress=None,
+                        jobs: int | None = None):
     """Diagnose ``data_path`` and write a run directory under ``out``; returns (run path, diagnosis dict,
-    report Document)."""
+    report Document). ``jobs``: worker processes for the joints (``ModelDiagnosis(jobs=...)``, None: chosen)."""
     import pandas as pd
     import yaml
 
@@ -93,7 +94,7 @@ def diagnose_to_run_dir(data_path: Path, model: Path | None = None, out: Path = 
     def fitting(fraction, label):
         if progress:
             progress(round(80 * fraction), 100, f"diagnose: {label}")
-    diag = ModelDiagnosis(declared=decl, simulator=simulate_positions).fit(data, fitting)
+    diag = ModelDiagnosis(declared=decl, simulator=simulate_positions, jobs=jobs).fit(data, fitting)
     name = name or f"diagnose-{Path(data_path).name}"
     spec = {"kind": "diagnosis", "name": name, "data": str(Path(data_path).resolve()),
             "model": str(Path(model).resolve()) if model else None,
@@ -257,14 +258,15 @@ def simulate_positions(plant: dict, meta, t_s: np.ndarray, q_ref: np.ndarray, q0
 
 def diagnose_runs_to_run_dir(data_paths: list[Path], model: Path | None = None, out: Path = Path("runs"),
                              name: str | None = None, formats=("md", "html", "json"), progress=None,
-                             simulate: bool = True):
+                             simulate: bool = True, jobs: int | None = None):
     """Diagnose several runs of one arm together (:class:`wamctl.analysis.diagnosis.pooled.PooledDiagnosis`) and
     write a run directory under ``out`` (kind ``diagnosis``): ``diagnosis.json`` (``pooled: true``: the runs, each
     run's own result in brief, every decision per run and pooled, which run decided it, each run's friction), each
     run's own diagnosis as ``alone-<k>.json`` (k = 1, 2, ... in the order given) and the report. Runs of different
     arms (robot, an ``arm`` named in meta.yaml, the declared payload, a simulated plant's links or friction) or a
     run given twice are refused in one line before anything is fitted. ``simulate`` False skips each run's
-    closed-loop position check. Returns (run path, diagnosis dict, report Document)."""
+    closed-loop position check. ``jobs``: worker processes for each run's joints (``ModelDiagnosis(jobs=...)``).
+    Returns (run path, diagnosis dict, report Document)."""
     from wamctl.analysis.diagnosis.estimator import ModelDiagnosis
     from wamctl.analysis.diagnosis.pooled import PoolingError, different_arm
 
@@ -286,7 +288,7 @@ def diagnose_runs_to_run_dir(data_paths: list[Path], model: Path | None = None, 
         def fitting(fraction, label, k=k):
             if progress:
                 progress(round(80 * (k + fraction) / len(datas)), 100, f"diagnose {labels[k]}: {label}")
-        diags.append(ModelDiagnosis(declared=decl, simulator=simulate_positions if simulate else None)
+        diags.append(ModelDiagnosis(declared=decl, simulator=simulate_positions if simulate else None, jobs=jobs)
                      .fit(data, fitting))
     if progress:
         progress(80, 100, "diagnose: the runs pooled")

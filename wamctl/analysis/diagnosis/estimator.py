@@ -77,6 +77,7 @@ from wamctl.analysis.diagnosis.design import JointData, columns, fit_theta, targ
 from wamctl.analysis.diagnosis.honesty import against_declared, worse_warnings
 from wamctl.analysis.diagnosis.joint import JointResult, forward_select, joint_baseline, set_after
 from wamctl.analysis.diagnosis.onset_tests import onset_tests, stribeck_at_breakaways
+from wamctl.analysis.diagnosis.parallel import adopt_caches, cache_keys, caches_since, joint_workers, map_in_order
 from wamctl.analysis.diagnosis.parameters import (
     friction_levels_after,
     friction_levels_before,
@@ -87,7 +88,7 @@ from wamctl.analysis.diagnosis.prepare import declared_delay_s, prepare_design
 from wamctl.analysis.diagnosis.serialise import diagnosis_dict
 from wamctl.analysis.diagnosis.signals import Signals, gap_warnings, prepare_signals, refuse_joints
 from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss
-from wamctl.analysis.diagnosis.sweeps import map_evidence
+from wamctl.analysis.diagnosis.sweeps import friction_map_of, map_evidence
 from wamctl.analysis.diagnosis.timing import rigid_body_shift_s, shift_rigid_body
 from wamctl.analysis.diagnosis.unexplained import arm_unnamed, unexplained
 from wamctl.errors import DataFormatError
@@ -157,6 +158,8 @@ class ModelDiagnosis:
         closed-loop position check runs (:mod:`wamctl.analysis.diagnosis.augmented`), None skips it.
     max_sim_samples : samples simulated per model in that check (the whole run up to this many, else windows
         spread over it: :func:`wamctl.analysis.diagnosis.augmented.check_windows`).
+    jobs : worker processes the joints are diagnosed in (:mod:`wamctl.analysis.diagnosis.parallel`, the same
+        diagnosis): None chooses (the CPUs available on a long run, else none), 1 none.
 
     Attributes (after ``fit``)
     --------------------------
@@ -171,12 +174,13 @@ class ModelDiagnosis:
     onsets_ : {0-based joint: its onsets (:func:`wamctl.analysis.diagnosis.onsets.joint_onsets`)}.
     payload_ : the arm's payload found (``mass_kg``, ``com_m``, ``joints_fitted``), else None.
     positions_ : the closed-loop position check, or None.
+    workers_ : worker processes the joints were diagnosed in (1: none, this process).
     """
 
     def __init__(self, *, alpha: float = 0.01, n_blocks: int = 10, n_folds: int = 5,
                  candidates: tuple[str, ...] = EFFECT_NAMES, declared: DeclaredModel | None = None,
                  max_steps: int = 3, window_s: float | None = None, gauss_s: float | None = None,
-                 simulator=None, max_sim_samples: int | None = None):
+                 simulator=None, max_sim_samples: int | None = None, jobs: int | None = None):
         self.alpha = alpha
         self.n_blocks = n_blocks
         self.n_folds = n_folds
@@ -187,6 +191,7 @@ class ModelDiagnosis:
         self.gauss_s = gauss_s
         self.simulator = simulator
         self.max_sim_samples = max_sim_samples
+        self.jobs = jobs
 
     # ------------------------------------------------------------------------------------------ fit
     def fit(self, data, progress=None) -> ModelDiagnosis:
@@ -213,6 +218,7 @@ class ModelDiagnosis:
         self.warnings_ = []
         self.gains_ = None
         self.position_skipped_ = None
+        self.workers_ = 1
         unknown = [c for c in self.candidates if c not in EFFECT_NAMES]
         if unknown:
             raise ValueError(f"unknown candidate effects {unknown}; known: {EFFECT_NAMES}")
@@ -237,9 +243,7 @@ class ModelDiagnosis:
         torque_tests = [c for c in tests if c != "backlash" and c not in ARM_ONLY]
         self.rejected_ = {j: {} for j in sig.joints}     # candidates an arm-wide check ruled out, with why
         self.arm_ambiguous_ = {j: [] for j in sig.joints}   # ambiguous groups an arm-wide check left at a joint
-        for k, j in enumerate(sig.joints):
-            self._progress(0.1 + 0.5 * k / len(sig.joints), f"joint {j + 1}: torque residual")
-            self.joints_[j] = self._diagnose_joint(self.jd_[j], torque_tests)
+        self._diagnose_joints(sig.joints, torque_tests)
         self._progress(0.6, "arm-wide checks")
         r2 = self._declared_r2()
         if r2 < MIN_DECLARED_R2 and self._rigid_body_r2() < MIN_DECLARED_R2:
@@ -355,6 +359,36 @@ class ModelDiagnosis:
         return rigid_body_r2(self.design_, self.jd_, list(self.joints_),
                              plausible_link_map(self.declared_.links, self.payload_declared_, self._robot),
                              PAYLOAD_COM_BOX_M)
+
+    def _diagnose_joints(self, joints: list[int], tests: list[str]) -> None:
+        """:meth:`_diagnose_joint` of every joint of ``joints`` into ``joints_``, side by side in worker processes
+        on a long run (:mod:`wamctl.analysis.diagnosis.parallel`): what a joint leaves that later steps read (its
+        declared friction, its friction-map test, the statistics and onsets cached on the way) is taken back in
+        joint order."""
+        workers = self.workers_ = joint_workers(len(joints), self.signals_.n, self.jobs)
+        if workers > 1 and "stribeck" in tests:
+            friction_map_of(self, joints[0])        # the one cache every joint reads: made once, before the fork
+        label = f" ({workers} worker processes)" if workers > 1 else ""
+
+        def one(k: int) -> tuple[JointResult, dict, tuple]:
+            sig, jd = self.signals_, self.jd_[joints[k]]
+            before = cache_keys(sig, jd)
+            res = self._diagnose_joint(jd, tests)
+            map_test = {jd.j: self.map_tests_[jd.j]} if jd.j in self.map_tests_ else {}
+            return res, map_test, caches_since(sig, jd, before)
+
+        finished = []
+
+        def done(k: int) -> None:
+            finished.append(k)
+            self._progress(0.1 + 0.5 * len(finished) / len(joints),
+                           f"torque residual: joint {joints[k] + 1} done, {len(finished)} of {len(joints)}{label}")
+
+        self._progress(0.1, f"torque residual: {len(joints)} joints{label}")
+        for j, (res, map_test, caches) in zip(joints, map_in_order(one, len(joints), workers, done)):
+            self.joints_[j] = res
+            self.map_tests_.update(map_test)
+            adopt_caches(self.signals_, self.jd_[j], caches)
 
     def _diagnose_joint(self, jd: JointData, tests: list[str], rejected: dict | None = None) -> JointResult:
         """Forward selection of the torque-domain candidates ``tests`` at one joint (``rejected``: candidates
