@@ -217,31 +217,51 @@ def test_report_shows_the_gaze_stream_diagnostics(block_run, tmp_path):
     assert data["garbage_bytes"] == 3 * _n_garbage(data["samples"]) and data["cut_frames"] == 0
 
 
-def _serve(data: bytes):
+def _serve(data: bytes, port_open: threading.Event, done: threading.Event):
+    """A socket:// tracker that sends ``data`` once the port is open (pyserial's open discards what came before)
+    and keeps the connection until ``done`` (not a fixed time: a run that starts late must not see the stream end
+    before it has waited its ``start_timeout_s``)."""
     server = socket.create_server(("127.0.0.1", 0))
 
     def run():
         conn, _ = server.accept()
-        time.sleep(0.3)  # pyserial flushes its input when it opens
         with conn:
-            conn.sendall(data)
-            time.sleep(3.0)
+            if port_open.wait(60.0):
+                conn.sendall(data)
+            done.wait(60.0)
         server.close()
 
     threading.Thread(target=run, daemon=True).start()
     return f"socket://127.0.0.1:{server.getsockname()[1]}"
 
 
-def test_a_block_with_the_wrong_format_says_what_arrived_and_what_to_try(tmp_path):
+def test_a_block_with_the_wrong_format_says_what_arrived_and_what_to_try(tmp_path, monkeypatch):
     """'x,y' lines read as ASL Serial Out: no sample; the run fails with a message naming the bytes, their rate,
-    the framing, and the format that reads them; the report shows the stream's counts and the first bytes."""
+    the framing, and the format that reads them; the report shows the stream's counts and the first bytes.
+
+    The bytes are sent once the block's port is open and the connection held until the run is over. With a fixed
+    0.3 s before sending and 3 s after, a run under load (-n 2 beside the other hmi and gaze tests, 1 run in 12)
+    had waited 0.4 s of its 1.5 s when the connection closed ('no gaze sample within 0.4 s ... (the stream
+    ended)'), and a reader 0.4 s slow to open its port would have discarded the bytes ('no byte arrived')."""
+    from wamctl.backends.gaze.serial import SerialGazeSource
     from wamctl.report import write_report
 
-    url = _serve(b"".join(tracker_sim.frame("ascii-pair", k, (100 + k, 200)) for k in range(30)))
+    port_open, done = threading.Event(), threading.Event()
+    init = SerialGazeSource.__init__
+
+    def init_then_tell(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        port_open.set()
+
+    monkeypatch.setattr(SerialGazeSource, "__init__", init_then_tell)
+    url = _serve(b"".join(tracker_sim.frame("ascii-pair", k, (100 + k, 200)) for k in range(30)), port_open, done)
     spec = parse_spec({"kind": "hmi_block", "seed": 1, "name": "wrong-format", "hmi": {
         "subject": {"id": "P01"}, "locations": ["P4"], "start": "auto",
         "source": {"kind": "serial", "url": url, "start_timeout_s": 1.5}}})
-    outcome = run_spec(spec, tmp_path, tmp_path / "runs", make_report=False)
+    try:
+        outcome = run_spec(spec, tmp_path, tmp_path / "runs", make_report=False)
+    finally:
+        done.set()
     assert outcome.status == "failed"
     reason = outcome.reason
     assert reason.startswith(f"no gaze sample within 1.5 s from {url} at 57600 Bd 8N1, format asl-serial-out: "
