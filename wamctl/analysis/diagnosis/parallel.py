@@ -30,10 +30,13 @@ log = logging.getLogger(__name__)
 
 LEFT_IN_WORKER = ("_cache", "_shift")     # a joint's design columns and shifted targets (design.py): not sent back
 
-# samples x joints diagnosed below which the joints stay in this process: starting the workers, the joints' caches
-# rebuilt in this process afterwards and a CPU left idle by the last joint must be repaid (measured on the first
-# generator's seven-joint runs, 2 CPUs: see benchmarks/bench_diagnose.py's timing)
-MIN_PARALLEL_WORK = 2_000_000
+# samples x joints below which the joints stay in this process. Two workers on 2 CPUs, the second one mostly free
+# (the first generator's seven-joint runs, no position check, three passes each): 20 s (72 000) 1.56 -> 1.19 s,
+# 30 s (105 000) 1.85 -> 1.40 s, 120 s (426 000) 3.1 -> 2.35 s, 900 s (3.2 M) 5.8 -> 4.7 s, the hour (12.6 M)
+# 7.6 -> 6.5 s; with another process taking 0.7 CPU meanwhile, nothing gained on the hour (and up to 10 % lost).
+# Starting the workers is repaid from short runs on; the threshold keeps runs of a few seconds (the tests' many)
+# in one process, where a second is the most there is to gain.
+MIN_PARALLEL_WORK = 200_000
 
 
 def joint_workers(n_joints: int, n_samples: int, jobs: int | None = None,
