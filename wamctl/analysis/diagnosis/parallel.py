@@ -57,7 +57,7 @@ def joint_workers(n_joints: int, n_samples: int, jobs: int | None = None,
 
 def cache_keys(sig, jd) -> tuple[set, dict]:
     """What the caches of the signals ``sig`` and of one joint's ``jd`` hold now (see :func:`caches_since`)."""
-    return set(sig._memo), dict(jd.extra)
+    return set(sig.statistics()), dict(jd.extra)
 
 
 def caches_since(sig, jd, before: tuple[set, dict]) -> tuple[dict, dict]:
@@ -67,7 +67,7 @@ def caches_since(sig, jd, before: tuple[set, dict]) -> tuple[dict, dict]:
     they cost about 0.7 s on an hour's run. Left out: the gathered windows and their counters (keyed by the ids of
     this process's objects) and the design columns and shifted targets (7-26 MB a joint, rebuilt in 0.05 s)."""
     memo_before, extra_before = before
-    memo = {k: v for k, v in sig._memo.items() if isinstance(k, tuple) and k not in memo_before}
+    memo = {k: v for k, v in sig.statistics().items() if k not in memo_before}
     extra = {k: v for k, v in jd.extra.items() if k not in LEFT_IN_WORKER and extra_before.get(k) is not v}
     return memo, extra
 
@@ -75,8 +75,7 @@ def caches_since(sig, jd, before: tuple[set, dict]) -> tuple[dict, dict]:
 def adopt_caches(sig, jd, caches: tuple[dict, dict]) -> None:
     """The caches of :func:`caches_since` put back (a statistic already there is kept: the same numbers)."""
     memo, extra = caches
-    for k, v in memo.items():
-        sig._memo.setdefault(k, v)
+    sig.adopt_statistics(memo)
     jd.extra.update(extra)
 
 

@@ -101,6 +101,18 @@ class Signals:
             self._memo[key] = compute()
         return self._memo[key]
 
+    def statistics(self) -> dict:
+        """The statistics :meth:`memo` holds now that another process could take over: those keyed by a tuple
+        (a joint's encoder step, its distinct values, the inertia at its onsets), not the gathered windows and their
+        counters (keyed by the ids of this process's objects)."""
+        return {k: v for k, v in self._memo.items() if isinstance(k, tuple)}
+
+    def adopt_statistics(self, statistics: dict) -> None:
+        """Statistics of :meth:`statistics` computed elsewhere on the same signals, kept (one already here stays:
+        the same numbers)."""
+        for k, v in statistics.items():
+            self._memo.setdefault(k, v)
+
     # The smoothed position, acceleration and torque at the full rate are computed on first use only: a long
     # run is analysed at its joints' (decimated) samples, where :meth:`at` evaluates the filter.
     @property
