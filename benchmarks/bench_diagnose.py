@@ -749,8 +749,9 @@ def markdown(studies: dict, fa: pd.DataFrame | None, speed: dict | None, split: 
         lines += ["## Speed", "",
                   f"`diagnose` on {speed['samples']} samples ({speed['duration_s']:.0f} s at 500 Hz, joints "
                   f"{speed['joints_diagnosed']} diagnosed): {speed['diagnose_s']:.1f} s including the closed-loop "
-                  f"position check, {speed['diagnose_without_position_check_s']:.1f} s without it (wall time on "
-                  f"the 2-core machine, load average {speed.get('load_average_1min', ['?'])[0]}; CPU time "
+                  f"position check, {speed['diagnose_without_position_check_s']:.1f} s without it (the joints in "
+                  f"{speed.get('worker_processes', 1)} process(es); wall time on the 2-core machine, load average "
+                  f"{speed.get('load_average_1min', ['?'])[0]}; CPU time "
                   f"{speed.get('diagnose_cpu_s', float('nan')):.1f} s and "
                   f"{speed.get('diagnose_without_position_check_cpu_s', float('nan')):.1f} s; loading the parquet "
                   f"file is not counted: {speed['load_s']:.1f} s).", ""]
