@@ -215,6 +215,7 @@ class ModelDiagnosis:
         self.arm_unnamed_ = []
         self.payload_dropped_ = None
         self.payload_cone_fit_ = None
+        self.friction_map_ = None        # made on first use for this run's joints (sweeps.friction_map_of)
         self.warnings_ = []
         self.gains_ = None
         self.position_skipped_ = None
