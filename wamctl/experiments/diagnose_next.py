@@ -137,6 +137,15 @@ MIN_PARTIAL_REVERSALS = 2
 # shows less), and a gap below the test's resolution (MIN_BAND_TOLERANCES) is never named; twice that resolution
 ASSUMED_MIN_GAP_TOLERANCES = 10.0
 ARM_LEVEL = ("link_parameters", "payload")      # named for the arm, not a joint's own effect
+# a gravity torque smaller than this is none: joint 1's axis is vertical, its gravity torque rounding (1e-16 N m, of
+# one sign or the other as the other joints' pose has it), which must not read as gravity pressing the link on a flank
+GRAVITY_NONE_NM = 1e-9
+
+
+def _one_sign(g_Nm: np.ndarray) -> bool:
+    """True when a joint's gravity torque ``g_Nm`` (its samples over a run) pressed its link on one flank throughout:
+    of one sign and above rounding (:data:`GRAVITY_NONE_NM`)."""
+    return bool(len(g_Nm) and (g_Nm.min() > GRAVITY_NONE_NM or g_Nm.max() < -GRAVITY_NONE_NM))
 
 
 def backlash_suspects(diag) -> list[int]:
@@ -165,8 +174,7 @@ def backlash_suspects(diag) -> list[int]:
         if not (any("backlash" in g["names"] for g in res.ambiguous) or (res.unexplained and not res.kept)):
             continue
         jd = diag.jd_[j]
-        g = dyn.gravity_many(diag.signals_.at("q", jd.idx[:: max(1, len(jd.idx) // 400)]))[:, j]
-        if len(g) and (g.min() > 0 or g.max() < 0):
+        if _one_sign(dyn.gravity_many(diag.signals_.at("q", jd.idx[:: max(1, len(jd.idx) // 400)]))[:, j]):
             out.append(j)
     return sorted(leads, key=lambda j: (leads[j][2], leads[j][0])) + out
 
@@ -299,8 +307,8 @@ def next_experiment_backlash(diag, data, data_path: Path, out_dir: Path, joints:
             continue
         decides = _backlash_decides(cr)
         if best is None or (decides, _backlash_score(cr)) > (_backlash_decides(best[1]), _backlash_score(best[1])):
-            g = dyn.gravity_many(sig.at("q", idx))[:, j]
-            best = (j, cr, noise, bool(g.min() > 0 or g.max() < 0), float(tol), float(fc), gap_j, scatter, share)
+            best = (j, cr, noise, _one_sign(dyn.gravity_many(sig.at("q", idx))[:, j]), float(tol), float(fc), gap_j,
+                    scatter, share)
         if decides:       # the most suspect joint that the design can decide
             break
     base = {"hypotheses": ["backlash", "none"], "gap_rad": gap_rad}
