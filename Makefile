@@ -6,12 +6,12 @@ STAMP  := $(VENV)/.installed
 
 .PHONY: setup browser demo test lint bench clean
 
-$(STAMP): pyproject.toml
+$(STAMP): pyproject.toml constraints.txt
 	@echo "setting up $(VENV) (first time, or after pyproject.toml changed): installing wamctl and its packages"
 	@echo "(pinocchio, pandas, dask, matplotlib, ...); this takes about 2 minutes, pip shows its progress below"
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
-	$(BIN)/pip install --progress-bar on -e '.[test]'
+	$(BIN)/pip install --progress-bar on -c constraints.txt -e '.[test]'
 	touch $(STAMP)
 	@echo "$(VENV) is ready: $(BIN)/wamctl"
 
