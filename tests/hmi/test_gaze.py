@@ -184,11 +184,15 @@ def test_serial_reader_survives_garbage_through_loop():
     rng = np.random.default_rng(7)
     data, good, n_blink = _garbage_stream(rng)
     samples = []
-    with SerialGazeSource("loop://", format="ascii-timestamped", timeout_s=0.05, eof_idle_s=0.2) as src:
+    # no end of stream at a silence while the test writes: a stall of this process longer than eof_idle_s between
+    # two turns ended the stream, and the next writes then filled loop://'s 4096 bytes and blocked for good (seen in
+    # a full suite; a 0.3 s stall after the second read gives it)
+    with SerialGazeSource("loop://", format="ascii-timestamped", timeout_s=0.05, eof_idle_s=None) as src:
         for start in range(0, len(data), 1000):  # loop:// holds 4096 bytes: write and read in turns
             src.port.write(data[start:start + 1000])
             while (s := src.read(0.0)) is not None:
                 samples.append(s)
+        src.eof_idle_s = 0.2        # all written: the stream ends at the first silence
         samples.extend(src)
         assert src.exhausted
     valid = [s for s in samples if s.is_valid]
