@@ -180,3 +180,18 @@ def test_a_joint_without_gravity_is_moved_from_the_run_pose_and_sized_as_a_rever
     assert cr.torque_separation == pytest.approx(0.0, abs=1e-6)
     assert cr.seen_by == "reversals" and not cr.size["reached"] and 0 < cr.size["power"] < 0.9
     assert cr.periods == int(MAX_RUN_S // cr.trajectory.period_s) and cr.periods > 3
+
+
+def test_joint_1s_rounding_level_gravity_is_not_gravity_of_one_sign():
+    """Joint 1's axis is vertical: its gravity torque is rounding (-1.1e-16 N m at every sample of the clean twin
+    above, with one install), which once made it a backlash suspect ("gravity kept one sign")."""
+    from wamctl.experiments.diagnose_next import _one_sign
+    from wamctl.model.dynamics import WamDynamics
+
+    q = np.zeros((50, 7))
+    q[:, 0] = np.linspace(-1.0, 1.0, 50)
+    q[:, 3] = 1.57
+    g = WamDynamics(None, None).gravity_many(q)
+    assert np.abs(g[:, 0]).max() < 1e-12 and not _one_sign(g[:, 0])
+    assert not _one_sign(np.full(50, -1.1e-16)) and not _one_sign(np.full(50, 1e-15))
+    assert _one_sign(g[:, 3]) and _one_sign(np.full(50, -0.01)) and not _one_sign(np.r_[g[:, 3], -g[:, 3]])
