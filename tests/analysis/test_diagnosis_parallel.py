@@ -54,7 +54,7 @@ def test_the_joints_in_two_processes_give_the_same_diagnosis(ripple_run, monkeyp
     assert _as_json(two, path) == _as_json(one, path)
     assert sorted(two.map_tests_) == sorted(one.map_tests_)
     labels = [label for _, label in seen if "torque residual" in label]
-    assert len(labels) == 1 + 5 and all("2 worker processes" in label for label in labels)
+    assert len(labels) == 1 + 5 and all("2 processes" in label for label in labels)
     assert [f for f, _ in seen] == sorted(f for f, _ in seen)
     assert multiprocessing.active_children() == [] and parallel._TASK is None
 

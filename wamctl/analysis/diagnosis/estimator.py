@@ -369,7 +369,7 @@ class ModelDiagnosis:
         workers = self.workers_ = joint_workers(len(joints), self.signals_.n, self.jobs)
         if workers > 1 and "stribeck" in tests:
             friction_map_of(self, joints[0])        # the one cache every joint reads: made once, before the fork
-        label = f" ({workers} worker processes)" if workers > 1 else ""
+        label = f", {workers} processes" if workers > 1 else ""     # short: the bar keeps 80 columns
 
         def one(k: int) -> tuple[JointResult, dict, tuple]:
             sig, jd = self.signals_, self.jd_[joints[k]]
@@ -383,9 +383,9 @@ class ModelDiagnosis:
         def done(k: int) -> None:
             finished.append(k)
             self._progress(0.1 + 0.5 * len(finished) / len(joints),
-                           f"torque residual: joint {joints[k] + 1} done, {len(finished)} of {len(joints)}{label}")
+                           f"torque residual: {len(finished)} of {len(joints)} joints{label}")
 
-        self._progress(0.1, f"torque residual: {len(joints)} joints{label}")
+        self._progress(0.1, f"torque residual: 0 of {len(joints)} joints{label}")
         for j, (res, map_test, caches) in zip(joints, map_in_order(one, len(joints), workers, done)):
             self.joints_[j] = res
             self.map_tests_.update(map_test)
