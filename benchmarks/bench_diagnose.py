@@ -523,6 +523,11 @@ def per_effect(df: pd.DataFrame) -> pd.DataFrame:
 
 
 # ---------------------------------------------------------------------------------------------- speed
+def where_joints(workers: int) -> str:
+    """Where the joints were diagnosed (``ModelDiagnosis.workers_``), as the timing says it."""
+    return f"{workers} worker processes" if workers > 1 else "this process (no workers)"
+
+
 def timing(duration_s: float, cache: Path, profile: bool = False, jobs: int | None = None) -> dict:
     """One run of ``duration_s`` at 500 Hz with every joint moving (the first generator, a position ripple),
     generated once into ``cache``, loaded, and diagnosed with and then without the closed-loop position check, the
@@ -580,7 +585,7 @@ def timing(duration_s: float, cache: Path, profile: bool = False, jobs: int | No
            "same_without_check": diag_nosim.effects_found_ == diag.effects_found_}
     print(f"\n{out['samples']} samples ({duration_s:.0f} s at 500 Hz, joints {moving}); load average "
           f"{out['load_average_1min'][0]} -> {out['load_average_1min'][1]} on {out['cpus']} CPUs; the joints in "
-          + (f"{diag.workers_} worker processes" if diag.workers_ > 1 else "this process (no workers)")
+          + where_joints(diag.workers_)
           + (" (profiled: cProfile slows it)" if profile else ""))
     for what, w, c in (("load the run", out["load_s"], out["load_cpu_s"]),
                        ("diagnose, with the position check", out["diagnose_s"], out["diagnose_cpu_s"]),
@@ -750,7 +755,7 @@ def markdown(studies: dict, fa: pd.DataFrame | None, speed: dict | None, split: 
                   f"`diagnose` on {speed['samples']} samples ({speed['duration_s']:.0f} s at 500 Hz, joints "
                   f"{speed['joints_diagnosed']} diagnosed): {speed['diagnose_s']:.1f} s including the closed-loop "
                   f"position check, {speed['diagnose_without_position_check_s']:.1f} s without it (the joints in "
-                  f"{speed.get('worker_processes', 1)} process(es); wall time on the 2-core machine, load average "
+                  f"{where_joints(speed.get('worker_processes', 1))}; wall time on the 2-core machine, load average "
                   f"{speed.get('load_average_1min', ['?'])[0]}; CPU time "
                   f"{speed.get('diagnose_cpu_s', float('nan')):.1f} s and "
                   f"{speed.get('diagnose_without_position_check_cpu_s', float('nan')):.1f} s; loading the parquet "
