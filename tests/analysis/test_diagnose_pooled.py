@@ -2,9 +2,10 @@
 
 Three runs of the same plant made by the independent generator (seed 9150: a large wrist payload of 1.498 kg at
 (25.9, 20.1, 26.4) mm from the flange, the links as declared, the same friction), each a sweep of one joint: the
-elbow (4), the shoulder (2), the wrist (6). Alone, no run identifies the payload: the elbow and wrist sweeps name
-it with its mass and centre of mass not identified, the shoulder sweep cannot tell it from link errors
-(ambiguous). Pooled, the mass is identified (elbow + shoulder), then the centre of mass too (all three).
+elbow (4), the shoulder (2), the wrist (6). Alone, no run identifies the payload: each sweep names it with its mass
+and centre of mass not identified; the shoulder sweep only on the declared link accuracy (it leaves 4.9 noise
+floors that link errors within it cannot reproduce, but link errors within twice it could: the caveat is said).
+Pooled, the mass is identified (elbow + shoulder), then the centre of mass too (all three).
 """
 
 from __future__ import annotations
@@ -54,15 +55,21 @@ def _pool(runs, names):
 
 
 def test_no_run_alone_identifies_the_payload(runs):
-    """The single-run path as it is: elbow and wrist name the payload without mass or centre of mass, the shoulder
-    is ambiguous between payload and link errors."""
+    """The single-run path as it is: each sweep names the payload without mass or centre of mass. The shoulder
+    sweep's payload adds to link errors within the declared accuracy by at least a noise floor at joint 2 (the
+    generator's own figure for what those link errors leave of it: 4.9 floors, identifiable) but not to link errors
+    within twice it: named, with that caveat as a warning (it was ``ambiguous`` while the wide test alone
+    decided)."""
     runs, _ = runs
-    for name in ("elbow", "wrist"):
+    for name in ("elbow", "wrist", "shoulder"):
         d = runs[name][2]
         assert d.effects_found_[:1] == ["payload"]
         assert "mass_kg" in d.payload_ci_[1] and {"com_x_m", "com_y_m", "com_z_m"} <= set(d.payload_ci_[1])
-    assert runs["shoulder"][2].payload_vs_links_["outcome"] == "ambiguous"
-    assert "payload" not in runs["shoulder"][2].effects_found_
+    dec = runs["shoulder"][2].payload_vs_links_
+    assert dec["outcome"] == "payload" and dec["excess_noise_floors"]["2"] >= 2.0
+    assert dec["tests"]["beyond_wide_links"]["p_value"] > runs["shoulder"][2].threshold_
+    assert dec["grey_zone"] in runs["shoulder"][2].warnings_ and "2 times" in dec["grey_zone"]
+    assert runs["elbow"][2].payload_vs_links_["grey_zone"] is None
 
 
 def test_one_run_pooled_alone_repeats_its_own_decision(runs):
@@ -97,7 +104,7 @@ def test_elbow_and_shoulder_pooled_identify_the_mass(runs):
         assert "mass_kg" in alone["not_identified"] and alone["params_ci"]["mass_kg"] == [None, None]
     f = next(f for f in out["findings"] if f["name"] == "payload")
     assert f["pooled"]["named"] and f["per_stack"]["elbow alone"]["named"]
-    assert f["per_stack"]["shoulder alone"]["outcome"] == "ambiguous"
+    assert f["per_stack"]["shoulder alone"]["outcome"] == "payload"
     assert sorted(f["decided_by"]) == ["elbow", "shoulder"] and f["added_nothing"] == []
 
 

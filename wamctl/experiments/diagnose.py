@@ -167,7 +167,7 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
 
     dec = diag.payload_vs_links_
     unnamed = {u["name"] for u in diag.arm_unnamed_}
-    cannot_tell = dec is not None and dec["outcome"] in ("ambiguous", "link_parameters")
+    cannot_tell = dec is not None and (dec["outcome"] in ("ambiguous", "link_parameters") or dec.get("grey_zone"))
     if not (cannot_tell or unnamed & {"payload", "link_parameters"}):
         return None
     cone = diag.payload_cone_fit_

@@ -166,8 +166,33 @@ def payload_links_reason(dec: dict | None) -> str | None:
                 f"payload does not add to them (p = {t1['p_value']:.3g})")
     t2 = dec["tests"]["beyond_wide_links"]
     return (f"ambiguous: a wrist payload adds to link errors within the declared accuracy ({acc}; p = "
-            f"{t1['p_value']:.3g}) but not to link errors within {WIDE_PRIOR:g} times it (p = {t2['p_value']:.3g}): "
-            "the data cannot tell a payload from a datasheet worse than declared")
+            f"{t1['p_value']:.3g}), by {_most_excess(dec)}, and not to link errors within {WIDE_PRIOR:g} times it "
+            f"(p = {t2['p_value']:.3g}): the data cannot tell a payload from a datasheet worse than declared")
+
+
+def _most_excess(dec: dict) -> str:
+    """The payload's largest excess over the declared accuracy's link errors, said with the line that decides."""
+    from wamctl.analysis.diagnosis.stats import DECIDED_FLOORS
+
+    ex = dec.get("excess_noise_floors") or {}
+    if not ex:
+        return "nothing measurable"
+    j = max(ex, key=ex.get)
+    return f"at most {ex[j]:.2g} noise floors (joint {j + 1}; {DECIDED_FLOORS:g} decides)"
+
+
+def payload_grey_zone(dec: dict | None) -> str | None:
+    """The caveat of a payload named beyond the declared accuracy's link errors but not beyond ``WIDE_PRIOR`` times
+    them (None otherwise): what a datasheet worse than declared would mean."""
+    from wamctl.analysis.diagnosis.links import WIDE_PRIOR
+
+    if dec is None or dec["outcome"] != "payload" or dec["passes"].get("beyond_wide_links"):
+        return None
+    t2 = dec["tests"]["beyond_wide_links"]
+    return (f"payload named on the declared link accuracy: it leaves {_most_excess(dec)} that no link error "
+            f"within that accuracy reproduces, but link errors up to {WIDE_PRIOR:g} times it would explain the data "
+            f"too (p = {t2['p_value']:.3g}); if the datasheet may be worse than declared, the next experiment tells "
+            "them apart")
 
 
 def payload_links_summary(dec: dict | None) -> dict | None:
@@ -181,6 +206,8 @@ def payload_links_summary(dec: dict | None) -> dict | None:
     keys = ("p_value", "delta_bic", "ssr_ratio")
     return {"outcome": dec["outcome"], "joints": [j + 1 for j in dec["joints"]],
             "tests": {k: {x: float(t[x]) for x in keys} for k, t in dec["tests"].items()},
+            "excess_noise_floors": {str(j + 1): float(v) for j, v in dec["excess_noise_floors"].items()},
+            "grey_zone": payload_grey_zone(dec),
             "ssr_ratio": {k: float(v) for k, v in dec["ssr_ratio"].items()},
             "payload_combinations_seen": int(dec["payload_seen"]),
             "assumptions": {"link_accuracy_share": LINK_PRIOR_SHARE, "link_com_allowance_m": LINK_PRIOR_COM_M,

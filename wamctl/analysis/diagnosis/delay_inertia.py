@@ -28,12 +28,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from wamctl.analysis.blas import single_threaded_blas
+from wamctl.analysis.diagnosis.stats import DECIDED_FLOORS, excess_floors
 from wamctl.model.friction import classic_friction_columns
 
 MAX_DELAY_S = 0.02                # a longer delay makes libbarrett's PD loop unstable
 DELAY_GRID_S = np.r_[0.0, np.linspace(0.5e-3, MAX_DELAY_S, 40)]
 MIN_SPEED_RAD_S = 0.01            # a joint's sample counts where it moves faster than this
-DECIDED_FLOORS = 1.0              # the losing hypothesis' excess residual (RMS, noise floors) that decides
 DESIGN_TARGET_FLOORS = 2.0        # the predicted separation the design asks for
 MAX_ROWS = 4000                   # a run's samples the check uses at most (an hour's log: evenly spread)
 
@@ -215,12 +215,6 @@ def separation(rows: Rows, hyp: Hypotheses, noise_Nm: dict) -> dict:
     out = {"delay_true": r_d, "inertia_true": r_i}
     out["separation"] = min(out.values())
     return out
-
-
-def excess_floors(worse: float, better: float) -> float:
-    """What the worse of two weighted fits leaves beyond the better one, in noise floors: ``sqrt(worse^2 -
-    better^2) / better`` (0 when it leaves nothing more)."""
-    return float(np.sqrt(max(worse ** 2 - better ** 2, 0.0)) / max(better, 1e-12))
 
 
 def decide(rows: Rows, y: dict) -> dict:

@@ -486,6 +486,8 @@ class ModelDiagnosis:
             res, jd = self.joints_[j], self.jd_[j]
             terms = global_payload_terms(res.kept, self.n_folds)
             set_after(self.design_, res, jd, terms, cv_terms(self.design_, jd, terms))
+        if self.payload_vs_links_ and self.payload_vs_links_["grey_zone"]:
+            self.warnings_.append(self.payload_vs_links_["grey_zone"])
 
     def _drop_payload(self, fit: dict, why: str, dec: dict | None) -> None:
         """The joints that kept the payload ``fit`` diagnosed again without it (``why``); an ambiguous

@@ -13,10 +13,13 @@ links change the same two gravity coefficients and one inertia; on free motion o
 every joint's torque in its own way, but link errors can still mimic part of it. What tells them apart is size:
 the declared arm's parameters are known to a declared accuracy (:data:`~wamctl.analysis.diagnosis.rigid.
 LINK_PRIOR_SHARE`), so the change plausible link errors can make is bounded. A payload (a positive mass within
-``PAYLOAD_COM_BOX_M`` of the flange) is named only when it adds to the link errors within that accuracy, and to
-those within ``WIDE_PRIOR`` times it; between the two the data cannot tell a payload from a datasheet worse than
-declared (``ambiguous``); when it does not add to plausible link errors, they explain the data as well
-(``link_parameters``).
+``PAYLOAD_COM_BOX_M`` of the flange) is named when it adds to the link errors within that accuracy and either
+to those within ``WIDE_PRIOR`` times it too, or by itself leaves at least ``DECIDED_FLOORS`` noise floor at a
+joint that no link error within the declared accuracy reproduces (issue 28's "identifiable": outside what the
+declared link accuracy can produce; the same line the delay-or-inertia decision draws); a payload that adds to
+the declared accuracy's link errors by less, and not to the wide ones, the data cannot tell from a datasheet
+worse than declared (``ambiguous``); when it does not add to plausible link errors, they explain the data as well
+(``link_parameters``). :func:`payload_outcome` is the rule, for one run and pooled runs alike.
 
 **Links** (:func:`links_test`): does a refit of the arm's parameters add to the current model (the arm's payload,
 if one was kept)? The free refit (the base parameters these data determine) is tested when two joints or more are
@@ -31,7 +34,7 @@ import numpy as np
 
 from wamctl.analysis.diagnosis.candidates import robot_of
 from wamctl.analysis.diagnosis.design import Design, target_and_design
-from wamctl.analysis.diagnosis.stats import MIN_EFFECT, finite_ss, lstsq, nested_test
+from wamctl.analysis.diagnosis.stats import DECIDED_FLOORS, MIN_EFFECT, excess_floors, finite_ss, lstsq, nested_test
 
 SHARE_TOL = 0.01        # a base parameter with more than this share outside the determined directions
 MIN_JOINTS = 2          # the arm's one refit must help two joints or more (each passing its own test)
@@ -175,11 +178,13 @@ def payload_or_links(des: Design, joints: dict, jds: dict, threshold: float, lin
       accuracy (``link_map``, :func:`~wamctl.analysis.diagnosis.rigid.plausible_link_map`)?
     * ``beyond_wide_links``: does it add to link errors within ``WIDE_PRIOR`` times that accuracy?
 
-    ``outcome``: ``"payload"`` when both pass, ``"ambiguous"`` when only the first does, ``"link_parameters"``
-    when a payload does not add to plausible link errors (the second test is then not made). Also
-    ``payload_seen`` (the mass and first-moment combinations the motion excites), ``cone_fit`` (a wrist payload
-    that explains the data on its own, all data: ``mass_kg``, ``com_m``) and ``ssr_ratio`` {model: held-out SSR /
-    the own models'}. None without link regressors."""
+    ``outcome`` (:func:`payload_outcome`): ``"payload"`` when both pass, or the first does and the payload leaves
+    at least ``DECIDED_FLOORS`` noise floor beyond the declared accuracy's link errors at a joint
+    (``excess_noise_floors`` {0-based joint: floors}), ``"ambiguous"`` when only the first passes and the excess is
+    smaller, ``"link_parameters"`` when a payload does not add to plausible link errors (the second test is then
+    not made). Also ``payload_seen`` (the mass and first-moment combinations the motion excites), ``cone_fit``
+    (a wrist payload that explains the data on its own, all data: ``mass_kg``, ``com_m``) and ``ssr_ratio``
+    {model: held-out SSR / the own models'}. None without link regressors."""
     from wamctl.analysis.diagnosis.candidates import payload_from_pi
     from wamctl.analysis.diagnosis.rigid import arm_cv, payload_cone, payload_map
 
@@ -201,15 +206,43 @@ def payload_or_links(des: Design, joints: dict, jds: dict, threshold: float, lin
         t = _pooled_test(sys_, joints, jds, fits[name][0], fits["payload+" + name][0], p_pay, False)
         tests["beyond_" + name], ok["beyond_" + name] = t, bool(t["p_value"] < threshold and t["delta_bic"] < 0)
         if not ok["beyond_" + name]:
-            break                   # within the declared accuracy already, or ambiguous
-    outcome = ("payload" if ok.get("beyond_wide_links") else
-               "ambiguous" if ok["beyond_links"] else "link_parameters")
+            break                   # within the declared accuracy already
+    excess = payload_excess_floors(fits["links"][0], fits["payload+links"][0])
+    outcome = payload_outcome(ok, excess)
     ss0 = sum(finite_ss(e_own[j]) * sys_.w[j] ** 2 for j in js)
     mh = rays @ arm_cv(sys_, jds, cone, pos, folds=False)[2][None]
     return {"outcome": outcome, "tests": tests, "passes": ok, "joints": js, "payload_seen": p_pay,
+            "excess_noise_floors": excess,
             "cone_fit": payload_from_pi(mh, robot) if mh[0] > 0 else None,
             "ssr_ratio": {k: sum(finite_ss(v[0][j]) * sys_.w[j] ** 2 for j in js) / max(ss0, 1e-300)
                           for k, v in fits.items()}}
+
+
+def payload_excess_floors(e_links: dict, e_payload: dict) -> dict:
+    """{joint key: what the wrist payload adds to link errors within the declared accuracy, in noise floors}: the
+    excess (:func:`~wamctl.analysis.diagnosis.stats.excess_floors`) of the links-only model's held-out residual RMS
+    ``e_links`` over the payload model's ``e_payload`` (the joint's noise floor), on the samples where both are
+    finite."""
+    out = {}
+    for k, a in e_links.items():
+        b = e_payload[k]
+        ok = np.isfinite(a) & np.isfinite(b)
+        if ok.any():
+            out[k] = excess_floors(float(np.sqrt(np.mean(a[ok] ** 2))), float(np.sqrt(np.mean(b[ok] ** 2))))
+    return out
+
+
+def payload_outcome(passes: dict, excess: dict) -> str:
+    """The payload-or-links decision from its tests' ``passes`` (``beyond_links``, ``beyond_wide_links``) and the
+    payload's excess over link errors within the declared accuracy per joint (:func:`payload_excess_floors`):
+    ``"link_parameters"`` when the payload does not add to them; ``"payload"`` when it adds to the wide ones too,
+    or leaves at least ``DECIDED_FLOORS`` noise floor at a joint that they cannot reproduce; else
+    ``"ambiguous"``."""
+    if not passes.get("beyond_links"):
+        return "link_parameters"
+    if passes.get("beyond_wide_links") or max(excess.values(), default=0.0) >= DECIDED_FLOORS:
+        return "payload"
+    return "ambiguous"
 
 
 def _excited_rank(jds: dict, js: list[int], P: np.ndarray) -> int:

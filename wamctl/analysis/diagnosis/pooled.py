@@ -266,7 +266,7 @@ class PooledDiagnosis:
 
     # -------------------------------------------------------------------------------- the arm: payload or links
     def _arm(self, ms: list[_Member], runs: list[int]) -> None:
-        from wamctl.analysis.diagnosis.links import WIDE_PRIOR, _excited_rank
+        from wamctl.analysis.diagnosis.links import WIDE_PRIOR, _excited_rank, payload_excess_floors, payload_outcome
         from wamctl.analysis.diagnosis.rigid import (
             arm_cv,
             arm_system,
@@ -296,19 +296,19 @@ class PooledDiagnosis:
             sys_.w = {m.key: 1.0 / max(float(np.sqrt(np.nanmean(e_own[m.key] ** 2))), 1e-9) for m in sub}
             k_own = sum(own[m.key][1].shape[1] for m in sub)
             p_pay = max(_excited_rank(jds, [m.key for m in sub], payload_map()[:, :4]), 1)
-            tests, e_links = {}, None
+            tests, e_links, excess = {}, None, {}
             for name, scale in (("links", 1.0), ("wide_links", WIDE_PRIOR)):
                 lim = np.full(nl, scale)
                 e_l = arm_cv(sys_, jds, link_map, (-lim, lim))[0]
-                e_links = e_l if e_links is None else e_links
                 e_pl = arm_cv(sys_, jds, np.hstack([cone, link_map]), (np.r_[pos[0], -lim], np.r_[pos[1], lim]))[0]
+                if e_links is None:
+                    e_links, excess = e_l, payload_excess_floors(e_l, e_pl)
                 t = _test(sub, e_l, e_pl, sys_.w, p_pay, k_own + p_pay)
                 t["passes"] = _passes(t, self.threshold_)
                 tests["beyond_" + name] = t
                 if not t["passes"]:
                     break
-            outcome = ("payload" if tests.get("beyond_wide_links", {}).get("passes") else
-                       "ambiguous" if tests["beyond_links"]["passes"] else "link_parameters")
+            outcome = payload_outcome({k: t["passes"] for k, t in tests.items()}, excess)
             # is there anything rigid-body at all? link errors within the declared accuracy against the own models
             rank = max(determined_parameters(sys_)[1], 1)
             t_any = _test(sub, e_own, e_links, sys_.w, rank, k_own + rank)
@@ -316,6 +316,8 @@ class PooledDiagnosis:
             if outcome == "link_parameters" and not t_any["passes"]:
                 outcome = "none"
             stacks[label] = {"runs": [self.labels[r] for r in rs], "outcome": outcome, "tests": tests,
+                             "excess_noise_floors": {f"{self.labels[k // KEY]} joint {k % KEY + 1}": v
+                                                     for k, v in excess.items()},
                              "rigid_body_beyond_own_models": t_any, "payload_combinations_seen": int(p_pay)}
             if outcome == "payload" or label == "pooled" or len(rs) == 1:
                 stacks[label]["payload"] = self._payload_estimate(sub, own, sys_.w)

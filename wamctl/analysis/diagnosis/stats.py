@@ -116,6 +116,13 @@ def integrated_autocorr_time(e: np.ndarray, max_lag: int | None = None) -> float
 
 
 MIN_EFFECT = 0.05   # an effect must explain at least this fraction of the residual variance to matter
+DECIDED_FLOORS = 1.0   # the losing hypothesis' excess residual (RMS, noise floors) that decides between two
+
+
+def excess_floors(worse: float, better: float) -> float:
+    """What the worse of two fits leaves beyond the better one, in noise floors (the better one's residual RMS):
+    ``sqrt(worse^2 - better^2) / better`` (0 when it leaves nothing more)."""
+    return float(np.sqrt(max(worse ** 2 - better ** 2, 0.0)) / max(better, 1e-12))
 
 
 def effective_tau(e: np.ndarray, groups: np.ndarray | None = None, min_group: int = 30) -> float:
