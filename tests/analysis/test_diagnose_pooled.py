@@ -3,7 +3,7 @@
 Three runs of the same plant made by the independent generator (seed 9150: a large wrist payload of 1.498 kg at
 (25.9, 20.1, 26.4) mm from the flange, the links as declared, the same friction), each a sweep of one joint: the
 elbow (4), the shoulder (2), the wrist (6). Alone, no run identifies the payload: each sweep names it with its mass
-and centre of mass not identified; the shoulder sweep only on the declared link accuracy (it leaves 4.9 noise
+and centre of mass not identified; the shoulder sweep only on the declared link accuracy (it leaves 4.86 noise
 floors that link errors within it cannot reproduce, but link errors within twice it could: the caveat is said).
 Pooled, the mass is identified (elbow + shoulder), then the centre of mass too (all three).
 """
