@@ -893,6 +893,9 @@ def main(argv=None) -> None:
             jobs = sim_jobs(a.split, a.runs_per_effect, a.clean) if g == "sim" else \
                 independent_jobs(a.split, a.runs_per_effect, a.clean, a.pairs) + two_joint_jobs(
                     a.split, a.runs_per_effect if a.two_joint is None else a.two_joint)
+            if not jobs:        # --runs-per-effect 0 --clean 0 ...: nothing to count (the false alarms may follow)
+                print(f"\n== {g} ==\nno runs: --runs-per-effect, --clean, --pairs and --two-joint are all 0")
+                continue
             df = run_jobs(jobs, a.workers, root)
             studies[g] = df
             print(f"\n== {g} ==\n{confusion(df).to_string()}\n")
@@ -910,6 +913,8 @@ def main(argv=None) -> None:
     if studies and str(a.write) != "-":
         a.write.write_text(markdown(studies, fa, speed, a.split, a.note))
         print(f"wrote {a.write}")
+    elif str(a.write) != "-" and not a.only_timing:
+        print(f"{a.write} not written: no generator's study ran (the document needs one; --csv keeps every run)")
     if tmp:
         tmp.cleanup()
 
