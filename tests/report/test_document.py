@@ -109,3 +109,20 @@ def test_markdown_escapes_bars_and_keeps_legacy_callers():
 def test_key_figures_flatten_one_level():
     assert key_figures({"title": "x", "rpe_pct": {"1": 0.5, "7": 1.5}, "n": 3, "ok": True, "name": "a"}) == \
         {"rpe_pct.1": 0.5, "rpe_pct.7": 1.5, "n": 3.0}
+
+
+def test_effect_params_leave_what_is_not_identified_to_its_column():
+    """A payload from a sweep of one joint (nothing identified) showed ``mass_kg=not identified, com_m=[not
+    identified, ...], com_x_m=not identified, ...`` in its params cell, ten lines at 80 columns, beside the column
+    that names them already."""
+    from wamctl.report.diagnosis import effects_table
+
+    params = {"mass_kg": None, "com_m": [None, None, None], "joints_fitted": [4], "com_x_m": None,
+              "width_rad": 0.0123456, "com_partly_m": [0.01, None, 0.02]}
+    result = {"joints": {"4": {"effects": [{"name": "payload", "params": params, "not_identified": ["mass_kg"],
+                                            "evidence": {"p_value": 1e-9, "delta_bic": -40.0, "test": "nested"}}]}}}
+    row = effects_table(result).iloc[0]
+    assert row["params"] == "joints_fitted=[4], width_rad=0.01235, com_partly_m=[0.01, not identified, 0.02]"
+    assert row["not identified"] == "mass_kg"
+    result["joints"]["4"]["effects"][0]["params"] = {"mass_kg": None}
+    assert effects_table(result).iloc[0]["params"] == "-"

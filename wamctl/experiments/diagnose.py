@@ -195,10 +195,11 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
     except ValueError as exc:       # no candidate within the limits at this q0: said, no spec written
         return {"spec": None, "why": f"no run designed to tell a payload from link errors: {exc} at the run's q0"}
     sep, orig_sep = float(nr.separation["separation"]), float(nr.original["separation"])
-    why = (f"the run cannot tell a {cone['mass_kg']:.2g} kg wrist payload from link errors within {WIDE_PRIOR:g} "
-           f"times the declared accuracy (separation {orig_sep:.2g} noise floors of {noise:.3g} N m); moving joints "
-           f"{', '.join(str(j + 1) for j in nr.trajectory.moving)} their predicted torques differ by {sep:.2g} "
-           "noise floors (RMS per sample, after each refits its own parameters)"
+    named = "the payload is named on the declared link accuracy, but " if dec and dec["outcome"] == "payload" else ""
+    why = (f"{named}the run cannot tell a {cone['mass_kg']:.2g} kg wrist payload from link errors within "
+           f"{WIDE_PRIOR:g} times the declared accuracy (separation {orig_sep:.2g} noise floors of {noise:.3g} N m); "
+           f"moving joints {', '.join(str(j + 1) for j in nr.trajectory.moving)} their predicted torques differ by "
+           f"{sep:.2g} noise floors (RMS per sample, after each refits its own parameters)"
            + ("" if sep > 2 else ": still below 2, a longer run or a heavier test mass is needed to tell them"))
     write_next_experiment(data_path, out_dir, nr.trajectory, q0, [j + 1 for j in nr.trajectory.moving], 3, 1.0,
                           why, seed)

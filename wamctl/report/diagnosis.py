@@ -19,19 +19,19 @@ CAP = 20      # -log10 p shown up to here: beyond, every effect is overwhelming
 
 
 def _fmt_params(params: dict) -> str:
+    """An effect's parameters in one cell; those the data do not determine (None, or a list of None) are left to
+    the table's "not identified" column, which names them."""
     out = []
     for k, v in params.items():
+        if v is None or isinstance(v, dict) or (isinstance(v, list) and v and all(x is None for x in v)):
+            continue
         if isinstance(v, float):
             out.append(f"{k}={v:.4g}")
         elif isinstance(v, list) and all(isinstance(x, (int, float)) or x is None for x in v):
             out.append(f"{k}=[{', '.join('not identified' if x is None else f'{x:.3g}' for x in v)}]")
-        elif v is None:
-            out.append(f"{k}=not identified")
-        elif isinstance(v, dict):
-            continue
         else:
             out.append(f"{k}={v}")
-    return ", ".join(out)
+    return ", ".join(out) or "-"
 
 
 NOT_CHECKED = "not checked: did not move in the span checked"
