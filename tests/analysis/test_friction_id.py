@@ -108,7 +108,7 @@ def test_spec_errors_name_the_field():
         parse_spec(sweep_spec(sweep={"joints": [6], "travel_rad": 2.0}))
     with pytest.raises(SpecError, match=r"sweep\.travel_rad: joint 1 at 1.0 rad/s travels .*min_cruise_s"):
         parse_spec(sweep_spec(sweep={"joints": [1], "travel_rad": 0.2}))
-    with pytest.raises(SpecError, match=r"sweep\.tc_seconds: unknown key"):
+    with pytest.raises(SpecError, match=r"sweep\.tc_seconds = 0\.2: unknown key"):
         parse_spec(sweep_spec(sweep={"tc_seconds": 0.2}))
     with pytest.raises(SpecError, match=r"identification\.loss"):
         parse_spec(sweep_spec(identification={"loss": "l2"}))

@@ -135,9 +135,10 @@ def test_help_is_useful_on_every_command():
 
 # ------------------------------------------------------------------------------ bad input: one line, exit 2
 BAD_SPECS = {
-    "unknown key": (rotation_spec(colour="red"), "colour: unknown key"),
-    "wrong type": (rotation_spec(seed="abc"), "seed: Input should be a valid integer"),
-    "joint 8": (rotation_spec(rotation={"joints": [1, 8]}), "rotation.joints.1"),
+    "unknown key": (rotation_spec(colour="red"), "colour = 'red': unknown key"),
+    "wrong type": (rotation_spec(seed="abc"), "seed = 'abc': Input should be a valid integer"),
+    # the value the spec gave: item 1 of the list (counted from 0, as a sweep's vary names it) is joint 8
+    "joint 8": (rotation_spec(rotation={"joints": [1, 8]}), "rotation.joints.1 = 8: Input should be less than"),
     "amplitude outside limits": (rotation_spec(rotation={"amplitude_rad": 2.0}),
                                  "joint 4 would reach 3.5700 rad"),
     "unknown kind": ({"kind": "juggling"}, "kind: 'juggling' unknown"),

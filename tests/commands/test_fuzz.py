@@ -282,7 +282,7 @@ def test_what_the_fuzz_found_stays_fixed(fuzz_dir):
         "binary spec": (b"\x89PNG\r\n\x1a\n\x00\x00garbage", "validate", "binary data"),
         "latin-1 spec": ("kind: rotation\nname: caf\u00e9\n".encode("latin-1"), "validate", "not UTF-8 text"),
         "duplicate key": (b"kind: rotation\nseed: 1\nseed: 2\n", "validate", "line 3, column 1: duplicate key 'seed'"),
-        "seed -1": (b"kind: rotation\nseed: -1\n", "run", "seed: Input should be greater than or equal to 0"),
+        "seed -1": (b"kind: rotation\nseed: -1\n", "run", "seed = -1: Input should be greater than or equal to 0"),
         "missing friction file": (b"kind: rotation\nplant: {friction: nowhere.yaml}\n", "run",
                                   "plant.friction: friction model file not found: nowhere.yaml"),
         "q0 once": (b"kind: rotation\nq0_rad: [0, 0, 0, 9, 0, 0, 0]\n", "validate",

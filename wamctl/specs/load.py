@@ -30,8 +30,12 @@ def _adapter() -> TypeAdapter:
     return TypeAdapter(Annotated[Union[models], Field(discriminator="kind")])  # noqa: UP007 (a tuple of types)
 
 
-def format_validation_error(exc: ValidationError, source: str) -> str:
-    """One line per problem: ``source: field.path: message``."""
+def format_validation_error(exc: ValidationError, source: str, show_values: bool = True) -> str:
+    """One line per problem: ``source: field.path = value: message``. The path is the one a sweep's ``vary``
+    names (list items counted from 0: ``q0_rad.3`` is joint 4's); the value the spec gave there is shown when it is
+    a single number, word or flag, so that ``rotation.joints.2 = 9`` is not read as joint 2 (``show_values`` False:
+    not shown, for a sweep's points, whose description names their values and whose shared problems are told
+    once)."""
     lines = []
     for err in exc.errors():
         loc = [str(x) for x in err["loc"]]
@@ -40,12 +44,18 @@ def format_validation_error(exc: ValidationError, source: str) -> str:
         msg = err["msg"].removeprefix("Value error, ")
         if err["type"] == "extra_forbidden":
             msg = "unknown key"
-        lines.append(f"{source}: {'.'.join(loc)}: {msg}" if loc else f"{source}: {msg}")
+        where = ".".join(loc)
+        value = err.get("input")
+        if (show_values and where and err["type"] != "missing" and isinstance(value, (bool, int, float, str))
+                and len(repr(value)) <= 40):
+            where += f" = {value!r}" if isinstance(value, str) else f" = {value}"
+        lines.append(f"{source}: {where}: {msg}" if where else f"{source}: {msg}")
     return "\n".join(lines)
 
 
-def parse_spec(data: Any, source: str = "spec") -> Common:
-    """Validate a mapping into a spec model, raising :class:`SpecError` naming the field."""
+def parse_spec(data: Any, source: str = "spec", show_values: bool = True) -> Common:
+    """Validate a mapping into a spec model, raising :class:`SpecError` naming the field (and the value given
+    there: :func:`format_validation_error`)."""
     if not isinstance(data, dict):
         raise SpecError(f"{source}: expected a mapping at the top level")
     if "vary" in data:
@@ -56,7 +66,7 @@ def parse_spec(data: Any, source: str = "spec") -> Common:
     try:
         return _adapter().validate_python(data)
     except ValidationError as exc:
-        raise SpecError(format_validation_error(exc, source)) from None
+        raise SpecError(format_validation_error(exc, source, show_values)) from None
 
 
 

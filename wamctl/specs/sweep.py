@@ -304,7 +304,7 @@ def sweep_from_mapping(raw: Any, source: str = "spec", base_dir: Path | None = N
             data = apply_values(body, vals, where)
             if isinstance(data.get("plant"), str):
                 data["plant"] = load_model_file(resolve_path(data["plant"], base_dir))
-            spec = parse_spec(data, where)
+            spec = parse_spec(data, where, show_values=False)      # the point's description names its values
         except SpecError as exc:
             msg = str(exc)
             problems.append((pid, vals, msg[len(where) + 2:] if msg.startswith(where + ": ") else msg))
