@@ -64,6 +64,22 @@ def test_bad_column_maps_are_one_line_exit_2(tmp_path, args, expected):
     assert expected in line, line
 
 
+@pytest.mark.parametrize("column, cell, expected", [
+    ("pos4", "n/a?", "data row 42, column pos4: 'n/a?' is not a number"),
+    ("time", "12:00", "data row 42, column time: '12:00' is not a number"),
+])
+def test_a_cell_that_is_not_a_number_is_named_by_the_files_column(tmp_path, column, cell, expected):
+    """The user's file has ``pos4``, not the run's ``q_4`` (which the message named before)."""
+    src = tmp_path / "lab.csv"
+    df = lab_csv(src, [2, 4]).astype({column: object})
+    df.loc[41, column] = cell
+    df.to_csv(src, index=False)
+    r = run_cli("import", src, "--format", "csv", "--columns", MAP, "--robot", "wam7", "--joints", "2,4",
+                "--torque", "total", "--out", tmp_path / "runs")
+    line = one_error_line(r)
+    assert line.endswith(expected), line
+
+
 def test_a_file_without_format_is_told_the_formats(tmp_path):
     src = tmp_path / "lab.csv"
     lab_csv(src, [1])

@@ -38,6 +38,17 @@ def parse_columns(text: str) -> dict[str, str]:
     return out
 
 
+def _numbers_only(values: pd.Series, path: Path, col: str) -> None:
+    """A column of the file whose every non-empty cell is a number; else the first row that is not, named by the
+    file's own column name (the run's name for it, e.g. ``q_3``, is not in the user's file)."""
+    if pd.api.types.is_numeric_dtype(values):
+        return
+    bad = np.flatnonzero(pd.to_numeric(values, errors="coerce").isna().to_numpy() & values.notna().to_numpy())
+    if len(bad):
+        raise DataFormatError(f"{path}: data row {bad[0] + 1}, column {col}: {str(values.iat[bad[0]])[:40]!r} is not "
+                              "a number")
+
+
 def read(path: Path, opts: ImportOptions) -> Imported:
     if opts.columns is None:
         raise DataFormatError("--columns is needed with --format csv: e.g. \"t=time,q=pos{j},tau=torque{j}\"")
@@ -57,12 +68,9 @@ def read(path: Path, opts: ImportOptions) -> Imported:
                 raise DataFormatError(f"{path}: no column {col!r} ({what} in --columns); the header has "
                                       f"{', '.join(map(str, df.columns[:8]))}{' ...' if len(df.columns) > 8 else ''}")
             out["t_s" if j is None else internal_name(key, j)] = df[col]
+            _numbers_only(df[col], path, col)
     data = pd.DataFrame(out)
     t = pd.to_numeric(data["t_s"], errors="coerce").to_numpy(float)
-    bad = np.flatnonzero(np.isnan(t) & data["t_s"].notna().to_numpy())
-    if len(bad):
-        raise DataFormatError(f"{path}: data row {bad[0] + 1}, column {cmap['t']}: "
-                              f"{str(data['t_s'].iat[bad[0]])[:40]!r} is not a number")
     if np.isfinite(t).any():
         data["t_s"] = t - t[np.isfinite(t)][0]
     if opts.rate_hz is None:
