@@ -63,8 +63,9 @@ class Plan:
         over = speed > r.qd_max_rad_s
         if over.any():
             j = int(np.argmax(over))
-            raise SpecError(f"reference: joint {j + 1} velocity {speed[j]:.3f} rad/s above the limit "
-                            f"{r.qd_max_rad_s[j]} rad/s")
+            raise SpecError(f"reference: joint {j + 1} velocity {speed[j]:.3f} rad/s reaches the velocity limit "
+                            f"{r.qd_max_rad_s[j]} rad/s (max {speed[j]:.9g}: the safety check faults above it): "
+                            "plan a slower motion")
         if speed.max() > 0:
             done.append(f"reference speeds within {r.qd_max_rad_s[0]} rad/s (max {speed.max():.3f} rad/s)")
         else:   # poses only (e.g. an HMI block): the motion between them is made while running

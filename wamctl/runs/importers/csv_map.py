@@ -34,7 +34,8 @@ def parse_columns(text: str) -> dict[str, str]:
         out[key] = col
     for need in ("t", "q", "tau"):
         if need not in out:
-            raise DataFormatError(f"--columns: no {need}")
+            raise DataFormatError(f"--columns: no {need} (e.g. \"t=time,q=pos{{j}},tau=torque{{j}}\", {{j}} the "
+                                  "joint number)")
     return out
 
 
