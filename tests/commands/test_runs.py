@@ -87,6 +87,20 @@ def test_list_newest_first_with_each_kinds_figure(lab):
     assert by["here-alive"].status == "running"
 
 
+def test_a_runs_warnings_are_counted_beside_its_figure(tmp_path):
+    """A rotation that held a joint at its torque limit read 'RPE 1.81 % j2' like a clean run (a new user's walk);
+    its report's warnings are counted beside the figure, and in the figures."""
+    sat = {"rpe_pct": {"2": 1.815}, "warnings": ["joint 2 at torque limit 4.85-7.50 s (2.6 s), peak -20.0 N m",
+                                                 "joint 2 error > 0.05 rad 5.54-7.50 s (2.0 s), peak -0.196 rad"]}
+    fake_run(tmp_path, "sat", "rotation", "2026-03-01T09:00:00.000+00:00", "2026-03-01T09:00:09.000+00:00",
+             "completed", sat)
+    fake_run(tmp_path, "one", "rotation", "2026-03-02T09:00:00.000+00:00", "2026-03-02T09:00:09.000+00:00",
+             "completed", {"rpe_pct": {"7": 3.4}, "warnings": ["joint 7 error > 0.05 rad"]})
+    by = {x.name: x for x in catalog.list_runs([tmp_path])}
+    assert by["sat"].headline == "RPE 1.81 % j2; 2 warnings" and by["sat"].figures["warnings"] == 2
+    assert by["one"].headline == "RPE 3.4 % j7; 1 warning"
+
+
 def test_filters_and_json(lab):
     r = run_cli("runs", str(lab), "--json", "--kind", "rotation")
     assert r.code == 0, r.err

@@ -259,11 +259,19 @@ _HEADLINES = {"rotation": _rotation, "ift": _ift, "hmi_block": _hmi, "diagnosis"
 
 
 def headline(path: Path, kind: str) -> tuple[str, dict]:
-    """The figure that matters for a run of ``kind``, as words and as numbers (empty when the run wrote none)."""
+    """The figure that matters for a run of ``kind``, as words and as numbers (empty when the run wrote none),
+    followed by the count of its report's warnings (a joint at its torque limit, a tracking error: the figure
+    alone would read as a clean run)."""
     fn = _HEADLINES.get(kind)
     if fn is None:
         return "", {}
-    return fn(Path(path), read_json(Path(path) / "report.json"))
+    rep = read_json(Path(path) / "report.json")
+    words, numbers = fn(Path(path), rep)
+    n = len(rep.get("warnings") or []) if isinstance(rep, dict) else 0
+    if n:
+        words = f"{words}; {n} warning{'s' if n > 1 else ''}" if words else f"{n} warning{'s' if n > 1 else ''}"
+        numbers = dict(numbers, warnings=n)
+    return words, numbers
 
 
 # ----------------------------------------------------------------------------------------------- the listing
