@@ -1,6 +1,9 @@
 """Ctrl-C and SIGTERM at any moment of a command (issue 32, item 1): the command ends in one line and exit code
 130, no traceback, its run directory ``interrupted`` (or ``completed`` with a line saying its report was cut
-short), and data.parquet holds every row recorded, contiguous, with no chunk or temporary file left behind.
+short), and data.parquet holds every row recorded, contiguous, with no chunk or temporary file left behind. A run
+interrupted before its data are saved says so first, in one line naming the rows being saved (the seconds a long
+run's table takes to write used to pass in silence), and its events.csv ends at its last sample, with a row for
+the stop.
 
 The signals are sent deterministically: a hook on a function of the run (a control tick, a chunk write, the
 consolidation, the manifest, the report's documents and figures) sends SIGINT or SIGTERM to this process at its
@@ -34,6 +37,25 @@ SPEC = {"kind": "rotation", "name": "int", "seed": 2, "plant": {"friction": "tab
         "rotation": {"joints": [4], "mode": "all_together", "amplitude_rad": 0.04, "velocity_rad_s": 0.2,
                      "tc_s": 0.05, "settle_s": 0.0, "hold_s": 0.2}}
 N_POINTS = 50
+
+
+def notice_line(by: str, rows: int) -> str:
+    """The line said when the interrupt is caught, before the run's data are saved."""
+    return f"interrupted by {by}: saving {rows:,} samples ..."
+
+
+def interrupted_line(run: Path, by: str) -> str:
+    return f"error: {run}: interrupted by {by}; the data recorded so far are readable"
+
+
+def check_ending(err: str, label) -> list[str]:
+    """stderr of an interrupted command: no traceback, one error line, last, after at most one notice line
+    (:func:`notice_line`); returns the lines."""
+    lines = err.strip().splitlines()
+    assert "Traceback" not in err and lines and lines[-1].startswith("error: "), (label, err)
+    assert len(lines) == 1 or (len(lines) == 2 and lines[0].startswith("interrupted by ")
+                               and lines[0].endswith(" ...")), (label, err)
+    return lines
 
 
 class Hooks:
@@ -113,22 +135,30 @@ def spread_points(sequence: list[tuple[str, int]], n: int) -> list[tuple[str, in
     return [c for c in sequence if c in chosen]
 
 
-def check_interrupted_run(r, run_dir: Path, ticks_at_fire: int, ticks_total: int, label: str) -> str:
-    """The command's end and its run directory as the issue asks; returns the run's status."""
+def check_interrupted_run(r, run_dir: Path, ticks_at_fire: int, ticks_total: int, label: str, by: str,
+                          noticed: bool) -> str:
+    """The command's end and its run directory as the issue asks; returns the run's status. ``noticed``: the
+    interrupt came before the data table was consolidated, so the notice line comes first."""
     assert r.exc is None, (label, r.tb)
     assert r.code == 130, (label, r.code, r.err)
-    lines = r.err.strip().splitlines()
-    assert len(lines) == 1 and "Traceback" not in r.err, (label, r.err)
+    lines = check_ending(r.err, label)
     m = json.loads((run_dir / "manifest.json").read_text())
     assert m["status"] in ("interrupted", "completed"), (label, m["status"], m["reason"])
     if m["status"] == "completed":      # the signal came after the run's last sample: its report was cut short
-        assert "wamctl report" in lines[0], (label, lines[0])
+        assert len(lines) == 1 and "wamctl report" in lines[0], (label, lines)
     else:
-        assert "interrupted" in lines[0] and m["reason"].startswith("stopped by"), (label, lines[0])
+        assert "interrupted" in lines[-1] and m["reason"] == f"stopped by {by}", (label, lines, m["reason"])
+        ev = pd.read_csv(run_dir / "events.csv")
+        assert ev["kind"].iloc[-1] == "interrupted" and ev["detail"].iloc[-1] == m["reason"], (label, ev)
     if ticks_at_fire == 0:              # stopped before the loop started: nothing recorded, no table
         assert not (run_dir / "data.parquet").exists() and not (run_dir / "data").exists(), label
         return m["status"]
     data = pd.read_parquet(run_dir / "data.parquet")
+    if m["status"] == "interrupted":    # said before the saving, with the rows saved; events up to the last row
+        assert lines == [notice_line(by, len(data))] * noticed + [interrupted_line(run_dir, by)], (label, lines)
+        ev = pd.read_csv(run_dir / "events.csv")
+        t_last = round(float(data["t_s"].iloc[-1]), 6) if len(data) else 0.0
+        assert ev["t_s"].max() <= t_last and ev["t_s"].iloc[-1] == t_last, (label, ev, t_last)
     # every row recorded: the ticks read before the signal (the tick being read may or may not be recorded)
     assert ticks_at_fire - 1 <= len(data) <= min(ticks_at_fire + 1, ticks_total), (label, len(data), ticks_at_fire)
     assert data.notna().all().all(), label
@@ -165,9 +195,82 @@ def test_an_interrupt_at_any_of_50_points_of_a_run_keeps_every_row_and_ends_in_o
         assert hooks.fired, label
         runs = [d for d in out.iterdir() if d.is_dir()] if out.exists() else []
         assert len(runs) == 1, (label, r.err)
-        statuses[check_interrupted_run(r, runs[0], hooks.ticks_at_fire, ticks_total, label)] += 1
+        by = "SIGTERM" if how == "SIGTERM" else "Ctrl-C"
+        # said before the saving: a signal up to the end of the table's consolidation; an exception (no signal,
+        # nothing to notice in the loop) only when it leaves the table to the runner: in the last chunk's write,
+        # made as the stage ends, before its consolidation (in an earlier one the stage consolidates it)
+        noticed = (hooks.sequence.index(point) <= hooks.sequence.index(("remove_chunks", 1)) if how != "raise"
+                   else point == chunk_writes[7])
+        statuses[check_interrupted_run(r, runs[0], hooks.ticks_at_fire, ticks_total, label, by, noticed)] += 1
     # the points reach both ends: runs stopped mid-way, and runs completed whose report was stopped
     assert statuses["interrupted"] >= 20 and statuses["completed"] >= 10, statuses
+
+
+@pytest.mark.parametrize("how", ["SIGINT", "SIGTERM"])
+def test_an_interrupt_is_said_before_the_saving_and_the_events_end_at_the_last_sample(tmp_path, hooks, monkeypatch,
+                                                                                    how):
+    """Stopped at tick 60 of 225 (0.12 s, in the move): the line naming the rows is on stderr before the table is
+    consolidated, and events.csv has the move's segment but not the hold's (0.25 s, never reached), then one
+    ``interrupted`` row at the last sample's time."""
+    import wamctl.runs.store as store
+
+    said_at_saving = []
+    real = store.read_chunks
+
+    def reading(*args, **kwargs):           # the consolidation's first step: what stderr holds by then
+        said_at_saving.append(sys.stderr.getvalue())
+        return real(*args, **kwargs)
+    monkeypatch.setattr(store, "read_chunks", reading)
+    spec = tmp_path / "int.yaml"
+    spec.write_text(yaml.safe_dump(SPEC))
+    hooks.reset(("tick", 60), how)
+    r = run_cli("run", spec, "--out", tmp_path / "runs", "--quiet")
+    assert hooks.fired and r.code == 130, r.err
+    run = next((tmp_path / "runs").iterdir())
+    by = "SIGTERM" if how == "SIGTERM" else "Ctrl-C"
+    data = pd.read_parquet(run / "data.parquet")
+    assert 59 <= len(data) <= 61
+    assert r.err.splitlines() == [notice_line(by, len(data)), interrupted_line(run, by)], r.err
+    assert said_at_saving and said_at_saving[0] == notice_line(by, len(data)) + "\n", said_at_saving
+    ev = pd.read_csv(run / "events.csv")
+    t_last = round(float(data["t_s"].iloc[-1]), 6)
+    assert ev["kind"].tolist() == ["segment", "interrupted"], ev
+    assert ev["detail"].tolist() == ["move joints 4", f"stopped by {by}"], ev
+    assert ev["t_s"].tolist() == [0.0, t_last] and pd.isna(ev["joint"].iloc[-1]), ev
+    r = run_cli("report", run)       # the report of the interrupted run reads the new row
+    assert r.code == 0, r.err
+
+
+def test_a_failed_or_unstarted_run_keeps_only_the_events_that_happened(tmp_path):
+    """``failed``: the planned segments after the last sample go, the stop row says why; no sample at all: every
+    planned event goes, events recorded as they happened stay and the stop row takes the latest one's time."""
+    from wamctl.runs.store import RunDir
+
+    run = RunDir.create(tmp_path, "f", {}, 0, "rotation")
+    w = run.table("data", ["t_s", "x"], chunk_rows=4)
+    for k in range(6):
+        w.append(np.array([0.002 * k, 1.0]))
+    for t_s, label in [(0.0, "move"), (0.01, "hold"), (0.02, "return")]:
+        run.event(t_s, "segment", None, label, planned=True)
+    run.event(0.004, "torque_limit", 2, "at the limit")
+    run.close_tables()
+    run.finish("failed", "safety limit: joint 2 speed 2.1 rad/s")
+    ev = pd.read_csv(run.path / "events.csv")
+    assert ev["kind"].tolist() == ["segment", "segment", "torque_limit", "failed"], ev
+    assert ev["t_s"].tolist() == [0.0, 0.01, 0.004, 0.01], ev
+    assert ev["detail"].iloc[-1] == "safety limit: joint 2 speed 2.1 rad/s"
+
+    run = RunDir.create(tmp_path, "u", {}, 0, "rotation")
+    run.event(0.0, "segment", None, "move", planned=True)
+    run.event(1.5, "ift_stage", 3, "stage 2")
+    run.finish("interrupted", "stopped by SIGHUP")
+    ev = pd.read_csv(run.path / "events.csv")
+    assert ev["kind"].tolist() == ["ift_stage", "interrupted"] and ev["t_s"].tolist() == [1.5, 1.5], ev
+
+    run = RunDir.create(tmp_path, "c", {}, 0, "rotation")    # completed: the plan as it was
+    run.event(9.0, "segment", None, "hold", planned=True)
+    run.finish("completed")
+    assert pd.read_csv(run.path / "events.csv")["kind"].tolist() == ["segment"]
 
 
 # ------------------------------------------------------------------------------ the other commands
@@ -181,24 +284,32 @@ HMI = {"kind": "hmi_block", "name": "hmi", "seed": 1,
 
 
 @pytest.mark.parametrize("command,spec,points", [
-    ("friction-id", FRICTION, [("to_parquet", 3, "raise"), ("write_csv", 1, "SIGTERM"), ("tick", 900, "SIGINT")]),
-    ("tune-ift", IFT, [("tick", 150, "SIGINT"), ("to_parquet", 4, "SIGTERM")]),
-    ("hmi-session", HMI, [("tick", 200, "SIGTERM"), ("to_parquet", 1, "SIGINT")])])
+    ("friction-id", FRICTION, [("to_parquet", 3, "raise", False), ("write_csv", 1, "SIGTERM", True),
+                               ("tick", 900, "SIGINT", True)]),
+    ("tune-ift", IFT, [("tick", 150, "SIGINT", False), ("to_parquet", 4, "SIGTERM", False)]),
+    ("hmi-session", HMI, [("tick", 200, "SIGTERM", False), ("to_parquet", 1, "SIGINT", False)])])
 def test_an_interrupt_in_the_loop_or_a_table_write_of_other_commands(tmp_path, hooks, command, spec, points):
-    """In a chunk write (an exception inside it), in the consolidation, in the loop: one line, exit 130, the run
-    ``interrupted`` with the signal named, no temporary file."""
+    """In a chunk write (an exception inside it), in the consolidation, in the loop: one error line, exit 130,
+    the run ``interrupted`` with the signal named, no temporary file. A signal before a chunked table is
+    consolidated (the friction sweep's) is said first, with the rows; tune-ift and hmi-session write their own
+    tables as they go: nothing left to say."""
     path = tmp_path / "s.yaml"
     path.write_text(yaml.safe_dump(spec))
-    for i, (name, k, how) in enumerate(points):
+    for i, (name, k, how, noticed) in enumerate(points):
         out = tmp_path / f"p{i}"
         hooks.reset((name, k), how)
         r = run_cli(command, path, "--out", out, "--quiet")
         assert hooks.fired and r.exc is None, (name, k, r.tb)
-        assert r.code == 130 and len(r.err.strip().splitlines()) == 1 and "Traceback" not in r.err, r.err
+        assert r.code == 130, r.err
+        lines = check_ending(r.err, (name, k))
         run = [d for d in out.iterdir() if d.is_dir()][0]
         m = json.loads((run / "manifest.json").read_text())
         assert m["status"] == "interrupted", (name, k, m)
-        assert m["reason"] == ("stopped by SIGTERM" if how == "SIGTERM" else "stopped by Ctrl-C"), m
+        by = "SIGTERM" if how == "SIGTERM" else "Ctrl-C"
+        assert m["reason"] == f"stopped by {by}", m
+        assert lines[-1].startswith(f"error: {run}: interrupted by {by}; "), lines
+        assert len(lines) == 1 + noticed and lines[0].startswith(f"interrupted by {by}: saving " if noticed
+                                                                 else "error: "), lines
         assert not [p for p in run.rglob("*") if p.name.endswith(".tmp")]
 
 
@@ -236,13 +347,13 @@ def test_a_real_signal_during_the_chunked_run_ends_it_as_interrupted(tmp_path, s
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=120)
     assert proc.returncode == 130, err
-    assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err
     run = first_chunk[0].parent.parent
-    assert err.startswith(f"error: {run}: interrupted (stopped by "), err
+    by = "Ctrl-C" if sig == signal.SIGINT else "SIGTERM"
     m = json.loads((run / "manifest.json").read_text())
     assert m["status"] == "interrupted"
-    assert m["reason"] == ("stopped by Ctrl-C" if sig == signal.SIGINT else "stopped by SIGTERM")
+    assert m["reason"] == f"stopped by {by}"
     data = pd.read_parquet(run / "data.parquet")
+    assert check_ending(err, by) == [notice_line(by, len(data)), interrupted_line(run, by)], err
     assert len(data) >= 2500 and not (run / "data").exists()
     assert len(data) < 12000     # stopped mid-way
     np.testing.assert_allclose(data["t_s"].to_numpy(), 0.002 * np.arange(len(data)), atol=1e-9)

@@ -61,6 +61,19 @@ def progress_bar(description: str, enabled: bool = True):
         yield update
 
 
+def interrupt_notice(progress=None):
+    """The runner's ``on_interrupt(by, rows)`` (:func:`wamctl.experiments.runner.record_outcome`): stops the
+    progress bar made by :func:`progress_bar` (if any), then says on stderr that the interrupt was caught and
+    what is being saved, e.g. ``interrupted by Ctrl-C: saving 1,312,500 samples ...`` (the seconds a long run's
+    tables take to write would otherwise pass in silence, the bar's clock still counting)."""
+    def notice(by: str, rows: int) -> None:
+        if progress is not None:
+            progress.progress.stop()
+        err_console.print(f"interrupted by {by}: saving {rows:,} sample{'' if rows == 1 else 's'} ...",
+                          highlight=False, markup=False)
+    return notice
+
+
 def emit_json(obj) -> None:
     sys.stdout.write(json.dumps(obj, indent=2, default=str) + "\n")
 
@@ -239,7 +252,7 @@ def run_and_report(spec_path: Path, out: Path | None, dry_run: bool, quiet: bool
     label = f"{spec.kind} {spec.name}"
     with progress_bar(label, enabled=not (quiet or as_json)) as progress, \
             use_operator(TerminalOperator(yes=yes, progress=progress, label=label)):  # the CAN session's operator
-        outcome = run_spec(spec, base, out, progress, make_report=False)
+        outcome = run_spec(spec, base, out, progress, make_report=False, on_interrupt=interrupt_notice(progress))
     show_outcome(outcome, quiet, as_json, files(outcome.path) if files else None)
 
 

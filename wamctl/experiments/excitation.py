@@ -196,7 +196,7 @@ def plan(spec: ExcitationSpec, base_dir: Path | None = None) -> ExcitationPlan:
 def execute(spec: ExcitationSpec, plan: ExcitationPlan, run: RunDir, progress=None,
             base_dir: Path | None = None) -> None:
     for i, label in plan.reference.segments:
-        run.event(plan.reference.t_s[i], "segment", None, label)
+        run.event(plan.reference.t_s[i], "segment", None, label, planned=True)
     run.write_json("excitation.json", {"trajectory": plan.trajectory.to_dict(),
                                        "q0_rad": [float(v) for v in plan.trajectory.q0_rad],
                                        "limits_used": _use_dict(plan.limit_use),

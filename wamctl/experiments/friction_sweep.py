@@ -108,9 +108,9 @@ def execute(spec: FrictionSweepSpec, plan: Plan, run: RunDir, progress=None, bas
     ref = plan.reference
     for i, label in ref.segments:
         if not label.startswith("joint "):
-            run.event(ref.t_s[i], "segment", None, label)
+            run.event(ref.t_s[i], "segment", None, label, planned=True)
     for i, j, v, d in build_reference(spec)[1]:
-        run.event(ref.t_s[i], "move", j, f"velocity_rad_s={v:.6g} travel_rad={d:.6g}")
+        run.event(ref.t_s[i], "move", j, f"velocity_rad_s={v:.6g} travel_rad={d:.6g}", planned=True)
     run.flush_events()
     n_total = len(ref)
     val_specs = validation_specs(spec, run.path) if spec.validation is not None else {}

@@ -46,7 +46,7 @@ def plan(spec: RotationSpec, base_dir: Path | None = None) -> Plan:
 
 def execute(spec: RotationSpec, plan: Plan, run: RunDir, progress=None, base_dir: Path | None = None) -> None:
     for i, label in plan.reference.segments:
-        run.event(plan.reference.t_s[i], "segment", None, label)
+        run.event(plan.reference.t_s[i], "segment", None, label, planned=True)
     controller = make_joint_controller(spec, plan.feedforward_Nm)  # built before the arm is live (no heartbeat gap)
     with make_backend(spec, base_dir) as backend:
         closed_loop_stage(backend, controller, plan.reference, run, progress)

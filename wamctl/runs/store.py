@@ -8,7 +8,9 @@ Layout of ``<out>/<UTC timestamp>-<name>/``::
     data.parquet       the same rows consolidated when the run ends (completed, failed or interrupted), every
                        bit; the chunks are removed once it is written and holds all their rows
     data.csv           a readable copy, floats to CSV_SIGNIFICANT_DIGITS of each column's largest value
-    events.csv         t_s (to the microsecond), kind, joint, detail: segment starts, faults, notes
+    events.csv         t_s (to the microsecond), kind, joint, detail: segment starts, faults, notes; a run that
+                       ended ``interrupted`` or ``failed`` keeps only the events up to its last sample and
+                       ends with one row of that kind (its time the last sample's, its detail the reason)
     report.md/.html, *.png   the report
 
 Status is ``running`` until the run ends, then ``completed``, ``failed`` (with the reason) or
@@ -29,6 +31,7 @@ import signal
 import socket
 import subprocess
 import threading
+from collections.abc import Callable
 from contextlib import contextmanager
 from functools import lru_cache
 from importlib import metadata
@@ -93,7 +96,8 @@ class TableWriter:
     consistent whatever moment an exception lands, and ``flush``/``close`` may be called again after one.
     """
 
-    def __init__(self, run_dir: Path, name: str, columns: list[str], chunk_rows: int = 2500):
+    def __init__(self, run_dir: Path, name: str, columns: list[str], chunk_rows: int = 2500,
+                 before_consolidating: Callable[[], None] | None = None):
         self.run_dir = Path(run_dir)
         self.name = name
         self.columns = list(columns)
@@ -105,6 +109,11 @@ class TableWriter:
         self._parts = 0
         self.rows_written = 0
         self.closed = False
+        self.before_consolidating = before_consolidating
+        """Called by :meth:`close` before it consolidates (the seconds a long run's table takes)."""
+        self._t_col = self.columns.index("t_s") if "t_s" in self.columns else None
+        self.last_t_s: float | None = None
+        """``t_s`` of the last row handed to the writer (None: no row yet, or no ``t_s`` column)."""
 
     @property
     def rows_total(self) -> int:
@@ -117,6 +126,8 @@ class TableWriter:
             self.flush()
         self._buf[self._n] = row
         self._n += 1
+        if self._t_col is not None:
+            self.last_t_s = float(row[self._t_col])
         if self._n == self.chunk_rows:
             self.flush()
 
@@ -133,6 +144,8 @@ class TableWriter:
                 self._n += k
                 if self._n == self.chunk_rows:
                     self.flush()
+            if n and self._t_col is not None:
+                self.last_t_s = float(rows[n - 1, self._t_col])
 
     def flush(self) -> None:
         """Write the buffered rows as the next chunk (a complete file or none; signals held back meanwhile)."""
@@ -152,6 +165,8 @@ class TableWriter:
         self.flush()
         if self.closed:
             return read_table(self.run_dir, self.name)
+        if self.before_consolidating is not None:
+            self.before_consolidating()
         df = read_chunks(self._dir, self.columns)
         write_table_pair(df, self.run_dir, self.name)
         remove_chunks(self.run_dir, self.name, len(df))
@@ -304,6 +319,9 @@ class RunDir:
         self.path = Path(path)
         self._events: list[dict] = []
         self._tables: list[TableWriter] = []
+        self.on_saving: Callable[[int], None] | None = None
+        """Called once, with :attr:`rows_recorded`, before the next table is consolidated (set by the runner
+        after an interrupt, to say so before the seconds a long run's table takes to write), then cleared."""
 
     @classmethod
     def create(cls, out_dir: str | Path, name: str, spec: dict, seed: int | None,
@@ -343,12 +361,44 @@ class RunDir:
         self.write_manifest(m)
 
     def finish(self, status: str, reason: str | None = None, **fields) -> None:
-        """Write the events and the final status (with signals held back: the status is written whole)."""
+        """Write the events and the final status (with signals held back: the status is written whole). A run
+        ``interrupted`` or ``failed`` keeps only the events that happened (:meth:`end_events`)."""
         with signals_deferred():
+            if status in ("interrupted", "failed"):
+                self.end_events(status, reason)
             self.flush_events()
             self.update_manifest(status=status, reason=reason, end_utc=utc_now(), **fields)
             _OPEN_RUNS.pop(self.path, None)
             FINISHED_RUNS.append((self.path, status))
+
+    @property
+    def last_sample_t_s(self) -> float | None:
+        """``t_s`` of the last sample of this run's tables (the latest of them; None: no sample recorded)."""
+        return max((w.last_t_s for w in self._tables if w.last_t_s is not None), default=None)
+
+    @property
+    def rows_recorded(self) -> int:
+        """Rows handed to this run's tables so far."""
+        return sum(w.rows_total for w in self._tables)
+
+    def _before_consolidating(self) -> None:
+        """:attr:`on_saving`, once; each table of the run calls this before it consolidates."""
+        hook, self.on_saving = self.on_saving, None
+        if hook is not None:
+            hook(self.rows_recorded)
+
+    def end_events(self, status: str, reason: str | None) -> None:
+        """The events of a run that stopped early: those after its last sample are dropped (the planned
+        segments it never reached; all planned ones when it recorded no sample), and one row of kind
+        ``status`` is added at the last sample's time (with none, the latest event's, else 0) with ``reason``
+        as its detail."""
+        t_stop = self.last_sample_t_s
+        if t_stop is None:
+            self._events = [e for e in self._events if not e.get("planned")]
+            t_stop = max((e["t_s"] for e in self._events), default=0.0)
+        else:
+            self._events = [e for e in self._events if e["t_s"] <= t_stop]
+        self.event(t_stop, status, None, reason or "")
 
     def close_tables(self) -> None:
         """Consolidate every table of this run not closed yet (a stage that was interrupted while closing its
@@ -363,7 +413,7 @@ class RunDir:
 
     # ------------------------------------------------------------------ tables
     def table(self, name: str, columns: list[str], chunk_rows: int = 2500) -> TableWriter:
-        w = TableWriter(self.path, name, columns, chunk_rows)
+        w = TableWriter(self.path, name, columns, chunk_rows, before_consolidating=self._before_consolidating)
         self._tables.append(w)
         return w
 
@@ -371,8 +421,12 @@ class RunDir:
         """A whole table at once (imported or analysed data): ``<name>.parquet`` and ``<name>.csv``."""
         write_table_pair(df, self.path, name)
 
-    def event(self, t_s: float, kind: str, joint: int | None = None, detail: str = "") -> None:
-        self._events.append({"t_s": float(t_s), "kind": kind, "joint": joint, "detail": detail})
+    def event(self, t_s: float, kind: str, joint: int | None = None, detail: str = "",
+              planned: bool = False) -> None:
+        """One row of ``events.csv``. ``planned``: written before it happens (a segment of the reference), so
+        dropped if the run stops before it (:meth:`end_events`)."""
+        self._events.append({"t_s": float(t_s), "kind": kind, "joint": joint, "detail": detail,
+                             "planned": planned})
 
     def flush_events(self) -> None:
         """``events.csv``: times to the microsecond (``8.524``, not ``8.524000000000001``), written atomically."""
