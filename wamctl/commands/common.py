@@ -42,17 +42,32 @@ def reset_consoles() -> None:
     console._console = err_console._console = None
 
 
+CTRL_C_ECHO_COLUMNS = 2
+"""Columns a progress bar leaves free at the right of the terminal: the ``^C`` a terminal echoes on Ctrl-C then
+stays on the bar's line, which stopping the bar erases. A bar as wide as the terminal (80 columns: the
+description, the bar and the times fill it) had the echo wrap to a line of its own, and the stopped bar, frozen
+at its last percentage, stayed above the lines printed after it."""
+
+
 @contextmanager
 def progress_bar(description: str, enabled: bool = True):
     """Yields a callback ``progress(done, total)`` drawing a rich bar on stderr (None when disabled, or when stderr
-    is not a terminal: a log file would get only the blank line the bar leaves when it stops)."""
+    is not a terminal: a log file would get only the blank line the bar leaves when it stops). The bar is
+    :data:`CTRL_C_ECHO_COLUMNS` narrower than the terminal."""
     if not enabled or not err_console._get().is_terminal:
         yield None
         return
+    from rich.constrain import Constrain
     from rich.progress import BarColumn, Progress, TextColumn, TimeElapsedColumn, TimeRemainingColumn
 
-    with Progress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
-                  TimeElapsedColumn(), TimeRemainingColumn(), console=err_console._get(), transient=True) as prog:
+    out = err_console._get()
+
+    class NarrowProgress(Progress):
+        def get_renderables(self):        # the terminal's width read at each refresh
+            yield Constrain(self.make_tasks_table(self.tasks), max(1, out.width - CTRL_C_ECHO_COLUMNS))
+
+    with NarrowProgress(TextColumn("{task.description}"), BarColumn(), TextColumn("{task.percentage:>3.0f}%"),
+                        TimeElapsedColumn(), TimeRemainingColumn(), console=out, transient=True) as prog:
         task = prog.add_task(description, total=None)
 
         def update(done: int, total: int, label: str | None = None):
