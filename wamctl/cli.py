@@ -119,12 +119,12 @@ def _interrupted(exc: KeyboardInterrupt) -> None:
             if hasattr(signal, name):
                 signal.signal(getattr(signal, name), signal.SIG_IGN)
     by = exc.args[0] if exc.args and isinstance(exc.args[0], str) else "Ctrl-C"
-    line = f"interrupted (stopped by {by})"
+    line = f"interrupted by {by}"
     store = sys.modules.get("wamctl.runs.store")   # not imported: no run directory was made
     if store is not None:
         ended = store.end_open_runs(f"stopped by {by}")
         if ended:
-            line = f"{ended[-1]}: interrupted (stopped by {by}); the data recorded so far are readable"
+            line = f"{ended[-1]}: interrupted by {by}; the data recorded so far are readable"
         elif store.FINISHED_RUNS and store.FINISHED_RUNS[-1][1] == "completed" \
                 and not _report_complete(store.FINISHED_RUNS[-1][0]):
             path = store.FINISHED_RUNS[-1][0]
