@@ -610,7 +610,7 @@ def test_bad_data_gives_one_line_errors(tmp_path, monkeypatch, capsys):
     code, out, err = run_cli(monkeypatch, capsys, "friction-id", "--data", bad, "--out", tmp_path / "o")
     assert code == 2 and "no constant-velocity stage found" in err
     code, out, err = run_cli(monkeypatch, capsys, "friction-id", "--data", tmp_path / "nowhere")
-    assert code == 2 and "not a directory" in err
+    assert code == 2 and "nowhere: no such directory" in err     # a path that is not there (not "not a directory")
 
 
 def test_cli_dry_run_and_wrong_kind(monkeypatch, capsys, tmp_path):

@@ -165,3 +165,15 @@ def test_an_imported_subset_exports_and_imports_again_as_it_was_logged(tmp_path)
     assert r.code == 0, r.err
     again = pd.read_parquet(json.loads(r.out)["run_dir"] + "/data.parquet")
     assert np.array_equal(again["q_4_rad"].to_numpy(), df["pos4"].to_numpy())
+
+
+def test_a_folder_that_is_no_run_says_what_a_run_is(tmp_path):
+    """`diagnose configs` said 'not a wamctl run directory (no manifest.json)', though a measured-run directory
+    (meta.yaml) is taken too; a path that is not there said 'not a directory'."""
+    (tmp_path / "configs").mkdir()
+    for path, expected in ((tmp_path / "configs", "configs: neither a measured run (meta.yaml + data) nor a wamctl "
+                                                  "run directory (manifest.json)"),
+                           (tmp_path / "nowhere", "nowhere: no such directory")):
+        with pytest.raises(DataFormatError) as exc:
+            load_run_data(path)
+        assert str(exc.value).endswith(expected), exc.value

@@ -403,6 +403,9 @@ def load_run_data(path: str | Path, partial_ok: bool = False, *, reader: str = "
     if (path / "meta.yaml").is_file():
         rd = read_measured(path)
     else:
+        if path.is_dir() and not (path / "manifest.json").is_file():
+            raise DataFormatError(f"{path}: neither a measured run (meta.yaml + data) nor a wamctl run directory "
+                                  "(manifest.json)")
         manifest, spec = open_run(path)
         data = read_table(path)
         if "t_s" not in data or len(data) < 10:

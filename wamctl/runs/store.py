@@ -498,7 +498,7 @@ def open_run(path: str | Path) -> tuple[dict, dict]:
     """(manifest, spec) of a run directory, or DataFormatError naming what is missing."""
     path = Path(path)
     if not path.is_dir():
-        raise DataFormatError(f"{path}: not a directory")
+        raise DataFormatError(f"{path}: {'not a directory' if path.exists() else 'no such directory'}")
     mpath = path / "manifest.json"
     if not mpath.is_file():
         raise DataFormatError(f"{path}: not a wamctl run directory (no manifest.json)")
