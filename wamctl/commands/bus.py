@@ -10,7 +10,8 @@ import typer
 from wamctl.commands.common import console, emit_json, err_console, print_frame
 
 BusOptionOpt = Annotated[list[str] | None, typer.Option(
-    "--bus-option", help="Further python-can Bus argument KEY=VALUE (repeatable), e.g. port=43113 for "
+    "--bus-option", metavar="<key=value>", help="Further python-can Bus argument KEY=VALUE (repeatable), e.g. "
+    "port=43113 for "
     "udp_multicast.")]
 
 
@@ -39,8 +40,9 @@ def bus_check_cmd(
     bus_option: BusOptionOpt = None,
     simulate_pucks: Annotated[bool, typer.Option("--simulate-pucks", help="Answer as a simulated WAM just powered "
                                                  "up (virtual interface only).")] = False,
-    window: Annotated[float, typer.Option("--window", min=0.05, max=60.0, help="Seconds of listening for the "
-                                          "bus load.")] = 1.0,
+    window: Annotated[float, typer.Option("--window", metavar="<float>", min=0.05, max=60.0,
+                                          help="Seconds of listening for the "
+                                               "bus load.")] = 1.0,
     poll: Annotated[bool, typer.Option("--poll", help="During the window, request positions at 500 Hz as the "
                                        "control loop would, and time the replies.")] = False,
     wake: Annotated[bool, typer.Option("--wake/--no-wake", help="Wake motor pucks found in the monitor (10 ms "

@@ -24,8 +24,9 @@ def diagnose(data: DataArg,
              quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No tables on the terminal.")] = False,
              json: Annotated[bool, typer.Option("--json", help="Print diagnosis.json on stdout.")] = False,
              jobs: Annotated[int | None, typer.Option(
-                 "--jobs", min=1, help="Worker processes for the joints (the same diagnosis; 1: none). Default: the "
-                                       "CPUs available, on a long run.", show_default=False)] = None):
+                 "--jobs", min=1, metavar="<int>", help="Worker processes for the joints (the same diagnosis; 1: "
+                                                        "none). Default: the CPUs available, on a long run.",
+                 show_default=False)] = None):
     """Find what the declared model (rigid body + armature + classic friction) lacks in a measured run.
 
     The torque residual (inverse dynamics on Savitzky-Golay derivatives) is tested against one signature per

@@ -19,9 +19,10 @@ def friction_id(
                                                 "run directory with a spec or --data, a comparison folder with "
                                                 "--compare); default: the spec's out_dir, else runs/.",
                                                 show_default=False)] = None,
-    compare: Annotated[list[Path] | None, typer.Option("--compare", help="Compare two rotation runs, pd_g "
-                                                          "then pd_g_ff (give the option twice); writes "
-                                                          "<out>/<UTC time>-ff-comparison/.",
+    compare: Annotated[list[Path] | None, typer.Option("--compare", metavar="<path>",
+                                                       help="Compare two rotation runs, pd_g "
+                                                            "then pd_g_ff (give the option twice); writes "
+                                                            "<out>/<UTC time>-ff-comparison/.",
                                                           show_default=False)] = None,
     loss: Annotated[str | None, typer.Option("--loss", help="With --data: least-squares loss, linear (default), "
                                                 "soft_l1, huber or cauchy (robust to outlying segments).",

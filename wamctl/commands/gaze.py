@@ -14,13 +14,15 @@ from wamctl.commands.common import console, emit_json, err_console, progress_bar
 def gaze_check_cmd(
     port: Annotated[str | None, typer.Option("--port", help="Serial device or pyserial URL (/dev/ttyUSB0, "
                                              "socket://host:port).", show_default=False)] = None,
-    seconds: Annotated[float, typer.Option("--seconds", min=0.5, max=600.0, help="Seconds of capture per baud "
-                                           "rate.")] = 5.0,
+    seconds: Annotated[float, typer.Option("--seconds", metavar="<float>", min=0.5, max=600.0,
+                                           help="Seconds of capture per baud "
+                                                "rate.")] = 5.0,
     capture: Annotated[Path | None, typer.Option("--capture", help="Also write the raw bytes to this capture file "
                                                  "(hex, one line per read; replay it with a replay-raw source).",
                                                  show_default=False)] = None,
-    baud: Annotated[list[int] | None, typer.Option("--baud", help="Baud rate to try (repeat for several; default "
-                                                   "57600, the ASL Serial Out rate).", show_default=False)] = None,
+    baud: Annotated[list[int] | None, typer.Option("--baud", metavar="<int>",
+                                                   help="Baud rate to try (repeat for several; default "
+                                                        "57600, the ASL Serial Out rate).", show_default=False)] = None,
     parity: Annotated[str, typer.Option("--parity", help="none, even, odd, mark or space.")] = "none",
     stopbits: Annotated[float, typer.Option("--stopbits", help="1, 1.5 or 2.")] = 1,
     flow_control: Annotated[str, typer.Option("--flow-control", help="none, rtscts, xonxoff or dsrdtr.")] = "none",

@@ -77,8 +77,9 @@ def identify(data: Annotated[list[Path] | None, typer.Argument(help="Measured ru
                                                                 "run directories), any sample rate.",
                                                                 show_default=False)] = None,
              validate: Annotated[list[Path] | None, typer.Option(
-                 "--validate", help="Held-out runs (best: another trajectory); repeat the option. Default: the "
-                                    "last quarter of each run is held out.", show_default=False)] = None,
+                 "--validate", metavar="<path>",
+                 help="Held-out runs (best: another trajectory); repeat the option. Default: the "
+                      "last quarter of each run is held out.", show_default=False)] = None,
              model: Annotated[Path | None, typer.Option(
                  "--model", help="Declared arm: a model file (links, friction) or a friction file. Default: "
                                  "the datasheet and Table 4.1.", show_default=False)] = None,
@@ -91,11 +92,13 @@ def identify(data: Annotated[list[Path] | None, typer.Argument(help="Measured ru
                                                    "trajectory run loaded (--loaded) and bare (--bare), best in "
                                                    "the order of `wamctl excite SPEC --payload-schedule`; writes "
                                                    "payload.yaml (docs/payload.md).")] = False,
-             loaded: Annotated[list[Path] | None, typer.Option("--loaded", help="--payload: a run with the "
-                                                               "payload; repeat the option.",
+             loaded: Annotated[list[Path] | None, typer.Option("--loaded", metavar="<path>",
+                                                               help="--payload: a run with the "
+                                                                    "payload; repeat the option.",
                                                                show_default=False)] = None,
-             bare: Annotated[list[Path] | None, typer.Option("--bare", help="--payload: a run without it; "
-                                                             "repeat the option.", show_default=False)] = None,
+             bare: Annotated[list[Path] | None, typer.Option("--bare", metavar="<path>",
+                                                             help="--payload: a run without it; "
+                                                                  "repeat the option.", show_default=False)] = None,
              static: Annotated[bool, typer.Option("--static", help="--payload from held poses (the reference at "
                                                   "rest >= 1 s): mass and centre of mass only.")] = False,
              quiet: QuietOpt = False, json: JsonOpt = False):

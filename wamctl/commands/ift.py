@@ -11,15 +11,17 @@ from wamctl.commands.common import (
     JsonOpt,
     OutOpt,
     QuietOpt,
-    SpecArg,
     YesOpt,
     progress_bar,
     run_and_report,
     show_outcome,
 )
 
+IftSpecArg = Annotated[Path, typer.Argument(help="An IFT spec (YAML, kind: ift; e.g. configs/ift.yaml).",
+                                            show_default=False)]
 
-def tune_ift(spec: SpecArg, out: OutOpt = None,
+
+def tune_ift(spec: IftSpecArg, out: OutOpt = None,
              resume: Annotated[Path | None, typer.Option(
                  "--resume", help="Continue the tuning in this run directory from its last completed iteration "
                                   "(same spec; only ift.plant.runs may grow).", show_default=False)] = None,

@@ -13,8 +13,9 @@ from wamctl.commands.common import console, emit_json, status_line
 def report(run_dirs: Annotated[list[Path] | None, typer.Argument(help="One or more run directories.",
                                                                     show_default=False)] = None,
            hmi_results: Annotated[list[Path] | None, typer.Option(
-               "--hmi-results", help="An HMI results CSV (raw trials: subject,condition,location,attempt,hit,time_s; "
-               "or per-unit summaries); repeatable. Reported with ANOVA tables beside the runs.")] = None,
+               "--hmi-results", metavar="<path>",
+               help="An HMI results CSV (raw trials: subject,condition,location,attempt,hit,time_s; "
+                    "or per-unit summaries); repeatable. Reported with ANOVA tables beside the runs.")] = None,
            out: Annotated[Path | None, typer.Option("--out", help="Write the report(s) here instead of "
                                                        "into each run directory.")] = None,
            format: Annotated[str, typer.Option("--format", help="Comma-separated: md, html, json.")] = "md,html,json",

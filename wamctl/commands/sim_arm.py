@@ -34,10 +34,12 @@ def sim_arm_cmd(
                                                  "position replies).")] = False,
     gimbals: Annotated[bool, typer.Option("--gimbals", help="Puck 7 with POLES 8: a gimbals arm (the session must "
                                           "refuse it).")] = False,
-    upper_group: Annotated[int, typer.Option("--upper-group", min=0, max=31, help="GRPC of pucks 5-7 (5 as in "
-                                             "Barrett's 2008 manual: the session must refuse it).")] = 4,
-    heartbeat_timeout: Annotated[float, typer.Option("--heartbeat-timeout", min=0.01, help="Seconds without "
-                                                     "position polling before the safety module faults.")] = 0.5,
+    upper_group: Annotated[int, typer.Option("--upper-group", metavar="<int>", min=0, max=31,
+                                             help="GRPC of pucks 5-7 (5 as in "
+                                                  "Barrett's 2008 manual: the session must refuse it).")] = 4,
+    heartbeat_timeout: Annotated[float, typer.Option("--heartbeat-timeout", metavar="<float>", min=0.01,
+                                                     help="Seconds without "
+                                                          "position polling before the safety module faults.")] = 0.5,
     realtime: Annotated[bool, typer.Option("--realtime/--no-realtime", help="SCHED_FIFO for the simulator's thread "
                                            "when permitted, no garbage-collection pauses (pucks answer within "
                                            "microseconds).")] = True,

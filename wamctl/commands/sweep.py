@@ -29,7 +29,8 @@ def sweep(
     tls_key: Annotated[Path | None, typer.Option(
         "--tls-key", help="With a tls:// scheduler: this client's private key (PEM).")] = None,
     workers: Annotated[int | None, typer.Option(
-        "--workers", min=1, help="Worker processes of the local cluster (default: one per core).")] = None,
+        "--workers", min=1, metavar="<int>",
+        help="Worker processes of the local cluster (default: one per core).")] = None,
     resume: Annotated[Path | None, typer.Option(
         "--resume", help="Finish an interrupted sweep directory: its completed points are skipped.")] = None,
     dry_run: Annotated[bool, typer.Option(
