@@ -388,16 +388,15 @@ class RunDir:
             hook(self.rows_recorded)
 
     def end_events(self, status: str, reason: str | None) -> None:
-        """The events of a run that stopped early: those after its last sample are dropped (the planned
-        segments it never reached; all planned ones when it recorded no sample), and one row of kind
-        ``status`` is added at the last sample's time (with none, the latest event's, else 0) with ``reason``
-        as its detail."""
-        t_stop = self.last_sample_t_s
-        if t_stop is None:
-            self._events = [e for e in self._events if not e.get("planned")]
-            t_stop = max((e["t_s"] for e in self._events), default=0.0)
-        else:
-            self._events = [e for e in self._events if e["t_s"] <= t_stop]
+        """The events of a run that stopped early: the planned ones after its last sample are dropped (the
+        segments it never reached; all planned ones when it recorded no sample), what happened is kept (a
+        watchdog or fault seen after the last sample is the reason the run stopped), and one row of kind
+        ``status`` is added last, with ``reason`` as its detail, at the last sample's time or the latest event
+        kept if later (with neither, 0)."""
+        t_last = self.last_sample_t_s
+        self._events = [e for e in self._events
+                        if not e.get("planned") or (t_last is not None and e["t_s"] <= t_last)]
+        t_stop = max([e["t_s"] for e in self._events] + ([t_last] if t_last is not None else []), default=0.0)
         self.event(t_stop, status, None, reason or "")
 
     def close_tables(self) -> None:
