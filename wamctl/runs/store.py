@@ -9,8 +9,8 @@ Layout of ``<out>/<UTC timestamp>-<name>/``::
                        bit; the chunks are removed once it is written and holds all their rows
     data.csv           a readable copy, floats to CSV_SIGNIFICANT_DIGITS of each column's largest value
     events.csv         t_s (to the microsecond), kind, joint, detail: segment starts, faults, notes; a run that
-                       ended ``interrupted`` or ``failed`` keeps only the events up to its last sample and
-                       ends with one row of that kind (its time the last sample's, its detail the reason)
+                       ended ``interrupted`` or ``failed`` drops the planned events after its last sample
+                       (what happened is kept) and ends with one row of that kind, its detail the reason
     report.md/.html, *.png   the report
 
 Status is ``running`` until the run ends, then ``completed``, ``failed`` (with the reason) or
