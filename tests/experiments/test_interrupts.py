@@ -409,3 +409,21 @@ def test_ctrl_c_to_the_process_group_while_the_sweep_cluster_starts(tmp_path):
     assert proc.returncode == 130, err[-3000:]
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err, err[-3000:]
     assert err.startswith(f"error: {made[0].parent}: sweep interrupted, "), err
+
+
+def test_a_notice_that_fails_does_not_stop_the_saving(tmp_path):
+    """The saving notice prints to the terminal; a terminal gone (a broken pipe) must not keep the rows from
+    data.parquet."""
+    from wamctl.runs.store import RunDir, read_table
+
+    run = RunDir.create(tmp_path, "n", {"kind": "rotation", "name": "n"}, 0, "rotation")
+    w = run.table("data", ["t_s", "q_1_rad"])
+    for k in range(10):
+        w.append(np.array([k * 0.002, 0.1 * k]))
+
+    def broken(rows):
+        raise BrokenPipeError("stderr closed")
+
+    run.on_saving = broken
+    run.close_tables()
+    assert len(read_table(run.path, "data")) == 10 and (run.path / "data.parquet").is_file()

@@ -385,7 +385,10 @@ class RunDir:
         """:attr:`on_saving`, once; each table of the run calls this before it consolidates."""
         hook, self.on_saving = self.on_saving, None
         if hook is not None:
-            hook(self.rows_recorded)
+            try:
+                hook(self.rows_recorded)
+            except Exception as exc:  # noqa: BLE001 - a notice (a closed terminal) must never stop the saving
+                log.warning("%s: the interrupt notice failed (%s: %s)", self.path, type(exc).__name__, exc)
 
     def end_events(self, status: str, reason: str | None) -> None:
         """The events of a run that stopped early: the planned ones after its last sample are dropped (the
