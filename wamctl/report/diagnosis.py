@@ -355,7 +355,9 @@ def report(run_path: Path, manifest: dict, spec: dict, out_dir: Path | None = No
     eff = effects_table(result)
     if len(eff):
         doc.heading("Effects and their evidence")
-        doc.table("effects", eff)
+        doc.table("effects", eff, "torque rms before / after: held out, over the sliding samples, at the step the "
+                  "effect was added (the model with the effects found before it, without and with this one); the "
+                  "table above is the declared model against the final one, and counts the stalls too")
     amb = ambiguous_table(result)
     if len(amb):
         doc.heading("Ambiguous candidates")
