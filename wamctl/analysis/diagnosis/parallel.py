@@ -84,10 +84,16 @@ def map_in_order(task, n: int, workers: int, done=None) -> list:
     processes. ``done(k)`` is called in this process as each ``task(k)`` completes; the tasks' log records and
     warnings are given out here task by task in order, as one after the other would.
 
-    A task's exception reaches the caller unchanged (the earliest task's, as one after the other would); the other
-    workers are stopped. A worker that dies (killed, out of memory) leaves its tasks and the ones not started to this
-    process, with a warning: the results are the same, only later. Ctrl-C stops the workers (they ignore SIGINT
-    themselves, so that a terminal's Ctrl-C reaches this process alone) before it is raised here."""
+    A task's exception reaches the caller unchanged (the earliest task's, as one after the other would); the tasks
+    not started are cancelled and the workers finish the one they are on (one joint: seconds). They are not
+    terminated: a worker killed while it writes its result leaves a partial message in the pool's result pipe, and
+    the pool's reader then waits for the rest forever (seen: the suite's worker-error test hung 600 s; 30 tries of
+    3 MB results with an early error hung the terminating version within 30 s, 3 of 3). A worker that dies (killed,
+    out of memory) leaves its tasks and the ones not started to this process, with a warning: the results are the
+    same, only later. Ctrl-C or SIGTERM (the workers ignore SIGINT, so that a terminal's Ctrl-C reaches this process
+    alone) terminates the workers before it is raised here: waiting for them instead was seen to hang at exit (the
+    workers never got the pool's stop sentinels after the interrupt); that a worker cut off while sending could
+    still leave the pool's reader waiting is not excluded there."""
     done = done or (lambda k: None)
     if workers <= 1 or n <= 1:
         out = []
@@ -121,8 +127,7 @@ def map_in_order(task, n: int, workers: int, done=None) -> list:
                         if futures[g] not in sent:
                             receive(futures[g], g.result())
                     raise f.exception()
-    except BrokenProcessPool as exc:
-        _stop(pool)
+    except BrokenProcessPool as exc:        # the pool has stopped its other workers itself
         log.warning("a worker process of the joint diagnosis died (%s): %d of %d tasks done here instead",
                     exc, n - len(sent), n)
         for k in range(len(results), n):
@@ -131,12 +136,22 @@ def map_in_order(task, n: int, workers: int, done=None) -> list:
             else:
                 results[k] = task(k)
                 done(k)
+    except Exception:
+        raise           # the finally: the tasks not started cancelled, the ones running finished (not terminated)
     except BaseException:
-        _stop(pool)
+        _stop(pool)     # Ctrl-C, SIGTERM: now (waiting for the sentinels after an interrupt was seen to hang)
         raise
     finally:
         pool.shutdown(wait=True, cancel_futures=True)
     return [results[k] for k in range(n)]
+
+
+def _stop(pool: ProcessPoolExecutor) -> None:
+    """Every worker of ``pool`` terminated (SIGTERM), without waiting for its task: on Ctrl-C or SIGTERM only (a
+    worker cut off while it sends a result can leave the pool's reader waiting; see :func:`map_in_order`)."""
+    for p in list((getattr(pool, "_processes", None) or {}).values()):
+        if p.is_alive():
+            p.terminate()
 
 
 def _give_out(package: tuple):
@@ -152,13 +167,6 @@ def _give_out(package: tuple):
         warnings.warn_explicit(w.message, w.category, w.filename, w.lineno,
                                registry=None if module is None else vars(module).setdefault("__warningregistry__", {}))
     return value
-
-
-def _stop(pool: ProcessPoolExecutor) -> None:
-    """Every worker of ``pool`` terminated (SIGTERM), without waiting for its task."""
-    for p in list((getattr(pool, "_processes", None) or {}).values()):
-        if p.is_alive():
-            p.terminate()
 
 
 # ---------------------------------------------------------------------------------------------- in the workers
