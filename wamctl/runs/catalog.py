@@ -267,10 +267,10 @@ def headline(path: Path, kind: str) -> tuple[str, dict]:
         return "", {}
     rep = read_json(Path(path) / "report.json")
     words, numbers = fn(Path(path), rep)
-    n = len(rep.get("warnings") or []) if isinstance(rep, dict) else 0
+    n = len(rep.get("warnings") or [])        # read_json gives a dict, empty when there is no report
     if n:
-        words = f"{words}; {n} warning{'s' if n > 1 else ''}" if words else f"{n} warning{'s' if n > 1 else ''}"
-        numbers = dict(numbers, warnings=n)
+        count = f"{n} warning{'s' if n > 1 else ''}"
+        words, numbers = (f"{words}; {count}" if words else count), dict(numbers, warnings=n)
     return words, numbers
 
 

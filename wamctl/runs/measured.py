@@ -174,6 +174,23 @@ def _to_external(df: pd.DataFrame) -> pd.DataFrame:
     return df[[c for c in cols if c in df]].rename(columns=cols)
 
 
+def as_numbers(df: pd.DataFrame, source, row_name: str, column_name=None) -> pd.DataFrame:
+    """``df`` with every cell a number (text read from a CSV converted; empty cells NaN), or DataFormatError naming
+    the first cell that is not one: ``source: <row_name> <row>, column <name>: '<cell>' is not a number``, the row
+    1-based, the column named by ``column_name(column)`` (default: the run's external name, ``q_3``; an importer
+    gives the file's own)."""
+    if all(pd.api.types.is_numeric_dtype(t) for t in df.dtypes):
+        return df
+    num = df.apply(pd.to_numeric, errors="coerce")
+    bad = (num.isna() & df.notna()).to_numpy()
+    if bad.any():
+        row, col = map(int, np.argwhere(bad)[0])
+        name = (column_name or _external_name)(df.columns[col])
+        raise DataFormatError(f"{source}: {row_name} {row + 1}, column {name}: {str(df.iat[row, col])[:40]!r} is "
+                              "not a number")
+    return num
+
+
 def _external_name(col: str) -> str:
     """The measured-run format's name of an internal column (``q_1_rad`` -> ``q_1``, ``t_s`` -> ``t``)."""
     if col == "t_s":
@@ -242,17 +259,7 @@ def validate_samples(df: pd.DataFrame, sample_rate_hz: float | None, source: str
                                   f"logged: {', '.join(map(str, joints))})")
     optional = [internal_name(n, j) for n in QUANTITIES if n not in names for j in joints]
     cols = required + [c for c in optional if c in df.columns]
-    df = df[cols]
-    if not all(pd.api.types.is_numeric_dtype(t) for t in df.dtypes):     # text (a CSV): every cell a number?
-        num = df.apply(pd.to_numeric, errors="coerce")
-        bad = num.isna() & df.notna()
-        if bad.to_numpy().any():
-            row, col = map(int, np.argwhere(bad.to_numpy())[0])
-            name = _external_name(cols[col])
-            raise DataFormatError(f"{source}: {row_name} {row + 1}, column {name}: {str(df.iat[row, col])[:40]!r} is "
-                                  "not a number")
-        df = num
-    df = df.astype(float)
+    df = as_numbers(df[cols], source, row_name).astype(float)
     inf = np.isinf(df.to_numpy())
     if inf.any():
         row, col = map(int, np.argwhere(inf)[0])

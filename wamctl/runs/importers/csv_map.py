@@ -15,7 +15,7 @@ import pandas as pd
 
 from wamctl.errors import DataFormatError
 from wamctl.runs.importers import Imported, ImportOptions, median_rate_hz
-from wamctl.runs.measured import QUANTITIES, ROBOT_JOINTS, internal_name
+from wamctl.runs.measured import QUANTITIES, ROBOT_JOINTS, as_numbers, internal_name
 
 
 def parse_columns(text: str) -> dict[str, str]:
@@ -39,17 +39,6 @@ def parse_columns(text: str) -> dict[str, str]:
     return out
 
 
-def _numbers_only(values: pd.Series, path: Path, col: str) -> None:
-    """A column of the file whose every non-empty cell is a number; else the first row that is not, named by the
-    file's own column name (the run's name for it, e.g. ``q_3``, is not in the user's file)."""
-    if pd.api.types.is_numeric_dtype(values):
-        return
-    bad = np.flatnonzero(pd.to_numeric(values, errors="coerce").isna().to_numpy() & values.notna().to_numpy())
-    if len(bad):
-        raise DataFormatError(f"{path}: data row {bad[0] + 1}, column {col}: {str(values.iat[bad[0]])[:40]!r} is not "
-                              "a number")
-
-
 def read(path: Path, opts: ImportOptions) -> Imported:
     if opts.columns is None:
         raise DataFormatError("--columns is needed with --format csv: e.g. \"t=time,q=pos{j},tau=torque{j}\"")
@@ -60,7 +49,7 @@ def read(path: Path, opts: ImportOptions) -> Imported:
     except (pd.errors.ParserError, pd.errors.EmptyDataError, UnicodeDecodeError, ValueError, IsADirectoryError) as exc:
         msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
         raise DataFormatError(f"{path}: unreadable CSV ({msg})") from None
-    out = {}
+    out, file_column = {}, {}
     for key, pattern in cmap.items():
         for j in ([None] if key == "t" else joints):
             col = pattern if j is None else pattern.replace("{j}", str(j))
@@ -68,10 +57,11 @@ def read(path: Path, opts: ImportOptions) -> Imported:
                 what = "t" if j is None else f"{key} of joint {j}"
                 raise DataFormatError(f"{path}: no column {col!r} ({what} in --columns); the header has "
                                       f"{', '.join(map(str, df.columns[:8]))}{' ...' if len(df.columns) > 8 else ''}")
-            out["t_s" if j is None else internal_name(key, j)] = df[col]
-            _numbers_only(df[col], path, col)
-    data = pd.DataFrame(out)
-    t = pd.to_numeric(data["t_s"], errors="coerce").to_numpy(float)
+            name = "t_s" if j is None else internal_name(key, j)
+            out[name], file_column[name] = df[col], col
+    # a cell that is not a number named by the file's own column (the run's name for it, q_3, is not in the file)
+    data = as_numbers(pd.DataFrame(out), path, "data row", file_column.get)
+    t = data["t_s"].to_numpy(float)
     if np.isfinite(t).any():
         data["t_s"] = t - t[np.isfinite(t)][0]
     if opts.rate_hz is None:
