@@ -195,7 +195,7 @@ def next_experiment(diag, data, data_path: Path, out_dir: Path, seed: int = 0) -
     except ValueError as exc:       # no candidate within the limits at this q0: said, no spec written
         return {"spec": None, "why": f"no run designed to tell a payload from link errors: {exc} at the run's q0"}
     sep, orig_sep = float(nr.separation["separation"]), float(nr.original["separation"])
-    named = "the payload is named on the declared link accuracy, but " if dec and dec["outcome"] == "payload" else ""
+    named = "the payload is named on the declared link accuracy, but " if dec and dec.get("grey_zone") else ""
     why = (f"{named}the run cannot tell a {cone['mass_kg']:.2g} kg wrist payload from link errors within "
            f"{WIDE_PRIOR:g} times the declared accuracy (separation {orig_sep:.2g} noise floors of {noise:.3g} N m); "
            f"moving joints {', '.join(str(j + 1) for j in nr.trajectory.moving)} their predicted torques differ by "
