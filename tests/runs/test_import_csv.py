@@ -167,6 +167,15 @@ def test_an_imported_subset_exports_and_imports_again_as_it_was_logged(tmp_path)
     assert np.array_equal(again["q_4_rad"].to_numpy(), df["pos4"].to_numpy())
 
 
+def test_a_header_without_rows_names_the_file(tmp_path):
+    """A CSV of its header only said 'error: the time stamps never advance', naming no file."""
+    src = tmp_path / "lab.csv"
+    lab_csv(src, [2, 4]).iloc[:0].to_csv(src, index=False)
+    r = run_cli("import", src, "--format", "csv", "--columns", MAP, "--robot", "wam7", "--joints", "2,4",
+                "--torque", "total", "--out", tmp_path / "runs")
+    assert one_error_line(r).endswith(f"{src}: the time stamps never advance (0 of them): no sample rate")
+
+
 def test_a_folder_that_is_no_run_says_what_a_run_is(tmp_path):
     """`diagnose configs` said 'not a wamctl run directory (no manifest.json)', though a measured-run directory
     (meta.yaml) is taken too; a path that is not there said 'not a directory'."""

@@ -129,11 +129,13 @@ def resolve_joints(opts: ImportOptions, n_values: int, where: str) -> list[int]:
     return list(range(1, n + 1))
 
 
-def median_rate_hz(t_s: np.ndarray) -> float:
+def median_rate_hz(t_s: np.ndarray, source) -> float:
+    """The sample rate from the median interval of the stamps ``t_s`` (s), or DataFormatError naming ``source`` when
+    they never advance (a file of one row or none, or one stamp repeated)."""
     dt = np.diff(t_s)
     dt = dt[dt > 0]
     if not len(dt):
-        raise DataFormatError("the time stamps never advance")
+        raise DataFormatError(f"{source}: the time stamps never advance ({len(t_s)} of them): no sample rate")
     return float(f"{1.0 / np.median(dt):.3g}")    # 3 digits: a logger's nominal rate under jittered stamps
 
 

@@ -65,7 +65,7 @@ def read(path: Path, opts: ImportOptions) -> Imported:
     if np.isfinite(t).any():
         data["t_s"] = t - t[np.isfinite(t)][0]
     if opts.rate_hz is None:
-        rate = median_rate_hz(t[np.isfinite(t)])
+        rate = median_rate_hz(t[np.isfinite(t)], path)
         note = f"time: column {cmap['t']}, from {t[0]:.6g} s; sample rate {rate:g} Hz from its median interval"
     else:
         rate = float(opts.rate_hz)

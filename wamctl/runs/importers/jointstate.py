@@ -109,7 +109,7 @@ def _table(records: list[dict], opts: ImportOptions, source: str, unit: str) -> 
             out[internal_name(FIELDS[f], j)] = values[f][:, i]
     notes = []
     if opts.rate_hz is None:
-        rate = median_rate_hz(t)
+        rate = median_rate_hz(t, source)
         notes.append(f"time: the stamps, from {t[0]:.6f} s; sample rate {rate:g} Hz from their median interval")
     else:
         rate = float(opts.rate_hz)

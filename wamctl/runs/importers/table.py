@@ -74,7 +74,7 @@ def read(path: Path, opts: ImportOptions) -> Imported:
                     " by their stamps")
     data = pd.DataFrame({"t_s": t - t[0], **out})
     if opts.rate_hz is None:
-        rate = median_rate_hz(t)
+        rate = median_rate_hz(t, path)
         note = (f"time: column t (stamps), from {t[0]:.10g} s, {t[-1] - t[0]:.4g} s long; sample rate {rate:g} Hz "
                 f"from their median interval{gaps}")
     else:
